@@ -1,0 +1,1 @@
+"""Annotation of X-ray images: landmarks, contours and semi-automatic tools."""

@@ -1,0 +1,190 @@
+"""The statistical shape model: a mean shape plus linear modes of deformation.
+
+A shape instance is ``mean + sum_i w_i * modes[i]`` in the model's own (object) frame, in mm.
+Modes are stored scaled so that the weights are in units of standard deviations when the model
+was learned by PCA (see :mod:`biplanar_reg.ssm`); the solvers' prior ``sum w_i^2`` relies on it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from .._validate import as_array
+
+__all__ = ["ShapeModel"]
+
+_FORMAT = "biplanar-reg/ssm@1"
+
+
+class ShapeModel:
+    """A point-distribution shape model.
+
+    Parameters
+    ----------
+    mean : (N, 3) array
+        Mean shape, mm, in the model (object) frame.
+    modes : (M, N, 3) array
+        Deformation modes, mm per unit weight. ``M`` may be 0.
+    faces : (F, 3) int array, optional
+        Triangles over the N vertices (a surface model); ``None`` for a point model.
+    variances : (M,) array, optional
+        Variance explained by each mode (as learned); informative only.
+    landmarks : mapping of str to int, optional
+        Landmark name -> vertex index.
+    """
+
+    def __init__(
+        self,
+        mean: object,
+        modes: object,
+        faces: object | None = None,
+        variances: object | None = None,
+        landmarks: Mapping[str, int] | None = None,
+    ) -> None:
+        self.mean = as_array("mean", mean, (None, 3))
+        n = len(self.mean)
+        if n == 0:
+            raise ValueError("mean: the model has no vertices")
+        modes_arr = np.asarray(modes, dtype=float)
+        if modes_arr.size == 0:
+            modes_arr = np.zeros((0, n, 3))
+        if modes_arr.ndim != 3 or modes_arr.shape[1:] != (n, 3):
+            raise ValueError(
+                f"modes: expected shape (M, {n}, 3) to match mean {self.mean.shape}, "
+                f"got {modes_arr.shape}"
+            )
+        self.modes = as_array("modes", modes_arr, (None, n, 3))
+        self.faces = None
+        if faces is not None:
+            f = as_array("faces", faces, (None, 3), dtype=int)
+            if f.size and (f.min() < 0 or f.max() >= n):
+                raise ValueError(f"faces: vertex index out of range [0, {n}) (max {f.max()})")
+            self.faces = f
+        self.variances = None
+        if variances is not None:
+            v = as_array("variances", variances, (self.n_modes,))
+            if np.any(v < 0):
+                raise ValueError("variances: must be non-negative")
+            self.variances = v
+        self.landmarks: dict[str, int] = {}
+        for name, idx in dict(landmarks or {}).items():
+            self.add_landmark(name, idx)
+
+    # -- properties -----------------------------------------------------------------------------
+    @property
+    def n_vertices(self) -> int:
+        """Number of model points N."""
+        return len(self.mean)
+
+    @property
+    def n_modes(self) -> int:
+        """Number of deformation modes M."""
+        return len(self.modes)
+
+    @property
+    def size(self) -> float:
+        """RMS distance of the mean's points from their centroid, mm (a scale for tolerances)."""
+        c = self.mean - self.mean.mean(axis=0)
+        return float(np.sqrt(np.mean(np.sum(c * c, axis=1))))
+
+    def __repr__(self) -> str:
+        kind = "mesh" if self.faces is not None else "points"
+        return (
+            f"ShapeModel(N={self.n_vertices}, M={self.n_modes}, {kind}, "
+            f"landmarks={len(self.landmarks)})"
+        )
+
+    # -- evaluation -----------------------------------------------------------------------------
+    def check_weights(self, weights: object) -> np.ndarray:
+        """Validate a weight vector (M,)."""
+        return as_array("weights", weights, (self.n_modes,))
+
+    def instance(self, weights: object | None = None) -> np.ndarray:
+        """Shape for the given weights (M,) (default: the mean), (N, 3) mm in the model frame."""
+        if weights is None:
+            return self.mean.copy()
+        w = self.check_weights(weights)
+        return self.mean + np.tensordot(w, self.modes, axes=1)
+
+    def check_vertex_ids(self, vertex_ids: object, name: str = "vertex_ids") -> np.ndarray:
+        """Validate vertex indices (K,) against the model's vertex count."""
+        ids = as_array(name, vertex_ids, (None,), dtype=int)
+        if ids.size and (ids.min() < 0 or ids.max() >= self.n_vertices):
+            bad = ids[(ids < 0) | (ids >= self.n_vertices)]
+            raise ValueError(
+                f"{name}: index {int(bad[0])} out of range for a model with "
+                f"{self.n_vertices} vertices"
+            )
+        return ids
+
+    def add_landmark(self, name: str, vertex_id: int) -> None:
+        """Name a model vertex as a landmark."""
+        if not isinstance(name, str) or not name:
+            raise ValueError(f"landmarks: name must be a non-empty string, got {name!r}")
+        (idx,) = self.check_vertex_ids([vertex_id], name=f"landmarks[{name!r}]")
+        self.landmarks[name] = int(idx)
+
+    def landmark_ids(self, names: list[str]) -> np.ndarray:
+        """Vertex ids of the named landmarks; unknown names raise ``ValueError``."""
+        missing = [n for n in names if n not in self.landmarks]
+        if missing:
+            known = ", ".join(sorted(self.landmarks)) or "none"
+            raise ValueError(f"landmarks {missing} are not in the model (known: {known})")
+        return np.array([self.landmarks[n] for n in names], dtype=np.int64)
+
+    # -- I/O ------------------------------------------------------------------------------------
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the model to ``path`` as ``.npz`` (no pickles), atomically."""
+        path = Path(path)
+        arrays: dict[str, np.ndarray] = {
+            "format": np.array(_FORMAT),
+            "mean": self.mean,
+            "modes": self.modes,
+            "landmarks_json": np.array(json.dumps(self.landmarks, sort_keys=True)),
+        }
+        if self.faces is not None:
+            arrays["faces"] = self.faces
+        if self.variances is not None:
+            arrays["variances"] = self.variances
+        tmp = path.with_name(path.name + ".part")
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, **arrays)
+        os.replace(tmp, path)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> ShapeModel:
+        """Read a model written by :meth:`save`; errors name the file and the key."""
+        path = Path(path)
+        try:
+            data = np.load(path, allow_pickle=False)
+        except FileNotFoundError:
+            raise ValueError(f"{path}: file not found") from None
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"{path}: not a readable .npz shape model ({exc})") from None
+        with data:
+            keys = set(data.files)
+            for key in ("mean", "modes"):
+                if key not in keys:
+                    raise ValueError(f"{path}: missing key {key!r} (keys: {sorted(keys)})")
+            fmt = str(data["format"]) if "format" in keys else _FORMAT
+            if fmt != _FORMAT:
+                raise ValueError(f"{path}: format {fmt!r} is not {_FORMAT!r}")
+            try:
+                landmarks = json.loads(str(data["landmarks_json"])) if "landmarks_json" in keys else {}
+            except json.JSONDecodeError as exc:
+                raise ValueError(f"{path}: key 'landmarks_json' is not valid JSON ({exc})") from None
+            try:
+                return cls(
+                    data["mean"],
+                    data["modes"],
+                    faces=data["faces"] if "faces" in keys else None,
+                    variances=data["variances"] if "variances" in keys else None,
+                    landmarks=landmarks,
+                )
+            except ValueError as exc:
+                raise ValueError(f"{path}: {exc}") from None
