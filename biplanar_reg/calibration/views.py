@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validate import as_array, check_positive, check_rotation
+from .pinhole import as_distortion, pixels_to_normalized, project_camera_points
 
 __all__ = [
     "View",
@@ -76,6 +77,9 @@ class View:
     image_size: tuple[int, int] | None = None
     name: str = ""
 
+    #: the projection kind, as named in the native JSON ("perspective", ...)
+    kind = "abstract"
+
     def __post_init__(self) -> None:
         object.__setattr__(self, "R", check_rotation("R", self.R))
         object.__setattr__(self, "t", as_array("t", self.t, (3,)))
@@ -124,17 +128,27 @@ class View:
 
 @dataclass(frozen=True, eq=False, kw_only=True)
 class PerspectiveView(View):
-    """A pinhole (point-source) X-ray view.
+    """A pinhole (point-source) X-ray view, optionally with lens/intensifier distortion.
 
     ``K`` is the 3x3 camera matrix in pixels; the X-ray source is the camera centre
     ``C = -R.T @ t`` and the detector lies at depth ``K[0,0] * pixel spacing`` in front of it.
+    A negative ``K[0,0]`` describes a mirrored readout (see the DICOM reader).
+
+    ``distortion`` holds the OpenCV coefficients ``(k1, k2, p1, p2, k3, k4, k5, k6)`` (4 or 5
+    are accepted and padded with zeros; all zeros is stored as ``None``). ``project`` distorts
+    normalised coordinates before applying ``K``; ``rays`` undistorts pixels exactly (Newton)
+    before back-projection, so the two stay exact inverses (see :mod:`.pinhole`).
     """
 
     K: np.ndarray
+    distortion: np.ndarray | None = None
+
+    kind = "perspective"
 
     def __post_init__(self) -> None:
         super().__post_init__()
         object.__setattr__(self, "K", _check_intrinsics(self.K, orthographic=False))
+        object.__setattr__(self, "distortion", as_distortion(self.distortion))
 
     @property
     def centre(self) -> np.ndarray:
@@ -146,9 +160,14 @@ class PerspectiveView(View):
         """Unit direction of the optical axis (camera +z) in the world frame."""
         return self.R[2].copy()
 
+    @property
+    def projection_matrix(self) -> np.ndarray:
+        """The 3x4 matrix ``K @ [R | t]`` (world mm -> homogeneous pixels, no distortion)."""
+        return self.K @ np.column_stack([self.R, self.t])
+
     def _rays_camera(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        h = np.column_stack([uv, np.ones(len(uv))])
-        dc = np.linalg.solve(self.K, h.T).T
+        xy = pixels_to_normalized(uv, self.K, self.distortion)
+        dc = np.column_stack([xy, np.ones(len(uv))])
         return np.zeros_like(dc), dc
 
     def project(self, X: object) -> np.ndarray:
@@ -157,8 +176,7 @@ class PerspectiveView(View):
         if np.any(z <= 0):
             bad = np.flatnonzero(z <= 0)[:10].tolist()
             raise ValueError(f"X: point(s) {bad} lie behind the source of view {self.name!r}")
-        h = Xc @ self.K.T
-        return h[:, :2] / h[:, 2:3]
+        return project_camera_points(Xc, self.K, self.distortion)
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -170,6 +188,8 @@ class OrthographicView(View):
     """
 
     K: np.ndarray
+
+    kind = "orthographic"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -216,6 +236,8 @@ class SlotScanningView(View):
     cu: float = 0.0
     cv: float = 0.0
     row_pitch: float = 1.0
+
+    kind = "slot_scanning"
 
     def __post_init__(self) -> None:
         super().__post_init__()
