@@ -1,5 +1,26 @@
 """Shape models: the SSM itself, templates, populations and model building."""
 
+from .build import affine_fractions, build_ssm, explained_fractions, procrustes_align
+from .dense import densify
+from .harmonic import BoxCage, box_cage, harmonic_coordinates
 from .model import ShapeModel
+from .population import FAMILIES, Population, synthesise_population
+from .template import BoneSurface, bone_surface, segment_bone
 
-__all__ = ["ShapeModel"]
+__all__ = [
+    "FAMILIES",
+    "BoneSurface",
+    "BoxCage",
+    "Population",
+    "ShapeModel",
+    "affine_fractions",
+    "bone_surface",
+    "box_cage",
+    "build_ssm",
+    "densify",
+    "explained_fractions",
+    "harmonic_coordinates",
+    "procrustes_align",
+    "segment_bone",
+    "synthesise_population",
+]

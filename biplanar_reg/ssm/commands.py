@@ -1,0 +1,338 @@
+"""CLI groups ``template``, ``population`` and ``ssm`` (see docs/ssm.md)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..cli import CommandError
+from ..io.atomic import atomic_path
+from ..io.meshes import MESH_SUFFIXES, check_manifold, read_mesh, write_mesh
+from ..io.volumes import read_volume
+from .build import affine_fractions, build_ssm, explained_fractions
+from .dense import densify
+from .inputs import read_landmarks, read_shapes
+from .model import ShapeModel
+from .population import FAMILIES, synthesise_population
+from .template import bone_surface
+
+log = logging.getLogger(__name__)
+
+#: Affine fraction above which a mode is flagged as affine-like (see :mod:`.build`).
+AFFINE_WARNING = 0.9
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``template``, ``population`` and ``ssm`` command groups."""
+    tpl = subparsers.add_parser("template", help="bone templates from CT volumes")
+    tsub = tpl.add_subparsers(dest="template_command", metavar="COMMAND", required=True)
+    p = tsub.add_parser("from-ct", help="CT volume (DICOM folder, TIFF stack, .npy) -> bone mesh")
+    p.add_argument("volume", help="DICOM series folder, multi-page .tif/.tiff, or .npy (K, J, I)")
+    p.add_argument("-o", "--output", required=True, help=f"mesh file ({', '.join(MESH_SUFFIXES)})")
+    p.add_argument(
+        "--voxel-size",
+        nargs=3,
+        type=float,
+        metavar=("X", "Y", "Z"),
+        help="voxel spacing (column, row, slice) in mm; required for TIFF and NPY",
+    )
+    p.add_argument(
+        "--threshold",
+        type=float,
+        help="bone threshold in the volume's units (default: 300 HU for DICOM CT, Otsu otherwise)",
+    )
+    p.add_argument(
+        "--target-vertices",
+        type=int,
+        default=4000,
+        help="decimate to about this many vertices; 0 keeps all (default 4000)",
+    )
+    p.add_argument(
+        "--smooth-iterations",
+        type=int,
+        default=20,
+        help="windowed-sinc smoothing iterations, 0 = none (default 20)",
+    )
+    p.add_argument(
+        "--no-slice-fill",
+        action="store_true",
+        help="fill enclosed holes in 3-D only, not also slice by slice",
+    )
+    p.add_argument(
+        "--series",
+        help="SeriesNumber or SeriesInstanceUID to read from a folder with several series",
+    )
+    p.set_defaults(func=_cmd_from_ct)
+
+    pop = subparsers.add_parser("population", help="synthetic shape populations")
+    psub = pop.add_subparsers(dest="population_command", metavar="COMMAND", required=True)
+    p = psub.add_parser("synth", help="harmonic-deformation population of a template mesh")
+    p.add_argument("template", help="template mesh or point file")
+    p.add_argument("-o", "--output", required=True, help="output folder (created if needed)")
+    p.add_argument("--size", type=int, default=9, help="number of shapes (default 9)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument(
+        "--families",
+        default=",".join(FAMILIES),
+        help=f"comma-separated deformation families (default {','.join(FAMILIES)})",
+    )
+    p.add_argument(
+        "--strength",
+        type=float,
+        default=1.0,
+        help="multiplier of all deformation magnitudes (default 1)",
+    )
+    p.add_argument(
+        "--format",
+        default="ply",
+        choices=[s[1:] for s in MESH_SUFFIXES],
+        help="output file format (default ply)",
+    )
+    p.set_defaults(func=_cmd_synth)
+
+    ssm = subparsers.add_parser("ssm", help="statistical shape models")
+    ssub = ssm.add_subparsers(dest="ssm_command", metavar="COMMAND", required=True)
+    p = ssub.add_parser("build", help="PCA shape model from shapes in correspondence")
+    p.add_argument("inputs", nargs="+", help="mesh/point files or folders of them")
+    p.add_argument("-o", "--output", required=True, help="model file (.npz)")
+    group = p.add_mutually_exclusive_group()
+    group.add_argument("--modes", type=int, help="number of modes to keep")
+    group.add_argument(
+        "--variance",
+        type=float,
+        default=0.98,
+        help="explained-variance fraction to keep (default 0.98)",
+    )
+    p.add_argument(
+        "--align",
+        choices=["rigid", "similarity", "none"],
+        default="rigid",
+        help="generalised Procrustes alignment before PCA (default rigid)",
+    )
+    p.add_argument("--landmarks", help='JSON file {"name": vertex index}')
+    p.set_defaults(func=_cmd_build)
+
+    p = ssub.add_parser("info", help="modes, variances and affine fractions of a model")
+    p.add_argument("model", help="model file (.npz)")
+    p.set_defaults(func=_cmd_info)
+
+    p = ssub.add_parser("densify", help="add interior points that deform barycentrically")
+    p.add_argument("model", help="surface model file (.npz)")
+    p.add_argument("-o", "--output", required=True, help="dense point model file (.npz)")
+    p.add_argument(
+        "--points", type=int, default=20000, help="number of interior points (default 20000)"
+    )
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.set_defaults(func=_cmd_densify)
+
+
+def _emit(args: argparse.Namespace, result: dict, lines: list[str]) -> None:
+    if getattr(args, "json", False):
+        print(json.dumps(result, indent=2))
+    else:
+        print("\n".join(lines))
+
+
+def _npz_path(path: str) -> Path:
+    out = Path(path)
+    if out.suffix.lower() != ".npz":
+        raise ValueError(f"{out}: the model file must end in .npz")
+    return out
+
+
+def _cmd_from_ct(args: argparse.Namespace) -> int:
+    t0 = time.perf_counter()
+    volume = read_volume(args.volume, voxel_size=args.voxel_size, series=args.series)
+    try:
+        surface = bone_surface(
+            volume,
+            threshold=args.threshold,
+            target_vertices=args.target_vertices or None,
+            smooth_iterations=args.smooth_iterations,
+            fill_slices=not args.no_slice_fill,
+        )
+    except RuntimeError as exc:  # a surface check failed: a failure, not bad input
+        raise CommandError(str(exc)) from None
+    write_mesh(args.output, surface.vertices, surface.faces)
+    seconds = time.perf_counter() - t0
+    result = {
+        "output": str(args.output),
+        "vertices": len(surface.vertices),
+        "faces": len(surface.faces),
+        "threshold": surface.threshold,
+        "threshold_units": volume.units,
+        "volume_mm3": surface.volume_mm3,
+        "segmented_volume_mm3": surface.segmented_mm3,
+        "decimated": surface.decimated,
+        "closed": True,
+        "components": 1,
+        "seconds": seconds,
+    }
+    lines = [
+        f"wrote {args.output}: {len(surface.vertices)} vertices, {len(surface.faces)} faces, "
+        "closed, 1 component",
+        f"threshold {surface.threshold:.6g} {volume.units}; enclosed volume "
+        f"{surface.volume_mm3:.1f} mm^3 (segmentation {surface.segmented_mm3:.1f} mm^3); "
+        f"{seconds:.2f} s",
+    ]
+    _emit(args, result, lines)
+    return 0
+
+
+def _cmd_synth(args: argparse.Namespace) -> int:
+    t0 = time.perf_counter()
+    vertices, faces = read_mesh(args.template)
+    if faces is not None:
+        check_manifold(faces, name=str(args.template))
+    if faces is None and args.format == "stl":
+        raise ValueError(f"{args.template}: a point template cannot be written as STL")
+    if faces is not None and args.format in ("csv", "npy"):
+        raise ValueError(f"--format {args.format}: stores points only; the template has faces")
+    families = [f.strip() for f in args.families.split(",") if f.strip()]
+    pop = synthesise_population(
+        vertices, args.size, seed=args.seed, families=families, strength=args.strength
+    )
+    out = Path(args.output)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out}: exists and is not a folder (-o takes an output folder)")
+    out.mkdir(parents=True, exist_ok=True)
+    names = []
+    for i, shape in enumerate(pop.shapes):
+        name = f"shape_{i:03d}.{args.format}"
+        write_mesh(out / name, shape, faces)
+        names.append(name)
+    rms = np.sqrt(np.mean(np.sum((pop.shapes - vertices) ** 2, axis=2), axis=1))
+    manifest = {
+        "format": "biplanar-reg/population@1",
+        "template": str(args.template),
+        "size": args.size,
+        "seed": args.seed,
+        "families": families,
+        "strength": args.strength,
+        "cage_divisions": pop.cage.divisions.tolist(),
+        "cage_vertices": len(pop.cage.lattice),
+        "shapes": [
+            {"file": n, "rms_from_template_mm": float(r), "parameters": p}
+            for n, r, p in zip(names, rms, pop.parameters, strict=True)
+        ],
+    }
+    with atomic_path(out / "population.json") as tmp:
+        tmp.write_text(json.dumps(manifest, indent=2))
+    seconds = time.perf_counter() - t0
+    result = {
+        "output": str(out),
+        "files": names,
+        "seconds": seconds,
+        "rms_from_template_mm": rms.tolist(),
+    }
+    lines = [
+        f"wrote {len(names)} shapes ({len(vertices)} vertices each) and population.json to {out}",
+        f"RMS distance from the template: {rms.min():.2f} .. {rms.max():.2f} mm; {seconds:.2f} s",
+    ]
+    _emit(args, result, lines)
+    return 0
+
+
+def _mode_report(model: ShapeModel) -> tuple[list[dict], list[str]]:
+    frac = explained_fractions(model)
+    aff = affine_fractions(model)
+    rows = []
+    lines = ["mode  variance_mm2  rms_1sd_mm  explained  cumulative  affine_fraction"]
+    cumulative = 0.0
+    for i in range(model.n_modes):
+        cumulative += frac[i]
+        var = float(model.variances[i]) if model.variances is not None else float("nan")
+        # Per-vertex RMS displacement of a +1 SD step along the mode: a size people can read.
+        rms = float(np.sqrt(np.mean(np.sum(model.modes[i] ** 2, axis=1))))
+        rows.append(
+            {
+                "mode": i,
+                "variance_mm2": var,
+                "rms_1sd_mm": rms,
+                "explained": float(frac[i]),
+                "affine_fraction": float(aff[i]),
+            }
+        )
+        flag = "  affine-like" if aff[i] > AFFINE_WARNING else ""
+        lines.append(
+            f"{i:4d}  {var:12.4g}  {rms:10.3f}  {frac[i]:9.3f}  {cumulative:10.3f}  "
+            f"{aff[i]:15.3f}{flag}"
+        )
+    if np.any(aff > AFFINE_WARNING):
+        lines.append(
+            f"note: modes with affine fraction > {AFFINE_WARNING} are near scaling/shear maps of "
+            "the mean; the convex relaxation may not be tight (rounding + local refinement needed)"
+        )
+    return rows, lines
+
+
+def _cmd_build(args: argparse.Namespace) -> int:
+    out = _npz_path(args.output)
+    shapes, faces, files = read_shapes(args.inputs)
+    landmarks = read_landmarks(args.landmarks) if args.landmarks else None
+    try:
+        model = build_ssm(
+            shapes,
+            faces,
+            n_modes=args.modes,
+            variance=args.variance,
+            align=args.align,
+            landmarks=landmarks,
+        )
+    except ValueError as exc:
+        if args.landmarks and "landmarks" in str(exc):
+            raise ValueError(f"{args.landmarks}: {exc}") from None
+        raise
+    model.save(out)
+    rows, lines = _mode_report(model)
+    header = (
+        f"wrote {out}: {model.n_vertices} vertices, {model.n_modes} modes from {len(files)} "
+        f"shapes ({'mesh' if faces is not None else 'points'}, align {args.align})"
+    )
+    _emit(
+        args,
+        {
+            "output": str(out),
+            "shapes": [str(f) for f in files],
+            "n_vertices": model.n_vertices,
+            "modes": rows,
+        },
+        [header, *lines],
+    )
+    return 0
+
+
+def _cmd_info(args: argparse.Namespace) -> int:
+    model = ShapeModel.load(args.model)
+    rows, lines = _mode_report(model)
+    header = f"{args.model}: {model!r}, size (RMS radius) {model.size:.2f} mm"
+    _emit(
+        args,
+        {"model": str(args.model), "n_vertices": model.n_vertices, "modes": rows},
+        [header, *lines],
+    )
+    return 0
+
+
+def _cmd_densify(args: argparse.Namespace) -> int:
+    out = _npz_path(args.output)
+    model = ShapeModel.load(args.model)
+    try:
+        dense, _ = densify(model, args.points, seed=args.seed)
+    except ValueError as exc:
+        raise ValueError(f"{args.model}: {exc}") from None
+    dense.save(out)
+    _emit(
+        args,
+        {"output": str(out), "n_points": dense.n_vertices},
+        [
+            f"wrote {out}: {dense.n_vertices} points ({model.n_vertices} surface + "
+            f"{dense.n_vertices - model.n_vertices} interior), {dense.n_modes} modes"
+        ],
+    )
+    return 0

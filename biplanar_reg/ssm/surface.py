@@ -1,0 +1,40 @@
+"""Small triangle-mesh measurements on numpy arrays (volume, closedness, components)."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse.csgraph import connected_components
+
+__all__ = ["count_components", "is_closed_manifold", "signed_volume"]
+
+
+def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Enclosed volume of a closed triangle mesh, mm^3; positive when faces point outward."""
+    v = np.asarray(vertices, dtype=float)
+    tri = v[np.asarray(faces, dtype=np.int64)]
+    return float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6.0)
+
+
+def is_closed_manifold(faces: np.ndarray) -> bool:
+    """True when every directed edge appears once and its reverse once (watertight, oriented)."""
+    f = np.asarray(faces, dtype=np.int64)
+    if f.size == 0:
+        return False
+    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    n = int(f.max()) + 1
+    key = directed[:, 0] * n + directed[:, 1]
+    reverse = directed[:, 1] * n + directed[:, 0]
+    if len(np.unique(key)) != len(key):
+        return False
+    return bool(np.all(np.isin(reverse, key)))
+
+
+def count_components(n_vertices: int, faces: np.ndarray) -> int:
+    """Number of edge-connected components among the vertices used by ``faces``."""
+    f = np.asarray(faces, dtype=np.int64)
+    rows = np.concatenate([f[:, 0], f[:, 1], f[:, 2]])
+    cols = np.concatenate([f[:, 1], f[:, 2], f[:, 0]])
+    graph = sparse.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_vertices, n_vertices))
+    _, labels = connected_components(graph, directed=False)
+    return len(np.unique(labels[np.unique(f)]))
