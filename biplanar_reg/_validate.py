@@ -44,8 +44,10 @@ def as_array(
         raise ValueError(f"{name}: cannot be read as a numeric array ({exc})") from None
     if dtype is int:
         if arr.size and not np.issubdtype(arr.dtype, np.integer):
-            if not np.issubdtype(arr.dtype, np.number) or not np.all(np.isfinite(arr)) or np.any(
-                arr != np.round(arr)
+            if (
+                not np.issubdtype(arr.dtype, np.number)
+                or not np.all(np.isfinite(arr))
+                or np.any(arr != np.round(arr))
             ):
                 raise ValueError(f"{name}: expected integer values, got dtype {arr.dtype}")
         arr = arr.astype(np.int64)

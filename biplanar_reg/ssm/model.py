@@ -175,9 +175,13 @@ class ShapeModel:
             if fmt != _FORMAT:
                 raise ValueError(f"{path}: format {fmt!r} is not {_FORMAT!r}")
             try:
-                landmarks = json.loads(str(data["landmarks_json"])) if "landmarks_json" in keys else {}
+                landmarks = (
+                    json.loads(str(data["landmarks_json"])) if "landmarks_json" in keys else {}
+                )
             except json.JSONDecodeError as exc:
-                raise ValueError(f"{path}: key 'landmarks_json' is not valid JSON ({exc})") from None
+                raise ValueError(
+                    f"{path}: key 'landmarks_json' is not valid JSON ({exc})"
+                ) from None
             try:
                 return cls(
                     data["mean"],

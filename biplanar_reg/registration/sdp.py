@@ -1,0 +1,397 @@
+"""The known-pose G-SfT semidefinite program, compiled once and re-solved with new data.
+
+Problem (all coordinates already centred and scaled to unit object size by the caller)::
+
+    minimise    eps * tr(Delta) + sum_j a_j * || (V_j - C_j) x d_j ||_1
+    subject to  V_j = R mean_j + sum_i (w_i R) P_ij + t        (linear in Delta, t)
+                rotation rows of Delta (see ``lifting.rotation_constraints``)
+                Delta PSD
+
+It is written for Clarabel's conic form ``min q'x  s.t.  A x + s = b, s in cones`` with the
+variables ``x = (svec Delta, t, V_1..V_K, e_1..e_K)``: the world points ``V_j`` are explicit
+(3 equality rows each, ``4 + 3M`` non-zeros per row) and ``e_j`` bounds ``|(V_j - C_j) x d_j|``
+component-wise (two inequality rows each, three non-zeros per row); one more inequality row per
+observation keeps its point in front of the ray origin, ``(V_j - C_j) . d_j >= min_depth``.
+Keeping the points explicit keeps the constraint matrix sparse (about ``K * (9M + 30)``
+non-zeros instead of ``K * (18M + 30)`` for the substituted form), which is what keeps the KKT
+factorisation affordable.
+
+The sparsity pattern depends only on ``(K, M)``, so :class:`KnownPoseSDP` assembles it once and
+each :meth:`KnownPoseSDP.solve` only refreshes the numbers (Clarabel's ``update``, which skips the
+symbolic factorisation). Explicit zeros are kept so that the pattern never changes.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import clarabel
+import numpy as np
+import scipy.sparse as sp
+
+from .ipm import dense_kkt_factor, skron
+from .lifting import (
+    gram_size,
+    point_map_pattern,
+    rotation_constraints,
+    svec_index,
+    svec_size,
+    svec_to_matrix,
+)
+from .rotations import skew
+
+__all__ = ["KnownPoseSDP", "KnownPoseIPM", "SdpSolution", "SolverFailure"]
+
+
+class SolverFailure(RuntimeError):
+    """The conic solver did not return a usable solution (infeasible, numerical trouble)."""
+
+
+@dataclass(frozen=True)
+class SdpSolution:
+    """Raw solution of one SDP solve, in the solver's (scaled) units."""
+
+    gram: np.ndarray  # (10+M, 10+M)
+    translation: np.ndarray  # (3,)
+    points: np.ndarray  # (K, 3) world points V_j
+    objective: float
+    status: str
+    iterations: int
+    solve_time: float  # seconds (wall clock)
+
+
+def _cross_rows() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Row k of ``[d]_x`` has two entries: ``(col_a, sign_a * d[idx_a]), (col_b, ...)``."""
+    # [d]_x = [[0, -d2, d1], [d2, 0, -d0], [-d1, d0, 0]]
+    cols = np.array([[1, 2], [0, 2], [0, 1]])
+    didx = np.array([[2, 1], [2, 0], [1, 0]])
+    sign = np.array([[-1.0, 1.0], [1.0, -1.0], [-1.0, 1.0]])
+    return cols, didx, sign
+
+
+class KnownPoseSDP:
+    """The G-SfT SDP for ``n_obs`` observations of a model with ``n_modes`` modes.
+
+    Parameters
+    ----------
+    n_obs : int
+        Number of observations (rays) K.
+    n_modes : int
+        Number of shape modes M.
+    settings : dict, optional
+        Clarabel settings to override (e.g. ``{"tol_gap_rel": 1e-7}``).
+    """
+
+    def __init__(self, n_obs: int, n_modes: int, settings: dict | None = None) -> None:
+        self.n_obs = K = int(n_obs)
+        self.n_modes = M = int(n_modes)
+        self.n = n = gram_size(M)
+        self.nt = nt = svec_size(n)
+        self._settings = dict(settings or {})
+        # variable offsets
+        self.o_t = nt
+        self.o_v = nt + 3
+        self.o_e = nt + 3 + 3 * K
+        self.n_var = nt + 3 + 6 * K
+
+        A_rot, b_rot = rotation_constraints(n)
+        self._b_rot = b_rot
+        n_rot = A_rot.shape[0]
+        # --- V definition rows: V_jr - sum_s coef * D_js x_k - t_r = 0 -------------------------
+        kpat, cpat = point_map_pattern(M)  # (3, S)
+        S = kpat.shape[1]
+        self._kpat, self._cpat = kpat, cpat
+        jr = np.arange(3 * K)  # row index j*3 + r within the block
+        r_of = jr % 3
+        j_of = jr // 3
+        row0 = n_rot
+        vd_rows = np.concatenate([np.repeat(row0 + jr, S), row0 + jr, row0 + jr])
+        vd_cols = np.concatenate([kpat[r_of].ravel(), self.o_v + jr, self.o_t + r_of])
+        # --- |r| <= e rows -----------------------------------------------------------------------
+        cols, didx, _ = _cross_rows()
+        row1 = row0 + 3 * K
+        comp = np.arange(3)
+        jk = (np.arange(K)[:, None] * 3 + comp[None, :]).ravel()  # (3K,) j*3+k
+        k_of = jk % 3
+        j2 = jk // 3
+        ineq_rows = []
+        ineq_cols = []
+        for half in range(2):
+            rows = row1 + half * 3 * K + jk
+            ineq_rows += [rows, rows, rows]
+            ineq_cols += [
+                self.o_e + jk,
+                self.o_v + 3 * j2 + cols[k_of, 0],
+                self.o_v + 3 * j2 + cols[k_of, 1],
+            ]
+        # depth rows: s = (V_j - C_j) . d_j >= 0
+        row_d = row1 + 6 * K
+        ineq_rows.append(np.repeat(row_d + np.arange(K), 3))
+        ineq_cols.append(self.o_v + np.arange(3 * K))
+        row2 = row_d + K
+        psd_rows = row2 + np.arange(nt)
+        psd_cols = np.arange(nt)
+        rot = A_rot.tocoo()
+        all_rows = np.concatenate([rot.row, vd_rows, *ineq_rows, psd_rows])
+        all_cols = np.concatenate([rot.col, vd_cols, *ineq_cols, psd_cols])
+        self.n_con = row2 + nt
+        # permutation from our COO order to CSC data order (no duplicates by construction)
+        order = sp.csc_matrix(
+            (np.arange(1, len(all_rows) + 1, dtype=float), (all_rows, all_cols)),
+            shape=(self.n_con, self.n_var),
+        )
+        order.sort_indices()
+        if order.nnz != len(all_rows):
+            raise AssertionError("duplicate entries in the SDP pattern")
+        self._perm = order.data.astype(np.int64) - 1
+        self._A = order
+        self._static_vals = {
+            "rot": rot.data,
+            "vd_one": np.ones(3 * K),
+            "vd_t": -np.ones(3 * K),
+            "psd": -np.ones(nt),
+        }
+        self._j_of, self._r_of, self._jk, self._k_of, self._j2 = j_of, r_of, jk, k_of, j2
+        self._cones = [
+            clarabel.ZeroConeT(n_rot + 3 * K),
+            clarabel.NonnegativeConeT(7 * K),
+            clarabel.PSDTriangleConeT(n),
+        ]
+        self._n_rot = n_rot
+        diag_k, _ = svec_index(np.arange(n), np.arange(n))
+        self._diag_k = diag_k
+        self._solver: clarabel.DefaultSolver | None = None
+        self._P = sp.csc_matrix((self.n_var, self.n_var))
+
+    # ------------------------------------------------------------------------------------------
+    def _values(
+        self, D: np.ndarray, origins: np.ndarray, directions: np.ndarray, min_depth: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Data-dependent values of A (in CSC order) and b."""
+        K = self.n_obs
+        cols, didx, sign = _cross_rows()
+        vd = -(self._cpat[self._r_of] * D[self._j_of]).ravel()  # (3K*S,)
+        d = directions
+        # cross-product entries for each (j, k): sign * d_j[didx]
+        cx = sign[self._k_of] * d[self._j2[:, None], didx[self._k_of]]  # (3K, 2)
+        e_coef = -np.ones(3 * K)
+        vals = np.concatenate(
+            [
+                self._static_vals["rot"],
+                vd,
+                self._static_vals["vd_one"],
+                self._static_vals["vd_t"],
+                e_coef,
+                -cx[:, 0],
+                -cx[:, 1],
+                e_coef,
+                cx[:, 0],
+                cx[:, 1],
+                -d.ravel(),
+                self._static_vals["psd"],
+            ]
+        )
+        cxd = np.cross(origins, directions).ravel()  # (3K,) C_j x d_j
+        depth = -np.einsum("ki,ki->k", origins, directions) - min_depth
+        b = np.concatenate([self._b_rot, np.zeros(3 * K), cxd, -cxd, depth, np.zeros(self.nt)])
+        return vals[self._perm], b
+
+    def _objective(self, obs_weights: np.ndarray, eps: float) -> np.ndarray:
+        q = np.zeros(self.n_var)
+        q[self._diag_k] = eps
+        q[self.o_e :] = np.repeat(obs_weights, 3)
+        return q
+
+    def _make_settings(self) -> clarabel.DefaultSettings:
+        s = clarabel.DefaultSettings()
+        s.verbose = False
+        s.presolve_enable = False  # required for data updates
+        s.input_sparse_dropzeros = False  # keep the pattern fixed
+        for key, val in self._settings.items():
+            if not hasattr(s, key):
+                raise ValueError(f"settings: unknown Clarabel setting {key!r}")
+            setattr(s, key, val)
+        return s
+
+    def solve(
+        self,
+        D: np.ndarray,
+        origins: np.ndarray,
+        directions: np.ndarray,
+        obs_weights: np.ndarray,
+        eps: float,
+        min_depth: float = 0.0,
+    ) -> SdpSolution:
+        """Solve for new data (same K and M as at construction).
+
+        Parameters
+        ----------
+        D : (K, 3 + 3M) array
+            Per-observation model data (``lifting.point_map_values``), scaled units.
+        origins, directions : (K, 3) arrays
+            Rays in scaled world units; directions of unit length.
+        obs_weights : (K,) array
+            Weight ``a_j`` of each observation's L1 term.
+        eps : float
+            Trace weight.
+        """
+        A_data, b = self._values(D, origins, directions, min_depth)
+        q = self._objective(obs_weights, eps)
+        t0 = time.perf_counter()
+        if self._solver is None:
+            A = sp.csc_matrix((A_data, self._A.indices, self._A.indptr), shape=self._A.shape)
+            self._solver = clarabel.DefaultSolver(
+                self._P, q, A, b, self._cones, self._make_settings()
+            )
+        else:
+            self._solver.update(q=q, A=A_data, b=b)
+        sol = self._solver.solve()
+        elapsed = time.perf_counter() - t0
+        status = str(sol.status)
+        if "Solved" not in status:
+            raise SolverFailure(f"SDP solver status {status} after {sol.iterations} iterations")
+        x = np.asarray(sol.x)
+        gram = svec_to_matrix(x[: self.nt], self.n)
+        return SdpSolution(
+            gram=gram,
+            translation=x[self.o_t : self.o_t + 3].copy(),
+            points=x[self.o_v : self.o_e].reshape(self.n_obs, 3).copy(),
+            objective=float(sol.obj_val),
+            status=status,
+            iterations=int(sol.iterations),
+            solve_time=elapsed,
+        )
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (K, 3) arrays (``np.cross`` has a large per-call overhead)."""
+    out = np.empty_like(a)
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
+
+
+class KnownPoseIPM:
+    """The same SDP as :class:`KnownPoseSDP` as a structured :class:`ipm.ConicProblem`.
+
+    Variables ``x = (svec Delta, t, e)``; the world points are substituted. Constraints
+    ``e -/+ r >= 0`` with ``r_j = V_j x d_j - C_j x d_j``, the depth rows
+    ``(V_j - C_j) . d_j >= 0`` (the paper's positive-depth assumption: without them a single
+    view admits the mirror solution behind the source) and ``Delta PSD``; the rotation rows are
+    the equalities. :meth:`kkt_factor` eliminates ``e`` analytically and forms the reduced
+    matrix over ``(Delta, t)`` as ``sum_j`` of per-observation rank-3 terms with six dense
+    products of the ``(K, 4 + 3M)`` data matrix, then factors that small dense system.
+    """
+
+    def __init__(
+        self,
+        D: np.ndarray,
+        origins: np.ndarray,
+        directions: np.ndarray,
+        obs_weights: np.ndarray,
+        eps: float,
+        n_modes: int,
+        min_depth: float = 0.0,
+    ) -> None:
+        K = self.K = len(D)
+        self.n = n = gram_size(n_modes)
+        self.nt = nt = svec_size(n)
+        self.nz = nt + 3
+        self.D = D
+        self.Dt = np.column_stack([D, np.ones(K)])
+        self.d = directions
+        self.skew = skew(directions)
+        self.kpat, self.cpat = point_map_pattern(n_modes)
+        A_rot, self.b = rotation_constraints(n)
+        self.A_eq = A_rot.toarray()
+        self.A_full = np.hstack([self.A_eq, np.zeros((len(self.b), 3))])
+        self.n_lp = 7 * K
+        self.psd_sizes = (n,)
+        self.c = np.zeros(self.nz + 3 * K)
+        diag_k, _ = svec_index(np.arange(n), np.arange(n))
+        self.c[diag_k] = eps
+        self.c[self.nz :] = np.repeat(obs_weights, 3)
+        cxd = np.cross(origins, directions).ravel()
+        # depth rows: (V_j - C_j) . d_j >= min_depth, every point in front of its ray's origin
+        depth0 = np.einsum("ki,ki->k", origins, directions) + min_depth
+        self.h = np.concatenate([cxd, -cxd, -depth0, np.zeros(nt)])
+
+    # -- the linear map z = (Delta, t) -> r = V x d (without the constant) -----------------------
+    def points(self, z: np.ndarray) -> np.ndarray:
+        """World points ``V_j`` (K, 3) for ``z = (svec Delta, t)``."""
+        Y = self.cpat * z[self.kpat]  # (3, S): row r maps D_j to coordinate r
+        return self.D @ Y.T + z[self.nt : self.nt + 3]
+
+    def _B(self, z: np.ndarray) -> np.ndarray:
+        return _cross(self.points(z), self.d).ravel()
+
+    def _Vt(self, gV: np.ndarray) -> np.ndarray:
+        """Adjoint of :meth:`points`: gradient (K, 3) on the points -> gradient on ``z``."""
+        out = np.zeros(self.nz)
+        for r in range(3):
+            out[self.kpat[r]] += self.cpat[r] * (self.D.T @ gV[:, r])
+        out[self.nt :] = gV.sum(axis=0)
+        return out
+
+    def _Bt(self, v: np.ndarray) -> np.ndarray:
+        return self._Vt(_cross(self.d, v.reshape(self.K, 3)))  # d/dV of sum v . (V x d)
+
+    # -- ConicProblem -----------------------------------------------------------------------------
+    def G(self, x: np.ndarray) -> np.ndarray:
+        z = x[: self.nz]
+        V = self.points(z)
+        Bz = _cross(V, self.d).ravel()
+        e = x[self.nz :]
+        depth = np.einsum("ki,ki->k", V, self.d)
+        return np.concatenate([Bz - e, -Bz - e, -depth, -x[: self.nt]])
+
+    def Gt(self, u: np.ndarray) -> np.ndarray:
+        m = 3 * self.K
+        u1, u2 = u[:m], u[m : 2 * m]
+        u4, u3 = u[2 * m : 2 * m + self.K], u[2 * m + self.K :]
+        out = np.empty(self.nz + m)
+        gV = _cross(self.d, (u1 - u2).reshape(self.K, 3)) - u4[:, None] * self.d
+        out[: self.nz] = self._Vt(gV)
+        out[: self.nt] -= u3
+        out[self.nz :] = -(u1 + u2)
+        return out
+
+    def A(self, x: np.ndarray) -> np.ndarray:
+        return self.A_eq @ x[: self.nt]
+
+    def At(self, y: np.ndarray) -> np.ndarray:
+        out = np.zeros(self.nz + 3 * self.K)
+        out[: self.nt] = self.A_eq.T @ y
+        return out
+
+    def kkt_factor(self, d_lp: np.ndarray, psd_T: list[np.ndarray]):
+        m = 3 * self.K
+        d1, d2, d4 = d_lp[:m], d_lp[m : 2 * m], d_lp[2 * m :]
+        dsum = d1 + d2
+        omega = (4.0 * d1 * d2 / dsum).reshape(self.K, 3)
+        # sum_j B_j' diag(omega_j) B_j with B_j = -[d_j]_x applied to V_j
+        W = np.matmul(np.swapaxes(self.skew, 1, 2) * omega[:, None, :], self.skew)
+        W += d4[:, None, None] * self.d[:, :, None] * self.d[:, None, :]  # depth rows
+        H = np.zeros((self.nz, self.nz))
+        idx = [np.concatenate([self.kpat[r], [self.nt + r]]) for r in range(3)]
+        cv = [np.concatenate([self.cpat[r], [1.0]]) for r in range(3)]
+        for r in range(3):
+            for r2 in range(r, 3):
+                Mrr = (self.Dt * W[:, r, r2, None]).T @ self.Dt
+                block = cv[r][:, None] * Mrr * cv[r2][None, :]
+                H[np.ix_(idx[r], idx[r2])] += block
+                if r2 != r:
+                    H[np.ix_(idx[r2], idx[r])] += block.T
+        H[: self.nt, : self.nt] += skron(psd_T[0])
+        fac = dense_kkt_factor(H, self.A_full)
+        ratio = (d2 - d1) / dsum
+
+        def solve(bx: np.ndarray, by: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            bz, be = bx[: self.nz], bx[self.nz :]
+            z, y = fac(bz - self._Bt(ratio * be), by)
+            e = (be - (d2 - d1) * self._B(z)) / dsum
+            return np.concatenate([z, e]), y
+
+        return solve

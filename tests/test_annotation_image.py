@@ -1,0 +1,135 @@
+"""Tests of X-ray image loading (TIFF incl. the real LZW radiographs, DICOM, PNG)."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pydicom
+import pytest
+import tifffile
+from pydicom.dataset import FileDataset, FileMetaDataset
+from pydicom.uid import ExplicitVRLittleEndian, SecondaryCaptureImageStorage, generate_uid
+
+from biplanar_reg.annotation.image import as_display, load_image
+
+DATA = Path(__file__).resolve().parents[1] / "sample_cases" / "wrist_radius" / "data"
+
+
+def _write_dicom(path: Path, frames: np.ndarray, photometric: str, **extra) -> None:
+    meta = FileMetaDataset()
+    meta.MediaStorageSOPClassUID = SecondaryCaptureImageStorage
+    meta.MediaStorageSOPInstanceUID = generate_uid()
+    meta.TransferSyntaxUID = ExplicitVRLittleEndian
+    ds = FileDataset(str(path), {}, file_meta=meta, preamble=b"\0" * 128)
+    ds.SOPClassUID = meta.MediaStorageSOPClassUID
+    ds.SOPInstanceUID = meta.MediaStorageSOPInstanceUID
+    ds.PatientName = "Doe^Jane"
+    ds.PatientID = "SECRET-ID-123"
+    ds.Modality = "DX"
+    ds.SamplesPerPixel = 1
+    ds.PhotometricInterpretation = photometric
+    ds.BitsAllocated = 16
+    ds.BitsStored = 12
+    ds.HighBit = 11
+    ds.PixelRepresentation = 0
+    if frames.ndim == 3:
+        ds.NumberOfFrames = frames.shape[0]
+    ds.Rows, ds.Columns = frames.shape[-2:]
+    for key, val in extra.items():
+        setattr(ds, key, val)
+    ds.PixelData = frames.astype(np.uint16).tobytes()
+    ds.save_as(path, enforce_file_format=True)
+
+
+def test_real_lzw_radiograph_loads_bone_dark_on_bright():
+    im = load_image(DATA / "cam01_frame0099.tif")
+    assert im.size == (1760, 1760)
+    assert im.file_format == "tiff"
+    assert im.pixels.dtype == np.float64 and im.display.dtype == np.float32
+    assert 0.0 <= im.display.min() and im.display.max() <= 1.0
+    # the forearm (bone + soft tissue) near the bottom centre is darker than the open field
+    forearm = im.display[1400:1500, 760:820].mean()
+    field = im.display[1400:1500, 1200:1300].mean()
+    assert forearm < 0.6 * field
+
+
+def test_multipage_tiff_frame_choice(tmp_path):
+    stack = np.stack([np.full((8, 10), k * 100, np.uint16) for k in range(3)])
+    stack[:, 0, 0] = 0
+    path = tmp_path / "stack.tif"
+    tifffile.imwrite(path, stack, compression="lzw", photometric="minisblack")
+    im = load_image(path, frame=2)
+    assert im.n_frames == 3 and im.frame == 2
+    assert im.pixels[5, 5] == 200
+    with pytest.raises(ValueError, match=r"frame 3 out of range .*3 frame"):
+        load_image(path, frame=3)
+
+
+def test_dicom_monochrome1_window_and_no_identifiers(tmp_path, caplog):
+    frames = np.zeros((2, 6, 8), np.uint16)
+    frames[0] = 1000
+    frames[1] = np.arange(48, dtype=np.uint16).reshape(6, 8) * 50
+    path = tmp_path / "xray.dcm"
+    _write_dicom(
+        path,
+        frames,
+        "MONOCHROME1",
+        WindowCenter=1200,
+        WindowWidth=801,
+        RescaleSlope=1,
+        RescaleIntercept=0,
+    )
+    caplog.set_level(logging.DEBUG)
+    im = load_image(path, frame=1)
+    assert im.file_format == "dicom" and im.n_frames == 2 and im.frame == 1
+    assert im.photometric == "MONOCHROME1"
+    np.testing.assert_array_equal(im.pixels, frames[1].astype(float))
+    # window 800..1600 (DICOM linear rule), then inverted: high values are dark
+    lo, hi = 1200 - 0.5 - 400, 1200 - 0.5 + 400
+    expect = 1.0 - np.clip((frames[1] - lo) / (hi - lo), 0, 1)
+    np.testing.assert_allclose(im.display, expect, atol=1e-6)
+    text = repr(im) + caplog.text + repr(vars(im))
+    assert "Doe" not in text and "SECRET" not in text
+
+
+def test_dicom_modality_rescale_monochrome2(tmp_path):
+    frame = np.arange(20, dtype=np.uint16).reshape(4, 5) * 10
+    path = tmp_path / "x.dcm"
+    _write_dicom(path, frame, "MONOCHROME2", RescaleSlope=2, RescaleIntercept=-5)
+    im = load_image(path)
+    np.testing.assert_allclose(im.pixels, frame * 2.0 - 5.0)
+    assert im.display[0, 0] == 0.0 and im.display[-1, -1] == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="frame 1 out of range"):
+        load_image(path, frame=1)
+
+
+def test_png_and_bad_files(tmp_path):
+    img = np.zeros((5, 7), np.uint8)
+    img[2, 3] = 255
+    cv2.imwrite(str(tmp_path / "a.png"), img)
+    im = load_image(tmp_path / "a.png")
+    assert im.size == (7, 5) and im.display[2, 3] == 1.0 and im.file_format == "png"
+    (tmp_path / "junk.tif").write_bytes(b"not a tiff at all")
+    with pytest.raises(ValueError, match=r"junk\.tif: unreadable TIFF"):
+        load_image(tmp_path / "junk.tif")
+    (tmp_path / "junk.png").write_bytes(b"\x89PNG broken")
+    with pytest.raises(ValueError, match=r"junk\.png: unreadable image"):
+        load_image(tmp_path / "junk.png")
+    (tmp_path / "junk.dcm").write_bytes(b"\0" * 10)
+    with pytest.raises(ValueError, match=r"junk\.dcm: unreadable DICOM"):
+        load_image(tmp_path / "junk.dcm")
+    with pytest.raises(ValueError, match="image file not found"):
+        load_image(tmp_path / "missing.tif")
+    with pytest.raises(ValueError, match="frame: expected an integer"):
+        load_image(tmp_path / "a.png", frame=0.5)
+
+
+def test_as_display_normalises_arrays():
+    d = as_display(np.array([[2.0, 4.0], [6.0, 10.0]]))
+    np.testing.assert_allclose(d, [[0, 0.25], [0.5, 1.0]])
+    with pytest.raises(ValueError, match="NaN"):
+        as_display(np.array([[np.nan, 1.0], [0.0, 1.0]]))
+    assert pydicom  # the DICOM writer above needs pydicom itself
