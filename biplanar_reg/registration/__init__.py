@@ -1,5 +1,18 @@
 """Registration solvers: G-SfT (known view poses) and its building blocks."""
 
 from .gsft import DEFAULT_EPS, GsftResult, SolverFailure, solve_gsft
+from .observations import Contour, ViewObservations
+from .register import IterationRecord, RegistrationOptions, RegistrationResult, register_views
 
-__all__ = ["solve_gsft", "GsftResult", "SolverFailure", "DEFAULT_EPS"]
+__all__ = [
+    "solve_gsft",
+    "GsftResult",
+    "SolverFailure",
+    "DEFAULT_EPS",
+    "ViewObservations",
+    "Contour",
+    "register_views",
+    "RegistrationOptions",
+    "RegistrationResult",
+    "IterationRecord",
+]
