@@ -21,6 +21,7 @@ from scipy import ndimage
 
 from .._validate import as_array, check_positive
 from ..calibration.views import View
+from ..silhouette import chain_edges, contour_generator_edges, half_edges, outer_edges
 
 __all__ = ["Radiograph", "render_radiograph", "path_lengths", "silhouette_outlines"]
 
@@ -181,13 +182,6 @@ def path_lengths(
     return length, mask
 
 
-def _edge_faces(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Directed edges (E, 2) of each face and, for each, the index of the face holding it."""
-    e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-    fidx = np.tile(np.arange(len(F)), 3)
-    return e, fidx
-
-
 def silhouette_outlines(
     vertices: object,
     faces: object,
@@ -208,93 +202,16 @@ def silhouette_outlines(
     Returns
     -------
     outlines : list of (K, 2) arrays
-        Polylines in pixels (u, v).
+        Polylines in pixels (u, v), longest first.
     closed : list of bool
         Whether each polyline is a closed loop.
     """
     V, F = _check_mesh(vertices, faces)
     uv = view.project(V)
-    # facing: sign of n . d with d the ray through the face centroid
-    cen = V[F].mean(axis=1)
-    _, d = view.rays(view.project(cen))
-    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    front = np.einsum("ij,ij->i", n, d) < 0
-    e, fidx = _edge_faces(F)
-    # a contour-generator edge: directed edge (a, b) of a front face whose twin (b, a) is in a
-    # back face; following front-face winding gives consistently oriented loops
-    key = {(int(a), int(b)): int(f) for (a, b), f in zip(e, fidx, strict=True)}
-    edges: list[tuple[int, int]] = []
-    for (a, b), f in zip(e, fidx, strict=True):
-        if not front[f]:
-            continue
-        g = key.get((int(b), int(a)))
-        if g is None or not front[g]:  # twin back-facing, or an open border of the mesh
-            edges.append((int(a), int(b)))
+    edges = contour_generator_edges(V, half_edges(F, len(V)), F, view)
     if mask is not None:
-        edges = [(a, b) for a, b in edges if _on_mask_border(uv[a], uv[b], mask)]
-    return _chain(edges, uv)
-
-
-def _on_mask_border(pa: np.ndarray, pb: np.ndarray, mask: np.ndarray) -> bool:
-    """False for a projected edge with covered pixels on both sides (an inner fold)."""
-    h, w = mask.shape
-    t = pb - pa
-    ln = float(np.hypot(*t))
-    if ln == 0:
-        return False
-    nrm = np.array([t[1], -t[0]]) / ln
-    mid = 0.5 * (pa + pb)
-    for sgn in (1.0, -1.0):
-        q = np.round(mid + sgn * 1.5 * nrm).astype(int)
-        if not (0 <= q[0] < w and 0 <= q[1] < h) or not mask[q[1], q[0]]:
-            return True
-    return False
-
-
-def _chain(edges: list[tuple[int, int]], uv: np.ndarray) -> tuple[list[np.ndarray], list[bool]]:
-    """Chain directed edges into polylines, each edge used once.
-
-    Where several edges leave a vertex the walk takes the straightest continuation, which keeps
-    a loop through a pinch point in one piece. Open chains start where more edges leave a vertex
-    than enter it.
-    """
-    out: dict[int, list[int]] = {}
-    indeg: dict[int, int] = {}
-    for a, b in edges:
-        out.setdefault(a, []).append(b)
-        indeg[b] = indeg.get(b, 0) + 1
-    outlines: list[np.ndarray] = []
-    closed: list[bool] = []
-    starts = [a for a in out if len(out[a]) > indeg.get(a, 0)] + list(out)
-    for s in starts:
-        if not out.get(s):
-            continue
-        chain = [s]
-        cur = s
-        while out.get(cur):
-            nxts = out[cur]
-            if len(nxts) > 1 and len(chain) > 1:
-                din = uv[cur] - uv[chain[-2]]
-                dots = [
-                    float(np.dot(din, uv[n] - uv[cur]))
-                    / (np.linalg.norm(din) * np.linalg.norm(uv[n] - uv[cur]) + 1e-300)
-                    for n in nxts
-                ]
-                nxt = nxts.pop(int(np.argmax(dots)))
-            else:
-                nxt = nxts.pop(0)
-            chain.append(nxt)
-            cur = nxt
-            if cur == s and not out.get(s):
-                break
-        is_loop = chain[-1] == s and len(chain) > 2
-        pts = chain[:-1] if is_loop else chain
-        if len(pts) >= 3:
-            outlines.append(uv[pts].copy())
-            closed.append(is_loop)
-    # longest first: the main outline is outlines[0]
-    order = sorted(range(len(outlines)), key=lambda i: -len(outlines[i]))
-    return [outlines[i] for i in order], [closed[i] for i in order]
+        edges = outer_edges(uv, edges, mask, np.zeros(2))
+    return chain_edges(edges, uv)
 
 
 def render_radiograph(

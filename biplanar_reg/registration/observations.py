@@ -108,8 +108,13 @@ def landmark_rays(
         sig_px.append(v.landmark_sigma_px)
         vi.append(np.full(len(o), i))
     if not ids:
-        return (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
-                np.zeros(0, np.int64))
+        return (
+            np.zeros(0, np.int64),
+            np.zeros((0, 3)),
+            np.zeros((0, 3)),
+            np.zeros(0),
+            np.zeros(0, np.int64),
+        )
     ids, org, dirs = np.concatenate(ids), np.vstack(org), np.vstack(dirs)
     sig_px, vi = np.concatenate(sig_px), np.concatenate(vi)
     if centre is None:

@@ -15,9 +15,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..silhouette import chain_edges
 from ..ssm.model import ShapeModel
 from .gsft import DEFAULT_EPS, GsftResult, solve_gsft
 from .observations import ViewObservations, landmark_rays, mm_per_pixel
+from .polish import polish_pose_shape
+from .silhouettes import (
+    adaptive_gate,
+    match_outline,
+    mesh_topology,
+    model_outline,
+    outline_distances,
+    prepare_outline,
+)
 
 __all__ = [
     "RegistrationOptions",
@@ -32,6 +42,8 @@ __all__ = [
 CERTIFICATE_FLAG = 1e-2
 #: Landmark reprojection error (px RMS) above which a result is flagged.
 REPROJECTION_FLAG_PX = 5.0
+#: Smallest outlier threshold for silhouette matches after the first iteration, pixels.
+MATCH_FLOOR_PX = 3.0
 
 
 @dataclass(frozen=True)
@@ -62,6 +74,8 @@ class RegistrationOptions:
         Weight of the shape prior in the local refinement.
     tol : float
         Stop when the relative cost change between iterations is below this.
+    contour_sigma_px : float
+        Uncertainty of the annotated outlines, pixels.
     """
 
     landmark_weight: float = 0.5
@@ -74,6 +88,20 @@ class RegistrationOptions:
     eps: float = DEFAULT_EPS
     prior_weight: float = 1.0
     tol: float = 1e-4
+    contour_sigma_px: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.landmark_weight <= 1.0:
+            raise ValueError(f"landmark_weight: must be in (0, 1], got {self.landmark_weight}")
+        for key in ("max_iterations", "silhouette_points"):
+            if int(getattr(self, key)) < (0 if key == "max_iterations" else 3):
+                raise ValueError(f"{key}: too small ({getattr(self, key)})")
+        for key in ("gate_px", "blunder_threshold", "eps", "contour_sigma_px", "tol"):
+            v = float(getattr(self, key))
+            if not np.isfinite(v) or v <= 0:
+                raise ValueError(f"{key}: must be a positive number, got {getattr(self, key)!r}")
+        if not np.isfinite(self.prior_weight) or self.prior_weight < 0:
+            raise ValueError(f"prior_weight: must be >= 0, got {self.prior_weight!r}")
 
 
 @dataclass(frozen=True)
@@ -168,6 +196,75 @@ def landmark_errors(
     return out
 
 
+@dataclass
+class _Landmarks:
+    """Stacked landmark observations (rays, sigmas in mm and px, owners)."""
+
+    ids: np.ndarray
+    origins: np.ndarray
+    directions: np.ndarray
+    sigma_mm: np.ndarray
+    view_index: np.ndarray
+    sigma_px: np.ndarray
+    uv: np.ndarray
+    names: list[tuple[str, str]]  # (view, landmark) per observation
+
+
+def _stack_landmarks(views: list[ViewObservations], centre: np.ndarray | None) -> _Landmarks:
+    ids, org, dirs, sig, vi = landmark_rays(views, centre)
+    sig_px = np.concatenate([v.landmark_sigma_px for v in views]) if len(ids) else np.zeros(0)
+    uv = np.vstack([v.landmark_uv for v in views]) if len(ids) else np.zeros((0, 2))
+    names = [(v.name, n) for v in views for n in v.landmark_names]
+    return _Landmarks(ids, org, dirs, sig, vi, sig_px, uv, names)
+
+
+def _landmark_px_errors(views, lm: _Landmarks, vertices: np.ndarray) -> np.ndarray:
+    err = np.empty(len(lm.ids))
+    for i, v in enumerate(views):
+        sel = lm.view_index == i
+        if np.any(sel):
+            err[sel] = np.linalg.norm(v.view.project(vertices[lm.ids[sel]]) - lm.uv[sel], axis=1)
+    return err
+
+
+def _find_blunder(model, views, lm, res, obs, rejected, opts) -> int | None:
+    """Leave-one-out test of every accepted landmark; the worst one beyond the threshold.
+
+    Each landmark is left out in turn and the pose and shape re-fitted locally (LM from the
+    current solution) on all other observations; its reprojection error under that fit, in
+    sigmas, shows whether the rest of the data contradicts it.
+    """
+    ids, org, dirs, sig = obs
+    n_lm = len(lm.ids)
+    others = len(ids) - 1
+    if n_lm < 3 or others < 2 * (6 + model.n_modes) or len(rejected) >= n_lm // 3:
+        return None  # too little redundancy to tell a blunder from a good landmark
+    worst, worst_score = None, opts.blunder_threshold
+    for i in range(n_lm):
+        if i in rejected:
+            continue
+        keep = np.ones(len(ids), bool)
+        keep[i] = False
+        fit = polish_pose_shape(
+            res.rotation,
+            res.translation,
+            res.weights,
+            model.mean[ids[keep]],
+            model.modes[:, ids[keep]],
+            org[keep],
+            dirs[keep],
+            sig[keep],
+            prior_weight=opts.prior_weight,
+            max_iter=15,
+        )
+        X = (model.instance(fit.weights)[lm.ids[i]]) @ fit.rotation.T + fit.translation
+        view = views[lm.view_index[i]].view
+        score = float(np.linalg.norm(view.project(X[None])[0] - lm.uv[i]) / lm.sigma_px[i])
+        if score > worst_score:
+            worst, worst_score = i, score
+    return worst
+
+
 def register_views(
     model: ShapeModel,
     views: list[ViewObservations],
@@ -182,7 +279,8 @@ def register_views(
     Parameters
     ----------
     model : ShapeModel
-        A surface model (faces are needed for silhouettes).
+        The shape model; with faces the silhouette is the mesh's occluding contour, without
+        them the alpha-shape of its projected points.
     views : list of ViewObservations
         Calibrated views with their landmarks and contours.
     silhouettes : bool
@@ -206,18 +304,136 @@ def register_views(
     _check_views(model, views)
     say = progress or (lambda msg: None)
     t0 = time.perf_counter()
+    lam = opts.landmark_weight
 
-    # -- iteration 0: landmarks only; sigmas converted to mm at the first estimate -------------
-    ids, org, dirs, _, vi = landmark_rays(views)
-    res = solve_gsft(model, ids, org, dirs, eps=opts.eps, prior_weight=opts.prior_weight)
-    ids, org, dirs, sig, vi = landmark_rays(views, centre=res.vertices.mean(axis=0))
+    def solve(ids, org, dirs, sig):
+        return solve_gsft(
+            model, ids, org, dirs, sigmas=sig, eps=opts.eps, prior_weight=opts.prior_weight
+        )
+
+    # -- iteration 0: landmarks only; pixel sigmas converted to mm at the first estimate -------
+    lm = _stack_landmarks(views, None)
     res = solve_gsft(
-        model, ids, org, dirs, sigmas=sig, eps=opts.eps, prior_weight=opts.prior_weight
+        model, lm.ids, lm.origins, lm.directions, eps=opts.eps, prior_weight=opts.prior_weight
     )
-    say(f"landmarks: {len(ids)} observations, certificate {res.certificate:.1e}")
-    records = [IterationRecord(0, res.polish_cost_after, 0, res.certificate,
-                               time.perf_counter() - t0)]
-    best = 0
+    centre = res.vertices.mean(axis=0)
+    lm = _stack_landmarks(views, centre)
+    rejected: set[int] = set()
+
+    def lm_sigmas() -> np.ndarray:
+        sig = lm.sigma_mm / np.sqrt(2.0 * lam)
+        for i in rejected:
+            sig[i] *= 1e3  # down-weighted: it no longer pulls the fit
+        return sig
+
+    obs = (lm.ids, lm.origins, lm.directions, lm_sigmas())
+    res = solve(*obs)
+    if opts.robust:
+        while (bad := _find_blunder(model, views, lm, res, obs, rejected, opts)) is not None:
+            rejected.add(bad)
+            obs = (lm.ids, lm.origins, lm.directions, lm_sigmas())
+            res = solve(*obs)
+    say(f"landmarks: {len(lm.ids)} observations, certificate {res.certificate:.1e}")
+
+    targets = {i: prepare_outline(v.contours) for i, v in enumerate(views)}
+    targets = {i: t for i, t in targets.items() if t is not None}
+    use_sil = silhouettes and bool(targets)
+    he = mesh_topology(model) if use_sil else None
+    mmpp = {i: float(mm_per_pixel(views[i].view, centre)[0]) for i in targets}
+    sil_sigma = {
+        i: opts.contour_sigma_px * mmpp[i] / np.sqrt(2.0 * max(1.0 - lam, 1e-12)) for i in targets
+    }
+
+    def outlines_of(r: GsftResult) -> dict[int, object]:
+        if not targets:
+            return {}
+        return {
+            i: model_outline(r.vertices, model, views[i].view, opts.silhouette_points, he)
+            for i in targets
+        }
+
+    def iteration_cost(r: GsftResult, outl: dict) -> float:
+        acc = np.array([i not in rejected for i in range(len(lm.ids))])
+        e = _landmark_px_errors(views, lm, r.vertices)[acc] / lm.sigma_px[acc]
+        cost = lam * float(np.mean(e**2)) if e.size else 0.0
+        if use_sil:
+            d = np.concatenate([outline_distances(outl[i], targets[i]) for i in targets])
+            d = np.minimum(d, opts.gate_px) / opts.contour_sigma_px
+            cost += (1.0 - lam) * float(np.mean(d**2)) if d.size else 0.0
+        return cost
+
+    records: list[IterationRecord] = []
+    best = (np.inf, 0, res, {})
+    prev_key: frozenset | None = None
+    prev_cost = np.inf
+    n_matches = 0
+    k = 0
+    t_it = time.perf_counter()
+    while True:
+        outl = outlines_of(res) if use_sil else {}
+        cost = iteration_cost(res, outl)
+        records.append(
+            IterationRecord(k, cost, n_matches, res.certificate, time.perf_counter() - t_it)
+        )
+        if cost < best[0]:
+            best = (cost, k, res, outl)
+        if not use_sil or k >= opts.max_iterations:
+            break
+        if k >= 2 and abs(prev_cost - cost) <= opts.tol * max(prev_cost, 1e-12):
+            break
+        prev_cost = cost
+        # match the current silhouettes to the annotated outlines; the gate is widened while
+        # the landmarks are still far off (a wrong start must not drop every match)
+        lm_rms = float(np.sqrt(np.mean(_landmark_px_errors(views, lm, res.vertices) ** 2)))
+        gate = max(opts.gate_px, 2.0 * lm_rms) if k == 0 else opts.gate_px
+        found = {i: match_outline(outl[i], t, gate, opts.mutual) for i, t in targets.items()}
+        all_d = np.concatenate([f[3] for f in found.values()])
+        thr = adaptive_gate(all_d, MATCH_FLOOR_PX) if k > 0 else gate
+        parts_ids, parts_o, parts_d, parts_s, key = [], [], [], [], []
+        for i, (ids, uv, seg, dist) in found.items():
+            ok = dist <= thr
+            if not np.any(ok):
+                continue
+            o, d = views[i].view.rays(uv[ok])
+            parts_ids.append(ids[ok])
+            parts_o.append(o)
+            parts_d.append(d)
+            parts_s.append(np.full(int(ok.sum()), sil_sigma[i]))
+            key += [(i, int(a), int(b)) for a, b in zip(ids[ok], seg[ok], strict=True)]
+        key_set = frozenset(key)
+        if key_set == prev_key:
+            break  # the same matches would give the same solution
+        prev_key = key_set
+        n_matches = len(key)
+        obs = (
+            np.concatenate([lm.ids, *parts_ids]),
+            np.vstack([lm.origins, *parts_o]),
+            np.vstack([lm.directions, *parts_d]),
+            np.concatenate([lm_sigmas(), *parts_s]),
+        )
+        t_it = time.perf_counter()
+        res = solve(*obs)
+        if opts.robust:
+            bad = _find_blunder(model, views, lm, res, obs, rejected, opts)
+            if bad is not None:
+                rejected.add(bad)
+                obs = (*obs[:3], np.concatenate([lm_sigmas(), *parts_s]))
+                res = solve(*obs)
+                best = (np.inf, 0, res, {})  # costs before the rejection are not comparable
+        k += 1
+        say(
+            f"silhouette iteration {k}: {n_matches} matches, cost {cost:.4g}, "
+            f"certificate {res.certificate:.1e}"
+        )
+
+    _, best_k, res, outl = best
+    if use_sil and not outl:
+        outl = outlines_of(res)
+    return _result(model, views, lm, res, records, best_k, outl, targets, rejected, t0)
+
+
+def _result(model, views, lm, res, records, best_k, outl, targets, rejected, t0):
+    """Assemble the :class:`RegistrationResult` with errors, outlines and flags."""
     vertices = res.vertices
     flags: list[str] = []
     if res.certificate > CERTIFICATE_FLAG:
@@ -225,15 +441,20 @@ def register_views(
     if not res.polish_converged:
         flags.append("local refinement did not converge")
     lm_err = landmark_errors(views, vertices)
-    all_err = [e for d in lm_err.values() for e in d.values()]
-    if all_err and float(np.sqrt(np.mean(np.square(all_err)))) > REPROJECTION_FLAG_PX:
+    acc = [e for i, e in enumerate(_landmark_px_errors(views, lm, vertices)) if i not in rejected]
+    if acc and float(np.sqrt(np.mean(np.square(acc)))) > REPROJECTION_FLAG_PX:
         flags.append("large landmark reprojection error")
+    rej = [lm.names[i] for i in sorted(rejected)]
+    if rej:
+        flags.append("rejected observations: " + ", ".join(f"{v}/{n}" for v, n in rej))
+    contour_err = {v.name: np.zeros(0) for v in views}
+    sil_px: dict[str, list[np.ndarray]] = {v.name: [] for v in views}
+    if outl:
+        for i, o in outl.items():
+            contour_err[views[i].name] = outline_distances(o, targets[i])
+            sil_px[views[i].name] = chain_edges(o.edges, o.uv_all)[0]
     view_poses = {
-        v.name: {
-            "R": v.view.R.copy(),
-            "t": v.view.t.copy(),
-            "centre": (-v.view.R.T @ v.view.t),
-        }
+        v.name: {"R": v.view.R.copy(), "t": v.view.t.copy(), "centre": -v.view.R.T @ v.view.t}
         for v in views
     }
     return RegistrationResult(
@@ -243,13 +464,16 @@ def register_views(
         vertices=vertices,
         certificate=res.certificate,
         iterations=records,
-        best_iteration=best,
+        best_iteration=best_k,
         landmark_errors_px=lm_err,
-        contour_errors_px={v.name: np.zeros(0) for v in views},
-        silhouettes_px={v.name: [] for v in views},
-        rejected=[],
+        contour_errors_px=contour_err,
+        silhouettes_px=sil_px,
+        rejected=rej,
         view_poses=view_poses,
         flags=flags,
-        timings={"total": time.perf_counter() - t0},
+        timings={
+            "total": time.perf_counter() - t0,
+            "iterations": float(sum(r.seconds for r in records)),
+        },
         gsft=res,
     )

@@ -1,0 +1,149 @@
+"""Model silhouettes, outline matching and silhouette boosting."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from biplanar_reg.annotation.annotations import Contour
+from biplanar_reg.annotation.render import path_lengths
+from biplanar_reg.registration import RegistrationOptions, ViewObservations, register_views
+from biplanar_reg.registration.silhouettes import (
+    END_MARGIN_PX,
+    match_outline,
+    model_outline,
+    prepare_outline,
+)
+from biplanar_reg.silhouette import alpha_silhouette, chain_edges, mesh_silhouette
+from biplanar_reg.ssm import ShapeModel
+from biplanar_reg.synthetic import biplanar_views, random_pose, synthetic_bone_model
+
+
+@pytest.fixture(scope="module")
+def model() -> ShapeModel:
+    return synthetic_bone_model(8, seed=0, resolution=(40, 32))
+
+
+@pytest.fixture(scope="module")
+def posed(model):
+    rng = np.random.default_rng(0)
+    w = rng.normal(size=8)
+    R, t = random_pose(rng)
+    return rng, w, model.instance(w) @ R.T + t
+
+
+def _mask_border(mask: np.ndarray) -> np.ndarray:
+    """(u, v) of covered pixels with an uncovered 4-neighbour."""
+    border = mask & ~ndimage.binary_erosion(mask)
+    v, u = np.nonzero(border)
+    return np.column_stack([u, v]).astype(float)
+
+
+def test_mesh_silhouette_lies_on_the_rendered_outline(model, posed):
+    _, _, X = posed
+    view = biplanar_views(75.0)[0]
+    edges, uv = mesh_silhouette(X, model.faces, view)
+    ids = np.unique(edges)
+    _, mask = path_lengths(X, model.faces, view)  # independent: ray casting per pixel
+    border = _mask_border(mask)
+    from scipy.spatial import cKDTree
+
+    # every silhouette vertex is on the border of the rendered coverage (pixel quantisation)
+    d_sil, _ = cKDTree(border).query(uv[ids])
+    assert np.max(d_sil) < 1.5
+    # and the outline reaches every part of the border (no missing stretches)
+    d_border, _ = cKDTree(uv[ids]).query(border)
+    longest = np.max(np.linalg.norm(uv[edges[:, 0]] - uv[edges[:, 1]], axis=1))
+    assert np.max(d_border) < 0.5 * longest + 1.5  # half an outline edge plus quantisation
+    polys, _ = chain_edges(edges, uv)
+    assert sum(len(p) for p in polys) >= 0.95 * len(ids)  # chaining keeps the outline
+
+
+def test_alpha_silhouette_matches_mesh_silhouette(model, posed):
+    _, _, X = posed
+    view = biplanar_views(75.0)[1]
+    e_mesh, uv = mesh_silhouette(X, model.faces, view)
+    e_alpha, _ = alpha_silhouette(X, view)
+    from biplanar_reg.annotation.clean import distance_to_polyline
+
+    outline = chain_edges(e_mesh, uv)[0][0]
+    d = distance_to_polyline(uv[np.unique(e_alpha)], outline, closed=True)
+    assert np.mean(d) < 0.5 and np.max(d) < 1.5
+
+
+def test_matching_respects_gate_ends_and_direction(model, posed):
+    _, _, X = posed
+    view = biplanar_views(75.0)[0]
+    outl = model_outline(X, model, view, n_points=10_000)
+    polys, _ = chain_edges(outl.edges, outl.uv_all)
+    full = polys[0]
+    half = full[: len(full) // 2]
+    target = prepare_outline([Contour(uv=half, closed=False)])
+    ids, foot, seg, dist = match_outline(outl, target, gate_px=15.0)
+    assert len(ids) > 0 and np.all(dist <= 15.0)
+    # matches are on the annotated half only, away from its ends
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(half, axis=0), axis=1))])
+    from scipy.spatial import cKDTree
+
+    _, j = cKDTree(half).query(foot)
+    assert np.all(arc[j] >= END_MARGIN_PX - 1.0) and np.all(arc[j] <= arc[-1] - END_MARGIN_PX + 1)
+    # noise-free: matched model points sit on the outline
+    assert np.median(dist) < 0.05
+    # a contour shifted far away gets no matches through the gate
+    far = prepare_outline([Contour(uv=half + 400.0, closed=False)])
+    assert len(match_outline(outl, far, gate_px=15.0)[0]) == 0
+
+
+def _case(model, seed, frac=0.7, noise=0.0):
+    rng = np.random.default_rng(seed)
+    w = rng.normal(size=8)
+    R, t = random_pose(rng)
+    X = model.instance(w) @ R.T + t
+    views = []
+    for name, view in zip(("cam1", "cam2"), biplanar_views(75.0), strict=True):
+        ids = rng.choice(model.n_vertices, 3, replace=False)
+        uv = view.project(X[ids]) + noise * rng.normal(size=(3, 2))
+        edges, uv_all = mesh_silhouette(X, model.faces, view)
+        outline = chain_edges(edges, uv_all)[0][0]
+        outline = outline + noise * rng.normal(size=outline.shape)
+        c = outline[: int(frac * len(outline))]
+        views.append(
+            ViewObservations(
+                name=name,
+                view=view,
+                landmark_names=[f"v{i}" for i in ids],
+                landmark_ids=ids,
+                landmark_uv=uv,
+                landmark_sigma_px=np.ones(3),
+                contours=[Contour(uv=c, closed=frac >= 1.0)],
+            )
+        )
+    return views, X
+
+
+def _rms(a, b):
+    return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+@pytest.mark.parametrize("frac", [1.0, 0.7])
+def test_boosting_improves_on_landmarks_and_never_ends_worse(model, seed, frac):
+    views, X = _case(model, seed, frac)
+    base = register_views(model, views, silhouettes=False)
+    boosted = register_views(model, views, options=RegistrationOptions(max_iterations=8))
+    costs = [r.cost for r in boosted.iterations]
+    assert boosted.iterations[boosted.best_iteration].cost <= costs[0]
+    assert _rms(boosted.vertices, X) < 0.5 * _rms(base.vertices, X)
+    assert _rms(boosted.vertices, X) < 0.25  # mm, noise-free, 3 landmarks per view
+    assert boosted.iterations[0].n_matches == 0 and boosted.iterations[-1].n_matches > 50
+    assert set(boosted.contour_errors_px) == {"cam1", "cam2"}
+    assert np.median(boosted.contour_errors_px["cam1"]) < 0.5  # px
+    assert boosted.silhouettes_px["cam1"] and boosted.silhouettes_px["cam1"][0].shape[1] == 2
+
+
+def test_registration_options_are_validated():
+    with pytest.raises(ValueError, match="landmark_weight"):
+        RegistrationOptions(landmark_weight=0.0)
+    with pytest.raises(ValueError, match="gate_px"):
+        RegistrationOptions(gate_px=-1.0)
