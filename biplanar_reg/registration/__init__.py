@@ -3,6 +3,13 @@
 from .gsft import DEFAULT_EPS, GsftResult, SolverFailure, solve_gsft
 from .observations import Contour, ViewObservations
 from .register import IterationRecord, RegistrationOptions, RegistrationResult, register_views
+from .unknown_poses import (
+    RefinedPosesResult,
+    UnknownPosesResult,
+    ViewRays,
+    refine_view_poses,
+    solve_gsft_unknown_poses,
+)
 
 __all__ = [
     "solve_gsft",
@@ -15,4 +22,9 @@ __all__ = [
     "RegistrationOptions",
     "RegistrationResult",
     "IterationRecord",
+    "solve_gsft_unknown_poses",
+    "UnknownPosesResult",
+    "ViewRays",
+    "refine_view_poses",
+    "RefinedPosesResult",
 ]

@@ -134,8 +134,8 @@ def polish_views(
     cost = cost0 = 0.5 * float(r @ r)
     mu = 1e-3
     converged = False
-    it = 0
-    for it in range(1, max_iter + 1):
+    iterations = 0
+    for iterations in range(1, max_iter + 1):  # noqa: B007 (reported after the loop)
         J = _jacobian(Rs, shapes, views, bases, sqrt_lam, M)
         g = J.T @ r
         if np.max(np.abs(g)) <= 1e-14 * max(1.0, cost):
@@ -174,6 +174,6 @@ def polish_views(
         weights=w,
         cost_before=cost0,
         cost_after=cost,
-        iterations=it,
+        iterations=iterations,
         converged=converged,
     )

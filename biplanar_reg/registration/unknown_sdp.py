@@ -12,6 +12,8 @@ already centred and scaled by the caller; see ``unknown_poses.py``)::
                 t_x,3 >= f_x                             (the object in front of the camera)
                 Delta_x PSD
 
+plus an optional linear term ``c_x . t_x`` per view (``ViewBlockData.t_cost``).
+
 Every view's block is exactly the known-pose program of :class:`sdp.KnownPoseSDP` (same
 variables, rows and cones); this module stacks those blocks block-diagonally for Clarabel and
 adds the coupling and minimum-depth rows, so the per-view algebra exists in one place only.
@@ -50,6 +52,9 @@ class ViewBlockData:
         Minimum distance of each observed point from its ray origin along the ray.
     min_tz : float
         Lower bound on the third coordinate of ``t_x`` (the model centroid's depth).
+    t_cost : (3,) array
+        Linear cost on ``t_x`` (a negative multiple of the viewing direction rewards depth;
+        see ``unknown_poses.py``).
     """
 
     D: np.ndarray
@@ -59,6 +64,7 @@ class ViewBlockData:
     eps: float
     point_depth: float
     min_tz: float
+    t_cost: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -112,7 +118,9 @@ def solve_multiview_sdp(
         vals, b = sdp._values(blk.D, blk.origins, blk.directions, blk.point_depth)
         A_blocks.append(sp.csc_matrix((vals, sdp._A.indices, sdp._A.indptr), shape=sdp._A.shape))
         b_parts.append(b)
-        q_parts.append(sdp._objective(blk.obs_weights, blk.eps))
+        q = sdp._objective(blk.obs_weights, blk.eps)
+        q[sdp.o_t : sdp.o_t + 3] = blk.t_cost
+        q_parts.append(q)
         cones += list(sdp._cones)
         offsets.append(off)
         sdps.append(sdp)
@@ -132,7 +140,7 @@ def solve_multiview_sdp(
             r += 1
     n_tie = r
     # centroid depth: -t_x,3 + s = -min_tz, s >= 0
-    for x, blk in enumerate(blocks):
+    for x in range(len(blocks)):
         rows.append(r)
         cols.append(offsets[x] + sdps[x].o_t + 2)
         data.append(-1.0)
@@ -152,7 +160,9 @@ def solve_multiview_sdp(
     elapsed = time.perf_counter() - t0
     status = str(sol.status)
     if "Solved" not in status:
-        raise SolverFailure(f"G-SfT-P SDP: Clarabel status {status} after {sol.iterations} iterations")
+        raise SolverFailure(
+            f"G-SfT-P SDP: Clarabel status {status} after {sol.iterations} iterations"
+        )
     x = np.asarray(sol.x)
     if not np.all(np.isfinite(x)):
         raise SolverFailure("G-SfT-P SDP: the solver returned non-finite values")
