@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -146,6 +146,10 @@ class RegistrationResult:
         Seconds.
     gsft : GsftResult
         The final underlying solve.
+    pose_info : dict
+        For ``poses="refine"``: ``{"mode", "rotation_corrections_deg": {view: deg},
+        "centre_corrections_mm": {view: mm}}``; for ``"unknown"``: ``{"mode",
+        "certificates": {view: c}}``; for ``"known"``: ``{"mode"}``.
     """
 
     rotation: np.ndarray
@@ -163,6 +167,7 @@ class RegistrationResult:
     flags: list[str]
     timings: dict
     gsft: GsftResult = field(repr=False)
+    pose_info: dict = field(default_factory=dict)
 
 
 def _check_views(model: ShapeModel, views: list[ViewObservations]) -> None:
@@ -285,8 +290,13 @@ def register_views(
         Calibrated views with their landmarks and contours.
     silhouettes : bool
         Run silhouette boosting with the views' contours (when any exist).
-    poses : {"known"}
-        How the view poses are treated: "known" uses the calibrations as they are.
+    poses : {"known", "refine", "unknown"}
+        How the view poses are treated: "known" uses the calibrations as they are; "refine"
+        corrects every view's extrinsics except the first one's jointly with the shape from the
+        landmarks (calibration refinement, :func:`refine_view_poses`), then boosts with the
+        corrected views; "unknown" uses only the calibrations' intrinsics and estimates every
+        view's pose relative to the first view (G-SfT-P, :func:`solve_gsft_unknown_poses`):
+        the result's world frame is then the first view's camera frame.
     options : RegistrationOptions, optional
     progress : callable, optional
         Called with a one-line message at each stage (for logs and progress bars).
@@ -299,12 +309,16 @@ def register_views(
         The convex solver failed.
     """
     opts = options or RegistrationOptions()
-    if poses != "known":
-        raise ValueError(f"poses: {poses!r} is not supported by this version (use 'known')")
+    if poses not in ("known", "refine", "unknown"):
+        raise ValueError(f"poses: expected 'known', 'refine' or 'unknown', got {poses!r}")
     _check_views(model, views)
     say = progress or (lambda msg: None)
     t0 = time.perf_counter()
     lam = opts.landmark_weight
+    pose_info: dict = {"mode": poses}
+    if poses != "known":
+        views, pose_info = _estimate_view_poses(model, views, poses, opts)
+        say(f"view poses ({poses}): {pose_info}")
 
     def solve(ids, org, dirs, sig):
         return solve_gsft(
@@ -429,7 +443,71 @@ def register_views(
     _, best_k, res, outl = best
     if use_sil and not outl:
         outl = outlines_of(res)
-    return _result(model, views, lm, res, records, best_k, outl, targets, rejected, t0)
+    out = _result(model, views, lm, res, records, best_k, outl, targets, rejected, t0)
+    return replace(out, pose_info=pose_info)
+
+
+def _estimate_view_poses(model, views, poses, opts):
+    """Views with refined (``"refine"``) or estimated (``"unknown"``) extrinsics."""
+    from .unknown_poses import ViewRays, refine_view_poses, solve_gsft_unknown_poses
+
+    n_lm = sum(len(v.landmark_ids) for v in views)
+    need = (6 * len(views) + model.n_modes + 1) // 2
+    if n_lm < need:
+        raise ValueError(
+            f"poses: {poses!r} estimates {6 * (len(views) - 1)} view-pose parameters from the "
+            f"landmarks alone and needs at least {need} landmark observations for "
+            f"{len(views)} views and {model.n_modes} modes, got {n_lm}; use poses = 'known'"
+        )
+    if poses == "refine":
+        lm = _stack_landmarks(views, None)
+        ref = refine_view_poses(
+            model,
+            lm.ids,
+            lm.origins,
+            lm.directions,
+            lm.view_index,
+            [v.view.R for v in views],
+            [v.view.t for v in views],
+            eps=opts.eps,
+            prior_weight=opts.prior_weight,
+        )
+        info = {
+            "mode": poses,
+            "rotation_corrections_deg": {
+                v.name: float(c) for v, c in zip(views, ref.rotation_corrections_deg, strict=True)
+            },
+            "centre_corrections_mm": {
+                v.name: float(c) for v, c in zip(views, ref.centre_corrections_mm, strict=True)
+            },
+        }
+        Rs, ts = ref.view_rotations, ref.view_translations
+    else:
+        rays = []
+        for v in views:
+            if len(v.landmark_ids) < 3:
+                raise ValueError(
+                    f"{v.name}: poses = 'unknown' needs at least 3 landmarks in every view, "
+                    f"got {len(v.landmark_ids)}"
+                )
+            o, d = v.view.rays(v.landmark_uv)  # world rays under the given calibration ...
+            # ... brought back into the camera frame, where they do not depend on extrinsics
+            rays.append(
+                ViewRays(v.landmark_ids, d @ v.view.R.T, origins=v.view.to_camera(o), name=v.name)
+            )
+        est = solve_gsft_unknown_poses(model, rays, eps=opts.eps, prior_weight=opts.prior_weight)
+        info = {
+            "mode": poses,
+            "certificates": {
+                v.name: float(c) for v, c in zip(views, est.certificates, strict=True)
+            },
+        }
+        Rs, ts = est.view_rotations, est.view_translations
+    new = [
+        replace(v, view=replace(v.view, R=np.asarray(R), t=np.asarray(t)))
+        for v, R, t in zip(views, Rs, ts, strict=True)
+    ]
+    return new, info
 
 
 def _result(model, views, lm, res, records, best_k, outl, targets, rejected, t0):
