@@ -1,0 +1,602 @@
+"""Read and validate a case folder (``case.toml`` + annotations + referenced files).
+
+The format is the contract in ``docs/cases.md`` (``biplanar-reg/case@1``). Loading checks
+everything before any work starts and raises :class:`CaseError` (a ``ValueError``) with a
+one-line message naming the file and the key, e.g.
+``knee/case.toml: [[views]][1] (cam2) calibration: calib/cam2.txt: file not found``.
+
+Everything a :class:`Case` holds is in millimetres, in the world frame of the calibrations:
+with ``units = "m"`` the model, template, ground truth and calibration extrinsics are scaled by
+1000 on input (DICOM geometry is mm by the standard and is never scaled).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..annotation import AnnotationError, Annotations, XrayImage, load_annotations, load_image
+from ..calibration import FORMATS, load_calibration
+from ..calibration.views import OrthographicView, PerspectiveView, SlotScanningView, View
+from ..io import read_mesh
+from ..registration import RegistrationOptions, ViewObservations
+from ..ssm import ShapeModel, build_ssm, synthesise_population
+from ..ssm.population import FAMILIES
+
+__all__ = [
+    "CASE_FORMAT",
+    "CASE_FILE",
+    "UNIT_SCALE",
+    "MODEL_DEFAULTS",
+    "CaseError",
+    "CaseView",
+    "GroundTruth",
+    "Case",
+    "load_case",
+    "to_view_observations",
+    "registration_options",
+    "scale_view",
+]
+
+log = logging.getLogger(__name__)
+
+CASE_FORMAT = "biplanar-reg/case@1"
+CASE_FILE = "case.toml"
+#: Input units -> factor to millimetres.
+UNIT_SCALE = {"mm": 1.0, "m": 1000.0}
+#: Defaults of the template route of ``[model]`` (a population synthesised from a template).
+MODEL_DEFAULTS: dict[str, Any] = {
+    "population_size": 9,
+    "population_seed": 0,
+    "population_families": list(FAMILIES),
+    "population_strength": 1.0,
+    "ssm_variance": 0.98,
+}
+#: A bone model whose extent (mm, after unit conversion) falls outside this range means the
+#: declared ``units`` contradict the files (e.g. ``units = "m"`` on data written in mm).
+PLAUSIBLE_EXTENT_MM = (1.0, 2000.0)
+#: Fewest landmark observations (over all views) the registration can start from.
+MIN_LANDMARK_OBSERVATIONS = 4
+
+_KEYS = {
+    "": {"format", "id", "units", "model", "views", "annotations", "registration", "ground_truth"},
+    "model": {"ssm", "template", "landmarks", *MODEL_DEFAULTS},
+    "views": {"name", "calibration", "calibration_format", "dlt_column", "image", "image_frame"},
+    "annotations": {"file"},
+    "ground_truth": {"mesh"},
+}
+_OPTION_FIELDS = {f.name: f for f in dataclasses.fields(RegistrationOptions)}
+POSES = ("known", "unknown", "refine")
+
+
+class CaseError(ValueError):
+    """A case is invalid; the one-line message names the file and the key."""
+
+
+@dataclass(frozen=True, eq=False)
+class CaseView:
+    """One calibrated view of a case (world frame, mm)."""
+
+    name: str
+    view: View
+    calibration: Path
+    calibration_format: str
+    image_path: Path | None = None
+    image: XrayImage | None = None
+
+    @property
+    def image_size(self) -> tuple[int, int] | None:
+        """``(W, H)`` in pixels from the calibration, else from the image."""
+        if self.view.image_size is not None:
+            return self.view.image_size
+        return None if self.image is None else self.image.size
+
+
+@dataclass(frozen=True, eq=False)
+class GroundTruth:
+    """A ground-truth surface in the world frame, mm (``faces`` None for a point cloud)."""
+
+    path: Path
+    vertices: np.ndarray
+    faces: np.ndarray | None
+
+
+@dataclass(frozen=True, eq=False)
+class Case:
+    """A validated case; every length is in mm, every pose in the calibrations' world frame.
+
+    Attributes
+    ----------
+    case_dir : Path
+        The case folder (resolved).
+    id : str
+        ``id`` from case.toml, else the folder's name.
+    units : str
+        The units the case's files are written in ("mm" or "m"); data here are already mm.
+    model : ShapeModel
+        The model, mm, with the case's landmarks.
+    model_source : dict
+        How the model was obtained (file, and the population settings for a template).
+    landmarks : dict
+        Landmark name -> model vertex index.
+    views : list of CaseView
+    annotations : Annotations
+        Validated against the views, landmarks and image sizes.
+    annotations_path : Path
+    poses : str
+        "known", "unknown" or "refine" (passed to the registration as given).
+    silhouettes : bool
+    options : RegistrationOptions
+    ground_truth : GroundTruth or None
+    warnings : list of str
+        Unknown keys and other non-fatal remarks.
+    """
+
+    case_dir: Path
+    id: str
+    units: str
+    model: ShapeModel
+    model_source: dict[str, Any]
+    landmarks: dict[str, int]
+    views: list[CaseView]
+    annotations: Annotations
+    annotations_path: Path
+    poses: str
+    silhouettes: bool
+    options: RegistrationOptions
+    ground_truth: GroundTruth | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def case_file(self) -> Path:
+        return self.case_dir / CASE_FILE
+
+    def view(self, name: str) -> CaseView:
+        """The view called ``name``."""
+        for v in self.views:
+            if v.name == name:
+                return v
+        raise KeyError(name)
+
+
+# -- helpers -----------------------------------------------------------------------------------
+
+
+def _one_line(exc: BaseException) -> str:
+    """An exception's message on one line (multi-problem messages joined with '; ')."""
+    if isinstance(exc, AnnotationError):
+        more = len(exc.problems) - 5
+        return "; ".join(exc.problems[:5]) + (f"; ... and {more} more" if more > 0 else "")
+    return " ".join(str(exc).split("\n")).replace("  ", " ").strip() or type(exc).__name__
+
+
+class _Ctx:
+    """Error context of one case file: builds messages ``<file>: <key>: <what>``."""
+
+    def __init__(self, case_dir: Path, allow_outside: bool):
+        self.dir = case_dir
+        self.file = case_dir / CASE_FILE
+        self.allow_outside = allow_outside
+        self.warnings: list[str] = []
+
+    def error(self, key: str, what: str) -> CaseError:
+        return CaseError(f"{self.file}: {key}: {what}")
+
+    def warn(self, text: str) -> None:
+        msg = f"{self.file}: {text}"
+        log.warning(msg)
+        self.warnings.append(msg)
+
+    def table(self, doc: dict, name: str, required: bool) -> dict:
+        value = doc.get(name)
+        if value is None:
+            if required:
+                raise self.error(f"[{name}]", "missing table")
+            return {}
+        if not isinstance(value, dict):
+            raise self.error(f"[{name}]", f"expected a table, got {type(value).__name__}")
+        return value
+
+    def unknown_keys(self, table: dict, section: str, where: str) -> None:
+        for key in table:
+            if key not in _KEYS[section]:
+                self.warn(f"{where}: unknown key {key!r} ignored")
+
+    def string(self, table: dict, key: str, where: str, required: bool = True) -> str | None:
+        value = table.get(key)
+        if value is None:
+            if required:
+                raise self.error(f"{where} {key}", "missing")
+            return None
+        if not isinstance(value, str) or not value.strip():
+            raise self.error(f"{where} {key}", f"expected a non-empty string, got {value!r}")
+        return value
+
+    def path(self, table: dict, key: str, where: str, required: bool = True) -> Path | None:
+        """A file path of the case: relative to the case folder, inside it, existing."""
+        value = self.string(table, key, where, required)
+        if value is None:
+            return None
+        path = (self.dir / value).resolve()  # resolve(): symlinks cannot smuggle a path out
+        if not self.allow_outside and not path.is_relative_to(self.dir):
+            raise self.error(
+                f"{where} {key}",
+                f"{value!r} points outside the case folder (pass --allow-outside to permit it)",
+            )
+        if not path.is_file():
+            raise self.error(f"{where} {key}", f"{value}: file not found")
+        return path
+
+    def number(self, table: dict, key: str, where: str, kind: type, default: Any) -> Any:
+        value = table.get(key, default)
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if kind is int:
+            ok = ok and float(value).is_integer()
+        if not ok or not math.isfinite(float(value)):
+            raise self.error(f"{where} {key}", f"expected a finite {kind.__name__}, got {value!r}")
+        return kind(value)
+
+
+def scale_view(view: View, scale: float) -> View:
+    """The same view with world lengths multiplied by ``scale`` (e.g. 1000 for m -> mm).
+
+    Perspective: only ``t`` scales (``K`` is in pixels). Orthographic: ``t`` scales and ``K``'s
+    pixels-per-length entries divide. Slot-scanning: ``t`` and ``row_pitch`` scale.
+    """
+    if scale == 1.0:
+        return view
+    t = view.t * scale
+    if isinstance(view, OrthographicView):
+        K = view.K.copy()
+        K[:2, :2] /= scale
+        return dataclasses.replace(view, t=t, K=K)
+    if isinstance(view, SlotScanningView):
+        return dataclasses.replace(view, t=t, row_pitch=view.row_pitch * scale)
+    if isinstance(view, PerspectiveView):
+        return dataclasses.replace(view, t=t)
+    raise ValueError(f"cannot convert the units of a {type(view).__name__}")
+
+
+def registration_options(table: dict, ctx: _Ctx | None = None) -> RegistrationOptions:
+    """Map ``[registration]`` keys onto :class:`RegistrationOptions` (type-checked).
+
+    Every field of ``RegistrationOptions`` is a key of the same name; its type is that of the
+    field's default (bool, int or float). ``poses`` and ``silhouettes`` are handled by the
+    caller; other unknown keys give a warning.
+    """
+    ctx = ctx or _Ctx(Path("."), True)
+    values: dict[str, Any] = {}
+    for key, value in table.items():
+        if key in ("poses", "silhouettes"):
+            continue
+        fld = _OPTION_FIELDS.get(key)
+        if fld is None:
+            ctx.warn(f"[registration]: unknown key {key!r} ignored")
+            continue
+        default = fld.default
+        where = f"[registration] {key}"
+        if isinstance(default, bool):
+            if not isinstance(value, bool):
+                raise ctx.error(where, f"expected true or false, got {value!r}")
+            values[key] = value
+        elif isinstance(default, (int, float)):
+            values[key] = ctx.number(table, key, "[registration]", type(default), default)
+        else:  # a field type this loader does not know: pass it through unchanged
+            values[key] = value
+    try:
+        return RegistrationOptions(**values)
+    except (TypeError, ValueError) as exc:
+        raise ctx.error("[registration]", _one_line(exc)) from None
+
+
+# -- sections ----------------------------------------------------------------------------------
+
+
+def _read_toml(ctx: _Ctx) -> dict:
+    if not ctx.dir.is_dir():
+        raise CaseError(f"{ctx.dir}: not a folder (a case is a folder holding {CASE_FILE})")
+    try:
+        text = ctx.file.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise CaseError(f"{ctx.file}: file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CaseError(f"{ctx.file}: cannot be read ({_one_line(exc)})") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise CaseError(f"{ctx.file}: not valid TOML ({_one_line(exc)})") from None
+
+
+def _read_landmarks(ctx: _Ctx, path: Path, n_vertices: int) -> dict[str, int]:
+    from ..annotation._fileio import read_json
+
+    where = "[model] landmarks"
+    try:
+        data = read_json(path)
+    except ValueError as exc:
+        raise ctx.error(where, _one_line(exc)) from None
+    if not isinstance(data, dict) or not data:
+        raise ctx.error(where, f"{path.name}: expected a non-empty JSON object {{name: index}}")
+    out: dict[str, int] = {}
+    for name, idx in data.items():
+        if isinstance(idx, bool) or not isinstance(idx, int) or not 0 <= idx < n_vertices:
+            raise ctx.error(
+                where,
+                f"{path.name}: landmark {name!r}: expected a vertex index in 0..{n_vertices - 1}"
+                f", got {idx!r}",
+            )
+        out[name] = idx
+    return out
+
+
+def _scaled_model(model: ShapeModel, s: float, landmarks: dict[str, int]) -> ShapeModel:
+    return ShapeModel(
+        model.mean * s,
+        model.modes * s,
+        faces=model.faces,
+        variances=None if model.variances is None else model.variances * s * s,
+        landmarks=landmarks,
+    )
+
+
+def _load_model(ctx: _Ctx, doc: dict, scale: float) -> tuple[ShapeModel, dict, dict[str, int]]:
+    table = ctx.table(doc, "model", required=True)
+    ctx.unknown_keys(table, "model", "[model]")
+    has_ssm, has_tpl = "ssm" in table, "template" in table
+    if has_ssm == has_tpl:
+        raise ctx.error("[model]", "give exactly one of 'ssm' and 'template'")
+    if has_ssm:
+        path = ctx.path(table, "ssm", "[model]")
+        try:
+            model = ShapeModel.load(path)
+        except ValueError as exc:
+            raise ctx.error("[model] ssm", _one_line(exc)) from None
+        source: dict[str, Any] = {"ssm": str(path)}
+    else:
+        path = ctx.path(table, "template", "[model]")
+        try:
+            verts, faces = read_mesh(path)
+        except (ValueError, OSError) as exc:
+            raise ctx.error("[model] template", _one_line(exc)) from None
+        if faces is None:
+            raise ctx.error("[model] template", f"{path.name}: a template needs faces (a mesh)")
+        settings = dict(MODEL_DEFAULTS)
+        for key in ("population_size", "population_seed"):
+            settings[key] = ctx.number(table, key, "[model]", int, settings[key])
+        for key in ("population_strength", "ssm_variance"):
+            settings[key] = ctx.number(table, key, "[model]", float, settings[key])
+        fams = table.get("population_families", settings["population_families"])
+        if not isinstance(fams, list) or not all(isinstance(f, str) for f in fams):
+            raise ctx.error("[model] population_families", f"expected a list of names: {fams!r}")
+        settings["population_families"] = fams
+        try:
+            pop = synthesise_population(
+                verts * scale,
+                settings["population_size"],
+                seed=settings["population_seed"],
+                families=fams,
+                strength=settings["population_strength"],
+            )
+            model = build_ssm(pop.shapes, faces=faces, variance=settings["ssm_variance"])
+        except ValueError as exc:
+            raise ctx.error("[model]", f"building the model from the template: {exc}") from None
+        source = {"template": str(path), **settings}
+    # the template route built its population from the already scaled template
+    scale_model = scale if has_ssm else 1.0
+    if model.faces is None:
+        ctx.warn("[model]: the model has no faces; silhouettes and surface metrics are limited")
+    lm_path = ctx.path(table, "landmarks", "[model]", required=False)
+    if lm_path is not None:
+        landmarks = _read_landmarks(ctx, lm_path, model.n_vertices)
+        source["landmarks"] = str(lm_path)
+    elif model.landmarks:
+        landmarks = dict(model.landmarks)
+    else:
+        raise ctx.error("[model] landmarks", "missing (and the model file holds no landmarks)")
+    model = _scaled_model(model, scale_model, landmarks)
+    ext = float(np.linalg.norm(np.ptp(model.mean, axis=0)))
+    lo, hi = PLAUSIBLE_EXTENT_MM
+    if not lo <= ext <= hi:
+        raise ctx.error(
+            "units",
+            f"the model is {ext:.4g} mm across after reading it in {_units_name(scale)}; a bone "
+            f"should be {lo:g}-{hi:g} mm: the 'units' setting contradicts the files",
+        )
+    return model, source, landmarks
+
+
+def _units_name(scale: float) -> str:
+    return next(k for k, v in UNIT_SCALE.items() if v == scale)
+
+
+def _load_views(ctx: _Ctx, doc: dict, scale: float) -> list[CaseView]:
+    tables = doc.get("views")
+    if not isinstance(tables, list) or not tables:
+        raise ctx.error("[[views]]", "expected at least one [[views]] table")
+    views: list[CaseView] = []
+    for i, table in enumerate(tables):
+        where = f"[[views]][{i}]"
+        if not isinstance(table, dict):
+            raise ctx.error(where, "expected a table")
+        name = ctx.string(table, "name", where)
+        where = f"[[views]][{i}] ({name})"
+        if any(v.name == name for v in views):
+            raise ctx.error(f"{where} name", f"duplicate view name {name!r}")
+        ctx.unknown_keys(table, "views", where)
+        fmt = table.get("calibration_format")
+        if fmt is not None and (not isinstance(fmt, str) or fmt.lower() not in FORMATS):
+            raise ctx.error(
+                f"{where} calibration_format", f"unknown format {fmt!r}; expected one of {FORMATS}"
+            )
+        dlt_column = None
+        if "dlt_column" in table:
+            dlt_column = ctx.number(table, "dlt_column", where, int, None)
+        image_path = ctx.path(table, "image", where, required=False)
+        image = None
+        if image_path is not None:
+            frame = ctx.number(table, "image_frame", where, int, 0)
+            try:
+                image = load_image(image_path, frame=frame)
+            except (ValueError, OSError) as exc:
+                raise ctx.error(f"{where} image", _one_line(exc)) from None
+        calib = ctx.path(table, "calibration", where)
+        try:
+            view = load_calibration(
+                calib,
+                fmt,
+                dlt_column=dlt_column,
+                image_size=None if image is None else image.size,
+                name=name,
+            )
+        except (ValueError, OSError) as exc:
+            raise ctx.error(f"{where} calibration", _one_line(exc)) from None
+        used_fmt = (fmt or _detected(calib)).lower()
+        view = dataclasses.replace(view, name=name)
+        if used_fmt != "dicom":  # DICOM geometry is mm by the standard
+            try:
+                view = scale_view(view, scale)
+            except ValueError as exc:
+                raise ctx.error(f"{where} calibration", _one_line(exc)) from None
+        views.append(CaseView(name, view, calib, used_fmt, image_path, image))
+    return views
+
+
+def _detected(path: Path) -> str:
+    from ..calibration import detect_format
+
+    return detect_format(path)
+
+
+def _load_annotations(
+    ctx: _Ctx, doc: dict, views: list[CaseView], landmarks: dict[str, int]
+) -> tuple[Annotations, Path]:
+    table = ctx.table(doc, "annotations", required=True)
+    ctx.unknown_keys(table, "annotations", "[annotations]")
+    path = ctx.path(table, "file", "[annotations]")
+    sizes = {v.name: v.image_size for v in views if v.image_size is not None}
+    try:
+        ann = load_annotations(
+            path, known_views=[v.name for v in views], known_landmarks=landmarks, image_sizes=sizes
+        )
+    except ValueError as exc:
+        raise ctx.error("[annotations] file", f"{path.name}: {_one_line(exc)}") from None
+    n_obs = sum(len(va.landmarks) for va in ann.views.values())
+    if n_obs < MIN_LANDMARK_OBSERVATIONS:
+        raise ctx.error(
+            "[annotations] file",
+            f"{path.name}: {n_obs} landmark observation(s) over all views; the registration "
+            f"needs at least {MIN_LANDMARK_OBSERVATIONS}",
+        )
+    return ann, path
+
+
+def _load_ground_truth(ctx: _Ctx, doc: dict, scale: float, model: ShapeModel) -> GroundTruth | None:
+    if "ground_truth" not in doc:
+        return None
+    table = ctx.table(doc, "ground_truth", required=False)
+    ctx.unknown_keys(table, "ground_truth", "[ground_truth]")
+    path = ctx.path(table, "mesh", "[ground_truth]")
+    try:
+        verts, faces = read_mesh(path)
+    except (ValueError, OSError) as exc:
+        raise ctx.error("[ground_truth] mesh", _one_line(exc)) from None
+    verts = verts * scale
+    ratio = np.linalg.norm(np.ptp(verts, axis=0)) / np.linalg.norm(np.ptp(model.mean, axis=0))
+    if not 0.2 <= ratio <= 5.0:
+        raise ctx.error(
+            "[ground_truth] mesh",
+            f"{path.name} is {ratio:.3g} times the model's size: units contradict the model's",
+        )
+    return GroundTruth(path, verts, faces)
+
+
+def load_case(case_dir: str | os.PathLike, *, allow_outside: bool = False) -> Case:
+    """Read and validate a case folder.
+
+    Parameters
+    ----------
+    case_dir : path
+        The folder holding ``case.toml``.
+    allow_outside : bool
+        Allow paths that resolve outside the case folder (default: refused).
+
+    Returns
+    -------
+    Case
+        Every length in mm (converted from ``units``), the world frame of the calibrations.
+
+    Raises
+    ------
+    CaseError
+        (a ``ValueError``) with a one-line message naming the file and key.
+    """
+    ctx = _Ctx(Path(case_dir).resolve(), allow_outside)
+    doc = _read_toml(ctx)
+    ctx.unknown_keys(doc, "", "top level")
+    fmt = doc.get("format")
+    if fmt != CASE_FORMAT:
+        raise ctx.error("format", f"expected {CASE_FORMAT!r}, got {fmt!r}")
+    case_id = doc.get("id", ctx.dir.name)
+    if not isinstance(case_id, str) or not case_id.strip():
+        raise ctx.error("id", f"expected a non-empty string, got {case_id!r}")
+    units = doc.get("units", "mm")
+    if units not in UNIT_SCALE:
+        raise ctx.error("units", f"expected one of {list(UNIT_SCALE)}, got {units!r}")
+    scale = UNIT_SCALE[units]
+    model, source, landmarks = _load_model(ctx, doc, scale)
+    views = _load_views(ctx, doc, scale)
+    ann, ann_path = _load_annotations(ctx, doc, views, landmarks)
+    reg = ctx.table(doc, "registration", required=False)
+    poses = reg.get("poses", "known")
+    if poses not in POSES:
+        raise ctx.error("[registration] poses", f"expected one of {list(POSES)}, got {poses!r}")
+    silhouettes = reg.get("silhouettes", True)
+    if not isinstance(silhouettes, bool):
+        raise ctx.error("[registration] silhouettes", f"expected true or false: {silhouettes!r}")
+    options = registration_options(reg, ctx)
+    gt = _load_ground_truth(ctx, doc, scale, model)
+    return Case(
+        case_dir=ctx.dir,
+        id=case_id,
+        units=units,
+        model=model,
+        model_source=source,
+        landmarks=landmarks,
+        views=views,
+        annotations=ann,
+        annotations_path=ann_path,
+        poses=poses,
+        silhouettes=silhouettes,
+        options=options,
+        ground_truth=gt,
+        warnings=ctx.warnings,
+    )
+
+
+def to_view_observations(case: Case) -> list[ViewObservations]:
+    """One :class:`ViewObservations` per view of the case (views without annotations included)."""
+    out = []
+    for cv in case.views:
+        va = case.annotations.views.get(cv.name)
+        names = [] if va is None else list(va.landmarks)
+        lms = [] if va is None else [va.landmarks[n] for n in names]
+        out.append(
+            ViewObservations(
+                name=cv.name,
+                view=cv.view,
+                landmark_names=names,
+                landmark_ids=np.array([case.landmarks[n] for n in names], dtype=np.int64),
+                landmark_uv=np.array([lm.uv for lm in lms], float).reshape(-1, 2),
+                landmark_sigma_px=np.array([lm.sigma_px for lm in lms], float),
+                contours=[] if va is None else list(va.contours),
+            )
+        )
+    return out

@@ -1,0 +1,102 @@
+"""All-or-nothing output folders.
+
+A case's outputs (mesh, result, report, figures) are written into a hidden temporary folder
+beside the target (``.<name>.tmp-<random>``, same file system) and then moved into place:
+
+1. the previous output folder, if any, is renamed to ``.<name>.old-<random>``;
+2. the temporary folder is renamed to the target;
+3. the old folder is deleted.
+
+Each rename is atomic, so at every instant the target is either absent or a complete output
+folder: a kill between steps 1 and 2 leaves no output (the previous one survives hidden and is
+removed by the next run). Stale hidden folders of killed runs are removed by
+:func:`clean_stale`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+__all__ = [
+    "REQUIRED_OUTPUTS",
+    "atomic_output_dir",
+    "clean_stale",
+    "is_complete",
+    "check_output_target",
+    "write_text_atomic",
+]
+
+#: Files whose presence marks a complete case output folder.
+REQUIRED_OUTPUTS = ("registered.ply", "result.json", "report.html")
+
+
+def is_complete(out: Path) -> bool:
+    """True when ``out`` is a complete case output folder."""
+    return out.is_dir() and all((out / f).is_file() for f in REQUIRED_OUTPUTS)
+
+
+def check_output_target(out: Path) -> None:
+    """Refuse to replace a folder that is not ours (non-empty and without ``result.json``)."""
+    if out.exists():
+        if not out.is_dir():
+            raise ValueError(f"--out {out}: exists and is not a folder")
+        if any(out.iterdir()) and not (out / "result.json").is_file():
+            raise ValueError(
+                f"--out {out}: exists, is not empty and is not a biplanar-reg output folder "
+                "(no result.json); choose a new or empty folder"
+            )
+
+
+def clean_stale(out: Path) -> list[Path]:
+    """Remove hidden temporary/old folders left beside ``out`` by killed runs; return them."""
+    removed = []
+    if not out.parent.is_dir():
+        return removed
+    for pattern in (f".{out.name}.tmp-*", f".{out.name}.old-*"):
+        for p in out.parent.glob(pattern):
+            shutil.rmtree(p, ignore_errors=True)
+            removed.append(p)
+    return removed
+
+
+@contextlib.contextmanager
+def atomic_output_dir(out: str | os.PathLike) -> Iterator[Path]:
+    """Yield a fresh temporary folder; on success it replaces ``out`` (see the module doc).
+
+    On an exception the temporary folder is deleted and ``out`` is left as it was.
+    """
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    check_output_target(out)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
+    try:
+        yield tmp
+        os.chmod(tmp, 0o755 & ~_umask())
+        old = None
+        if out.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
+            os.replace(out, old)  # an empty directory target is replaced atomically
+        os.replace(tmp, out)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
+    """Write a text file atomically (UTF-8)."""
+    from ..annotation._fileio import atomic_write_bytes
+
+    return atomic_write_bytes(path, text.encode("utf-8"))

@@ -1,0 +1,322 @@
+"""Register one case and write its outputs (``registered.ply``, ``result.json``, report) atomically.
+
+Error mapping (exit codes of ``biplanar-reg register``): bad input -> :class:`CaseError`
+(a ``ValueError``, exit 2); the registration failing -> :class:`CaseFailure` (a
+``CommandError``, exit 1). Quality flags are recorded in ``result.json``, never raised.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..annotation._fileio import atomic_write_json
+from ..cli import CommandError
+from ..io import write_mesh
+from ..registration import RegistrationResult, SolverFailure, ViewObservations, register_views
+from .case import Case, CaseError, load_case, to_view_observations
+from .metrics import contour_errors, model_outlines, summary_stats, surface_metrics
+from .outputs import atomic_output_dir, clean_stale
+
+__all__ = [
+    "RESULT_FORMAT",
+    "SURFACE_METHOD",
+    "CaseFailure",
+    "RunOutcome",
+    "register_case",
+    "run_case_dir",
+    "result_document",
+    "dicom_identifiers",
+]
+
+log = logging.getLogger(__name__)
+
+RESULT_FORMAT = "biplanar-reg/result@1"
+SURFACE_METHOD = (
+    "symmetric: 20000 area-uniform samples on each surface (trimesh, seeded), exact "
+    "point-to-triangle distance to the other surface (VTK implicit distance), pooled"
+)
+#: DICOM attributes shown with --include-phi (never read otherwise).
+PHI_TAGS = ("PatientName", "PatientID", "PatientBirthDate", "StudyDate", "AccessionNumber")
+
+
+class CaseFailure(CommandError):
+    """The registration of a valid case failed (solver failure, numerical breakdown)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunOutcome:
+    """What :func:`register_case` wrote."""
+
+    out_dir: Path
+    document: dict[str, Any]
+
+
+def _jsonable(x: Any) -> Any:
+    """Plain JSON types; NaN/inf become None (strict JSON has no NaN)."""
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, (np.bool_, bool)):
+        return bool(x)
+    if isinstance(x, (np.integer, int)):
+        return int(x)
+    if isinstance(x, (np.floating, float)):
+        return float(x) if np.isfinite(x) else None
+    if isinstance(x, Path):
+        return str(x)
+    return x
+
+
+def _relative(path: Path, case_dir: Path) -> str:
+    """A path relative to the case folder when inside it (outputs never need absolute paths)."""
+    try:
+        return str(path.relative_to(case_dir))
+    except ValueError:
+        return str(path)
+
+
+def dicom_identifiers(case: Case) -> dict[str, dict[str, str]]:
+    """Patient identifiers of the case's DICOM images and calibrations (for ``--include-phi``)."""
+    import pydicom
+
+    out: dict[str, dict[str, str]] = {}
+    for cv in case.views:
+        for path in (cv.image_path, cv.calibration):
+            if path is None or path.suffix.lower() not in (".dcm", ".dicom", ".ima", ""):
+                continue
+            try:
+                ds = pydicom.dcmread(path, stop_before_pixels=True)
+            except Exception:  # noqa: BLE001 - not DICOM: nothing to show
+                continue
+            tags = {k: str(ds.get(k, "")) for k in PHI_TAGS if k in ds}
+            if tags:
+                out[_relative(path, case.case_dir)] = tags
+    return out
+
+
+def _view_errors(
+    case: Case, obs: list[ViewObservations], res: RegistrationResult
+) -> tuple[dict[str, np.ndarray], dict[str, list[np.ndarray]], str]:
+    """Contour errors (px) and model outlines per view.
+
+    The solver's when it reported them (its contour points: the annotation resampled at 1 px,
+    without the ends of open contours); for a view where it reported none (e.g. silhouettes
+    off), computed here from the registered mesh's exact occluding contour at the annotated
+    points.
+    """
+    errs: dict[str, np.ndarray] = {}
+    sils: dict[str, list[np.ndarray]] = {}
+    sources = set()
+    for o in obs:
+        sil = [np.asarray(s, float) for s in res.silhouettes_px.get(o.name, [])]
+        if not sil and case.model.faces is not None:
+            sil = model_outlines(res.vertices, case.model.faces, o.view)
+        sils[o.name] = sil
+        err = np.asarray(res.contour_errors_px.get(o.name, np.zeros(0)), float)
+        if len(err) == 0 and o.contours:
+            err = contour_errors(o, sil)
+            sources.add("report: annotated points to the registered mesh's occluding contour")
+        elif len(err):
+            sources.add("solver: annotated contours resampled at 1 px, open ends excluded")
+        errs[o.name] = err
+    return errs, sils, "; ".join(sorted(sources))
+
+
+def result_document(
+    case: Case,
+    obs: list[ViewObservations],
+    res: RegistrationResult,
+    contour_errs: dict[str, np.ndarray],
+    contour_source: str,
+    gt_metrics: dict[str, float],
+    timings: dict[str, float],
+) -> dict[str, Any]:
+    """The content of ``result.json`` (see docs/cases.md for every key)."""
+    rejected = {(v, n) for v, n in res.rejected}
+    views: dict[str, Any] = {}
+    all_lm, all_ct = [], []
+    for o in obs:
+        pose = res.view_poses.get(o.name) or {
+            "R": o.view.R,
+            "t": o.view.t,
+            "centre": -o.view.R.T @ o.view.t,
+        }
+        lm = res.landmark_errors_px.get(o.name, {})
+        all_lm += list(lm.values())
+        ce = contour_errs[o.name]
+        all_ct += list(ce[np.isfinite(ce)])
+        views[o.name] = {
+            "R": pose["R"],
+            "t": pose["t"],
+            "centre": pose["centre"],
+            "landmark_errors_px": lm,
+            "landmark_rms_px": float(np.sqrt(np.mean(np.square(list(lm.values())))))
+            if lm
+            else None,
+            "contour_errors_px": ce,
+            "contour_error_stats_px": summary_stats(ce[np.isfinite(ce)]),
+        }
+    flags = list(res.flags)
+    if rejected and not any("reject" in f for f in flags):
+        flags.append(f"rejected observations: {sorted(rejected)}")
+    metrics: dict[str, Any] = {
+        "landmark_rms_px": float(np.sqrt(np.mean(np.square(all_lm)))) if all_lm else None,
+        "landmark_max_px": float(np.max(all_lm)) if all_lm else None,
+        **{f"contour_{k}_px": v for k, v in summary_stats(np.asarray(all_ct)).items()},
+        "contour_errors_source": contour_source if all_ct else None,
+        "certificate": res.certificate,
+        **gt_metrics,
+    }
+    if any(k.startswith("surface_") for k in gt_metrics):
+        metrics["surface_distance_method"] = SURFACE_METHOD
+    gt = case.ground_truth
+    return _jsonable(
+        {
+            "format": RESULT_FORMAT,
+            "id": case.id,
+            "units": {"length": "mm", "image": "px", "time": "s", "case_input_units": case.units},
+            "frame": "world frame of the calibrations (OpenCV: X_cam = R @ X + t)",
+            "rotation": res.rotation,
+            "translation": res.translation,
+            "weights": res.weights,
+            "views": views,
+            "certificate": res.certificate,
+            "iterations": [dataclasses.asdict(r) for r in res.iterations],
+            "best_iteration": res.best_iteration,
+            "rejected": sorted(rejected),
+            "flags": flags,
+            "metrics": metrics,
+            "timings": timings,
+            "registration": {
+                "poses": case.poses,
+                "silhouettes": case.silhouettes,
+                "options": dataclasses.asdict(case.options),
+            },
+            "model": {
+                "n_vertices": case.model.n_vertices,
+                "n_modes": case.model.n_modes,
+                "source": {
+                    k: _relative(Path(v), case.case_dir)
+                    if k in ("ssm", "template", "landmarks")
+                    else v
+                    for k, v in case.model_source.items()
+                },
+            },
+            "ground_truth": None
+            if gt is None
+            else {
+                "mesh": _relative(gt.path, case.case_dir),
+                "same_vertex_count": len(gt.vertices) == case.model.n_vertices,
+            },
+            "warnings": case.warnings,
+        }
+    )
+
+
+def register_case(
+    case: Case,
+    out: str | os.PathLike | None = None,
+    *,
+    include_phi: bool = False,
+    load_seconds: float = 0.0,
+) -> RunOutcome:
+    """Register a loaded case and write all its outputs atomically into ``out``.
+
+    Parameters
+    ----------
+    case : Case
+    out : path, optional
+        Output folder (default ``<case>/out``); replaced as a whole on success.
+    include_phi : bool
+        Put DICOM patient identifiers into result.json and the report (default: never read).
+    load_seconds : float
+        Time spent loading the case (recorded in the timings).
+
+    Raises
+    ------
+    CaseError
+        The registration rejected the case's input (e.g. an unsupported ``poses``).
+    CaseFailure
+        The registration failed.
+    """
+    from ..report.case_report import write_case_report
+
+    out_dir = Path(out) if out is not None else case.case_dir / "out"
+    out_dir = out_dir.resolve()
+    if out_dir == case.case_dir or case.case_dir.is_relative_to(out_dir):
+        raise ValueError(f"--out {out_dir}: must not be the case folder or contain it")
+    clean_stale(out_dir)
+    obs = to_view_observations(case)
+    t0 = time.perf_counter()
+    try:
+        res = register_views(
+            case.model,
+            obs,
+            silhouettes=case.silhouettes,
+            poses=case.poses,
+            options=case.options,
+            progress=lambda msg: log.info("%s: %s", case.id, msg),
+        )
+    except SolverFailure as exc:
+        raise CaseFailure(f"{case.case_file}: registration failed: {exc}") from None
+    except (np.linalg.LinAlgError, FloatingPointError, ArithmeticError) as exc:
+        raise CaseFailure(f"{case.case_file}: registration failed (numerical): {exc}") from None
+    except ValueError as exc:
+        msg = " ".join(str(exc).split())
+        raise CaseError(f"{case.case_file}: [registration]: {msg}") from None
+    t_reg = time.perf_counter() - t0
+    if not np.all(np.isfinite(res.vertices)):
+        raise CaseFailure(f"{case.case_file}: registration failed: non-finite vertices")
+
+    t1 = time.perf_counter()
+    contour_errs, sils, source = _view_errors(case, obs, res)
+    gt_metrics: dict[str, float] = {}
+    vertex_error = None
+    if case.ground_truth is not None:
+        gt = case.ground_truth
+        gt_metrics, vertex_error = surface_metrics(
+            res.vertices, case.model.faces, gt.vertices, gt.faces
+        )
+    t_metrics = time.perf_counter() - t1
+    timings = {
+        "load": load_seconds,
+        "registration": t_reg,
+        "metrics": t_metrics,
+        **{f"registration_{k}": v for k, v in res.timings.items()},
+    }
+    doc = result_document(case, obs, res, contour_errs, source, gt_metrics, timings)
+    if include_phi:
+        doc["phi"] = dicom_identifiers(case)
+    with atomic_output_dir(out_dir) as tmp:
+        t2 = time.perf_counter()
+        write_mesh(tmp / "registered.ply", res.vertices, case.model.faces)
+        report = write_case_report(tmp, case, obs, res, doc, sils, vertex_error)
+        doc["report"] = report
+        doc["timings"]["report"] = time.perf_counter() - t2
+        doc["timings"]["total"] = load_seconds + (time.perf_counter() - t0)
+        atomic_write_json(tmp / "result.json", doc)
+    log.info("%s: wrote %s", case.id, out_dir)
+    return RunOutcome(out_dir, doc)
+
+
+def run_case_dir(
+    case_dir: str | os.PathLike,
+    out: str | os.PathLike | None = None,
+    *,
+    allow_outside: bool = False,
+    include_phi: bool = False,
+) -> RunOutcome:
+    """Load, register and write one case folder (the ``register`` command)."""
+    t0 = time.perf_counter()
+    case = load_case(case_dir, allow_outside=allow_outside)
+    return register_case(case, out, include_phi=include_phi, load_seconds=time.perf_counter() - t0)

@@ -1,0 +1,194 @@
+"""Report figures with matplotlib (object API, Agg canvas: no display, thread-safe per figure).
+
+Pixels are ``(u, v)`` = (column, row), 0-based, origin at the centre of the top-left pixel: an
+image is drawn with ``extent = (-0.5, W - 0.5, H - 0.5, -0.5)`` so that pixel centres sit at
+integer coordinates and annotation/projection coordinates overlay exactly.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from ..annotation import ViewAnnotations
+
+__all__ = ["save_figure", "overlay_figure", "histogram_figure", "convergence_figure"]
+
+_DPI = 100
+
+
+def save_figure(fig: Figure, path: str | os.PathLike) -> None:
+    """Render ``fig`` to a PNG file (the caller writes into a temporary folder)."""
+    FigureCanvasAgg(fig)
+    fig.savefig(path, dpi=_DPI)
+
+
+def overlay_figure(
+    path: str | os.PathLike,
+    title: str,
+    *,
+    display: np.ndarray | None,
+    image_size: tuple[int, int] | None,
+    annotations: ViewAnnotations | None,
+    silhouettes: Sequence[np.ndarray],
+    landmarks_px: Mapping[str, np.ndarray],
+) -> None:
+    """One view: the registered model's projected outline and landmarks against the annotations.
+
+    Parameters
+    ----------
+    path : path
+        Output PNG.
+    title : str
+    display : (H, W) array in [0, 1] or None
+        The radiograph (grey); ``None`` draws on a blank canvas.
+    image_size : (W, H) or None
+        Canvas size when there is no image; ``None`` fits the canvas to the drawn data.
+    annotations : ViewAnnotations or None
+        Annotated contours (red; open ends amber) and landmarks (green +).
+    silhouettes : sequence of (Q, 2) arrays
+        Projected outline of the registered model, pixels (cyan).
+    landmarks_px : mapping name -> (2,) array
+        Projected registered landmarks (blue x), joined to their annotation by a line.
+    """
+    fig = Figure(figsize=(6.4, 6.4))
+    ax = fig.add_subplot(1, 1, 1)
+    if display is not None:
+        h, w = display.shape
+        ax.imshow(display, cmap="gray", vmin=0, vmax=1, extent=(-0.5, w - 0.5, h - 0.5, -0.5))
+    elif image_size is not None:
+        w, h = image_size
+        ax.set_facecolor("#202020")
+    else:
+        w = h = None
+    for k, line in enumerate(silhouettes):
+        ax.plot(
+            line[:, 0],
+            line[:, 1],
+            "-",
+            color="cyan",
+            lw=1.0,
+            label="registered outline" if k == 0 else None,
+        )
+    lm_ann = {} if annotations is None else annotations.landmarks
+    for k, c in enumerate([] if annotations is None else annotations.contours):
+        uv = np.vstack([c.uv, c.uv[:1]]) if c.closed else c.uv
+        ax.plot(
+            uv[:, 0],
+            uv[:, 1],
+            "-",
+            color="red",
+            lw=1.0,
+            label="annotated contour" if k == 0 else None,
+        )
+        if not c.closed:
+            ax.plot(c.uv[[0, -1], 0], c.uv[[0, -1], 1], "o", color="orange", ms=4, mfc="none")
+    for k, (name, lm) in enumerate(lm_ann.items()):
+        ax.plot(
+            *lm.uv, "+", color="lime", ms=9, mew=1.5, label="annotated landmark" if k == 0 else None
+        )
+        ax.annotate(
+            name, lm.uv, xytext=(4, -4), textcoords="offset points", color="lime", fontsize=7
+        )
+        if name in landmarks_px:
+            p = landmarks_px[name]
+            ax.plot([lm.uv[0], p[0]], [lm.uv[1], p[1]], "-", color="yellow", lw=0.8)
+    for k, p in enumerate(landmarks_px.values()):
+        ax.plot(
+            *p,
+            "x",
+            color="deepskyblue",
+            ms=7,
+            mew=1.5,
+            label="registered landmark" if k == 0 else None,
+        )
+    # zoom on what is drawn (a bone covers a small part of a radiograph), within the image
+    drawn = [*silhouettes, *(c.uv for c in ([] if annotations is None else annotations.contours))]
+    drawn += [lm.uv[None] for lm in lm_ann.values()] + [p[None] for p in landmarks_px.values()]
+    if drawn:
+        pts = np.vstack(drawn)
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        c, r = (lo + hi) / 2, 0.6 * float((hi - lo).max()) + 10.0
+        x0, x1, y0, y1 = c[0] - r, c[0] + r, c[1] - r, c[1] + r
+        if w is not None:
+            x0, x1 = max(x0, -0.5), min(x1, w - 0.5)
+            y0, y1 = max(y0, -0.5), min(y1, h - 0.5)
+        ax.set_xlim(x0, x1)
+        ax.set_ylim(y1, y0)
+    elif w is not None:
+        ax.set_xlim(-0.5, w - 0.5)
+        ax.set_ylim(h - 0.5, -0.5)
+    ax.set_aspect("equal")
+    ax.set_xlabel("u (px)")
+    ax.set_ylabel("v (px)")
+    ax.set_title(title)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="lower right", fontsize=7, framealpha=0.7)
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def histogram_figure(
+    path: str | os.PathLike, series: Sequence[tuple[str, np.ndarray, str]]
+) -> None:
+    """Histograms side by side; ``series`` holds (label, values, unit) triples (empty skipped)."""
+    series = [s for s in series if len(s[1])]
+    n = max(1, len(series))
+    fig = Figure(figsize=(4.0 * n, 3.2))
+    for i, (label, values, unit) in enumerate(series):
+        ax = fig.add_subplot(1, n, i + 1)
+        v = np.asarray(values, float)
+        ax.hist(v, bins=min(40, max(5, len(v) // 5)), color="steelblue", edgecolor="white")
+        ax.axvline(
+            float(np.median(v)), color="k", ls="--", lw=1, label=f"median {np.median(v):.3g}"
+        )
+        ax.set_xlabel(f"{label} ({unit})")
+        ax.set_ylabel("count")
+        ax.legend(fontsize=7)
+    if not series:
+        fig.text(0.5, 0.5, "no errors to show", ha="center")
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def convergence_figure(
+    path: str | os.PathLike,
+    costs: Sequence[float],
+    certificates: Sequence[float],
+    matches: Sequence[int],
+    best: int,
+) -> None:
+    """Cost (left axis, log) and certificate (right axis, log) per iteration; best marked."""
+    fig = Figure(figsize=(6.0, 3.4))
+    ax = fig.add_subplot(1, 1, 1)
+    it = np.arange(len(costs))
+    c = np.maximum(np.asarray(costs, float), 1e-300)
+    ax.semilogy(it, c, "o-", color="tab:blue", label="cost")
+    if 0 <= best < len(costs):
+        ax.semilogy([best], [c[best]], "*", color="tab:red", ms=14, label="returned")
+    ax.set_xlabel("iteration (0 = landmarks only)")
+    ax.set_ylabel("cost", color="tab:blue")
+    ax.set_xticks(it)
+    ax2 = ax.twinx()
+    ax2.semilogy(
+        it,
+        np.maximum(np.asarray(certificates, float), 1e-16),
+        "s--",
+        color="tab:green",
+        label="certificate",
+    )
+    ax2.set_ylabel("certificate (lambda2 / lambda1)", color="tab:green")
+    for i, m in zip(it, matches, strict=True):
+        ax.annotate(
+            str(m), (i, c[i]), xytext=(0, 6), textcoords="offset points", fontsize=7, ha="center"
+        )
+    h1, l1 = ax.get_legend_handles_labels()
+    h2, l2 = ax2.get_legend_handles_labels()
+    ax.legend(h1 + h2, l1 + l2, fontsize=7, loc="upper right")
+    ax.set_title("convergence (numbers: silhouette matches)")
+    fig.tight_layout()
+    save_figure(fig, path)

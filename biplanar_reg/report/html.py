@@ -1,0 +1,36 @@
+"""HTML pages from Jinja2 templates (autoescaped; self-contained CSS; relative links only)."""
+
+from __future__ import annotations
+
+import functools
+import os
+from pathlib import Path
+from typing import Any
+
+import jinja2
+
+from .. import __version__
+from ..cases.outputs import write_text_atomic
+
+__all__ = ["render_template", "write_page"]
+
+
+@functools.cache
+def _environment() -> jinja2.Environment:
+    return jinja2.Environment(
+        loader=jinja2.PackageLoader("biplanar_reg.report", "templates"),
+        autoescape=True,  # every value is escaped: case ids, file names, messages
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
+
+
+def render_template(name: str, **context: Any) -> str:
+    """Render the template ``name`` (in ``biplanar_reg/report/templates``) to a string."""
+    return _environment().get_template(name).render(version=__version__, **context)
+
+
+def write_page(path: str | os.PathLike, name: str, **context: Any) -> Path:
+    """Render a template and write it atomically to ``path``."""
+    return write_text_atomic(path, render_template(name, **context))

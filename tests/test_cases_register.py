@@ -1,0 +1,123 @@
+"""End-to-end ``register`` on a synthetic case with ground truth, atomic outputs, report files."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from biplanar_reg.cases.synthetic_case import write_synthetic_case
+from biplanar_reg.cli import main
+from biplanar_reg.io import read_mesh
+
+
+@pytest.fixture(scope="module")
+def registered(tmp_path_factory) -> tuple[Path, Path, dict]:
+    case = write_synthetic_case(tmp_path_factory.mktemp("reg") / "knee-1", 3)
+    out = case.parent / "out1"
+    assert main(["register", str(case), "--out", str(out)]) == 0
+    return case, out, json.loads((out / "result.json").read_text())
+
+
+def test_metrics_within_bounds(registered):
+    _, out, doc = registered
+    m = doc["metrics"]
+    # noise: landmarks 0.5 px, contours 0.3 px (see synthetic_case); a correct registration
+    # reprojects to about that noise and recovers the surface to a fraction of a mm
+    assert m["landmark_rms_px"] < 1.0
+    assert m["contour_rms_px"] < 1.0
+    assert m["vertex_rms_mm"] < 0.5
+    assert m["surface_rms_mm"] < 0.3
+    assert m["surface_mean_mm"] <= m["surface_rms_mm"] <= m["surface_max_mm"]
+    assert m["surface_p95_mm"] <= m["surface_max_mm"]
+
+
+def test_result_json_contract(registered):
+    case, out, doc = registered
+    assert np.asarray(doc["rotation"]).shape == (3, 3)
+    R = np.asarray(doc["rotation"])
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-8)
+    assert len(doc["translation"]) == 3 and len(doc["weights"]) == 6
+    for name in ("cam1", "cam2"):
+        v = doc["views"][name]
+        R, t, c = (np.asarray(v[k]) for k in ("R", "t", "centre"))
+        np.testing.assert_allclose(c, -R.T @ t, atol=1e-9)
+        assert set(v["landmark_errors_px"]) == set(
+            json.loads((case / "model/landmarks.json").read_text())
+        )
+        assert len(v["contour_errors_px"]) > 0
+    assert 0 <= doc["certificate"] <= 1
+    assert doc["iterations"][0]["index"] == 0 and "seconds" in doc["iterations"][0]
+    assert isinstance(doc["flags"], list) and doc["units"]["length"] == "mm"
+    assert {"load", "registration", "metrics", "report", "total"} <= set(doc["timings"])
+    V, F = read_mesh(out / "registered.ply")
+    assert V.shape == (482, 3) and F is not None and len(F) == 960
+    np.testing.assert_allclose(V.mean(axis=0), np.asarray(doc["translation"]), atol=20)
+    assert "phi" not in doc
+
+
+def test_report_references_only_existing_files(registered):
+    _, out, doc = registered
+    html = (out / "report.html").read_text()
+    refs = re.findall(r'(?:src|href)="([^"]+)"', html)
+    assert refs, "the report links its figures"
+    for ref in refs:
+        assert "://" not in ref and not ref.startswith("/"), ref  # offline, relative
+        assert (out / ref).is_file(), ref
+    for fig in (
+        "error_3d.png",
+        "overlay_cam1.png",
+        "overlay_cam2.png",
+        "errors_hist.png",
+        "convergence.png",
+    ):
+        assert (out / fig).is_file() and (out / fig).stat().st_size > 1000
+        assert fig in refs
+    assert doc["report"]["renderer"] in ("pyvista", "matplotlib")
+    assert "<script" not in html.lower()
+
+
+def test_rerun_replaces_outputs_and_crash_keeps_previous(registered, monkeypatch, capsys):
+    case, out, doc = registered
+    before = (out / "result.json").read_bytes()
+    from biplanar_reg.report import case_report
+
+    def crash(*args, **kwargs):
+        raise RuntimeError("disk on fire")
+
+    monkeypatch.setattr(case_report, "write_case_report", crash)
+    with pytest.raises(RuntimeError):
+        main(["register", str(case), "--out", str(out)])
+    assert (out / "result.json").read_bytes() == before  # the previous complete outputs
+    assert not list(out.parent.glob(".out1.*"))  # no temporary folder left behind
+
+
+def test_refuses_to_replace_foreign_folder(registered, tmp_path, capsys):
+    case, _, _ = registered
+    foreign = tmp_path / "mydata"
+    foreign.mkdir()
+    (foreign / "precious.txt").write_text("keep me")
+    assert main(["register", str(case), "--out", str(foreign)]) == 2
+    assert "not a biplanar-reg output folder" in capsys.readouterr().err
+    assert (foreign / "precious.txt").read_text() == "keep me"
+
+
+def test_json_output_and_escaping(registered, tmp_path, capsys):
+    case, _, _ = registered
+    dst = tmp_path / "c"
+    shutil.copytree(case, dst, ignore=shutil.ignore_patterns("out*"))
+    text = (dst / "case.toml").read_text().replace('id = "knee-1"', 'id = "<b>x</b>"')
+    text = text.replace("silhouettes = true", "silhouettes = false")
+    (dst / "case.toml").write_text(text)
+    assert main(["--json", "register", str(dst)]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["status"] == "done" and res["id"] == "<b>x</b>"
+    html = (dst / "out/report.html").read_text()
+    assert "<b>x</b>" not in html and "&lt;b&gt;x&lt;/b&gt;" in html  # autoescaped
+    # silhouettes off: contour errors are computed by the report from the mesh outline
+    doc = json.loads((dst / "out/result.json").read_text())
+    assert doc["metrics"]["contour_errors_source"].startswith("report")

@@ -1,0 +1,59 @@
+"""Report building blocks: 3D render fallback, figures on a blank canvas, HTML autoescaping."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from biplanar_reg.annotation import Contour, Landmark, ViewAnnotations
+from biplanar_reg.report import overlay_figure, render_template
+
+
+def test_matplotlib_fallback_when_pyvista_fails(tmp_path, monkeypatch, caplog):
+    from biplanar_reg.report import render3d
+    from biplanar_reg.synthetic import synthetic_bone_model
+
+    m = synthetic_bone_model(2)
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("no OpenGL context")
+
+    monkeypatch.setattr(render3d, "render_pyvista", broken)
+    with caplog.at_level(logging.WARNING):
+        used = render3d.render_error_mesh(
+            tmp_path / "e.png", m.mean, m.faces, np.linspace(0, 1, m.n_vertices), "t"
+        )
+    assert used == "matplotlib" and (tmp_path / "e.png").stat().st_size > 1000
+    assert any("matplotlib 3D" in r.message for r in caplog.records)
+
+
+def test_overlay_on_blank_canvas(tmp_path):
+    ann = ViewAnnotations(
+        {"a": Landmark(np.array([50.0, 60.0]))},
+        [Contour(np.array([[10.0, 10], [40, 12], [70, 30]]), False)],
+    )
+    overlay_figure(
+        tmp_path / "o.png",
+        "v",
+        display=None,
+        image_size=(128, 96),
+        annotations=ann,
+        silhouettes=[np.array([[12.0, 11], [41, 13], [69, 31]])],
+        landmarks_px={"a": np.array([51.0, 61.0])},
+    )
+    assert (tmp_path / "o.png").stat().st_size > 1000
+
+
+def test_summary_template_escapes_and_links_relatively():
+    html = render_template(
+        "summary.html",
+        counts={"total": 1, "done": 0, "failed": 1, "skipped": 0},
+        wall_seconds=1.0,
+        stat_names=("n",),
+        stats={},
+        columns=("case", "status", "reason"),
+        rows=[{"case": "<i>c</i>", "status": "failed", "reason": "a & b", "report": None}],
+    )
+    assert "<i>c</i>" not in html and "&lt;i&gt;c&lt;/i&gt;" in html and "a &amp; b" in html
+    assert "http" not in html
