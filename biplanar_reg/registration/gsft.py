@@ -27,7 +27,7 @@ from .ipm import solve_conic
 from .lifting import point_map_values
 from .polish import polish_cost, polish_pose_shape, ray_offsets, tangent_bases
 from .rotations import project_to_so3
-from .sdp import KnownPoseIPM, KnownPoseSDP, SolverFailure
+from .sdp import KnownPoseIPM, KnownPoseSDP, SolverFailure, depth_reward
 
 __all__ = ["GsftResult", "solve_gsft", "DEFAULT_EPS", "MIN_DEPTH_SIZES", "SolverFailure"]
 
@@ -35,6 +35,8 @@ __all__ = ["GsftResult", "solve_gsft", "DEFAULT_EPS", "MIN_DEPTH_SIZES", "Solver
 DEFAULT_EPS = 1e-3
 #: Default minimum depth of every observed point along its ray, in model sizes (RMS radii).
 MIN_DEPTH_SIZES = 5.0
+#: Default ``depth_reward_weight`` (a fraction of the L1 term's restoring rate).
+DEFAULT_DEPTH_REWARD = 0.1
 
 try:  # small dense BLAS calls: one thread is faster than two fighting over a shared machine
     from threadpoolctl import threadpool_limits
@@ -166,10 +168,10 @@ def nearest_point_to_rays(origins: np.ndarray, directions: np.ndarray) -> np.nda
     return np.linalg.solve(A, b)
 
 
-def _solve_sdp(D, origins, directions, a, eps, n_modes, backend, settings, min_depth):
+def _solve_sdp(D, origins, directions, a, eps, n_modes, backend, settings, min_depth, t_cost):
     """One SDP solve in normalised units; returns (gram, t, objective, status, iters, backend)."""
     if backend in ("auto", "ipm"):
-        prob = KnownPoseIPM(D, origins, directions, a, eps, n_modes, min_depth)
+        prob = KnownPoseIPM(D, origins, directions, a, eps, n_modes, min_depth, t_cost)
         sol = solve_conic(prob, **(settings or {}))
         if sol.status != "failed" or backend == "ipm":
             if sol.status == "failed":
@@ -185,7 +187,7 @@ def _solve_sdp(D, origins, directions, a, eps, n_modes, backend, settings, min_d
     if backend not in ("auto", "clarabel", "ipm"):
         raise ValueError(f"backend: expected 'auto', 'ipm' or 'clarabel', got {backend!r}")
     sdp = KnownPoseSDP(len(D), n_modes, settings=settings if backend == "clarabel" else None)
-    sol = sdp.solve(D, origins, directions, a, eps, min_depth)
+    sol = sdp.solve(D, origins, directions, a, eps, min_depth, t_cost)
     status = "solved" if sol.status == "Solved" else "solved_reduced"
     return sol.gram, sol.translation, sol.objective, status, sol.iterations, "clarabel"
 
@@ -202,6 +204,7 @@ def solve_gsft(
     prior_weight: float = 1.0,
     max_polish_iter: int = 50,
     min_depth: float | None = None,
+    depth_reward_weight: float = DEFAULT_DEPTH_REWARD,
     backend: str = "auto",
     solver_settings: dict | None = None,
 ) -> GsftResult:
@@ -240,6 +243,10 @@ def solve_gsft(
         behind the source and collapse the object onto the source (seen with one view).
         Default: ``MIN_DEPTH_SIZES`` (5) times the model's RMS radius; X-ray sources are much
         farther from the bone than that.
+    depth_reward_weight : float
+        In [0, 1). When every ray comes from one source (a single perspective view), a small
+        linear reward on the depth along the mean ray keeps the relaxation tight (see
+        :func:`sdp.depth_reward`: it cannot move a consistent solution). 0 = the paper's program.
     backend : {"auto", "ipm", "clarabel"}
         Conic solver: the project's structured interior-point method (fast), Clarabel (a general
         sparse solver, slower at many observations), or "auto": the IPM, falling back to
@@ -262,6 +269,8 @@ def solve_gsft(
     obs = check_observations(model, vertex_ids, origins, directions, sigmas)
     if not np.isfinite(eps) or eps <= 0:
         raise ValueError(f"eps: must be a positive number, got {eps!r}")
+    if not np.isfinite(depth_reward_weight) or not 0 <= depth_reward_weight < 1:
+        raise ValueError(f"depth_reward_weight: must be in [0, 1), got {depth_reward_weight!r}")
     if not np.isfinite(prior_weight) or prior_weight < 0:
         raise ValueError(f"prior_weight: must be >= 0, got {prior_weight!r}")
     K, M = len(obs.ids), model.n_modes
@@ -279,6 +288,9 @@ def solve_gsft(
     eps_abs = eps * K
     depth_n = (MIN_DEPTH_SIZES * scale if min_depth is None else float(min_depth)) / scale
     centre = nearest_point_to_rays(obs.origins, obs.directions)
+    # one central view (all rays from one source): reward depth so the relaxation stays tight
+    central = np.ptp(obs.origins, axis=0).max() <= 1e-9 * max(1.0, np.abs(obs.origins).max())
+    t_cost = depth_reward(obs.directions, a, depth_reward_weight) if central else None
     t_build = time.perf_counter() - t_start
 
     # -- SDP, re-centred once if the object is far from the guessed centre --------------------
@@ -288,7 +300,7 @@ def solve_gsft(
         for _ in range(2):
             o_n = (obs.origins - centre) / scale
             gram, t_n, objective, status, iters, used = _solve_sdp(
-                D, o_n, obs.directions, a, eps_abs, M, backend, solver_settings, depth_n
+                D, o_n, obs.directions, a, eps_abs, M, backend, solver_settings, depth_n, t_cost
             )
             if np.linalg.norm(t_n) <= 3.0:
                 break

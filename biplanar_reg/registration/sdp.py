@@ -41,7 +41,7 @@ from .lifting import (
 )
 from .rotations import skew
 
-__all__ = ["KnownPoseSDP", "KnownPoseIPM", "SdpSolution", "SolverFailure"]
+__all__ = ["KnownPoseSDP", "KnownPoseIPM", "SdpSolution", "SolverFailure", "depth_reward"]
 
 
 class SolverFailure(RuntimeError):
@@ -197,10 +197,14 @@ class KnownPoseSDP:
         b = np.concatenate([self._b_rot, np.zeros(3 * K), cxd, -cxd, depth, np.zeros(self.nt)])
         return vals[self._perm], b
 
-    def _objective(self, obs_weights: np.ndarray, eps: float) -> np.ndarray:
+    def _objective(
+        self, obs_weights: np.ndarray, eps: float, t_cost: np.ndarray | None = None
+    ) -> np.ndarray:
         q = np.zeros(self.n_var)
         q[self._diag_k] = eps
         q[self.o_e :] = np.repeat(obs_weights, 3)
+        if t_cost is not None:
+            q[self.o_t : self.o_t + 3] = t_cost
         return q
 
     def _make_settings(self) -> clarabel.DefaultSettings:
@@ -222,6 +226,7 @@ class KnownPoseSDP:
         obs_weights: np.ndarray,
         eps: float,
         min_depth: float = 0.0,
+        t_cost: np.ndarray | None = None,
     ) -> SdpSolution:
         """Solve for new data (same K and M as at construction).
 
@@ -237,7 +242,7 @@ class KnownPoseSDP:
             Trace weight.
         """
         A_data, b = self._values(D, origins, directions, min_depth)
-        q = self._objective(obs_weights, eps)
+        q = self._objective(obs_weights, eps, t_cost)
         t0 = time.perf_counter()
         if self._solver is None:
             A = sp.csc_matrix((A_data, self._A.indices, self._A.indptr), shape=self._A.shape)
@@ -262,6 +267,31 @@ class KnownPoseSDP:
             iterations=int(sol.iterations),
             solve_time=elapsed,
         )
+
+
+def depth_reward(directions: np.ndarray, weights: np.ndarray, reward: float) -> np.ndarray:
+    """Linear cost on the translation that rewards depth along a central view's mean ray.
+
+    Scaling a central (point-source) view's solution about the source keeps every point on its
+    ray, and the relaxation can realise any scale ``s <= 1`` (a mixture of rotations, rank > 1)
+    at the same trace, so with one view it is not tight. A reward ``-mu m . t`` selects
+    ``s = 1``. It is ``reward`` times the rate ``sum_j a_j |m x d_j|`` at which the L1 term grows
+    when the object slides along ``m`` without scaling, so for ``reward < 1`` it cannot move a
+    consistent solution (an exact-penalty argument) and adds no bias on noise-free data.
+
+    Parameters
+    ----------
+    directions : (K, 3) array
+        Unit ray directions of one central view (any frame; the cost is in the same frame).
+    weights : (K,) array
+        The L1 terms' weights ``a_j``.
+    reward : float
+        In [0, 1).
+    """
+    m = directions.mean(axis=0)
+    m /= np.linalg.norm(m)
+    rate = float(np.sum(weights * np.linalg.norm(np.cross(m, directions), axis=1)))
+    return -reward * rate * m
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -294,6 +324,7 @@ class KnownPoseIPM:
         eps: float,
         n_modes: int,
         min_depth: float = 0.0,
+        t_cost: np.ndarray | None = None,
     ) -> None:
         K = self.K = len(D)
         self.n = n = gram_size(n_modes)
@@ -313,6 +344,8 @@ class KnownPoseIPM:
         diag_k, _ = svec_index(np.arange(n), np.arange(n))
         self.c[diag_k] = eps
         self.c[self.nz :] = np.repeat(obs_weights, 3)
+        if t_cost is not None:
+            self.c[nt : nt + 3] = t_cost
         cxd = np.cross(origins, directions).ravel()
         # depth rows: (V_j - C_j) . d_j >= min_depth, every point in front of its ray's origin
         depth0 = np.einsum("ki,ki->k", origins, directions) + min_depth

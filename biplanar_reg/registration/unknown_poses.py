@@ -45,11 +45,18 @@ import numpy as np
 
 from .._validate import as_array, check_rotation, unit_directions
 from ..ssm.model import ShapeModel
-from .gsft import DEFAULT_EPS, MIN_DEPTH_SIZES, nearest_point_to_rays, solve_gsft
+from .gsft import (
+    DEFAULT_DEPTH_REWARD,
+    DEFAULT_EPS,
+    MIN_DEPTH_SIZES,
+    nearest_point_to_rays,
+    solve_gsft,
+)
 from .joint_polish import ViewData, joint_cost, polish_views
 from .lifting import point_map_values
 from .polish import ray_offsets, tangent_bases
 from .rotations import project_to_so3, rotation_angle
+from .sdp import depth_reward
 from .unknown_sdp import ViewBlockData, solve_multiview_sdp
 
 __all__ = [
@@ -64,9 +71,6 @@ __all__ = [
 
 #: A view needs this many observations (of as many distinct model points) to fix its 6-dof pose.
 MIN_VIEW_OBSERVATIONS = 3
-#: Default ``depth_reward`` of :func:`solve_gsft_unknown_poses` (a fraction of the L1 term's
-#: restoring rate, so it cannot move a consistent solution).
-DEFAULT_DEPTH_REWARD = 0.1
 
 
 @dataclass(frozen=True)
@@ -380,22 +384,11 @@ def _centre_guess(view: _View, model: ShapeModel, f: float) -> np.ndarray:
 
 
 def _depth_reward(view: _View, a: np.ndarray, reward: float) -> np.ndarray:
-    """Linear cost on ``t_x`` rewarding depth along a central view's mean ray.
-
-    Why: scaling a central view's solution about its source keeps every point on its ray, and
-    the relaxation can realise any scale ``s <= 1`` (a mixture of rotations, rank > 1) at the
-    same trace; the L1 term even prefers small ``s`` on noisy data. A reward ``-mu m . t_x``
-    selects ``s = 1``. It is ``reward`` times the rate ``sum_j a_j |m x d_j|`` at which the L1
-    term grows when the object slides along ``m`` without scaling, so for ``reward < 1`` it
-    cannot move a consistent solution (an exact-penalty argument) and adds no bias on
-    noise-free data. Non-central views get none (their depth may be unobservable).
-    """
+    """:func:`sdp.depth_reward` for central views; non-central ones get none (their depth may
+    be unobservable)."""
     if not view.central or reward <= 0:
         return np.zeros(3)
-    m = view.directions.mean(axis=0)
-    m /= np.linalg.norm(m)
-    rate = float(np.sum(a * np.linalg.norm(np.cross(m, view.directions), axis=1)))
-    return -reward * rate * m
+    return depth_reward(view.directions, a, reward)
 
 
 def _sdp_stage(model, views, f_mm, eps, reward, settings):
