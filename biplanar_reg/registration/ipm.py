@@ -276,7 +276,7 @@ def solve_conic(
     tol_gap_abs: float = 1e-8,
     tol_feas: float = 1e-8,
     max_iter: int = 60,
-    step_fraction: float = 0.99,
+    step_fraction: float = 0.95,
     verbose: bool = False,
 ) -> ConicSolution:
     """Solve a :class:`ConicProblem`; see the module docstring.
