@@ -147,3 +147,24 @@ def test_registration_options_are_validated():
         RegistrationOptions(landmark_weight=0.0)
     with pytest.raises(ValueError, match="gate_px"):
         RegistrationOptions(gate_px=-1.0)
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_a_landmark_blunder_is_flagged_and_does_not_wreck_the_result(model, seed):
+    views, X = _case(model, seed, frac=0.8, noise=0.5)
+    bad_uv = views[0].landmark_uv.copy()
+    bad_uv[0] += 40.0 * np.array([0.6, 0.8])  # one landmark 40 px off
+    views[0] = ViewObservations(
+        name=views[0].name,
+        view=views[0].view,
+        landmark_names=views[0].landmark_names,
+        landmark_ids=views[0].landmark_ids,
+        landmark_uv=bad_uv,
+        landmark_sigma_px=views[0].landmark_sigma_px,
+        contours=views[0].contours,
+    )
+    robust = register_views(model, views)
+    naive = register_views(model, views, options=RegistrationOptions(robust=False))
+    assert robust.rejected == [("cam1", views[0].landmark_names[0])]
+    assert any("rejected observations" in f for f in robust.flags)
+    assert _rms(robust.vertices, X) < 1.0 < 2.0 < _rms(naive.vertices, X)
