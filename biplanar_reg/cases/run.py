@@ -185,7 +185,11 @@ def result_document(
             "format": RESULT_FORMAT,
             "id": case.id,
             "units": {"length": "mm", "image": "px", "time": "s", "case_input_units": case.units},
-            "frame": "world frame of the calibrations (OpenCV: X_cam = R @ X + t)",
+            "frame": (
+                "camera frame of the first view (poses = 'unknown')"
+                if case.poses == "unknown"
+                else "world frame of the calibrations (OpenCV: X_cam = R @ X + t)"
+            ),
             "rotation": res.rotation,
             "translation": res.translation,
             "weights": res.weights,
@@ -199,6 +203,7 @@ def result_document(
             "timings": timings,
             "registration": {
                 "poses": case.poses,
+                "pose_estimation": res.pose_info,
                 "silhouettes": case.silhouettes,
                 "options": dataclasses.asdict(case.options),
             },
@@ -217,6 +222,7 @@ def result_document(
             else {
                 "mesh": _relative(gt.path, case.case_dir),
                 "same_vertex_count": len(gt.vertices) == case.model.n_vertices,
+                "up_to_pose": gt.up_to_pose,
             },
             "warnings": case.warnings,
         }
@@ -282,10 +288,17 @@ def register_case(
     contour_errs, sils, source = _view_errors(case, obs, res)
     gt_metrics: dict[str, float] = {}
     vertex_error = None
+    alignment = None
     if case.ground_truth is not None:
         gt = case.ground_truth
+        gt_vertices = gt.vertices
+        if gt.up_to_pose and case.model.faces is not None:
+            from .alignment import align_rigid
+
+            alignment = align_rigid(gt.vertices, gt.faces, res.vertices, case.model.faces)
+            gt_vertices = alignment.apply(gt.vertices)
         gt_metrics, vertex_error = surface_metrics(
-            res.vertices, case.model.faces, gt.vertices, gt.faces
+            res.vertices, case.model.faces, gt_vertices, gt.faces
         )
     t_metrics = time.perf_counter() - t1
     timings = {
@@ -295,6 +308,17 @@ def register_case(
         **{f"registration_{k}": v for k, v in res.timings.items()},
     }
     doc = result_document(case, obs, res, contour_errs, source, gt_metrics, timings)
+    if alignment is not None:
+        doc["ground_truth"]["alignment"] = _jsonable(
+            {
+                "R": alignment.R,
+                "t": alignment.t,
+                "init": alignment.init,
+                "icp_cost_mm2": alignment.icp_cost_mm2,
+                "note": "ground truth moved rigidly onto the registered surface (up_to_pose); "
+                "the ground-truth metrics are measured after this alignment",
+            }
+        )
     if include_phi:
         doc["phi"] = dicom_identifiers(case)
     with atomic_output_dir(out_dir) as tmp:
