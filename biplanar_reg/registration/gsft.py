@@ -207,6 +207,7 @@ def solve_gsft(
     depth_reward_weight: float = DEFAULT_DEPTH_REWARD,
     backend: str = "auto",
     solver_settings: dict | None = None,
+    initial: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> GsftResult:
     """Register a shape model to rays with known view poses (the seed paper's G-SfT).
 
@@ -253,6 +254,10 @@ def solve_gsft(
         Clarabel if the IPM does not converge.
     solver_settings : dict, optional
         Options for the backend (``solve_conic`` keywords or Clarabel settings).
+    initial : (R, t, w), optional
+        A second starting point for the local refinement (e.g. the previous iterate of
+        silhouette boosting): the refinement also runs from it and the lower-cost result is
+        kept, so a non-tight SDP cannot pull a good estimate into a worse basin.
 
     Returns
     -------
@@ -362,6 +367,20 @@ def solve_gsft(
             )
             R, t, w, cost_after = res.rotation, res.translation, res.weights, res.cost_after
             p_iters, p_conv = p_iters + res.iterations, res.converged
+        if initial is not None:
+            R0, t0_, w0 = (np.asarray(a, dtype=float) for a in initial)
+            alt = polish_pose_shape(
+                R0,
+                t0_,
+                model.check_weights(w0),
+                *data,
+                sig,
+                prior_weight=prior_weight,
+                max_iter=max_polish_iter,
+            )
+            if alt.cost_after < cost_after:
+                R, t, w, cost_after = alt.rotation, alt.translation, alt.weights, alt.cost_after
+                p_iters, p_conv = p_iters + alt.iterations, alt.converged
     t_polish = time.perf_counter() - t0
     vertices = model.instance(w) @ R.T + t
     return GsftResult(

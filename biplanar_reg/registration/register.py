@@ -333,9 +333,17 @@ def register_views(
         views, pose_info = _estimate_view_poses(model, views, poses, opts)
         say(f"view poses ({poses}): {pose_info}")
 
-    def solve(ids, org, dirs, sig):
+    def solve(ids, org, dirs, sig, start=None):
+        initial = None if start is None else (start.rotation, start.translation, start.weights)
         return solve_gsft(
-            model, ids, org, dirs, sigmas=sig, eps=opts.eps, prior_weight=opts.prior_weight
+            model,
+            ids,
+            org,
+            dirs,
+            sigmas=sig,
+            eps=opts.eps,
+            prior_weight=opts.prior_weight,
+            initial=initial,
         )
 
     # -- iteration 0: landmarks only; pixel sigmas converted to mm at the first estimate -------
@@ -446,7 +454,7 @@ def register_views(
                 np.concatenate([lm_sigmas(rejected), *parts_s]),
             )
             t_it = time.perf_counter()
-            res = solve(*obs)
+            res = solve(*obs, start=res)
             settled = k - last_rejection >= 2  # the outline fit has had two updates since
             if detect and settled:
                 bad = _find_blunder(model, views, lm, res, obs, rejected, opts)
@@ -454,7 +462,7 @@ def register_views(
                     rejected.add(bad)
                     last_rejection = k
                     obs = (*obs[:3], np.concatenate([lm_sigmas(rejected), *parts_s]))
-                    res = solve(*obs)
+                    res = solve(*obs, start=res)
                     best = (np.inf, 0, res, {})  # earlier costs are not comparable
             k += 1
             say(
