@@ -1,16 +1,27 @@
-"""DICOM X-ray geometry on synthetic datasets built here with pydicom."""
+"""DICOM X-ray geometry on synthetic datasets built here with pydicom: reader and writer."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
+import pydicom
 import pytest
 from pydicom.dataset import FileDataset, FileMetaDataset
 from pydicom.uid import ExplicitVRLittleEndian, generate_uid
+from scipy.spatial.transform import Rotation
 
-from biplanar_reg.calibration import detect_format, load_calibration
-from biplanar_reg.calibration.dicom_geometry import beam_direction
+from biplanar_reg.calibration import (
+    OrthographicView,
+    PerspectiveView,
+    detect_format,
+    load_calibration,
+    save_calibration,
+)
+from biplanar_reg.calibration.dicom_geometry import beam_direction, write_dicom_geometry
+from biplanar_reg.cli import main
+
+DATA = Path(__file__).resolve().parents[1] / "sample_cases" / "wrist_radius" / "data"
 
 SID, SOD, SP = 1200.0, 800.0, 0.2  # mm, mm, mm per pixel at the detector
 
@@ -100,6 +111,7 @@ def test_pixel_spacing_fallback(tmp_path: Path, caplog) -> None:
         (("ImagerPixelSpacing",), {}, r"missing DICOM tag ImagerPixelSpacing"),
         ((), {"DistanceSourceToPatient": 1500.0}, "must be smaller"),
         ((), {"PatientOrientation": ["X", "F"]}, "PatientOrientation"),
+        ((), {"PatientOrientation": ["LR", "F"]}, "PatientOrientation.*opposite"),
     ],
 )
 def test_bad_dicom(tmp_path: Path, drop: tuple, over: dict, match: str) -> None:
@@ -115,3 +127,170 @@ def test_not_dicom(tmp_path: Path) -> None:
     path.write_text("image size\n")
     with pytest.raises(ValueError, match="not a DICOM file"):
         load_calibration(path, "dicom")
+
+
+# ---------------------------------------------------------------------------------------------
+# writer
+
+
+def _scene(seed: int = 3) -> np.ndarray:
+    """Random points (mm) around the isocentre, all in front of every source used here."""
+    return np.random.default_rng(seed).uniform(-120, 120, (200, 3))
+
+
+@pytest.mark.parametrize(
+    ("primary", "secondary"),
+    [(0.0, 0.0), (30.0, -20.0), (-135.5, 42.25), (90.0, 0.0), (179.0, -89.0), (12.3456789, 90.0)],
+)
+@pytest.mark.parametrize("orientation", [None, ["R", "F"], ["L", "H"], ["R", "H"]])
+def test_roundtrip_load_save_load(
+    tmp_path: Path, primary: float, secondary: float, orientation: list[str] | None
+) -> None:
+    over = {"PositionerPrimaryAngle": primary, "PositionerSecondaryAngle": secondary}
+    if orientation is not None:
+        over["PatientOrientation"] = orientation
+    over["ImagerPixelSpacing"] = [0.21, SP]  # non-square pixels: fy != fx
+    view = load_calibration(_write(tmp_path, **over))
+    out = tmp_path / "out.dcm"
+    save_calibration(view, out, "dicom")
+    assert detect_format(out) == "dicom"
+    back = load_calibration(out)
+    X = _scene()
+    assert np.abs(back.project(X) - view.project(X)).max() < 1e-6
+    assert back.image_size == view.image_size == (800, 1000)
+    assert np.sign(back.K[0, 0]) == np.sign(view.K[0, 0])  # mirrored stays mirrored
+    np.testing.assert_allclose(back.centre, view.centre, atol=1e-9)
+    ds = pydicom.dcmread(out)
+    assert float(ds.DistanceSourceToPatient) == SOD
+    if abs(secondary) < 90:  # at the pole the primary angle is only defined up to a flip
+        assert float(ds.PositionerPrimaryAngle) == pytest.approx(primary, abs=1e-9)
+    assert float(ds.PositionerSecondaryAngle) == pytest.approx(secondary, abs=1e-9)
+
+
+def test_mirrored_flag_follows_orientation(tmp_path: Path) -> None:
+    # the default AP readout is mirrored; R/F is not - the writer must keep both apart
+    mirrored = load_calibration(_write(tmp_path, name="a.dcm"))
+    plain = load_calibration(_write(tmp_path, name="b.dcm", PatientOrientation=["R", "F"]))
+    assert mirrored.K[0, 0] < 0 < plain.K[0, 0]
+    for view, letters in ((mirrored, ["L", "F"]), (plain, ["R", "F"])):
+        save_calibration(view, tmp_path / "o.dcm", "dicom")
+        assert list(pydicom.dcmread(tmp_path / "o.dcm").PatientOrientation) == letters
+
+
+def test_written_file_is_a_minimal_xa_image(tmp_path: Path) -> None:
+    view = load_calibration(_write(tmp_path, PositionerPrimaryAngle=-25.0))
+    out = tmp_path / "o.dcm"
+    save_calibration(view, out, "dicom")
+    ds = pydicom.dcmread(out)  # no force=True: preamble, DICM and file meta are present
+    assert ds.file_meta.TransferSyntaxUID == pydicom.uid.DeflatedExplicitVRLittleEndian
+    assert ds.SOPClassUID == ds.file_meta.MediaStorageSOPClassUID
+    assert ds.SOPClassUID == pydicom.uid.XRayAngiographicImageStorage
+    assert ds.SOPInstanceUID == ds.file_meta.MediaStorageSOPInstanceUID
+    assert ds.Modality == "XA"
+    px = ds.pixel_array
+    assert px.shape == (1000, 800) and not px.any()  # all-zero placeholder of the view's size
+    assert out.stat().st_size < 20_000  # deflated
+
+
+def test_written_file_has_no_patient_identifiers(tmp_path: Path) -> None:
+    src = _write(tmp_path, PatientOrientation=["R", "F"])
+    view = load_calibration(src, name="Secret")
+    out = tmp_path / "o.dcm"
+    save_calibration(view, out, "dicom")
+    ds = pydicom.dcmread(out)
+    for key in ("PatientName", "PatientID", "PatientBirthDate", "PatientSex"):
+        assert key in ds and not ds[key].value  # type 2: present, empty
+    values = " ".join(str(e.value) for e in ds.iterall() if e.keyword != "PixelData")
+    values += " ".join(str(e.value) for e in ds.file_meta)
+    for secret in ("Secret", "12345"):
+        assert secret not in values
+        assert secret.encode() not in out.read_bytes()
+    assert b"Secret" in src.read_bytes()  # the check above can fail
+
+
+def _representable() -> PerspectiveView:
+    return PerspectiveView(
+        K=np.array([[-6000.0, 0, 511.5], [0, 6000.0, 383.5], [0, 0, 1]]),
+        R=np.array([[-1.0, 0, 0], [0, 0, -1], [0, -1, 0]]),  # AP, source posterior
+        t=np.array([0.0, 0.0, 800.0]),
+        image_size=(1024, 768),
+    )
+
+
+def _modified(**kw) -> PerspectiveView:
+    v = _representable()
+    args = {"K": v.K, "R": v.R, "t": v.t, "image_size": v.image_size, **kw}
+    return PerspectiveView(**args)
+
+
+@pytest.mark.parametrize(
+    ("view", "match"),
+    [
+        (_modified(K=_representable().K + [[0, 0, 0.5], [0, 0, 0], [0, 0, 0]]), "principal point"),
+        (_modified(K=_representable().K + [[0, 2.0, 0], [0, 0, 0], [0, 0, 0]]), "skew"),
+        (_modified(t=np.array([0.0, 1.0, 800.0])), "isocentre.*central ray"),
+        (_representable(), None),
+        (_modified(distortion=[0.1, 0, 0, 0]), "distortion"),
+        (_modified(image_size=None), "image_size"),
+        (_modified(t=np.array([0.0, 0.0, -800.0])), "not in front of the source"),
+        (
+            OrthographicView(K=np.eye(3), R=np.eye(3), t=np.zeros(3), image_size=(10, 10)),
+            "orthographic view cannot be written",
+        ),
+    ],
+)
+def test_not_representable_raises_and_writes_nothing(
+    tmp_path: Path, view: object, match: str | None
+) -> None:
+    out = tmp_path / "o.dcm"
+    out.write_bytes(b"previous")
+    if match is None:
+        save_calibration(view, out, "dicom")  # control: the unmodified view is representable
+        assert detect_format(out) == "dicom"
+        return
+    with pytest.raises(ValueError, match=match):
+        save_calibration(view, out, "dicom")
+    assert out.read_bytes() == b"previous"
+    assert [p.name for p in tmp_path.iterdir()] == ["o.dcm"]  # no temporary file left
+
+
+def test_in_plane_rotation_is_not_representable(tmp_path: Path) -> None:
+    base = _representable()
+    # turn the detector 0.5 deg about the beam (camera z): no positioner angle does that
+    turn = Rotation.from_rotvec([0, 0, np.radians(0.5)]).as_matrix()
+    with pytest.raises(ValueError, match=r"turned 0\.5 deg about the beam"):
+        save_calibration(_modified(R=turn @ base.R), tmp_path / "o.dcm", "dicom")
+    assert not list(tmp_path.iterdir())
+
+
+def test_detector_distance_option(tmp_path: Path) -> None:
+    view = _representable()
+    write_dicom_geometry(view, tmp_path / "a.dcm", source_detector_distance=1000.0)
+    ds = pydicom.dcmread(tmp_path / "a.dcm")
+    assert float(ds.DistanceSourceToDetector) == 1000.0
+    # a DICOM decimal string holds at most 16 characters: 0.16666666666667
+    assert [float(x) for x in ds.ImagerPixelSpacing] == [pytest.approx(1 / 6, rel=1e-13)] * 2
+    X = _scene()
+    assert np.abs(load_calibration(tmp_path / "a.dcm").project(X) - view.project(X)).max() < 1e-6
+    with pytest.raises(ValueError, match="source_detector_distance=700.0 mm must exceed"):
+        write_dicom_geometry(view, tmp_path / "b.dcm", source_detector_distance=700.0)
+    assert not (tmp_path / "b.dcm").exists()
+
+
+def test_cli_convert_json_to_dicom(tmp_path: Path, capsys) -> None:
+    view = load_calibration(
+        _write(tmp_path, PositionerPrimaryAngle=40.0, PositionerSecondaryAngle=15.0)
+    )
+    save_calibration(view, tmp_path / "cam.json", "json")
+    out = tmp_path / "cam.dcm"
+    argv = ["calibration", "convert", str(tmp_path / "cam.json"), str(out), "--to", "dicom"]
+    assert main(argv) == 0
+    X = _scene()
+    assert np.abs(load_calibration(out).project(X) - view.project(X)).max() < 1e-6
+    # a real lab calibration (free pose, principal point off-centre) is refused: exit 2
+    capsys.readouterr()
+    bad_out = tmp_path / "wrist.dcm"
+    argv = ["calibration", "convert", str(DATA / "cam01_calibration_mayacam2.txt"), str(bad_out)]
+    assert main([*argv, "--to", "dicom"]) == 2
+    assert "not representable in DICOM" in capsys.readouterr().err
+    assert not bad_out.exists()

@@ -151,8 +151,10 @@ def test_writers_refuse_what_the_format_cannot_hold(tmp_path: Path) -> None:
         save_calibration(dist, tmp_path / "d1.csv", "mayacam1")
     with pytest.raises(ValueError, match="skew"):
         save_calibration(_pinhole(9, skew=3.0), tmp_path / "s.csv", "mayacam1")
-    with pytest.raises(ValueError, match="unknown calibration format"):
+    with pytest.raises(ValueError, match="not representable in DICOM"):
         save_calibration(_pinhole(9), tmp_path / "x", "dicom")
+    with pytest.raises(ValueError, match="unknown calibration format"):
+        save_calibration(_pinhole(9), tmp_path / "y", "bmp")
     assert not list(tmp_path.iterdir())  # nothing half-written
 
 

@@ -9,8 +9,11 @@ mayacam2   XMALab / Autoscoper MayaCam 2.0 text             yes     yes
 mayacam1   XMALab / Autoscoper MayaCam 1.0 5-line CSV       yes     yes
 dlt        XROMM 11-parameter DLT CSV (column per camera)   yes     yes
 json       native JSON of case-format.md                    yes     yes
-dicom      DICOM X-ray positioner geometry (nominal)        yes     no
+dicom      DICOM X-ray positioner geometry (nominal)        yes     yes [1]_
 ========== ================================================ ======= =======
+
+.. [1] Views the DICOM convention can represent (C-arm angles, isocentre at the world origin,
+   principal point at the image centre, no skew or distortion); see :mod:`.dicom_geometry`.
 
 The format is detected from the content when not given (:func:`detect_format`).
 """
@@ -21,7 +24,7 @@ import logging
 from pathlib import Path
 
 from ._textio import CalibrationFormatError, atomic_write_text, is_numeric_line, read_lines
-from .dicom_geometry import view_from_dicom
+from .dicom_geometry import view_from_dicom, write_dicom_geometry
 from .dlt import dlt_from_view, format_dlt_csv, read_dlt_csv, view_from_dlt
 from .mayacam import format_mayacam1, format_mayacam2, read_mayacam1, read_mayacam2
 from .native_json import format_native_json, read_native_json
@@ -32,7 +35,7 @@ __all__ = ["FORMATS", "WRITABLE_FORMATS", "detect_format", "load_calibration", "
 log = logging.getLogger(__name__)
 
 FORMATS = ("mayacam2", "mayacam1", "dlt", "json", "dicom")
-WRITABLE_FORMATS = ("mayacam2", "mayacam1", "dlt", "json")
+WRITABLE_FORMATS = ("mayacam2", "mayacam1", "dlt", "json", "dicom")
 
 
 def _check_format(fmt: str, allowed: tuple[str, ...], arg: str = "format") -> str:
@@ -148,9 +151,13 @@ def save_calibration(view: View, path: Path | str, format: str) -> None:  # noqa
     """Write a view in one of :data:`WRITABLE_FORMATS`, atomically (temp file + rename).
 
     Formats that cannot represent the view (e.g. an orthographic view as MayaCam, distortion
-    in a DLT) raise ``ValueError`` before anything is written.
+    in a DLT, a view DICOM's C-arm convention cannot express) raise ``ValueError`` before
+    anything is written.
     """
     fmt = _check_format(format, WRITABLE_FORMATS)
+    if fmt == "dicom":
+        write_dicom_geometry(view, path)
+        return
     if fmt == "mayacam2":
         text = format_mayacam2(view)
     elif fmt == "mayacam1":
