@@ -71,7 +71,7 @@ _KEYS = {
     "model": {"ssm", "template", "landmarks", *MODEL_DEFAULTS},
     "views": {"name", "calibration", "calibration_format", "dlt_column", "image", "image_frame"},
     "annotations": {"file"},
-    "ground_truth": {"mesh"},
+    "ground_truth": {"mesh", "up_to_pose"},
 }
 _OPTION_FIELDS = {f.name: f for f in dataclasses.fields(RegistrationOptions)}
 POSES = ("known", "unknown", "refine")
@@ -102,11 +102,17 @@ class CaseView:
 
 @dataclass(frozen=True, eq=False)
 class GroundTruth:
-    """A ground-truth surface in the world frame, mm (``faces`` None for a point cloud)."""
+    """A ground-truth surface in the world frame, mm (``faces`` None for a point cloud).
+
+    With ``up_to_pose`` (extension ``[ground_truth] up_to_pose = true``) the surface is in a
+    frame of its own (e.g. a CT's) and the metrics are computed after a rigid alignment onto
+    the registered surface (:mod:`biplanar_reg.cases.alignment`).
+    """
 
     path: Path
     vertices: np.ndarray
     faces: np.ndarray | None
+    up_to_pose: bool = False
 
 
 @dataclass(frozen=True, eq=False)
@@ -508,6 +514,11 @@ def _load_ground_truth(ctx: _Ctx, doc: dict, scale: float, model: ShapeModel) ->
         verts, faces = read_mesh(path)
     except (ValueError, OSError) as exc:
         raise ctx.error("[ground_truth] mesh", _one_line(exc)) from None
+    up_to_pose = table.get("up_to_pose", False)
+    if not isinstance(up_to_pose, bool):
+        raise ctx.error("[ground_truth] up_to_pose", f"expected true or false: {up_to_pose!r}")
+    if up_to_pose and faces is None:
+        raise ctx.error("[ground_truth] up_to_pose", f"{path.name}: needs a mesh with faces")
     verts = verts * scale
     ratio = np.linalg.norm(np.ptp(verts, axis=0)) / np.linalg.norm(np.ptp(model.mean, axis=0))
     if not 0.2 <= ratio <= 5.0:
@@ -515,7 +526,7 @@ def _load_ground_truth(ctx: _Ctx, doc: dict, scale: float, model: ShapeModel) ->
             "[ground_truth] mesh",
             f"{path.name} is {ratio:.3g} times the model's size: units contradict the model's",
         )
-    return GroundTruth(path, verts, faces)
+    return GroundTruth(path, verts, faces, up_to_pose)
 
 
 def load_case(case_dir: str | os.PathLike, *, allow_outside: bool = False) -> Case:

@@ -16,11 +16,20 @@ The scene (all seeded, deterministic):
 * annotations: every landmark in both views, projected from the truth plus pixel noise
   ``N(0, landmark_noise_px)`` (``sigma_px`` = 1); per view one open contour covering 80 % of the
   exact silhouette outline (random start), resampled at 2 px, plus ``N(0, contour_noise_px)``.
+
+Options (all default to the scene above) let other sample cases reuse the same writer: another
+``model`` with its own landmarks, a ``truth_shape`` that need not lie in the model's span (e.g.
+a harmonic deformation of the template), a fixed ``pose``, other ``views`` (e.g. the real
+wrist calibrations cropped to the bone), ``poses = "unknown"`` in case.toml (the ground truth
+is then compared up to pose, ``[ground_truth] up_to_pose = true``), and one landmark blunder
+(``blunder_px``: one landmark of the first view moved by that many pixels in a seeded random
+direction). ``gt/truth.json`` records the truth (pose, shape source, noise, blunder).
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import cv2
@@ -37,6 +46,7 @@ from ..annotation import (
 from ..annotation._fileio import atomic_write_bytes, atomic_write_json
 from ..annotation.clean import resample_polyline
 from ..calibration import save_calibration
+from ..calibration.views import View
 from ..io import write_mesh
 from ..ssm import ShapeModel
 from ..synthetic import look_at_view, random_pose, synthetic_bone_model
@@ -50,35 +60,38 @@ units = "mm"
 [model]
 ssm = "model/bone_ssm.npz"
 landmarks = "model/landmarks.json"
-
-[[views]]
-name = "cam1"
-calibration = "calib/cam1.txt"
-calibration_format = "mayacam2"
-image = "xray/cam1.png"
-
-[[views]]
-name = "cam2"
-calibration = "calib/cam2.json"
-image = "xray/cam2.png"
-
+{views}
 [annotations]
 file = "annotations.json"
 
 [registration]
-poses = "known"
+poses = "{poses}"
 silhouettes = {silhouettes}
 
 [ground_truth]
 mesh = "gt/bone.ply"
+{up_to_pose}"""
+
+VIEW_TOML = """
+[[views]]
+name = "{name}"
+calibration = "calib/{calibration}"
+{fmt}image = "xray/{name}.png"
 """
 
 
-def synthetic_landmarks(model: ShapeModel) -> dict[str, int]:
+def _calibration_file(index: int, name: str) -> tuple[str, str]:
+    """File name and format of a view's calibration: the first view MayaCam 2.0 (the format of
+    the real wrist data), the others native JSON, so that both readers are exercised."""
+    return (f"{name}.txt", "mayacam2") if index == 0 else (f"{name}.json", "json")
+
+
+def synthetic_landmarks(model: ShapeModel, distal_sign: float = 1.0) -> dict[str, int]:
     """Eight well-spread landmark vertices: the tips and the extremes across the shaft at two
-    heights (mean shape, object frame)."""
+    heights (mean shape, object frame). The long axis is z; ``distal_sign = -1`` when the
+    distal end is at low z (e.g. the radius CT)."""
     V = model.mean
-    z = V[:, 2]
+    z = distal_sign * V[:, 2]
     out = {"distal_tip": int(np.argmax(z)), "proximal_tip": int(np.argmin(z))}
     for level, zc in (("distal", np.percentile(z, 80)), ("proximal", np.percentile(z, 25))):
         band = np.flatnonzero(np.abs(z - zc) < 0.06 * np.ptp(z))
@@ -99,6 +112,12 @@ def write_synthetic_case(
     contour_noise_px: float = 0.3,
     case_id: str | None = None,
     silhouettes: bool = True,
+    model: ShapeModel | None = None,
+    truth_shape: np.ndarray | None = None,
+    pose: tuple[np.ndarray, np.ndarray] | None = None,
+    views: Sequence[View] | None = None,
+    poses: str = "known",
+    blunder_px: float = 0.0,
 ) -> Path:
     """Write a synthetic case into ``folder`` (created); returns the folder.
 
@@ -109,47 +128,94 @@ def write_synthetic_case(
     seed : int
         Seed of the truth (weights, pose) and of the noise; the model itself uses seed 0.
     n_modes : int
-        Modes of the model.
+        Modes of the default model (ignored when ``model`` is given).
     image_size : (W, H)
-        Radiograph size, pixels.
+        Radiograph size of the default views, pixels (ignored when ``views`` are given).
     landmark_noise_px, contour_noise_px : float
         Standard deviation of the pixel noise added to the annotations.
     case_id : str, optional
         ``id`` in case.toml (default: the folder's name).
     silhouettes : bool
         ``[registration] silhouettes`` in case.toml.
+    model : ShapeModel, optional
+        The case's model (mm); its ``landmarks`` are used when it has them, else
+        :func:`synthetic_landmarks`. Default: the synthetic capsule bone.
+    truth_shape : (N, 3) array, optional
+        The true shape in the model's frame, mm, with the model's vertex order (it need not lie
+        in the model's span). Default: ``model.instance(w)``, ``w ~ N(0, 1)``.
+    pose : (R, t), optional
+        World pose of the truth, ``X = R @ x + t`` (mm). Default: a uniformly random rotation
+        and a translation within 5 mm of the origin.
+    views : sequence of View, optional
+        The views (names, image sizes and calibrations). Default: two perspective views
+        75 degrees apart around the origin.
+    poses : {"known", "unknown"}
+        ``[registration] poses``; with "unknown" the ground truth is compared up to pose.
+    blunder_px : float
+        When > 0, one landmark of the first view (seeded choice) is moved by this many pixels.
     """
+    if poses not in ("known", "unknown"):
+        raise ValueError(f"poses: expected 'known' or 'unknown', got {poses!r}")
+    if not np.isfinite(blunder_px) or blunder_px < 0:
+        raise ValueError(f"blunder_px: must be >= 0, got {blunder_px!r}")
     root = Path(folder)
     for sub in ("model", "calib", "xray", "gt"):
         (root / sub).mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
-    model = synthetic_bone_model(n_modes, seed=0)
-    landmarks = synthetic_landmarks(model)
+    if model is None:
+        model = synthetic_bone_model(n_modes, seed=0)
+        landmarks = synthetic_landmarks(model)
+    else:
+        landmarks = dict(model.landmarks) if model.landmarks else synthetic_landmarks(model)
     model = ShapeModel(
         model.mean, model.modes, faces=model.faces, variances=model.variances, landmarks=landmarks
     )
     model.save(root / "model" / "bone_ssm.npz")
     atomic_write_json(root / "model" / "landmarks.json", landmarks)
 
-    w = rng.normal(size=n_modes)
+    # the draws keep their order whatever the options, so the default case never changes
+    w = rng.normal(size=model.n_modes)
     R, t = random_pose(rng, max_offset=5.0)
-    truth = model.instance(w) @ R.T + t
+    if pose is not None:
+        R, t = np.asarray(pose[0], float), np.asarray(pose[1], float)
+    shape = model.instance(w) if truth_shape is None else np.asarray(truth_shape, float)
+    if shape.shape != model.mean.shape:
+        raise ValueError(f"truth_shape: expected shape {model.mean.shape}, got {shape.shape}")
+    truth = shape @ R.T + t
     write_mesh(root / "gt" / "bone.ply", truth, model.faces)
 
-    a = np.deg2rad(75.0) / 2
-    views = [
-        look_at_view(
-            900.0 * np.array([sx * np.sin(a), 0.0, -np.cos(a)]),
-            sdd=1200.0,
-            pixel=0.3 * 512 / min(image_size),  # the bone covers the same image fraction
-            image_size=image_size,
-            name=name,
+    if views is None:
+        a = np.deg2rad(75.0) / 2
+        views = [
+            look_at_view(
+                900.0 * np.array([sx * np.sin(a), 0.0, -np.cos(a)]),
+                sdd=1200.0,
+                pixel=0.3 * 512 / min(image_size),  # the bone covers the same image fraction
+                image_size=image_size,
+                name=name,
+            )
+            for sx, name in ((-1.0, "cam1"), (1.0, "cam2"))
+        ]
+    view_toml = []
+    for i, view in enumerate(views):
+        fname, fmt = _calibration_file(i, view.name)
+        save_calibration(view, root / "calib" / fname, fmt)
+        view_toml.append(
+            VIEW_TOML.format(
+                name=view.name,
+                calibration=fname,
+                fmt='calibration_format = "mayacam2"\n' if fmt == "mayacam2" else "",
+            )
         )
-        for sx, name in ((-1.0, "cam1"), (1.0, "cam2"))
-    ]
-    save_calibration(views[0], root / "calib" / "cam1.txt", "mayacam2")
-    save_calibration(views[1], root / "calib" / "cam2.json", "json")
 
+    ids = np.array(list(landmarks.values()))
+    blunder: dict | None = None
+    if blunder_px > 0:
+        brng = np.random.default_rng([seed, 1])  # its own stream: the other draws stay put
+        k = int(brng.integers(len(ids)))
+        ang = float(brng.uniform(0.0, 2.0 * np.pi))
+        offset = blunder_px * np.array([np.cos(ang), np.sin(ang)])
+        blunder = {"view": views[0].name, "landmark": list(landmarks)[k], "offset_px": offset}
     ann = Annotations()
     for view in views:
         rad = render_radiograph(
@@ -160,8 +226,9 @@ def write_synthetic_case(
         if not ok:  # pragma: no cover - OpenCV always encodes a uint8 image
             raise RuntimeError("PNG encoding failed")
         atomic_write_bytes(root / "xray" / f"{view.name}.png", buf.tobytes())
-        ids = np.array(list(landmarks.values()))
         uv = view.project(truth[ids]) + rng.normal(scale=landmark_noise_px, size=(len(ids), 2))
+        if blunder is not None and view.name == blunder["view"]:
+            uv[list(landmarks).index(blunder["landmark"])] += blunder["offset_px"]
         lms = {n: Landmark(p, 1.0) for n, p in zip(landmarks, uv, strict=True)}
         outline = resample_polyline(rad.outlines[0], 2.0, closed=rad.outline_closed[0])
         k = len(outline)
@@ -170,8 +237,28 @@ def write_synthetic_case(
         piece = piece + rng.normal(scale=contour_noise_px, size=piece.shape)
         ann.views[view.name] = ViewAnnotations(lms, [Contour(piece, False)])
     save_annotations(ann, root / "annotations.json")
+    atomic_write_json(
+        root / "gt" / "truth.json",
+        {
+            "frame": "world frame of the calibrations, mm; truth = shape @ R.T + t",
+            "R": R.tolist(),
+            "t": t.tolist(),
+            "shape": "model instance" if truth_shape is None else "given truth_shape",
+            "weights": w.tolist() if truth_shape is None else None,
+            "landmark_noise_px": landmark_noise_px,
+            "contour_noise_px": contour_noise_px,
+            "contour": "one open piece of 80 % of the exact outline per view, 2 px spacing",
+            "blunder": None
+            if blunder is None
+            else {**blunder, "offset_px": np.asarray(blunder["offset_px"]).tolist()},
+        },
+    )
     text = CASE_TOML.format(
-        case_id=case_id or root.name, silhouettes="true" if silhouettes else "false"
+        case_id=case_id or root.name,
+        views="".join(view_toml),
+        poses=poses,
+        silhouettes="true" if silhouettes else "false",
+        up_to_pose="up_to_pose = true\n" if poses == "unknown" else "",
     )
     atomic_write_bytes(root / "case.toml", text.encode("utf-8"))
     return root

@@ -44,6 +44,8 @@ CERTIFICATE_FLAG = 1e-2
 REPROJECTION_FLAG_PX = 5.0
 #: Smallest outlier threshold for silhouette matches after the first iteration, pixels.
 MATCH_FLOOR_PX = 3.0
+#: Largest fraction of the landmarks that may be rejected as blunders.
+MAX_REJECTED_FRACTION = 0.125
 #: Boosting iterations per hypothesis in the landmark-blunder consensus.
 CONSENSUS_ITERATIONS = 2
 #: The consensus runs when a landmark's error at the landmark-only start exceeds this many
@@ -239,6 +241,13 @@ def _landmark_px_errors(views, lm: _Landmarks, vertices: np.ndarray) -> np.ndarr
     return err
 
 
+def max_rejections(n_landmarks: int) -> int:
+    """At most one landmark in ``MAX_REJECTED_FRACTION`` (and at least one) is rejected: blunders
+    are rare, and many landmarks disagreeing with the fit point at the model (flagged as a large
+    reprojection error) rather than at the annotator."""
+    return max(1, int(n_landmarks * MAX_REJECTED_FRACTION))
+
+
 def _find_blunder(model, views, lm, res, obs, rejected, opts) -> int | None:
     """Leave-one-out test of every accepted landmark; the worst one beyond the threshold.
 
@@ -249,7 +258,7 @@ def _find_blunder(model, views, lm, res, obs, rejected, opts) -> int | None:
     ids, org, dirs, sig = obs
     n_lm = len(lm.ids)
     others = len(ids) - 1
-    if n_lm < 3 or others < 2 * (6 + model.n_modes) or len(rejected) >= n_lm // 3:
+    if n_lm < 3 or others < 2 * (6 + model.n_modes) or len(rejected) >= max_rejections(n_lm):
         return None  # too little redundancy to tell a blunder from a good landmark
     scores = np.zeros(n_lm)
     for i in range(n_lm):
