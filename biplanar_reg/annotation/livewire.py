@@ -3,9 +3,11 @@
 Between consecutive anchors the minimum-cost 8-connected path on :func:`~.features.edge_cost`
 is found with ``skimage.graph.route_through_array`` (Dijkstra with geometric step lengths),
 restricted to the anchors' bounding box plus a margin so that long outlines on 1760 x 1760
-radiographs stay fast. Anchors may first be snapped to the strongest edge within a few pixels,
-which keeps a slightly-off click from adding a spur to the path.
-"""
+radiographs stay fast (the window grows when the path touches its edge). Anchors may first be
+snapped to the strongest edge within a few pixels, which keeps a slightly-off click from adding
+a spur to the path. The pixel path is then moved to the sub-pixel outline by fitting the
+attenuation profile across the edge (:func:`refine_to_outline`): the gradient-magnitude peak
+of a blurred bone lies about one blur width inside its true outline."""
 
 from __future__ import annotations
 
@@ -14,10 +16,17 @@ from scipy import ndimage
 from skimage.graph import route_through_array
 
 from .._validate import as_array
-from .features import edge_cost, gradient_magnitude
+from .features import edge_cost, edge_onset_offsets, gradient_magnitude
 from .image import XrayImage, as_display
 
-__all__ = ["livewire", "snap_to_edge_max", "refine_subpixel"]
+__all__ = ["livewire", "snap_to_edge_max", "refine_subpixel", "refine_to_outline"]
+
+BONE_POLARITIES = ("dark", "bright")
+
+
+def _check_bone(bone: str) -> None:
+    if bone not in BONE_POLARITIES:
+        raise ValueError(f"bone: expected one of {BONE_POLARITIES}, got {bone!r}")
 
 
 def snap_to_edge_max(grad: np.ndarray, uv: np.ndarray, radius_px: float) -> np.ndarray:
@@ -63,22 +72,126 @@ def refine_subpixel(grad: np.ndarray, uv: np.ndarray, sigma_px: float = 1.0) -> 
     return np.column_stack([cols + off * nx, rows + off * ny])
 
 
-def _segment(cost: np.ndarray, p: np.ndarray, q: np.ndarray, margin: float) -> np.ndarray:
-    """Minimum-cost pixel path from p to q (integer (u, v)); returns (L, 2) including both."""
-    h, w = cost.shape
-    pad = int(np.ceil(max(margin, 0.25 * float(np.linalg.norm(q - p)))))
-    u0, v0 = max(int(min(p[0], q[0])) - pad, 0), max(int(min(p[1], q[1])) - pad, 0)
-    u1, v1 = min(int(max(p[0], q[0])) + pad, w - 1), min(int(max(p[1], q[1])) + pad, h - 1)
-    sub = cost[v0 : v1 + 1, u0 : u1 + 1]
-    path, _ = route_through_array(
-        sub,
-        (int(p[1]) - v0, int(p[0]) - u0),
-        (int(q[1]) - v0, int(q[0]) - u0),
-        fully_connected=True,
-        geometric=True,
+def refine_to_outline(
+    display: np.ndarray,
+    uv: np.ndarray,
+    sigma_px: float = 1.5,
+    bone: str = "dark",
+    *,
+    closed: bool = False,
+    smooth: int = 5,
+    model_window: int = 21,
+    step_ratio: float = 0.5,
+    min_r2: float = 0.9,
+) -> np.ndarray:
+    """Move points (K, 2) near a bone's outline onto the outline, to sub-pixel precision.
+
+    Each point moves along the image-gradient direction (Gaussian derivative at ``sigma_px``)
+    to the onset fitted by :func:`~.features.edge_onset_offsets`, i.e. to where the bone starts
+    attenuating, not to the gradient peak (which lies inside a blurred solid's outline). Where
+    the onset fit is poor (explained variance below ``min_r2``) or reaches its search limit,
+    the point falls back to :func:`refine_subpixel` (the gradient-magnitude peak).
+
+    Parameters
+    ----------
+    display : (H, W) array
+        Display image.
+    uv : (K, 2) array
+        Points near the outline, pixels (u, v).
+    sigma_px : float
+        Scale of the Gaussian derivative giving the direction across the edge, pixels.
+    bone : {"dark", "bright"}
+        Whether the bone is darker (radiograph film convention, the renderer and the wrist
+        TIFFs) or brighter than its surroundings in ``display``.
+    closed : bool
+        ``uv`` is a closed polyline (the smoothing wraps around).
+    smooth : int
+        Length (points, odd) of the running median applied to the offsets along the polyline;
+        1 disables it.
+    model_window : int
+        Number of points along the polyline over which the edge model of the centre point is
+        chosen (:data:`~.features.ONSET_POWERS`: a step or a square-root onset).
+    step_ratio : float
+        The step model is chosen where its mean unexplained variance over the window is below
+        this fraction of the square-root model's (the smooth-surface onset is the default).
+    min_r2 : float
+        Smallest explained variance of the onset fit accepted, in [0, 1].
+
+    Returns
+    -------
+    (K, 2) array
+        Refined points, pixels (u, v).
+    """
+    _check_bone(bone)
+    max_shift, half_width = 4.0, 6.0
+    # work on a crop around the points (the filters below cost most on 1760 x 1760 images)
+    pad = int(np.ceil(max_shift + half_width + 4.0 * sigma_px + 2.0))
+    h, w = display.shape
+    u0, v0 = (max(int(np.floor(uv[:, i].min())) - pad, 0) for i in (0, 1))
+    u1, v1 = min(int(np.ceil(uv[:, 0].max())) + pad, w), min(int(np.ceil(uv[:, 1].max())) + pad, h)
+    crop = display[v0:v1, u0:u1]
+    img = crop if bone == "dark" else 1.0 - crop
+    local = uv - [u0, v0]
+    gy, gx = np.gradient(ndimage.gaussian_filter(img, sigma_px))
+    rows, cols = local[:, 1], local[:, 0]
+    nx = ndimage.map_coordinates(gx, [rows, cols], order=1, mode="nearest")
+    ny = ndimage.map_coordinates(gy, [rows, cols], order=1, mode="nearest")
+    nn = np.hypot(nx, ny)
+    ok = nn > 1e-12
+    # into the bone = towards darker (after the polarity flip), against the gradient
+    into = -np.column_stack([nx, ny]) / np.where(ok, nn, 1.0)[:, None]
+    offs, r2s = edge_onset_offsets(
+        img, local, into, half_width_px=half_width, max_shift_px=max_shift
     )
-    rc = np.asarray(path, dtype=float)
-    return np.column_stack([rc[:, 1] + u0, rc[:, 0] + v0])
+    mode = "wrap" if closed else "nearest"
+    # one edge model per neighbourhood (a single noisy profile cannot tell them apart): the
+    # square-root onset of a smooth surface unless a step (a face along the rays) leaves less
+    # than `step_ratio` of its unexplained variance over `model_window` points
+    res = ndimage.uniform_filter1d(1.0 - r2s, max(model_window, 1), axis=0, mode=mode)
+    k = np.where(res[:, 0] < step_ratio * res[:, 1], 0, 1)  # ONSET_POWERS = (step, sqrt)
+    idx = np.arange(len(uv))
+    off, r2 = offs[idx, k], r2s[idx, k]
+    onset = ok & (r2 >= min_r2) & (np.abs(off) < max_shift - 1e-6)
+    peak = refine_subpixel(gradient_magnitude(crop, sigma_px), local)
+    off = np.where(onset, off, np.sum((peak - local) * into, axis=1))
+    if smooth > 1 and len(uv) >= smooth:
+        # per-point fits are noisy; the outline's offset from the (smoothed) path varies slowly
+        off = ndimage.median_filter(off, size=smooth, mode=mode)
+    return np.where(ok[:, None], uv + off[:, None] * into, peak + [u0, v0])
+
+
+def _segment(cost: np.ndarray, p: np.ndarray, q: np.ndarray, margin: float) -> np.ndarray:
+    """Minimum-cost pixel path from p to q (integer (u, v)); returns (L, 2) including both.
+
+    The search is restricted to the pair's bounding box plus a pad (for speed on large images);
+    a pad of half the anchor distance lets the path bulge like a half circle between the
+    anchors (a rounded bone end), and a path that still touches the window's edge is searched
+    again in a window twice as wide, so the window does not clip the outline.
+    """
+    h, w = cost.shape
+    pad = int(np.ceil(max(margin, 0.5 * float(np.linalg.norm(q - p)))))
+    while True:
+        u0, v0 = max(int(min(p[0], q[0])) - pad, 0), max(int(min(p[1], q[1])) - pad, 0)
+        u1, v1 = min(int(max(p[0], q[0])) + pad, w - 1), min(int(max(p[1], q[1])) + pad, h - 1)
+        path, _ = route_through_array(
+            cost[v0 : v1 + 1, u0 : u1 + 1],
+            (int(p[1]) - v0, int(p[0]) - u0),
+            (int(q[1]) - v0, int(q[0]) - u0),
+            fully_connected=True,
+            geometric=True,
+        )
+        rc = np.asarray(path, dtype=float) + [v0, u0]
+        whole = u0 == 0 and v0 == 0 and u1 == w - 1 and v1 == h - 1
+        # touching a window edge that is not the image's edge: the window may clip the path
+        clipped = (
+            (u0 > 0 and rc[:, 1].min() <= u0)
+            or (v0 > 0 and rc[:, 0].min() <= v0)
+            or (u1 < w - 1 and rc[:, 1].max() >= u1)
+            or (v1 < h - 1 and rc[:, 0].max() >= v1)
+        )
+        if whole or not clipped:
+            return np.column_stack([rc[:, 1], rc[:, 0]])
+        pad *= 2
 
 
 def livewire(
@@ -90,6 +203,7 @@ def livewire(
     margin_px: float = 15.0,
     anchor_snap_px: float = 2.0,
     subpixel: bool = True,
+    bone: str = "dark",
     cost: np.ndarray | None = None,
 ) -> np.ndarray:
     """Trace an outline through anchor points along strong edges.
@@ -105,12 +219,16 @@ def livewire(
     sigma_px : float
         Scale of the Gaussian derivative of the edge cost, pixels.
     margin_px : float
-        Minimum search margin around each pair of anchors, pixels (the margin is at least a
-        quarter of the anchors' distance).
+        Minimum search margin around each pair of anchors, pixels (the margin is at least
+        half the anchors' distance, so the path may bulge like a half circle around a rounded
+        bone end; it is doubled while the path touches the window's edge).
     anchor_snap_px : float
         Each anchor is first moved to the strongest edge within this radius (0 disables).
     subpixel : bool
-        Refine the traced pixel path to the sub-pixel gradient peak across the edge.
+        Refine the traced pixel path to the sub-pixel outline (:func:`refine_to_outline`: the
+        fitted onset of the bone's attenuation across the edge).
+    bone : {"dark", "bright"}
+        Polarity of the bone in the display image, for the sub-pixel refinement.
     cost : (H, W) array, optional
         A precomputed edge cost (reuse across calls on the same image).
 
@@ -118,12 +236,12 @@ def livewire(
     -------
     (L, 2) array
         The traced polyline, (u, v) pixels, about one point per pixel; the anchors (after
-        snapping) start each traced piece.
+        snapping, and refined with the rest when ``subpixel``) start each traced piece.
 
     Raises
     ------
     ValueError
-        Non-finite anchors, anchors outside the image, too few anchors.
+        Non-finite anchors, anchors outside the image, too few anchors, unknown ``bone``.
     """
     disp = as_display(image)
     h, w = disp.shape
@@ -136,14 +254,14 @@ def livewire(
     )
     if outside.size:
         raise ValueError(f"anchors: point(s) {outside.tolist()} outside the {w}x{h} image")
+    _check_bone(bone)
     if cost is None:
         cost = edge_cost(disp, sigma_px)
     elif cost.shape != disp.shape:
         raise ValueError(f"cost: shape {cost.shape} differs from the image's {disp.shape}")
     ipts = np.clip(np.round(pts), 0, [w - 1, h - 1])
-    grad = gradient_magnitude(disp, sigma_px) if (anchor_snap_px > 0 or subpixel) else None
-    if grad is not None and anchor_snap_px > 0:
-        ipts = snap_to_edge_max(grad, ipts, anchor_snap_px)
+    if anchor_snap_px > 0:
+        ipts = snap_to_edge_max(gradient_magnitude(disp, sigma_px), ipts, anchor_snap_px)
     order = list(range(len(ipts))) + ([0] if closed else [])
     pieces = []
     for a, b in zip(order[:-1], order[1:], strict=True):
@@ -152,6 +270,11 @@ def livewire(
     if not closed:
         pieces.append(ipts[-1:])
     path = np.vstack(pieces)
-    if grad is not None and subpixel:
-        path = refine_subpixel(grad, path)
+    if subpixel:
+        # start from a smoothed pixel path so the offsets to the outline vary slowly
+        mode = "wrap" if closed else "nearest"
+        smooth_path = ndimage.uniform_filter1d(path, 3, axis=0, mode=mode)
+        if not closed:
+            smooth_path[[0, -1]] = path[[0, -1]]
+        path = refine_to_outline(disp, smooth_path, sigma_px, bone, closed=closed)
     return path
