@@ -15,7 +15,8 @@ The scene (all seeded, deterministic):
   truth (``mu`` 0.05/mm, 0.7 px blur, Gaussian noise 0.01, 8-bit);
 * annotations: every landmark in both views, projected from the truth plus pixel noise
   ``N(0, landmark_noise_px)`` (``sigma_px`` = 1); per view one open contour covering 80 % of the
-  exact silhouette outline (random start), resampled at 2 px, plus ``N(0, contour_noise_px)``.
+  exact silhouette's longest outline (a contiguous stretch from a random start; an open outline
+  is never wrapped across its ends), resampled at 2 px, plus ``N(0, contour_noise_px)``.
 
 Options (all default to the scene above) let other sample cases reuse the same writer: another
 ``model`` with its own landmarks, a ``truth_shape`` that need not lie in the model's span (e.g.
@@ -231,9 +232,12 @@ def write_synthetic_case(
             uv[list(landmarks).index(blunder["landmark"])] += blunder["offset_px"]
         lms = {n: Landmark(p, 1.0) for n, p in zip(landmarks, uv, strict=True)}
         outline = resample_polyline(rad.outlines[0], 2.0, closed=rad.outline_closed[0])
-        k = len(outline)
-        start = int(rng.integers(k))
-        piece = np.roll(outline, -start, axis=0)[: int(0.8 * k)]
+        k, keep = len(outline), int(0.8 * len(outline))
+        if rad.outline_closed[0]:  # a loop: an 80 % stretch from a random start
+            piece = np.roll(outline, -int(rng.integers(k)), axis=0)[:keep]
+        else:  # an open outline (pinch points): a stretch inside it, never across its ends
+            start = int(rng.integers(k - keep + 1))
+            piece = outline[start : start + keep]
         piece = piece + rng.normal(scale=contour_noise_px, size=piece.shape)
         ann.views[view.name] = ViewAnnotations(lms, [Contour(piece, False)])
     save_annotations(ann, root / "annotations.json")

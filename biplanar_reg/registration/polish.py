@@ -27,6 +27,7 @@ __all__ = [
     "polish_pose_shape",
     "polish_cost",
     "ray_offsets",
+    "plane_bases",
 ]
 
 
@@ -53,6 +54,19 @@ def tangent_bases(directions: np.ndarray) -> np.ndarray:
     a /= np.linalg.norm(a, axis=1, keepdims=True)
     b = np.cross(d, a)
     return np.stack([a, b], axis=2)
+
+
+def plane_bases(origins: np.ndarray, directions: np.ndarray, along: np.ndarray) -> np.ndarray:
+    """Bases ``[n, 0]`` (K, 3, 2) for offsets from the planes spanned by each ray and ``along``.
+
+    ``along`` (K, 3) is a direction in each plane besides the ray's own, e.g. the 3D direction
+    of an image outline's tangent at the observation; ``n`` is the plane's unit normal.
+    """
+    n = np.cross(directions, along)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    out = np.zeros((len(n), 3, 2))
+    out[:, :, 0] = n
+    return out
 
 
 def ray_offsets(points: np.ndarray, origins: np.ndarray, bases: np.ndarray) -> np.ndarray:
@@ -111,6 +125,7 @@ def polish_pose_shape(
     prior_weight: float = 1.0,
     max_iter: int = 50,
     tol: float = 1e-12,
+    bases: np.ndarray | None = None,
 ) -> PolishResult:
     """Levenberg-Marquardt refinement of rotation, translation and shape weights.
 
@@ -132,8 +147,13 @@ def polish_pose_shape(
         Maximum number of LM iterations.
     tol : float
         Stop when the relative cost decrease of an accepted step is below ``tol``.
+    bases : (K, 3, 2) array, optional
+        The directions in which each offset is measured (default :func:`tangent_bases`: the
+        full offset from the ray). A basis ``[n, 0]`` measures only the offset along ``n``,
+        i.e. the distance from a plane through the ray (a point-to-line match of an outline,
+        free to slide along it; see :func:`plane_bases`).
     """
-    bases = tangent_bases(directions)
+    bases = tangent_bases(directions) if bases is None else bases
     inv_sigma = 1.0 / sigmas
     sqrt_lam = float(np.sqrt(prior_weight))
     M = len(w0)

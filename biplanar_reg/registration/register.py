@@ -19,7 +19,7 @@ from ..silhouette import chain_edges
 from ..ssm.model import ShapeModel
 from .gsft import DEFAULT_EPS, GsftResult, solve_gsft
 from .observations import ViewObservations, landmark_rays, mm_per_pixel
-from .polish import polish_pose_shape
+from .polish import plane_bases, polish_pose_shape, tangent_bases
 from .silhouettes import (
     adaptive_gate,
     match_outline,
@@ -65,7 +65,11 @@ class RegistrationOptions:
         ``lambda`` in (0, 1]: landmarks weigh ``lambda``, silhouette matches ``1 - lambda``
         (per observation, relative to their counts; see :mod:`.silhouettes`).
     max_iterations : int
-        Maximum silhouette-boosting iterations.
+        Maximum silhouette-boosting iterations with a convex re-solve each.
+    refine_iterations : int
+        Maximum iterations of the final joint local refinement on all terms: re-matching the
+        silhouettes and a Levenberg-Marquardt step from the previous iterate, no SDP (the
+        outline correspondences converge linearly, so cheap iterations finish the job).
     silhouette_points : int
         Model silhouette points used per view and iteration (fixed count: each iteration is a
         re-solve of a problem of the same size).
@@ -88,7 +92,8 @@ class RegistrationOptions:
     """
 
     landmark_weight: float = 0.5
-    max_iterations: int = 10
+    max_iterations: int = 6
+    refine_iterations: int = 15
     silhouette_points: int = 150
     gate_px: float = 15.0
     mutual: bool = False
@@ -102,8 +107,8 @@ class RegistrationOptions:
     def __post_init__(self) -> None:
         if not 0.0 < self.landmark_weight <= 1.0:
             raise ValueError(f"landmark_weight: must be in (0, 1], got {self.landmark_weight}")
-        for key in ("max_iterations", "silhouette_points"):
-            if int(getattr(self, key)) < (0 if key == "max_iterations" else 3):
+        for key in ("max_iterations", "refine_iterations", "silhouette_points"):
+            if int(getattr(self, key)) < (3 if key == "silhouette_points" else 0):
                 raise ValueError(f"{key}: too small ({getattr(self, key)})")
         for key in ("gate_px", "blunder_threshold", "eps", "contour_sigma_px", "tol"):
             v = float(getattr(self, key))
@@ -115,13 +120,19 @@ class RegistrationOptions:
 
 @dataclass(frozen=True)
 class IterationRecord:
-    """One solve of the registration: iteration 0 is the landmark-only solve."""
+    """One solve of the registration: iteration 0 is the landmark-only solve.
+
+    ``kind`` is ``"sdp"`` for a convex re-solve (its ``certificate`` is that solve's) and
+    ``"local"`` for an iteration of the final local refinement (re-matching plus a
+    Levenberg-Marquardt step from the previous iterate; ``certificate`` is the last SDP's).
+    """
 
     index: int
-    cost: float  # refinement cost (chi-square / 2) of all terms used
+    cost: float  # the match-independent iteration cost (module docstring of .silhouettes)
     n_matches: int  # silhouette matches used (0 at iteration 0)
     certificate: float
     seconds: float
+    kind: str = "sdp"
 
 
 @dataclass(frozen=True)
@@ -409,8 +420,45 @@ def register_views(
             cost += (1.0 - lam) * float(np.mean(d**2)) if d.size else 0.0
         return cost
 
-    def boost(res, rejected, max_iterations, detect):
-        """Silhouette iterations from ``res``; returns the records and the best iterate."""
+    def local_solve(ids, org, dirs, sig, start, nbr):
+        """LM from ``start``; outline matches (rows from ``n_lm`` on) are point-to-line: only
+        their offset across the outline counts (the plane through the ray and the outline's
+        tangent), so the model slides freely along the outline. ``nbr`` = (origins,
+        directions) of the rays one outline-tangent pixel further, for those rows."""
+        bases = tangent_bases(dirs)
+        if len(ids) > n_lm:
+            o, d = org[n_lm:], dirs[n_lm:]
+            depth = np.einsum("ki,ki->k", d, start.vertices[ids[n_lm:]] - o)[:, None]
+            along = (nbr[0] + depth * nbr[1]) - (o + depth * d)
+            bases[n_lm:] = plane_bases(o, d, along)
+        fit = polish_pose_shape(
+            start.rotation,
+            start.translation,
+            start.weights,
+            model.mean[ids],
+            model.modes[:, ids],
+            org,
+            dirs,
+            sig,
+            prior_weight=opts.prior_weight,
+            max_iter=30,
+            bases=bases,
+        )
+        V = model.instance(fit.weights) @ fit.rotation.T + fit.translation
+        return replace(
+            start,
+            rotation=fit.rotation,
+            translation=fit.translation,
+            weights=fit.weights,
+            vertices=V,
+            polish_converged=fit.converged,
+        )
+
+    def boost(res, rejected, max_iterations, detect, local=False, k0=0):
+        """Silhouette iterations from ``res``; returns the records and the best iterate.
+
+        ``local``: Levenberg-Marquardt steps instead of convex re-solves; ``k0`` numbers the
+        iterations on from an earlier loop (whose last iterate is ``res``)."""
         records: list[IterationRecord] = []
         best = (np.inf, 0, res, {})
         prev_key: frozenset | None = None
@@ -422,13 +470,23 @@ def register_views(
         while True:
             outl = outlines_of(res) if use_sil else {}
             cost = iteration_cost(res, outl, rejected)
-            records.append(
-                IterationRecord(k, cost, n_matches, res.certificate, time.perf_counter() - t_it)
-            )
+            if not (local and k == 0):  # a local loop starts from the last recorded iterate
+                records.append(
+                    IterationRecord(
+                        k0 + k,
+                        cost,
+                        n_matches,
+                        res.certificate,
+                        time.perf_counter() - t_it,
+                        "local" if local else "sdp",
+                    )
+                )
             if cost < best[0]:
-                best = (cost, k, res, outl)
+                best = (cost, k0 + k, res, outl)
             if not use_sil or k >= max_iterations:
                 break
+            if local and k0 + k - best[1] >= 3:
+                break  # three local steps without a new best: the matching is cycling
             if k >= 2 and abs(prev_cost - cost) <= opts.tol * max(prev_cost, 1e-12):
                 break
             prev_cost = cost
@@ -436,11 +494,13 @@ def register_views(
             # while the landmarks are still far off (a wrong start must not drop every match)
             lm_err = _landmark_px_errors(views, lm, res.vertices)
             lm_rms = float(np.sqrt(np.mean(np.delete(lm_err, list(rejected)) ** 2)))
-            gate = max(opts.gate_px, 2.0 * lm_rms) if k == 0 else opts.gate_px
+            wide = k == 0 and k0 == 0  # the very first matching, from the landmark-only start
+            gate = max(opts.gate_px, 2.0 * lm_rms) if wide else opts.gate_px
             found = {i: match_outline(outl[i], t, gate, opts.mutual) for i, t in targets.items()}
             all_d = np.concatenate([f[3] for f in found.values()])
-            thr = adaptive_gate(all_d, MATCH_FLOOR_PX) if k > 0 else gate
+            thr = gate if wide else adaptive_gate(all_d, MATCH_FLOOR_PX)
             parts_ids, parts_o, parts_d, parts_s, key = [], [], [], [], []
+            nbr_o, nbr_d = [], []
             for i, (ids, uv, seg, dist) in found.items():
                 ok = dist <= thr
                 if not np.any(ok):
@@ -449,6 +509,13 @@ def register_views(
                 parts_ids.append(ids[ok])
                 parts_o.append(o)
                 parts_d.append(d)
+                if local:  # the neighbouring rays along the outline's tangent
+                    seg_t = targets[i].segments
+                    tan = seg_t.b[seg[ok]] - seg_t.a[seg[ok]]
+                    tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-12)
+                    o2, d2 = views[i].view.rays(uv[ok] + tan)
+                    nbr_o.append(o2)
+                    nbr_d.append(d2)
                 parts_s.append(np.full(int(ok.sum()), sil_sigma[i]))
                 key += [(i, int(a), int(b)) for a, b in zip(ids[ok], seg[ok], strict=True)]
             key_set = frozenset(key)
@@ -463,7 +530,11 @@ def register_views(
                 np.concatenate([lm_sigmas(rejected), *parts_s]),
             )
             t_it = time.perf_counter()
-            res = solve(*obs, start=res)
+            if local:
+                nbr = (np.vstack(nbr_o), np.vstack(nbr_d)) if nbr_o else None
+                res = local_solve(*obs, res, nbr)
+            else:
+                res = solve(*obs, start=res)
             settled = k - last_rejection >= 2  # the outline fit has had two updates since
             if detect and settled:
                 bad = _find_blunder(model, views, lm, res, obs, rejected, opts)
@@ -503,6 +574,13 @@ def register_views(
             res = start_i
 
     records, best = boost(res, rejected, opts.max_iterations, opts.robust)
+    if use_sil and opts.refine_iterations > 0:
+        more, best_local = boost(
+            best[2], rejected, opts.refine_iterations, False, local=True, k0=records[-1].index
+        )
+        records += more
+        if best_local[0] < best[0]:
+            best = best_local
     _, best_k, res, outl = best
     if use_sil and not outl:
         outl = outlines_of(res)
