@@ -81,6 +81,10 @@ def coverage_mask(uv: np.ndarray, faces: np.ndarray, pad: int = 3) -> tuple[np.n
     shift = 4  # cv2 fixed-point sub-pixel precision (1/16 px)
     pts = np.round((uv - lo) * (1 << shift)).astype(np.int32)[faces]
     cv2.fillPoly(mask, list(pts), 1, lineType=cv2.LINE_8, shift=shift)
+    # sliver triangles can leave one-pixel cracks inside the projection; a 3x3 closing fills
+    # them (they would otherwise make inner contour edges look like outer ones) while keeping
+    # real holes of the projection
+    mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
     return mask.astype(bool), lo
 
 
