@@ -98,7 +98,7 @@ class RegistrationOptions:
     gate_px: float = 15.0
     mutual: bool = False
     robust: bool = True
-    blunder_threshold: float = 6.0
+    blunder_threshold: float = 10.0
     eps: float = DEFAULT_EPS
     prior_weight: float = 1.0
     tol: float = 1e-4
