@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .polish import _jacobian as _view_jacobian
-from .polish import ray_offsets, tangent_bases
+from .polish import levenberg_marquardt, ray_offsets, tangent_bases
 from .rotations import so3_exp
 
 __all__ = ["ViewData", "JointPolishResult", "joint_cost", "polish_views"]
@@ -127,47 +127,27 @@ def polish_views(
     P, M = len(views), len(weights)
     bases = [tangent_bases(v.directions) for v in views]
     sqrt_lam = float(np.sqrt(prior_weight))
-    Rs = np.array(rotations, dtype=float)
-    ts = np.array(translations, dtype=float)
-    w = np.array(weights, dtype=float)
-    r, shapes = _residuals(Rs, ts, w, views, bases, sqrt_lam)
-    cost = cost0 = 0.5 * float(r @ r)
-    mu = 1e-3
-    converged = False
-    iterations = 0
-    for iterations in range(1, max_iter + 1):  # noqa: B007 (reported after the loop)
-        J = _jacobian(Rs, shapes, views, bases, sqrt_lam, M)
-        g = J.T @ r
-        if np.max(np.abs(g)) <= 1e-14 * max(1.0, cost):
-            converged = True
-            break
-        H = J.T @ J
-        diag = np.maximum(np.diag(H), 1e-12 * max(1.0, np.max(np.diag(H))))
-        improved = False
-        while mu < 1e12:
-            try:
-                step = np.linalg.solve(H + mu * np.diag(diag), -g)
-            except np.linalg.LinAlgError:
-                mu *= 10.0
-                continue
-            Rs1 = np.array([so3_exp(step[6 * x : 6 * x + 3]) @ Rs[x] for x in range(P)])
-            ts1 = ts + step[: 6 * P].reshape(P, 6)[:, 3:]
-            w1 = w + step[6 * P :]
-            r1, shapes1 = _residuals(Rs1, ts1, w1, views, bases, sqrt_lam)
-            cost1 = 0.5 * float(r1 @ r1)
-            if cost1 < cost:
-                rel = (cost - cost1) / max(cost, 1e-300)
-                Rs, ts, w, r, shapes, cost = Rs1, ts1, w1, r1, shapes1, cost1
-                mu = max(mu / 3.0, 1e-12)
-                improved = True
-                converged = rel < tol
-                break
-            mu *= 4.0
-        if not improved:
-            converged = True  # no descent step at machine precision: a local minimum
-            break
-        if converged:
-            break
+
+    def residuals(state):
+        Rs, ts, w = state
+        return _residuals(Rs, ts, w, views, bases, sqrt_lam)
+
+    def jacobian(state, shapes):
+        return _jacobian(state[0], shapes, views, bases, sqrt_lam, M)
+
+    def retract(state, step):
+        Rs, ts, w = state
+        Rs1 = np.array([so3_exp(step[6 * x : 6 * x + 3]) @ Rs[x] for x in range(P)])
+        return Rs1, ts + step[: 6 * P].reshape(P, 6)[:, 3:], w + step[6 * P :]
+
+    start = (
+        np.array(rotations, dtype=float),
+        np.array(translations, dtype=float),
+        np.array(weights, dtype=float),
+    )
+    (Rs, ts, w), cost0, cost, iterations, converged = levenberg_marquardt(
+        start, residuals, jacobian, retract, max_iter=max_iter, tol=tol
+    )
     return JointPolishResult(
         rotations=Rs,
         translations=ts,

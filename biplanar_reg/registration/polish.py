@@ -28,6 +28,7 @@ __all__ = [
     "polish_cost",
     "ray_offsets",
     "plane_bases",
+    "levenberg_marquardt",
 ]
 
 
@@ -112,6 +113,69 @@ def _jacobian(R, Q, mode_pts, bases, inv_sigma, sqrt_lam, n_modes):
     return J
 
 
+def levenberg_marquardt(state, residuals, jacobian, retract, *, max_iter: int, tol: float):
+    """Levenberg-Marquardt with Marquardt's diagonal scaling, shared by the refinements.
+
+    Parameters
+    ----------
+    state : object
+        The starting point (any structure ``retract`` understands).
+    residuals : callable
+        ``residuals(state) -> (r, aux)``: residual vector and data the Jacobian reuses.
+    jacobian : callable
+        ``jacobian(state, aux) -> J`` with ``J`` of shape ``(len(r), n)``.
+    retract : callable
+        ``retract(state, step) -> state``: applies a step of length ``n`` (on-manifold for
+        rotations).
+    max_iter : int
+        Maximum number of accepted or rejected outer iterations.
+    tol : float
+        Stop when an accepted step lowers the cost by less than this fraction.
+
+    Returns
+    -------
+    state, cost_before, cost_after, iterations, converged
+        A step is kept only if it lowers ``1/2 |r|^2``, so ``cost_after <= cost_before``.
+    """
+    r, aux = residuals(state)
+    cost = cost0 = 0.5 * float(r @ r)
+    mu = 1e-3
+    converged = False
+    iterations = 0
+    for iterations in range(1, max_iter + 1):  # noqa: B007 - the count is reported
+        J = jacobian(state, aux)
+        g = J.T @ r
+        if np.max(np.abs(g)) <= 1e-14 * max(1.0, cost):
+            converged = True
+            break
+        H = J.T @ J
+        diag = np.maximum(np.diag(H), 1e-12 * max(1.0, np.max(np.diag(H))))
+        improved = False
+        while mu < 1e12:
+            try:
+                step = np.linalg.solve(H + mu * np.diag(diag), -g)
+            except np.linalg.LinAlgError:
+                mu *= 10.0
+                continue
+            cand = retract(state, step)
+            r1, aux1 = residuals(cand)
+            cost1 = 0.5 * float(r1 @ r1)
+            if cost1 < cost:
+                rel = (cost - cost1) / max(cost, 1e-300)
+                state, r, aux, cost = cand, r1, aux1, cost1
+                mu = max(mu / 3.0, 1e-12)
+                improved = True
+                converged = rel < tol
+                break
+            mu *= 4.0
+        if not improved:
+            converged = True  # no descent step exists at machine precision: a local minimum
+            break
+        if converged:
+            break
+    return state, cost0, cost, iterations, converged
+
+
 def polish_pose_shape(
     R0: np.ndarray,
     t0: np.ndarray,
@@ -157,46 +221,26 @@ def polish_pose_shape(
     inv_sigma = 1.0 / sigmas
     sqrt_lam = float(np.sqrt(prior_weight))
     M = len(w0)
-    R, t, w = R0.copy(), t0.copy(), w0.copy()
-    r, Q = _residuals(R, t, w, mean_pts, mode_pts, origins, bases, inv_sigma, sqrt_lam)
-    cost = cost0 = 0.5 * float(r @ r)
-    mu = 1e-3
-    converged = False
-    iterations = 0
-    for iterations in range(1, max_iter + 1):  # noqa: B007 - the count is reported
-        J = _jacobian(R, Q, mode_pts, bases, inv_sigma, sqrt_lam, M)
-        g = J.T @ r
-        H = J.T @ J
-        if np.max(np.abs(g)) <= 1e-14 * max(1.0, cost):
-            converged = True
-            break
-        diag = np.maximum(np.diag(H), 1e-12 * max(1.0, np.max(np.diag(H))))
-        improved = False
-        while mu < 1e12:
-            try:
-                step = np.linalg.solve(H + mu * np.diag(diag), -g)
-            except np.linalg.LinAlgError:
-                mu *= 10.0
-                continue
-            R1 = so3_exp(step[:3]) @ R
-            t1 = t + step[3:6]
-            w1 = w + step[6:]
-            r1, Q1 = _residuals(R1, t1, w1, mean_pts, mode_pts, origins, bases, inv_sigma, sqrt_lam)
-            cost1 = 0.5 * float(r1 @ r1)
-            if cost1 < cost:
-                rel = (cost - cost1) / max(cost, 1e-300)
-                R, t, w, r, Q, cost = R1, t1, w1, r1, Q1, cost1
-                mu = max(mu / 3.0, 1e-12)
-                improved = True
-                if rel < tol:
-                    converged = True
-                break
-            mu *= 4.0
-        if not improved:
-            converged = True  # no descent step exists at machine precision: a local minimum
-            break
-        if converged:
-            break
+
+    def residuals(state):
+        R, t, w = state
+        return _residuals(R, t, w, mean_pts, mode_pts, origins, bases, inv_sigma, sqrt_lam)
+
+    def jacobian(state, Q):
+        return _jacobian(state[0], Q, mode_pts, bases, inv_sigma, sqrt_lam, M)
+
+    def retract(state, step):
+        R, t, w = state
+        return so3_exp(step[:3]) @ R, t + step[3:6], w + step[6:]
+
+    (R, t, w), cost0, cost, iterations, converged = levenberg_marquardt(
+        (R0.copy(), t0.copy(), w0.copy()),
+        residuals,
+        jacobian,
+        retract,
+        max_iter=max_iter,
+        tol=tol,
+    )
     return PolishResult(
         rotation=R,
         translation=t,
