@@ -44,13 +44,14 @@ from _common import (
     write_text,
 )
 
-import biplanar_reg.registration.register as register_module
 from biplanar_reg.annotation.annotations import Contour
 from biplanar_reg.registration import RegistrationOptions, ViewObservations, register_views
 from biplanar_reg.silhouette import chain_edges, mesh_silhouette
 from biplanar_reg.synthetic import biplanar_views
 
 MAX_IT = 10
+#: Recorded iterations at most: the start, MAX_IT convex re-solves, the local refinement.
+N_REC = MAX_IT + 1 + RegistrationOptions().refine_iterations
 VIEWS = biplanar_views(75.0)
 
 
@@ -84,37 +85,24 @@ def scene(model, K, outline_px, rng):
 
 
 def errors_per_iteration(model, X, views):
-    """(errors (MAX_IT + 1,), returned error, seconds, iterations run) of one registration."""
-    captured = []
-    original = register_module.solve_gsft
+    """(errors (N_REC,), returned error, seconds, iterations run) of one registration.
 
-    def recording(*a, **kw):
-        res = original(*a, **kw)
-        captured.append(res)
-        return res
-
+    One error per recorded iteration (`RegistrationResult.iterate_vertices`): the landmark
+    start, the convex re-solves, then the local-refinement steps; padded with the last value.
+    """
     opts = RegistrationOptions(max_iterations=MAX_IT, robust=False)
-    register_module.solve_gsft = recording
-    try:
-        t0 = time.perf_counter()
-        out = register_views(model, views, silhouettes=True, options=opts)
-        secs = time.perf_counter() - t0
-    finally:
-        register_module.solve_gsft = original
-    # solves: the unweighted landmark start, then one per recorded iteration
-    if len(captured) != len(out.iterations) + 1:
-        raise RuntimeError(
-            f"unexpected solve count {len(captured)} for {len(out.iterations)} iterations"
-        )
-    errs = [rms(r.vertices, X) for r in captured[1:]]
-    if rms(captured[1 + out.best_iteration].vertices, out.vertices) > 1e-9:
+    t0 = time.perf_counter()
+    out = register_views(model, views, silhouettes=True, options=opts)
+    secs = time.perf_counter() - t0
+    errs = [rms(v, X) for v in out.iterate_vertices]
+    if rms(out.iterate_vertices[out.best_iteration], out.vertices) > 1e-9:
         raise RuntimeError("the returned solution is not the recorded best iteration")
-    errs += [errs[-1]] * (MAX_IT + 1 - len(errs))
+    errs += [errs[-1]] * (N_REC - len(errs))
     return np.array(errs), rms(out.vertices, X), secs, len(out.iterations) - 1
 
 
 def run(model, K, outline_px, repeats, rng):
-    """Per-trial arrays: errors (T, MAX_IT + 1), returned (T,), seconds (T,), iterations (T,)."""
+    """Per-trial arrays: errors (T, N_REC), returned (T,), seconds (T,), iterations (T,)."""
     E, ret, secs, its = [], [], [], []
     for _ in range(repeats):
         X, views = scene(model, K, outline_px, rng)
@@ -192,7 +180,7 @@ def main() -> None:
             "",
             "## Error per iteration (noise-free outlines)",
             "",
-            "| model | K | it 0 (landmarks) | it 1 | it 3 | it 10 (or last) | returned | "
+            "| model | K | it 0 (landmarks) | it 1 | it 3 | last recorded | returned | "
             "improved | iterations run | time (s) |",
             "|---|---|---|---|---|---|---|---|---|---|",
             *rows_it,
@@ -218,7 +206,7 @@ def plot(curves, names, ks, noise_ks, noises, png):
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, len(names) + 1, figsize=(4.2 * (len(names) + 1), 3.6))
-    its = np.arange(MAX_IT + 1)
+    its = np.arange(N_REC)
     for c, name in enumerate(names):
         ax = axes[c]
         for K in ks:

@@ -166,6 +166,9 @@ class RegistrationResult:
         Seconds.
     gsft : GsftResult
         The final underlying solve.
+    iterate_vertices : list of (N, 3) arrays
+        The registered vertices of every recorded iteration (for convergence studies; not
+        written to ``result.json``).
     pose_info : dict
         For ``poses="refine"``: ``{"mode", "rotation_corrections_deg": {view: deg},
         "centre_corrections_mm": {view: mm}}``; for ``"unknown"``: ``{"mode",
@@ -188,6 +191,7 @@ class RegistrationResult:
     timings: dict
     gsft: GsftResult = field(repr=False)
     pose_info: dict = field(default_factory=dict)
+    iterate_vertices: list = field(default_factory=list, repr=False)
 
 
 def _check_views(model: ShapeModel, views: list[ViewObservations]) -> None:
@@ -460,6 +464,7 @@ def register_views(
         ``local``: Levenberg-Marquardt steps instead of convex re-solves; ``k0`` numbers the
         iterations on from an earlier loop (whose last iterate is ``res``)."""
         records: list[IterationRecord] = []
+        iterates: list[np.ndarray] = []
         best = (np.inf, 0, res, {})
         prev_key: frozenset | None = None
         prev_cost = np.inf
@@ -471,6 +476,7 @@ def register_views(
             outl = outlines_of(res) if use_sil else {}
             cost = iteration_cost(res, outl, rejected)
             if not (local and k == 0):  # a local loop starts from the last recorded iterate
+                iterates.append(res.vertices)
                 records.append(
                     IterationRecord(
                         k0 + k,
@@ -549,7 +555,7 @@ def register_views(
                 f"silhouette iteration {k}: {n_matches} matches, cost {cost:.4g}, "
                 f"certificate {res.certificate:.1e}"
             )
-        return records, best
+        return records, iterates, best
 
     # -- landmark blunders: a consensus over leave-one-out starts ------------------------------
     # A gross landmark error spoils the landmark-only start and the outline fit then converges
@@ -561,11 +567,11 @@ def register_views(
     # only when some landmark disagrees with the start by more than ``CONSENSUS_TRIGGER``.
     err = _landmark_px_errors(views, lm, res.vertices) / lm.sigma_px
     if opts.robust and use_sil and not rejected and n_lm >= 5 and err.max() > CONSENSUS_TRIGGER:
-        _, base_best = boost(res, set(), CONSENSUS_ITERATIONS, False)
+        _, _, base_best = boost(res, set(), CONSENSUS_ITERATIONS, False)
         cands = []
         for i in range(n_lm):
             start, _ = landmark_solve({i})
-            _, b = boost(start, {i}, CONSENSUS_ITERATIONS, False)
+            _, _, b = boost(start, {i}, CONSENSUS_ITERATIONS, False)
             cands.append((b[0], i, b[2]))
         cost_i, i, start_i = min(cands, key=lambda c: c[0])
         say(f"blunder consensus: best without {lm.names[i]}: {cost_i:.3g} / {base_best[0]:.3g}")
@@ -573,19 +579,20 @@ def register_views(
             rejected.add(i)
             res = start_i
 
-    records, best = boost(res, rejected, opts.max_iterations, opts.robust)
+    records, iterates, best = boost(res, rejected, opts.max_iterations, opts.robust)
     if use_sil and opts.refine_iterations > 0:
-        more, best_local = boost(
+        more, more_v, best_local = boost(
             best[2], rejected, opts.refine_iterations, False, local=True, k0=records[-1].index
         )
         records += more
+        iterates += more_v
         if best_local[0] < best[0]:
             best = best_local
     _, best_k, res, outl = best
     if use_sil and not outl:
         outl = outlines_of(res)
     out = _result(model, views, lm, res, records, best_k, outl, targets, rejected, t0)
-    return replace(out, pose_info=pose_info)
+    return replace(out, pose_info=pose_info, iterate_vertices=iterates)
 
 
 def _estimate_view_poses(model, views, poses, opts):
