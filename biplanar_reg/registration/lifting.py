@@ -11,7 +11,7 @@ Everything the solver needs is linear in ``Delta``:
 * the rotated, deformed model point ``R (mean_j + sum_i w_i P_ij)`` uses the first row
   (``R``) and the rows ``10 + i`` (``w_i R``) of ``Delta``;
 * the rotation constraints ``R R^T = I``, ``R^T R = I`` and the cross products
-  ``r_a x r_b = r_c`` (rows and columns), which make ``det R = +1`` and measurably tighten the
+  ``r_a x r_b = r_c`` (R equals its cofactor matrix), which make ``det R = +1`` and tighten the
   relaxation;
 * the trace.
 """
