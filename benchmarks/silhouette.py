@@ -30,7 +30,7 @@ from biplanar_reg.io import read_volume
 from biplanar_reg.registration import RegistrationOptions, ViewObservations, register_views
 from biplanar_reg.silhouette import chain_edges, mesh_silhouette
 from biplanar_reg.ssm import ShapeModel, bone_surface, build_ssm, synthesise_population
-from biplanar_reg.synthetic import biplanar_views, random_pose
+from biplanar_reg.synthetic import biplanar_views, outline_stretch, random_pose
 
 CT = Path(__file__).resolve().parents[1] / "sample_cases/wrist_radius/data/radius_ct.tif"
 VOXEL = (0.39625, 0.39625, 0.625)
@@ -55,12 +55,7 @@ def trial(model, n_landmarks, noise_px, outline_noise_px, seed, opts):
         ids = rng.choice(model.n_vertices, n, replace=False)
         edges, uv_all = mesh_silhouette(X, model.faces, view)
         polys, closed = chain_edges(edges, uv_all)
-        outline, keep = polys[0], int(0.8 * len(polys[0]))
-        if closed[0]:  # a loop: any 80 % stretch
-            outline = np.roll(outline, -rng.integers(len(outline)), axis=0)[:keep]
-        else:  # an open chain (the outline has pinch points): a stretch inside it
-            start = rng.integers(len(outline) - keep + 1)
-            outline = outline[start : start + keep]
+        outline = outline_stretch(polys[0], closed[0], 0.8, rng)
         outline = outline + outline_noise_px * rng.normal(size=outline.shape)
         views.append(
             ViewObservations(

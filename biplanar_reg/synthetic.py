@@ -19,6 +19,7 @@ __all__ = [
     "random_pose",
     "Observations",
     "observe",
+    "outline_stretch",
 ]
 
 
@@ -209,3 +210,18 @@ def observe(
         uv=np.vstack(out["uv"]),
         view_index=np.concatenate(out["vi"]),
     )
+
+
+def outline_stretch(
+    outline: np.ndarray, closed: bool, fraction: float, rng: np.random.Generator
+) -> np.ndarray:
+    """A contiguous stretch of ``fraction`` of an outline polyline (K, 2) from a random start.
+
+    A closed loop may wrap around its start; an open polyline never does (wrapping would join
+    its two ends with a chord across the shape).
+    """
+    keep = int(fraction * len(outline))
+    if closed:
+        return np.roll(outline, -int(rng.integers(len(outline))), axis=0)[:keep]
+    start = int(rng.integers(len(outline) - keep + 1))
+    return outline[start : start + keep]

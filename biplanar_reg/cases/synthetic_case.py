@@ -50,7 +50,7 @@ from ..calibration import save_calibration
 from ..calibration.views import View
 from ..io import write_mesh
 from ..ssm import ShapeModel
-from ..synthetic import look_at_view, random_pose, synthetic_bone_model
+from ..synthetic import look_at_view, outline_stretch, random_pose, synthetic_bone_model
 
 __all__ = ["write_synthetic_case", "synthetic_landmarks"]
 
@@ -232,12 +232,7 @@ def write_synthetic_case(
             uv[list(landmarks).index(blunder["landmark"])] += blunder["offset_px"]
         lms = {n: Landmark(p, 1.0) for n, p in zip(landmarks, uv, strict=True)}
         outline = resample_polyline(rad.outlines[0], 2.0, closed=rad.outline_closed[0])
-        k, keep = len(outline), int(0.8 * len(outline))
-        if rad.outline_closed[0]:  # a loop: an 80 % stretch from a random start
-            piece = np.roll(outline, -int(rng.integers(k)), axis=0)[:keep]
-        else:  # an open outline (pinch points): a stretch inside it, never across its ends
-            start = int(rng.integers(k - keep + 1))
-            piece = outline[start : start + keep]
+        piece = outline_stretch(outline, rad.outline_closed[0], 0.8, rng)
         piece = piece + rng.normal(scale=contour_noise_px, size=piece.shape)
         ann.views[view.name] = ViewAnnotations(lms, [Contour(piece, False)])
     save_annotations(ann, root / "annotations.json")

@@ -415,8 +415,13 @@ def solve_gsft(
     )
 
 
+def common_sigma(distances: np.ndarray, dof: int, scale: float) -> float:
+    """One sigma (mm) for all ray offsets: RMS per offset component corrected for the ``dof``
+    degrees of freedom left after fitting, floored at 1e-9 of the model size (noise-free
+    data)."""
+    return max(float(np.sqrt(np.sum(distances**2) / max(dof, 1))), 1e-9 * scale)
+
+
 def _estimate_sigma(distances: np.ndarray, K: int, M: int, scale: float) -> float:
-    """Common sigma (mm) of the ray offsets: RMS per offset component, corrected for the fitted
-    parameters, floored at 1e-9 of the model size (noise-free data)."""
-    dof = max(2 * K - 6 - M, 1)
-    return max(float(np.sqrt(np.sum(distances**2) / dof)), 1e-9 * scale)
+    """:func:`common_sigma` for K two-component offsets and a fit of 6 + M parameters."""
+    return common_sigma(distances, 2 * K - 6 - M, scale)

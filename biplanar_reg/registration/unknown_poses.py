@@ -49,6 +49,7 @@ from .gsft import (
     DEFAULT_DEPTH_REWARD,
     DEFAULT_EPS,
     MIN_DEPTH_SIZES,
+    common_sigma,
     nearest_point_to_rays,
     solve_gsft,
 )
@@ -446,12 +447,6 @@ def _round_view(gram, t_n, centre, w, model, central):
     return R, Y.mean(axis=0) - R @ Q.mean(axis=0), s
 
 
-def _common_sigma(dist: np.ndarray, dof: int, scale: float) -> float:
-    """One sigma (mm) for all ray offsets: RMS per component corrected for the fitted
-    parameters, floored at 1e-9 of the model size (noise-free data)."""
-    return max(float(np.sqrt(np.sum(dist**2) / max(dof, 1))), 1e-9 * scale)
-
-
 def _view_data(model: ShapeModel, views: list[_View], sigmas: list[np.ndarray]) -> list[ViewData]:
     return [
         ViewData(model.mean[v.ids], model.modes[:, v.ids], v.origins, v.directions, s)
@@ -479,7 +474,7 @@ def _refine(model, views, starts, prior_weight, max_iter):
             sig = [v.sigmas for v in views]
         else:
             d = np.concatenate(_distances(model, views, Rs, ts, w))
-            sig = [np.full(len(v.ids), _common_sigma(d, dof, model.size)) for v in views]
+            sig = [np.full(len(v.ids), common_sigma(d, dof, model.size)) for v in views]
         iters = 0
         R0, t0, w0 = Rs, ts, w
         for _ in range(10):  # a common sigma settles quadratically on noise-free data
@@ -495,9 +490,7 @@ def _refine(model, views, starts, prior_weight, max_iter):
             iters += res.iterations
             if given:
                 break
-            new = _common_sigma(
-                np.concatenate(_distances(model, views, Rs, ts, w)), dof, model.size
-            )
+            new = common_sigma(np.concatenate(_distances(model, views, Rs, ts, w)), dof, model.size)
             if abs(new - sig[0][0]) <= 0.1 * sig[0][0]:
                 break
             sig = [np.full(len(v.ids), new) for v in views]
@@ -619,7 +612,7 @@ def solve_gsft_unknown_poses(
     else:
         d = np.concatenate(_distances(model, checked, Rs_sdp, ts_sdp, w_sdp))
         K = sum(len(v.ids) for v in checked)
-        s = _common_sigma(d, 2 * K - 6 * P - M, scale)
+        s = common_sigma(d, 2 * K - 6 * P - M, scale)
         sig = [v.sigmas if v.sigmas is not None else np.full(len(v.ids), s) for v in checked]
         Rs, ts, w, start, p_iters, p_conv = Rs_sdp, ts_sdp, w_sdp, 0, 0, True
         cost0 = cost = joint_cost(Rs, ts, w, _view_data(model, checked, sig), prior_weight)
