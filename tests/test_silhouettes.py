@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -155,22 +157,32 @@ def test_registration_options_are_validated():
         RegistrationOptions(gate_px=-1.0)
 
 
+def _without_first_landmark(v: ViewObservations) -> ViewObservations:
+    return replace(
+        v,
+        landmark_names=v.landmark_names[1:],
+        landmark_ids=v.landmark_ids[1:],
+        landmark_uv=v.landmark_uv[1:],
+        landmark_sigma_px=v.landmark_sigma_px[1:],
+    )
+
+
 @pytest.mark.parametrize("seed", [0, 3])
 def test_a_landmark_blunder_is_flagged_and_does_not_wreck_the_result(model, seed):
     views, X = _case(model, seed, frac=0.8, noise=0.5)
     bad_uv = views[0].landmark_uv.copy()
     bad_uv[0] += 40.0 * np.array([0.6, 0.8])  # one landmark 40 px off
-    views[0] = ViewObservations(
-        name=views[0].name,
-        view=views[0].view,
-        landmark_names=views[0].landmark_names,
-        landmark_ids=views[0].landmark_ids,
-        landmark_uv=bad_uv,
-        landmark_sigma_px=views[0].landmark_sigma_px,
-        contours=views[0].contours,
-    )
-    robust = register_views(model, views)
-    naive = register_views(model, views, options=RegistrationOptions(robust=False))
+    blunder = [replace(views[0], landmark_uv=bad_uv), views[1]]
+    robust = register_views(model, blunder)
+    naive = register_views(model, blunder, options=RegistrationOptions(robust=False))
+    clean = register_views(model, views)  # the landmark where it belongs
+    dropped = register_views(model, [_without_first_landmark(views[0]), views[1]])
     assert robust.rejected == [("cam1", views[0].landmark_names[0])]
     assert any("rejected observations" in f for f in robust.flags)
-    assert _rms(robust.vertices, X) < 1.0 < 2.0 < _rms(naive.vertices, X)
+    e_robust = _rms(robust.vertices, X)
+    # as good as not having clicked that landmark at all ...
+    assert e_robust <= 1.2 * _rms(dropped.vertices, X)
+    # ... which is close to the fit with it clicked right (one informative landmark fewer:
+    # benchmarks/silhouette.py measures the spread of that ratio), and far from the naive fit
+    assert e_robust <= 1.5 * _rms(clean.vertices, X)
+    assert 5.0 * e_robust < _rms(naive.vertices, X)

@@ -113,7 +113,17 @@ def _jacobian(R, Q, mode_pts, bases, inv_sigma, sqrt_lam, n_modes):
     return J
 
 
-def levenberg_marquardt(state, residuals, jacobian, retract, *, max_iter: int, tol: float):
+def levenberg_marquardt(
+    state,
+    residuals,
+    jacobian,
+    retract,
+    *,
+    max_iter: int,
+    tol: float,
+    callback=None,
+    max_rejected: int | None = None,
+):
     """Levenberg-Marquardt with Marquardt's diagonal scaling, shared by the refinements.
 
     Parameters
@@ -131,6 +141,11 @@ def levenberg_marquardt(state, residuals, jacobian, retract, *, max_iter: int, t
         Maximum number of accepted or rejected outer iterations.
     tol : float
         Stop when an accepted step lowers the cost by less than this fraction.
+    callback : callable, optional
+        ``callback(state, cost, aux)`` after every accepted step.
+    max_rejected : int, optional
+        Stop (converged) after this many rejected trial steps in a row (default: until the
+        damping reaches 1e12). For piecewise-smooth costs, where the last digits cannot be won.
 
     Returns
     -------
@@ -151,7 +166,9 @@ def levenberg_marquardt(state, residuals, jacobian, retract, *, max_iter: int, t
         H = J.T @ J
         diag = np.maximum(np.diag(H), 1e-12 * max(1.0, np.max(np.diag(H))))
         improved = False
-        while mu < 1e12:
+        tries = 0
+        while mu < 1e12 and (max_rejected is None or tries < max_rejected):
+            tries += 1
             try:
                 step = np.linalg.solve(H + mu * np.diag(diag), -g)
             except np.linalg.LinAlgError:
@@ -163,6 +180,8 @@ def levenberg_marquardt(state, residuals, jacobian, retract, *, max_iter: int, t
             if cost1 < cost:
                 rel = (cost - cost1) / max(cost, 1e-300)
                 state, r, aux, cost = cand, r1, aux1, cost1
+                if callback is not None:
+                    callback(state, cost, aux)
                 mu = max(mu / 3.0, 1e-12)
                 improved = True
                 converged = rel < tol

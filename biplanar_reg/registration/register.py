@@ -19,7 +19,8 @@ from ..silhouette import chain_edges
 from ..ssm.model import ShapeModel
 from .gsft import DEFAULT_EPS, GsftResult, solve_gsft
 from .observations import ViewObservations, landmark_rays, mm_per_pixel
-from .polish import plane_bases, polish_pose_shape, tangent_bases
+from .outline_fit import OutlineTerm, refine_on_outlines
+from .polish import polish_pose_shape
 from .silhouettes import (
     adaptive_gate,
     match_outline,
@@ -67,9 +68,9 @@ class RegistrationOptions:
     max_iterations : int
         Maximum silhouette-boosting iterations with a convex re-solve each.
     refine_iterations : int
-        Maximum iterations of the final joint local refinement on all terms: re-matching the
-        silhouettes and a Levenberg-Marquardt step from the previous iterate, no SDP (the
-        outline correspondences converge linearly, so cheap iterations finish the job).
+        Maximum Levenberg-Marquardt iterations of the final joint local refinement on all terms
+        (:func:`.outline_fit.refine_on_outlines`: every annotated outline point to the model's
+        outline, re-matched at every step; no SDP).
     silhouette_points : int
         Model silhouette points used per view and iteration (fixed count: each iteration is a
         re-solve of a problem of the same size).
@@ -89,6 +90,10 @@ class RegistrationOptions:
         Stop when the relative cost change between iterations is below this.
     contour_sigma_px : float
         Uncertainty of the annotated outlines, pixels.
+    contour_spacing_px : float
+        In the final refinement, annotated outline errors count as independent once every
+        this many pixels along the outline (an outline is sampled at 1 px, and its errors are
+        correlated over a few pixels: a traced outline wanders, it does not jitter).
     """
 
     landmark_weight: float = 0.5
@@ -103,6 +108,7 @@ class RegistrationOptions:
     prior_weight: float = 1.0
     tol: float = 1e-4
     contour_sigma_px: float = 1.0
+    contour_spacing_px: float = 5.0
 
     def __post_init__(self) -> None:
         if not 0.0 < self.landmark_weight <= 1.0:
@@ -110,7 +116,14 @@ class RegistrationOptions:
         for key in ("max_iterations", "refine_iterations", "silhouette_points"):
             if int(getattr(self, key)) < (3 if key == "silhouette_points" else 0):
                 raise ValueError(f"{key}: too small ({getattr(self, key)})")
-        for key in ("gate_px", "blunder_threshold", "eps", "contour_sigma_px", "tol"):
+        for key in (
+            "gate_px",
+            "blunder_threshold",
+            "eps",
+            "contour_sigma_px",
+            "contour_spacing_px",
+            "tol",
+        ):
             v = float(getattr(self, key))
             if not np.isfinite(v) or v <= 0:
                 raise ValueError(f"{key}: must be a positive number, got {getattr(self, key)!r}")
@@ -424,45 +437,8 @@ def register_views(
             cost += (1.0 - lam) * float(np.mean(d**2)) if d.size else 0.0
         return cost
 
-    def local_solve(ids, org, dirs, sig, start, nbr):
-        """LM from ``start``; outline matches (rows from ``n_lm`` on) are point-to-line: only
-        their offset across the outline counts (the plane through the ray and the outline's
-        tangent), so the model slides freely along the outline. ``nbr`` = (origins,
-        directions) of the rays one outline-tangent pixel further, for those rows."""
-        bases = tangent_bases(dirs)
-        if len(ids) > n_lm:
-            o, d = org[n_lm:], dirs[n_lm:]
-            depth = np.einsum("ki,ki->k", d, start.vertices[ids[n_lm:]] - o)[:, None]
-            along = (nbr[0] + depth * nbr[1]) - (o + depth * d)
-            bases[n_lm:] = plane_bases(o, d, along)
-        fit = polish_pose_shape(
-            start.rotation,
-            start.translation,
-            start.weights,
-            model.mean[ids],
-            model.modes[:, ids],
-            org,
-            dirs,
-            sig,
-            prior_weight=opts.prior_weight,
-            max_iter=30,
-            bases=bases,
-        )
-        V = model.instance(fit.weights) @ fit.rotation.T + fit.translation
-        return replace(
-            start,
-            rotation=fit.rotation,
-            translation=fit.translation,
-            weights=fit.weights,
-            vertices=V,
-            polish_converged=fit.converged,
-        )
-
-    def boost(res, rejected, max_iterations, detect, local=False, k0=0):
-        """Silhouette iterations from ``res``; returns the records and the best iterate.
-
-        ``local``: Levenberg-Marquardt steps instead of convex re-solves; ``k0`` numbers the
-        iterations on from an earlier loop (whose last iterate is ``res``)."""
+    def boost(res, rejected, max_iterations, detect):
+        """Convex silhouette iterations from ``res``; returns the records and the best iterate."""
         records: list[IterationRecord] = []
         iterates: list[np.ndarray] = []
         best = (np.inf, 0, res, {})
@@ -470,43 +446,33 @@ def register_views(
         prev_cost = np.inf
         n_matches = 0
         k = 0
+        k_start = 0  # iteration of the last (re)start from a landmark-only solve
         last_rejection = -1  # iteration of the last blunder rejection (-1: none yet)
         t_it = time.perf_counter()
         while True:
             outl = outlines_of(res) if use_sil else {}
             cost = iteration_cost(res, outl, rejected)
-            if not (local and k == 0):  # a local loop starts from the last recorded iterate
-                iterates.append(res.vertices)
-                records.append(
-                    IterationRecord(
-                        k0 + k,
-                        cost,
-                        n_matches,
-                        res.certificate,
-                        time.perf_counter() - t_it,
-                        "local" if local else "sdp",
-                    )
-                )
+            iterates.append(res.vertices)
+            records.append(
+                IterationRecord(k, cost, n_matches, res.certificate, time.perf_counter() - t_it)
+            )
             if cost < best[0]:
-                best = (cost, k0 + k, res, outl)
+                best = (cost, k, res, outl)
             if not use_sil or k >= max_iterations:
                 break
-            if local and k0 + k - best[1] >= 3:
-                break  # three local steps without a new best: the matching is cycling
-            if k >= 2 and abs(prev_cost - cost) <= opts.tol * max(prev_cost, 1e-12):
+            if k - k_start >= 2 and abs(prev_cost - cost) <= opts.tol * max(prev_cost, 1e-12):
                 break
             prev_cost = cost
             # match the current silhouettes to the annotated outlines; the gate is widened
             # while the landmarks are still far off (a wrong start must not drop every match)
             lm_err = _landmark_px_errors(views, lm, res.vertices)
             lm_rms = float(np.sqrt(np.mean(np.delete(lm_err, list(rejected)) ** 2)))
-            wide = k == 0 and k0 == 0  # the very first matching, from the landmark-only start
+            wide = k == k_start  # the first matching from a landmark-only start
             gate = max(opts.gate_px, 2.0 * lm_rms) if wide else opts.gate_px
             found = {i: match_outline(outl[i], t, gate, opts.mutual) for i, t in targets.items()}
             all_d = np.concatenate([f[3] for f in found.values()])
             thr = gate if wide else adaptive_gate(all_d, MATCH_FLOOR_PX)
             parts_ids, parts_o, parts_d, parts_s, key = [], [], [], [], []
-            nbr_o, nbr_d = [], []
             for i, (ids, uv, seg, dist) in found.items():
                 ok = dist <= thr
                 if not np.any(ok):
@@ -515,13 +481,6 @@ def register_views(
                 parts_ids.append(ids[ok])
                 parts_o.append(o)
                 parts_d.append(d)
-                if local:  # the neighbouring rays along the outline's tangent
-                    seg_t = targets[i].segments
-                    tan = seg_t.b[seg[ok]] - seg_t.a[seg[ok]]
-                    tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-12)
-                    o2, d2 = views[i].view.rays(uv[ok] + tan)
-                    nbr_o.append(o2)
-                    nbr_d.append(d2)
                 parts_s.append(np.full(int(ok.sum()), sil_sigma[i]))
                 key += [(i, int(a), int(b)) for a, b in zip(ids[ok], seg[ok], strict=True)]
             key_set = frozenset(key)
@@ -536,19 +495,17 @@ def register_views(
                 np.concatenate([lm_sigmas(rejected), *parts_s]),
             )
             t_it = time.perf_counter()
-            if local:
-                nbr = (np.vstack(nbr_o), np.vstack(nbr_d)) if nbr_o else None
-                res = local_solve(*obs, res, nbr)
-            else:
-                res = solve(*obs, start=res)
+            res = solve(*obs, start=res)
             settled = k - last_rejection >= 2  # the outline fit has had two updates since
             if detect and settled:
                 bad = _find_blunder(model, views, lm, res, obs, rejected, opts)
                 if bad is not None:
+                    # start afresh without it: the outline matches so far were found from a
+                    # fit the blunder had pulled away, and a fit from them stays near it
                     rejected.add(bad)
-                    last_rejection = k
-                    obs = (*obs[:3], np.concatenate([lm_sigmas(rejected), *parts_s]))
-                    res = solve(*obs, start=res)
+                    last_rejection = k_start = k + 1
+                    res, _ = landmark_solve(rejected)
+                    prev_key, prev_cost, n_matches = None, np.inf, 0
                     best = (np.inf, 0, res, {})  # earlier costs are not comparable
             k += 1
             say(
@@ -556,6 +513,40 @@ def register_views(
                 f"certificate {res.certificate:.1e}"
             )
         return records, iterates, best
+
+    def refine(res, outl, rejected, max_iter, callback=None):
+        """The final local refinement (:func:`refine_on_outlines`) from ``res``; returns the
+        refined result (``res`` itself when no step lowered the objective) and the fit."""
+        terms = [
+            OutlineTerm(
+                views[i].view,
+                t,
+                sil_sigma[i] * np.sqrt(opts.contour_spacing_px),
+                min(opts.gate_px, adaptive_gate(outline_distances(outl[i], t), MATCH_FLOOR_PX)),
+                mmpp[i],
+            )
+            for i, t in targets.items()
+        ]
+        fit = refine_on_outlines(
+            model,
+            (res.rotation, res.translation, res.weights),
+            (lm.ids, lm.origins, lm.directions, lm_sigmas(rejected)),
+            terms,
+            prior_weight=opts.prior_weight,
+            max_iter=max_iter,
+            he=he,
+            callback=callback,
+        )
+        if fit.cost_after < fit.cost_before:
+            res = replace(
+                res,
+                rotation=fit.rotation,
+                translation=fit.translation,
+                weights=fit.weights,
+                vertices=fit.vertices,
+                polish_converged=fit.converged,
+            )
+        return res, fit
 
     # -- landmark blunders: a consensus over leave-one-out starts ------------------------------
     # A gross landmark error spoils the landmark-only start and the outline fit then converges
@@ -567,28 +558,51 @@ def register_views(
     # only when some landmark disagrees with the start by more than ``CONSENSUS_TRIGGER``.
     err = _landmark_px_errors(views, lm, res.vertices) / lm.sigma_px
     if opts.robust and use_sil and not rejected and n_lm >= 5 and err.max() > CONSENSUS_TRIGGER:
+
         _, _, base_best = boost(res, set(), CONSENSUS_ITERATIONS, False)
+        base_cost = base_best[0]
         cands = []
         for i in range(n_lm):
             start, _ = landmark_solve({i})
             _, _, b = boost(start, {i}, CONSENSUS_ITERATIONS, False)
-            cands.append((b[0], i, b[2]))
-        cost_i, i, start_i = min(cands, key=lambda c: c[0])
-        say(f"blunder consensus: best without {lm.names[i]}: {cost_i:.3g} / {base_best[0]:.3g}")
-        if cost_i < CONSENSUS_MARGIN * base_best[0]:
+            cands.append((b[0], b[2], i))
+        cost_i, start_i, i = min(cands, key=lambda c: c[0])
+        say(f"blunder consensus: best without {lm.names[i]}: {cost_i:.3g} / {base_cost:.3g}")
+        if cost_i < CONSENSUS_MARGIN * base_cost:
             rejected.add(i)
             res = start_i
 
     records, iterates, best = boost(res, rejected, opts.max_iterations, opts.robust)
-    if use_sil and opts.refine_iterations > 0:
-        more, more_v, best_local = boost(
-            best[2], rejected, opts.refine_iterations, False, local=True, k0=records[-1].index
-        )
-        records += more
-        iterates += more_v
-        if best_local[0] < best[0]:
-            best = best_local
     _, best_k, res, outl = best
+    if use_sil and opts.refine_iterations > 0:
+        # -- final local refinement of the objective itself, from the best convex iterate ----
+        t_it = time.perf_counter()
+
+        def record(state, _f, n_active):
+            nonlocal t_it
+            R, t, w = state
+            at = replace(res, vertices=model.instance(w) @ R.T + t)
+            cost = iteration_cost(at, outlines_of(at), rejected)
+            iterates.append(at.vertices)
+            records.append(
+                IterationRecord(
+                    records[-1].index + 1,
+                    cost,
+                    n_active,
+                    res.certificate,
+                    time.perf_counter() - t_it,
+                    "local",
+                )
+            )
+            t_it = time.perf_counter()
+
+        res, fit = refine(res, outl, rejected, opts.refine_iterations, record)
+        if records[-1].kind == "local":
+            best_k, outl = records[-1].index, outlines_of(res)
+        say(
+            f"outline refinement: {fit.iterations} iterations, objective "
+            f"{fit.cost_before:.4g} -> {fit.cost_after:.4g}"
+        )
     if use_sil and not outl:
         outl = outlines_of(res)
     out = _result(model, views, lm, res, records, best_k, outl, targets, rejected, t0)

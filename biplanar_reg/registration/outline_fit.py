@@ -1,0 +1,216 @@
+"""Final local refinement on the annotated outlines: each annotated point to the model's outline.
+
+The convex boosting iterations (:mod:`.silhouettes`) pair model silhouette points with the
+annotated outline and re-solve with those pairs fixed; the pairs only change between solves,
+so the fit creeps towards the outline and stalls where the discrete silhouette vertex set
+flips back and forth. This refinement instead minimises the registration's objective itself,
+re-matching at every evaluation::
+
+    F(R, t, w) = 1/2 sum_l |offset_l|^2 / s_l^2                      (accepted landmarks)
+               + 1/2 sum_c min(|n_c . (P_c - o_c)|, g_c)^2 / s_c^2   (annotated outline points)
+               + 1/2 lambda |w|^2                                     (shape prior)
+
+``P_c`` is the point of the model's projected outline nearest to annotated point ``c`` (a
+point on a silhouette edge, interpolated between its two vertices), ``o_c`` the origin of
+``c``'s ray and ``n_c`` the normal of the plane through that ray and the outline's tangent, so
+the term is ``c``'s distance across the model outline (the model may slide along it). The
+outline is sampled at 1 px; ``s_c`` is the outline sigma times ``sqrt(spacing)``, so an outline
+weighs as independent samples every ``spacing`` px, whatever its sampling. ``g_c`` is a fixed
+truncation (robust: an annotated stretch far from the model has no pull). Matching from the
+annotation to the model, not the other way round, uses only what was annotated, so open and
+partial outlines need no end handling.
+
+Levenberg-Marquardt (:func:`.polish.levenberg_marquardt`) keeps a step only when it lowers
+``F`` evaluated with fresh matches, so the refinement never ends worse than its start.
+Units: mm for offsets and sigmas (the landmarks' sigmas are the caller's), pixels for the
+matching; world frame.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..calibration.views import View
+from ..ssm.model import ShapeModel
+from .polish import _jacobian, levenberg_marquardt, tangent_bases
+from .rotations import so3_exp
+from .silhouettes import OutlineTarget, Segments, model_outline
+
+__all__ = ["OutlineTerm", "OutlineFitResult", "refine_on_outlines"]
+
+#: Rejected trial steps in a row after which the refinement stops: the matches switch between
+#: discrete silhouette edges, so the last digits of the objective cannot be won anyway.
+MAX_REJECTED = 6
+
+
+@dataclass(frozen=True)
+class OutlineTerm:
+    """The annotated outline of one view as refinement terms.
+
+    Attributes
+    ----------
+    view : View
+    target : OutlineTarget
+        The prepared annotation (its usable 1 px samples are the terms).
+    sigma_mm : float
+        Standard deviation of one sample's offset across the outline, mm (already scaled for
+        the sample spacing).
+    gate_px : float
+        Truncation of each term, pixels.
+    mm_per_px : float
+        Pixel size at the bone, to turn ``gate_px`` into mm.
+    """
+
+    view: View
+    target: OutlineTarget
+    sigma_mm: float
+    gate_px: float
+    mm_per_px: float
+
+
+@dataclass(frozen=True)
+class OutlineFitResult:
+    """Output of :func:`refine_on_outlines` (world frame, mm)."""
+
+    rotation: np.ndarray
+    translation: np.ndarray
+    weights: np.ndarray
+    vertices: np.ndarray
+    cost_before: float
+    cost_after: float
+    iterations: int
+    converged: bool
+    n_active: int  # outline samples within their gate at the end
+
+
+def refine_on_outlines(
+    model: ShapeModel,
+    start: tuple[np.ndarray, np.ndarray, np.ndarray],
+    landmarks: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    outlines: list[OutlineTerm],
+    *,
+    prior_weight: float = 1.0,
+    max_iter: int = 30,
+    tol: float = 1e-6,
+    he=None,
+    callback: Callable[[tuple, float, int], None] | None = None,
+) -> OutlineFitResult:
+    """Minimise ``F`` of the module docstring from ``start = (R, t, w)``.
+
+    Parameters
+    ----------
+    model : ShapeModel
+    start : (R, t, w)
+        Object-to-world rotation, translation (mm) and weights to start from.
+    landmarks : (ids, origins, directions, sigmas)
+        Landmark vertex ids and their rays (world, mm, unit directions) with offset sigmas (mm);
+        a landmark with an infinite sigma is ignored.
+    outlines : list of OutlineTerm
+    prior_weight : float
+        ``lambda`` of the prior.
+    max_iter, tol
+        Levenberg-Marquardt iterations and relative-decrease tolerance.
+    he : HalfEdges, optional
+        The mesh topology, computed once by the caller.
+    callback : callable, optional
+        ``callback((R, t, w), F, n_active)`` after every accepted step.
+    """
+    ids, org, dirs, sig = landmarks
+    lm_bases = tangent_bases(dirs) if len(ids) else np.zeros((0, 3, 2))
+    lm_inv = 1.0 / np.asarray(sig, dtype=float)
+    sqrt_lam = float(np.sqrt(prior_weight))
+    M = model.n_modes
+    # the annotated samples and their rays are fixed: compute once
+    samples = []
+    for term in outlines:
+        q = term.target.points[term.target.usable]
+        o, d = term.view.rays(q)
+        samples.append((q, o, d))
+
+    def residuals(state):
+        R, t, w = state
+        Qall = model.instance(w)
+        V = Qall @ R.T + t
+        Q = [Qall[ids]]
+        P = [model.modes[:, ids]]
+        B = [lm_bases]
+        inv = [lm_inv]
+        r = [np.einsum("kia,ki->ka", lm_bases, V[ids] - org) * lm_inv[:, None]]
+        n_active = 0
+        for term, (q, o, d) in zip(outlines, samples, strict=True):
+            if len(q) == 0:
+                continue
+            outl = model_outline(V, model, term.view, 3, he)
+            e = outl.edges
+            if len(e) == 0:  # the model left the view: every term at its cap
+                r.append(np.column_stack([np.full(len(q), term.gate_px), np.zeros(len(q))]))
+                r[-1] *= term.mm_per_px / term.sigma_mm
+                Q.append(np.zeros((len(q), 3)))
+                P.append(np.zeros((M, len(q), 3)))
+                B.append(np.zeros((len(q), 3, 2)))
+                inv.append(np.zeros(len(q)))
+                continue
+            uv = outl.uv_all
+            segs = Segments.build(uv[e[:, 0]], uv[e[:, 1]])
+            _, _, s, u = segs.nearest(q)
+            i, j = e[s, 0], e[s, 1]
+            Qc = (1.0 - u)[:, None] * Qall[i] + u[:, None] * Qall[j]
+            Pc = (1.0 - u)[None, :, None] * model.modes[:, i] + u[None, :, None] * model.modes[:, j]
+            Vc = Qc @ R.T + t
+            # the plane through each sample's ray and the outline's tangent there
+            tan = uv[j] - uv[i]
+            tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-12)
+            o2, d2 = term.view.rays(q + tan)
+            depth = np.einsum("ki,ki->k", d, Vc - o)[:, None]
+            n = np.cross(d, (o2 + depth * d2) - (o + depth * d))
+            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+            off = np.einsum("ki,ki->k", n, Vc - o)
+            cap = term.gate_px * term.mm_per_px
+            active = np.abs(off) <= cap
+            n_active += int(active.sum())
+            res = np.column_stack([np.clip(off, -cap, cap), np.zeros(len(q))]) / term.sigma_mm
+            basis = np.zeros((len(q), 3, 2))
+            basis[:, :, 0] = n
+            Q.append(Qc)
+            P.append(Pc)
+            B.append(basis)
+            inv.append(np.where(active, 1.0 / term.sigma_mm, 0.0))  # capped terms: no gradient
+            r.append(res)
+        rvec = np.concatenate([np.concatenate([a.ravel() for a in r]), sqrt_lam * w])
+        aux = (np.vstack(Q), np.concatenate(P, axis=1), np.concatenate(B), np.concatenate(inv))
+        return rvec, (aux, n_active)
+
+    def jacobian(state, aux):
+        (Q, P, B, inv), _ = aux
+        return _jacobian(state[0], Q, P, B, inv, sqrt_lam, M)
+
+    def retract(state, step):
+        R, t, w = state
+        return so3_exp(step[:3]) @ R, t + step[3:6], w + step[6:]
+
+    R0, t0, w0 = (np.asarray(a, dtype=float).copy() for a in start)
+    (R, t, w), cost0, cost, iterations, converged = levenberg_marquardt(
+        (R0, t0, w0),
+        residuals,
+        jacobian,
+        retract,
+        max_iter=max_iter,
+        tol=tol,
+        max_rejected=MAX_REJECTED,
+        callback=None if callback is None else lambda s, c, aux: callback(s, c, aux[1]),
+    )
+    _, (_, n_active) = residuals((R, t, w))
+    return OutlineFitResult(
+        rotation=R,
+        translation=t,
+        weights=w,
+        vertices=model.instance(w) @ R.T + t,
+        cost_before=cost0,
+        cost_after=cost,
+        iterations=iterations,
+        converged=converged,
+        n_active=n_active,
+    )
