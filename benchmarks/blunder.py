@@ -29,52 +29,13 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from biplanar_reg.annotation.annotations import Contour
-from biplanar_reg.registration import RegistrationOptions, ViewObservations, register_views
+from biplanar_reg.registration import RegistrationOptions, register_views
 from biplanar_reg.registration.rotations import so3_exp
-from biplanar_reg.silhouette import chain_edges, mesh_silhouette
-from biplanar_reg.synthetic import biplanar_views, random_pose, synthetic_bone_model
+from biplanar_reg.synthetic import boosting_case, synthetic_bone_model
 
 NOISE_PX = 0.5
 FRACTION = 0.8
 BLUNDER_PX = 40.0 * np.array([0.6, 0.8])
-
-
-def case(model, seed):
-    """Views (3 landmarks each, 80 % open outline, 0.5 px noise) and the truth (w, R, t, X)."""
-    rng = np.random.default_rng(seed)
-    w = rng.normal(size=model.n_modes)
-    R, t = random_pose(rng)
-    X = model.instance(w) @ R.T + t
-    views = []
-    for name, view in zip(("cam1", "cam2"), biplanar_views(75.0), strict=True):
-        ids = rng.choice(model.n_vertices, 3, replace=False)
-        uv = view.project(X[ids]) + NOISE_PX * rng.normal(size=(3, 2))
-        edges, uv_all = mesh_silhouette(X, model.faces, view)
-        outline = chain_edges(edges, uv_all)[0][0]
-        outline = outline + NOISE_PX * rng.normal(size=outline.shape)
-        views.append(
-            ViewObservations(
-                name=name,
-                view=view,
-                landmark_names=[f"v{i}" for i in ids],
-                landmark_ids=ids,
-                landmark_uv=uv,
-                landmark_sigma_px=np.ones(3),
-                contours=[Contour(uv=outline[: int(FRACTION * len(outline))], closed=False)],
-            )
-        )
-    return views, (w, R, t, X)
-
-
-def drop_first(v: ViewObservations) -> ViewObservations:
-    return replace(
-        v,
-        landmark_names=v.landmark_names[1:],
-        landmark_ids=v.landmark_ids[1:],
-        landmark_uv=v.landmark_uv[1:],
-        landmark_sigma_px=v.landmark_sigma_px[1:],
-    )
 
 
 def expected_rms(model, views, truth, opts: RegistrationOptions) -> float:
@@ -149,7 +110,7 @@ def main() -> None:
     rows, stats = [], []
     with threadpool_limits(1):
         for seed in range(trials):
-            views, truth = case(model, seed)
+            views, truth = boosting_case(model, seed, fraction=FRACTION, noise_px=NOISE_PX)
             X = truth[3]
             blunder = [
                 replace(
@@ -158,7 +119,7 @@ def main() -> None:
                 ),
                 views[1],
             ]
-            dropped = [drop_first(views[0]), views[1]]
+            dropped = [views[0].without_landmarks(views[0].landmark_names[:1]), views[1]]
             clean = register_views(model, views, options=opts)
             t0 = time.perf_counter()
             robust = register_views(model, blunder, options=opts)

@@ -225,3 +225,58 @@ def outline_stretch(
         return np.roll(outline, -int(rng.integers(len(outline))), axis=0)[:keep]
     start = int(rng.integers(len(outline) - keep + 1))
     return outline[start : start + keep]
+
+
+def boosting_case(
+    model: ShapeModel,
+    seed: int,
+    *,
+    fraction: float = 0.7,
+    noise_px: float = 0.0,
+    landmarks_per_view: int = 3,
+) -> tuple[list, tuple[np.ndarray, ...]]:
+    """A seeded two-view silhouette-boosting problem with its truth.
+
+    A random instance (weights ~ N(0, 1)) in a random pose (:func:`random_pose`), the two views
+    of :func:`biplanar_views` (75 deg apart), ``landmarks_per_view`` landmarks at random
+    vertices per view and the first ``fraction`` of each view's outline (the longest chain of
+    the mesh silhouette; open unless ``fraction >= 1``), with ``noise_px`` Gaussian noise on
+    every landmark and outline point.
+
+    Returns
+    -------
+    views : list of ViewObservations
+        Named ``cam1``, ``cam2``; landmarks named ``v<vertex id>`` with 1 px sigmas.
+    truth : (w, R, t, X)
+        Weights, object-to-world rotation and translation (mm) and the posed vertices (N, 3).
+    """
+    from .annotation.annotations import Contour  # the layers above; imported on use
+    from .registration.observations import ViewObservations
+    from .silhouette import chain_edges, mesh_silhouette
+
+    rng = np.random.default_rng(seed)
+    w = rng.normal(size=model.n_modes)
+    R, t = random_pose(rng)
+    X = model.instance(w) @ R.T + t
+    n = landmarks_per_view
+    views = []
+    for name, view in zip(("cam1", "cam2"), biplanar_views(75.0), strict=True):
+        ids = rng.choice(model.n_vertices, n, replace=False)
+        uv = view.project(X[ids]) + noise_px * rng.normal(size=(n, 2))
+        edges, uv_all = mesh_silhouette(X, model.faces, view)
+        outline = chain_edges(edges, uv_all)[0][0]
+        outline = outline + noise_px * rng.normal(size=outline.shape)
+        views.append(
+            ViewObservations(
+                name=name,
+                view=view,
+                landmark_names=[f"v{i}" for i in ids],
+                landmark_ids=ids,
+                landmark_uv=uv,
+                landmark_sigma_px=np.ones(n),
+                contours=[
+                    Contour(uv=outline[: int(fraction * len(outline))], closed=fraction >= 1.0)
+                ],
+            )
+        )
+    return views, (w, R, t, X)

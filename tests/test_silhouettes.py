@@ -10,7 +10,7 @@ from scipy import ndimage
 
 from biplanar_reg.annotation.annotations import Contour
 from biplanar_reg.annotation.render import path_lengths
-from biplanar_reg.registration import RegistrationOptions, ViewObservations, register_views
+from biplanar_reg.registration import RegistrationOptions, register_views
 from biplanar_reg.registration.silhouettes import (
     END_MARGIN_PX,
     match_outline,
@@ -19,7 +19,12 @@ from biplanar_reg.registration.silhouettes import (
 )
 from biplanar_reg.silhouette import alpha_silhouette, chain_edges, mesh_silhouette
 from biplanar_reg.ssm import ShapeModel
-from biplanar_reg.synthetic import biplanar_views, random_pose, synthetic_bone_model
+from biplanar_reg.synthetic import (
+    biplanar_views,
+    boosting_case,
+    random_pose,
+    synthetic_bone_model,
+)
 
 
 @pytest.fixture(scope="module")
@@ -98,30 +103,8 @@ def test_matching_respects_gate_ends_and_direction(model, posed):
 
 
 def _case(model, seed, frac=0.7, noise=0.0):
-    rng = np.random.default_rng(seed)
-    w = rng.normal(size=8)
-    R, t = random_pose(rng)
-    X = model.instance(w) @ R.T + t
-    views = []
-    for name, view in zip(("cam1", "cam2"), biplanar_views(75.0), strict=True):
-        ids = rng.choice(model.n_vertices, 3, replace=False)
-        uv = view.project(X[ids]) + noise * rng.normal(size=(3, 2))
-        edges, uv_all = mesh_silhouette(X, model.faces, view)
-        outline = chain_edges(edges, uv_all)[0][0]
-        outline = outline + noise * rng.normal(size=outline.shape)
-        c = outline[: int(frac * len(outline))]
-        views.append(
-            ViewObservations(
-                name=name,
-                view=view,
-                landmark_names=[f"v{i}" for i in ids],
-                landmark_ids=ids,
-                landmark_uv=uv,
-                landmark_sigma_px=np.ones(3),
-                contours=[Contour(uv=c, closed=frac >= 1.0)],
-            )
-        )
-    return views, X
+    views, truth = boosting_case(model, seed, fraction=frac, noise_px=noise)
+    return views, truth[3]
 
 
 def _rms(a, b):
@@ -157,16 +140,6 @@ def test_registration_options_are_validated():
         RegistrationOptions(gate_px=-1.0)
 
 
-def _without_first_landmark(v: ViewObservations) -> ViewObservations:
-    return replace(
-        v,
-        landmark_names=v.landmark_names[1:],
-        landmark_ids=v.landmark_ids[1:],
-        landmark_uv=v.landmark_uv[1:],
-        landmark_sigma_px=v.landmark_sigma_px[1:],
-    )
-
-
 @pytest.mark.parametrize("seed", [0, 3])
 def test_a_landmark_blunder_is_flagged_and_does_not_wreck_the_result(model, seed):
     views, X = _case(model, seed, frac=0.8, noise=0.5)
@@ -176,7 +149,9 @@ def test_a_landmark_blunder_is_flagged_and_does_not_wreck_the_result(model, seed
     robust = register_views(model, blunder)
     naive = register_views(model, blunder, options=RegistrationOptions(robust=False))
     clean = register_views(model, views)  # the landmark where it belongs
-    dropped = register_views(model, [_without_first_landmark(views[0]), views[1]])
+    dropped = register_views(
+        model, [views[0].without_landmarks(views[0].landmark_names[:1]), views[1]]
+    )
     assert robust.rejected == [("cam1", views[0].landmark_names[0])]
     assert any("rejected observations" in f for f in robust.flags)
     e_robust = _rms(robust.vertices, X)

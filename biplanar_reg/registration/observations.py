@@ -67,6 +67,23 @@ class ViewObservations:
             checked.append(Contour(uv=uv, closed=bool(c.closed)))
         object.__setattr__(self, "contours", checked)
 
+    def without_landmarks(self, names: list[str]) -> ViewObservations:
+        """These observations without the named landmarks (e.g. to compare a fit without a
+        suspected blunder); an unknown name is an error."""
+        unknown = sorted(set(names) - set(self.landmark_names))
+        if unknown:
+            raise ValueError(f"{self.name}: no landmark(s) named {unknown}")
+        keep = np.array([n not in names for n in self.landmark_names], dtype=bool)
+        return ViewObservations(
+            name=self.name,
+            view=self.view,
+            landmark_names=[n for n, k in zip(self.landmark_names, keep, strict=True) if k],
+            landmark_ids=self.landmark_ids[keep],
+            landmark_uv=self.landmark_uv[keep],
+            landmark_sigma_px=self.landmark_sigma_px[keep],
+            contours=self.contours,
+        )
+
 
 def mm_per_pixel(view: View, X: np.ndarray) -> np.ndarray:
     """Size of one pixel at the world points ``X`` (K, 3), mm: the distance from ``X`` to the ray

@@ -504,7 +504,7 @@ def register_views(
                     # fit the blunder had pulled away, and a fit from them stays near it
                     rejected.add(bad)
                     last_rejection = k_start = k + 1
-                    res, _ = landmark_solve(rejected)
+                    res, _ = fit_start(rejected)
                     prev_key, prev_cost, n_matches = None, np.inf, 0
                     best = (np.inf, 0, res, {})  # earlier costs are not comparable
             k += 1
@@ -513,6 +513,42 @@ def register_views(
                 f"certificate {res.certificate:.1e}"
             )
         return records, iterates, best
+
+    rigid = ShapeModel(model.mean, model.modes[:0], faces=model.faces)
+
+    def fit_start(rejected, res=None):
+        """The landmark-only start for boosting (``res`` if given, else solved).
+
+        When its relaxation is not tight the rounded solution is unreliable (few landmarks for
+        the pose and all the modes); then the mean shape posed by the landmarks alone (a
+        6-parameter problem, tight) is tried too, and the start whose short boosted fit
+        explains the outlines and landmarks better is used. Returns the start and the best
+        iterate of its short fit (None when none was run).
+        """
+        if res is None:
+            res, _ = landmark_solve(rejected)
+        if not use_sil or model.n_modes == 0 or res.certificate <= CERTIFICATE_FLAG:
+            return res, None
+        r = solve_gsft(
+            rigid,
+            lm.ids,
+            lm.origins,
+            lm.directions,
+            sigmas=lm_sigmas(rejected),
+            eps=opts.eps,
+            prior_weight=opts.prior_weight,
+        )
+        alt = replace(
+            res,
+            rotation=r.rotation,
+            translation=r.translation,
+            weights=np.zeros(model.n_modes),
+            vertices=model.mean @ r.rotation.T + r.translation,
+        )
+        full = boost(res, rejected, CONSENSUS_ITERATIONS, False)[2]
+        other = boost(alt, rejected, CONSENSUS_ITERATIONS, False)[2]
+        say(f"start: landmark-only {full[0]:.3g}, rigid mean shape {other[0]:.3g}")
+        return (alt, other) if other[0] < full[0] else (res, full)
 
     def refine(res, outl, rejected, max_iter, callback=None):
         """The final local refinement (:func:`refine_on_outlines`) from ``res``; returns the
@@ -557,14 +593,13 @@ def register_views(
     # beats the all-landmarks fit by a clear margin. It costs (L + 1) short fits, so it runs
     # only when some landmark disagrees with the start by more than ``CONSENSUS_TRIGGER``.
     err = _landmark_px_errors(views, lm, res.vertices) / lm.sigma_px
+    res, short = fit_start(rejected, res)
     if opts.robust and use_sil and not rejected and n_lm >= 5 and err.max() > CONSENSUS_TRIGGER:
-
-        _, _, base_best = boost(res, set(), CONSENSUS_ITERATIONS, False)
-        base_cost = base_best[0]
+        base_cost = (short or boost(res, set(), CONSENSUS_ITERATIONS, False)[2])[0]
         cands = []
         for i in range(n_lm):
-            start, _ = landmark_solve({i})
-            _, _, b = boost(start, {i}, CONSENSUS_ITERATIONS, False)
+            start, b = fit_start({i})
+            b = b or boost(start, {i}, CONSENSUS_ITERATIONS, False)[2]
             cands.append((b[0], b[2], i))
         cost_i, start_i, i = min(cands, key=lambda c: c[0])
         say(f"blunder consensus: best without {lm.names[i]}: {cost_i:.3g} / {base_cost:.3g}")
