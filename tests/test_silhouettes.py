@@ -161,3 +161,16 @@ def test_a_landmark_blunder_is_flagged_and_does_not_wreck_the_result(model, seed
     # benchmarks/silhouette.py measures the spread of that ratio), and far from the naive fit
     assert e_robust <= 1.5 * _rms(clean.vertices, X)
     assert 5.0 * e_robust < _rms(naive.vertices, X)
+
+
+def test_a_good_landmark_rejected_early_is_taken_back(model):
+    """Seed 17 (benchmarks/blunder.py, no blunder): the consensus over short fits rejects a good
+    landmark (its short fit without it looks better); the final fit agrees with that landmark
+    to 0.8 px, so the rejection is withdrawn and the result equals the non-robust fit."""
+    views, X = _case(model, 17, frac=0.8, noise=0.5)
+    msgs: list[str] = []
+    robust = register_views(model, views, progress=msgs.append)
+    assert any(m.startswith("taken back") for m in msgs)  # the situation this test is about
+    assert robust.rejected == [] and not any("rejected" in f for f in robust.flags)
+    naive = register_views(model, views, options=RegistrationOptions(robust=False))
+    assert _rms(robust.vertices, X) <= 1.05 * _rms(naive.vertices, X)

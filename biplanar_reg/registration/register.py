@@ -52,6 +52,8 @@ CONSENSUS_ITERATIONS = 2
 #: The consensus runs when a landmark's error at the landmark-only start exceeds this many
 #: sigmas (measured: 0.2-0.9 on clean 0.5 px data, 1.2-8.2 with one 40 px blunder of 6).
 CONSENSUS_TRIGGER = 1.0
+#: A rejected landmark whose error under the final fit is within this many sigmas is taken back.
+READMIT_SIGMAS = 3.0
 #: A leave-one-out hypothesis must lower the cost below this fraction of the all-in cost.
 CONSENSUS_MARGIN = 0.5
 
@@ -632,12 +634,20 @@ def register_views(
             t_it = time.perf_counter()
 
         res, fit = refine(res, outl, rejected, opts.refine_iterations, record)
-        if records[-1].kind == "local":
-            best_k, outl = records[-1].index, outlines_of(res)
         say(
             f"outline refinement: {fit.iterations} iterations, objective "
             f"{fit.cost_before:.4g} -> {fit.cost_after:.4g}"
         )
+        # a rejection is confirmed against the final fit: a landmark it agrees with was no
+        # blunder (rejected while the fit was still far off), so it is taken back and refitted
+        err = _landmark_px_errors(views, lm, res.vertices) / lm.sigma_px
+        back = {i for i in rejected if err[i] <= READMIT_SIGMAS}
+        if back:
+            rejected -= back
+            say(f"taken back: {[lm.names[i] for i in sorted(back)]} (fit the final result)")
+            res, fit = refine(res, outlines_of(res), rejected, opts.refine_iterations, record)
+        if records[-1].kind == "local":
+            best_k, outl = records[-1].index, outlines_of(res)
     if use_sil and not outl:
         outl = outlines_of(res)
     out = _result(model, views, lm, res, records, best_k, outl, targets, rejected, t0)
