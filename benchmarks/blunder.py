@@ -159,9 +159,9 @@ def main() -> None:
         f"{np.sqrt(np.mean(s[:, 1] ** 2)):.3f} vs {np.sqrt(np.mean(s[:, 0] ** 2)):.3f} mm.",
         f"* Within 20 % of the fit without that landmark: {int(np.sum(s[:, 1] <= 1.2 * s[:, 2]))} "
         f"of {trials}.",
-        f"* Expected ratio dropped / clean (what losing that landmark costs): "
-        f"{s[:, 4].min():.3f}-{s[:, 4].max():.3f} mm vs {s[:, 3].min():.3f}-"
-        f"{s[:, 3].max():.3f} mm; ratio median {np.median(s[:, 4] / s[:, 3]):.2f}, max "
+        f"* Expected RMS (Fisher): clean {s[:, 3].min():.3f}-{s[:, 3].max():.3f} mm, landmark "
+        f"dropped {s[:, 4].min():.3f}-{s[:, 4].max():.3f} mm; expected ratio (what losing that "
+        f"landmark costs) median {np.median(s[:, 4] / s[:, 3]):.2f}, max "
         f"{np.max(s[:, 4] / s[:, 3]):.2f}.",
         f"* Time with the blunder: median {np.median(s[:, 6]):.2f} s, max {s[:, 6].max():.2f} s.",
     ]

@@ -25,12 +25,11 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from biplanar_reg.annotation.annotations import Contour
 from biplanar_reg.io import read_volume
-from biplanar_reg.registration import RegistrationOptions, ViewObservations, register_views
-from biplanar_reg.silhouette import chain_edges, mesh_silhouette
+from biplanar_reg.registration import RegistrationOptions, register_views
+from biplanar_reg.silhouette import mesh_silhouette
 from biplanar_reg.ssm import ShapeModel, bone_surface, build_ssm, synthesise_population
-from biplanar_reg.synthetic import biplanar_views, outline_stretch, random_pose
+from biplanar_reg.synthetic import biplanar_views, boosting_case, random_pose
 
 CT = Path(__file__).resolve().parents[1] / "sample_cases/wrist_radius/data/radius_ct.tif"
 VOXEL = (0.39625, 0.39625, 0.625)
@@ -45,29 +44,15 @@ def radius_model(target_vertices: int) -> tuple[ShapeModel, float]:
 
 
 def trial(model, n_landmarks, noise_px, outline_noise_px, seed, opts):
-    rng = np.random.default_rng(seed)
-    w = rng.normal(size=model.n_modes)
-    R, t = random_pose(rng, max_offset=10.0)
-    X = model.instance(w) @ R.T + t
-    split = [n_landmarks // 2 + n_landmarks % 2, n_landmarks // 2]
-    views = []
-    for name, view, n in zip(("cam1", "cam2"), biplanar_views(75.0), split, strict=True):
-        ids = rng.choice(model.n_vertices, n, replace=False)
-        edges, uv_all = mesh_silhouette(X, model.faces, view)
-        polys, closed = chain_edges(edges, uv_all)
-        outline = outline_stretch(polys[0], closed[0], 0.8, rng)
-        outline = outline + outline_noise_px * rng.normal(size=outline.shape)
-        views.append(
-            ViewObservations(
-                name=name,
-                view=view,
-                landmark_names=[f"v{i}" for i in ids],
-                landmark_ids=ids,
-                landmark_uv=view.project(X[ids]) + noise_px * rng.normal(size=(n, 2)),
-                landmark_sigma_px=np.ones(n),
-                contours=[Contour(uv=outline, closed=False)],
-            )
-        )
+    views, (*_, X) = boosting_case(
+        model,
+        seed,
+        fraction=0.8,
+        noise_px=noise_px,
+        landmarks_per_view=(n_landmarks // 2 + n_landmarks % 2, n_landmarks // 2),
+        outline_noise_px=outline_noise_px,
+        random_stretch=True,
+    )
     t0 = time.perf_counter()
     res = register_views(model, views, options=opts)
     elapsed = time.perf_counter() - t0

@@ -233,15 +233,19 @@ def boosting_case(
     *,
     fraction: float = 0.7,
     noise_px: float = 0.0,
-    landmarks_per_view: int = 3,
+    landmarks_per_view: int | tuple[int, int] = 3,
+    outline_noise_px: float | None = None,
+    random_stretch: bool = False,
 ) -> tuple[list, tuple[np.ndarray, ...]]:
     """A seeded two-view silhouette-boosting problem with its truth.
 
     A random instance (weights ~ N(0, 1)) in a random pose (:func:`random_pose`), the two views
     of :func:`biplanar_views` (75 deg apart), ``landmarks_per_view`` landmarks at random
-    vertices per view and the first ``fraction`` of each view's outline (the longest chain of
-    the mesh silhouette; open unless ``fraction >= 1``), with ``noise_px`` Gaussian noise on
-    every landmark and outline point.
+    vertices per view (one count, or one per view) and ``fraction`` of each view's outline (the
+    longest chain of the mesh silhouette; open unless ``fraction >= 1``): its first part, or
+    with ``random_stretch`` a stretch from a random start (:func:`outline_stretch`). Gaussian
+    noise: ``noise_px`` on the landmarks, ``outline_noise_px`` (default ``noise_px``) on the
+    outline points.
 
     Returns
     -------
@@ -258,14 +262,20 @@ def boosting_case(
     w = rng.normal(size=model.n_modes)
     R, t = random_pose(rng)
     X = model.instance(w) @ R.T + t
-    n = landmarks_per_view
+    counts = np.broadcast_to(np.asarray(landmarks_per_view, dtype=int), (2,))
+    sigma_outline = noise_px if outline_noise_px is None else outline_noise_px
     views = []
-    for name, view in zip(("cam1", "cam2"), biplanar_views(75.0), strict=True):
+    for name, view, n in zip(("cam1", "cam2"), biplanar_views(75.0), counts, strict=True):
         ids = rng.choice(model.n_vertices, n, replace=False)
         uv = view.project(X[ids]) + noise_px * rng.normal(size=(n, 2))
         edges, uv_all = mesh_silhouette(X, model.faces, view)
-        outline = chain_edges(edges, uv_all)[0][0]
-        outline = outline + noise_px * rng.normal(size=outline.shape)
+        polys, closed = chain_edges(edges, uv_all)
+        outline = polys[0]
+        if random_stretch:
+            outline = outline_stretch(outline, closed[0], fraction, rng)
+        outline = outline + sigma_outline * rng.normal(size=outline.shape)
+        if not random_stretch:
+            outline = outline[: int(fraction * len(outline))]
         views.append(
             ViewObservations(
                 name=name,
@@ -274,9 +284,7 @@ def boosting_case(
                 landmark_ids=ids,
                 landmark_uv=uv,
                 landmark_sigma_px=np.ones(n),
-                contours=[
-                    Contour(uv=outline[: int(fraction * len(outline))], closed=fraction >= 1.0)
-                ],
+                contours=[Contour(uv=outline, closed=fraction >= 1.0)],
             )
         )
     return views, (w, R, t, X)

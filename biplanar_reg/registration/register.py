@@ -48,7 +48,7 @@ MATCH_FLOOR_PX = 3.0
 #: Largest fraction of the landmarks that may be rejected as blunders.
 MAX_REJECTED_FRACTION = 0.125
 #: Boosting iterations per hypothesis in the landmark-blunder consensus.
-CONSENSUS_ITERATIONS = 2
+CONSENSUS_ITERATIONS = 1
 #: The consensus runs when a landmark's error at the landmark-only start exceeds this many
 #: sigmas (measured: 0.2-0.9 on clean 0.5 px data, 1.2-8.2 with one 40 px blunder of 6).
 CONSENSUS_TRIGGER = 1.0
