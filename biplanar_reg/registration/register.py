@@ -137,14 +137,17 @@ class RegistrationOptions:
 class IterationRecord:
     """One solve of the registration: iteration 0 is the landmark-only solve.
 
-    ``kind`` is ``"sdp"`` for a convex re-solve (its ``certificate`` is that solve's) and
-    ``"local"`` for an iteration of the final local refinement (re-matching plus a
-    Levenberg-Marquardt step from the previous iterate; ``certificate`` is the last SDP's).
+    ``kind`` is ``"sdp"`` for a convex re-solve (its ``certificate`` is that solve's; ``cost``
+    the match-independent iteration cost of :mod:`.silhouettes`, ``n_matches`` the silhouette
+    matches used) and ``"local"`` for an accepted Levenberg-Marquardt step of the final
+    refinement (``cost`` is the objective it minimises, :mod:`.outline_fit`, which never
+    increases; ``n_matches`` the annotated outline samples within its gate; ``certificate``
+    is the last SDP's). The two costs are not on one scale.
     """
 
     index: int
-    cost: float  # the match-independent iteration cost (module docstring of .silhouettes)
-    n_matches: int  # silhouette matches used (0 at iteration 0)
+    cost: float
+    n_matches: int  # 0 at iteration 0
     certificate: float
     seconds: float
     kind: str = "sdp"
@@ -615,16 +618,14 @@ def register_views(
         # -- final local refinement of the objective itself, from the best convex iterate ----
         t_it = time.perf_counter()
 
-        def record(state, _f, n_active):
+        def record(state, objective, n_active):
             nonlocal t_it
             R, t, w = state
-            at = replace(res, vertices=model.instance(w) @ R.T + t)
-            cost = iteration_cost(at, outlines_of(at), rejected)
-            iterates.append(at.vertices)
+            iterates.append(model.instance(w) @ R.T + t)
             records.append(
                 IterationRecord(
                     records[-1].index + 1,
-                    cost,
+                    objective,
                     n_active,
                     res.certificate,
                     time.perf_counter() - t_it,

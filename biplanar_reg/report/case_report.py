@@ -111,8 +111,15 @@ def write_case_report(
         [i["certificate"] for i in its],
         [i["n_matches"] for i in its],
         doc["best_iteration"],
+        [i.get("kind", "sdp") for i in its],
     )
-    figures.append({"src": "convergence.png", "caption": "Cost and certificate per iteration."})
+    figures.append(
+        {
+            "src": "convergence.png",
+            "caption": "Convex iterations (cost, certificate) and the final refinement "
+            "(its objective) per iteration.",
+        }
+    )
     renderer = None
     if case.ground_truth is not None and case.model.faces is not None:
         renderer = render_error_mesh(

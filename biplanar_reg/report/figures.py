@@ -161,34 +161,62 @@ def convergence_figure(
     certificates: Sequence[float],
     matches: Sequence[int],
     best: int,
+    kinds: Sequence[str] | None = None,
 ) -> None:
-    """Cost (left axis, log) and certificate (right axis, log) per iteration; best marked."""
-    fig = Figure(figsize=(6.0, 3.4))
-    ax = fig.add_subplot(1, 1, 1)
-    it = np.arange(len(costs))
+    """Convergence of a registration, one panel per stage.
+
+    Left: the convex iterations (``kind`` ``"sdp"``): match-independent cost (log) with the
+    number of silhouette matches, and the certificate (right axis, log). Right, when there are
+    ``"local"`` records: the final refinement's objective per accepted step (log) with the
+    annotated outline samples within its gate. The two costs are on different scales. The
+    returned iteration (``best``) is starred.
+    """
+    kinds = list(kinds) if kinds is not None else ["sdp"] * len(costs)
     c = np.maximum(np.asarray(costs, float), 1e-300)
-    ax.semilogy(it, c, "o-", color="tab:blue", label="cost")
-    if 0 <= best < len(costs):
-        ax.semilogy([best], [c[best]], "*", color="tab:red", ms=14, label="returned")
+    idx = np.arange(len(costs))
+    sdp = np.array([k != "local" for k in kinds], dtype=bool)
+    local = ~sdp
+    fig = Figure(figsize=(9.0 if local.any() else 6.0, 3.4))
+    ax = fig.add_subplot(1, 2 if local.any() else 1, 1)
+    ax.semilogy(idx[sdp], c[sdp], "o-", color="tab:blue", label="cost")
     ax.set_xlabel("iteration (0 = landmarks only)")
-    ax.set_ylabel("cost", color="tab:blue")
-    ax.set_xticks(it)
+    ax.set_ylabel("match-independent cost", color="tab:blue")
+    ax.set_xticks(idx[sdp])
     ax2 = ax.twinx()
     ax2.semilogy(
-        it,
-        np.maximum(np.asarray(certificates, float), 1e-16),
+        idx[sdp],
+        np.maximum(np.asarray(certificates, float)[sdp], 1e-16),
         "s--",
         color="tab:green",
         label="certificate",
     )
     ax2.set_ylabel("certificate (lambda2 / lambda1)", color="tab:green")
-    for i, m in zip(it, matches, strict=True):
-        ax.annotate(
-            str(m), (i, c[i]), xytext=(0, 6), textcoords="offset points", fontsize=7, ha="center"
-        )
+    panels = [(ax, sdp)]
+    if local.any():
+        axl = fig.add_subplot(1, 2, 2)
+        axl.semilogy(idx[local], c[local], "o-", color="tab:purple", label="objective")
+        axl.set_xlabel("iteration")
+        axl.set_ylabel("refinement objective", color="tab:purple")
+        axl.set_xticks(idx[local])
+        axl.set_title("final refinement (numbers: outline samples)", fontsize=9)
+        panels.append((axl, local))
+    for a, sel in panels:
+        for i in idx[sel]:
+            a.annotate(
+                str(matches[i]),
+                (i, c[i]),
+                xytext=(0, 6),
+                textcoords="offset points",
+                fontsize=7,
+                ha="center",
+            )
+        if 0 <= best < len(costs) and sel[best]:
+            a.semilogy([best], [c[best]], "*", color="tab:red", ms=14, label="returned")
     h1, l1 = ax.get_legend_handles_labels()
     h2, l2 = ax2.get_legend_handles_labels()
-    ax.legend(h1 + h2, l1 + l2, fontsize=7, loc="upper right")
-    ax.set_title("convergence (numbers: silhouette matches)")
+    ax.legend(h1 + h2, l1 + l2, fontsize=7, loc="best")
+    if local.any():
+        axl.legend(fontsize=7, loc="best")
+    ax.set_title("convex iterations (numbers: silhouette matches)", fontsize=9)
     fig.tight_layout()
     save_figure(fig, path)
