@@ -1,0 +1,163 @@
+"""Options and per-iteration records of the registration pipeline (:mod:`.register`).
+
+Every number that sets how the pipeline behaves is a field of :class:`RegistrationOptions`
+with its documented default, so a case file (``[registration]`` keys of the same names) or a
+caller can change it and ``result.json`` records it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from .gsft import DEFAULT_EPS
+
+__all__ = ["RegistrationOptions", "IterationRecord", "CERTIFICATE_FLAG", "REPROJECTION_FLAG_PX"]
+
+#: Default certificate above which a result is flagged "relaxation not tight".
+CERTIFICATE_FLAG = 1e-2
+#: Default landmark reprojection error (px RMS) above which a result is flagged.
+REPROJECTION_FLAG_PX = 5.0
+
+# fields that must be whole numbers >= the given minimum
+_COUNTS = {
+    "max_iterations": 0,
+    "refine_iterations": 0,
+    "silhouette_points": 3,
+    "consensus_iterations": 1,
+    "blunder_refine_iterations": 1,
+}
+# fields that must be fractions in (0, 1]
+_FRACTIONS = ("landmark_weight", "max_rejected_fraction", "consensus_margin")
+
+
+@dataclass(frozen=True)
+class RegistrationOptions:
+    """Options of :func:`.register.register_views` (documented defaults).
+
+    Attributes
+    ----------
+    landmark_weight : float
+        ``lambda`` in (0, 1]: landmarks weigh ``lambda``, outline matches ``1 - lambda``
+        (per observation, relative to their counts; see :mod:`.silhouettes`).
+    max_iterations : int
+        Maximum outline-boosting iterations with a convex re-solve each.
+    refine_iterations : int
+        Maximum Levenberg-Marquardt iterations of the final joint local refinement on all terms
+        (:func:`.outline_fit.refine_on_outlines`: every annotated outline point to the model's
+        outline, re-matched at every step; no SDP).
+    silhouette_points : int
+        Model outline points used per view and iteration (fixed count: each iteration is a
+        re-solve of a problem of the same size).
+    gate_px : float
+        Outline matches farther than this from the annotated outline are dropped, pixels.
+    mutual : bool
+        Keep only mutual nearest-neighbour matches.
+    robust : bool
+        Detect landmark blunders and down-weight them.
+    blunder_threshold : float
+        A landmark whose leave-one-out residual exceeds this many sigmas is a blunder.
+    eps : float
+        SDP trace weight (see :func:`.gsft.solve_gsft`).
+    prior_weight : float
+        Weight of the shape prior in the local refinement.
+    tol : float
+        Stop when the relative cost change between iterations is below this.
+    contour_sigma_px : float
+        Uncertainty of the annotated outlines, pixels.
+    contour_spacing_px : float
+        In the final refinement, annotated outline errors count as independent once every
+        this many pixels along the outline (an outline is sampled at 1 px, and its errors are
+        correlated over a few pixels: a traced outline wanders, it does not jitter).
+    match_floor_px : float
+        Smallest outlier threshold for outline matches after the first matching of a start,
+        and for the final refinement's gate, pixels.
+    max_rejected_fraction : float
+        Largest fraction of the landmarks that may be rejected as blunders (at least one is
+        always allowed): many landmarks disagreeing with the fit point at the model, not at
+        the annotator.
+    blunder_contrast : float
+        A blunder's leave-one-out score must also exceed this multiple of the median score of
+        the other landmarks (while the outline fit settles, every score is inflated alike).
+    blunder_refine_iterations : int
+        Levenberg-Marquardt iterations of each leave-one-out refit in the blunder test.
+    consensus_trigger : float
+        The landmark-blunder consensus runs when some landmark's error at the landmark-only
+        start exceeds this many sigmas (measured: 0.2-0.9 on clean 0.5 px data, 1.2-8.2 with
+        one 40 px blunder of 6).
+    consensus_iterations : int
+        Boosting iterations of each short fit in the consensus and in the start choice.
+    consensus_margin : float
+        A leave-one-out hypothesis is accepted when its short fit's cost is below this
+        fraction of the all-landmarks fit's cost.
+    readmit_sigmas : float
+        A rejected landmark whose error under the final fit is within this many sigmas is
+        taken back and the refinement repeated.
+    certificate_flag : float
+        Certificate above which the landmark-only relaxation counts as not tight (then the
+        rigid mean-shape start is tried too) and a result is flagged.
+    reprojection_flag_px : float
+        Landmark reprojection RMS (px) above which a result is flagged.
+    """
+
+    landmark_weight: float = 0.5
+    max_iterations: int = 6
+    refine_iterations: int = 15
+    silhouette_points: int = 150
+    gate_px: float = 15.0
+    mutual: bool = False
+    robust: bool = True
+    blunder_threshold: float = 10.0
+    eps: float = DEFAULT_EPS
+    prior_weight: float = 1.0
+    tol: float = 1e-4
+    contour_sigma_px: float = 1.0
+    contour_spacing_px: float = 5.0
+    match_floor_px: float = 3.0
+    max_rejected_fraction: float = 0.125
+    blunder_contrast: float = 3.0
+    blunder_refine_iterations: int = 15
+    consensus_trigger: float = 1.0
+    consensus_iterations: int = 1
+    consensus_margin: float = 0.5
+    readmit_sigmas: float = 3.0
+    certificate_flag: float = CERTIFICATE_FLAG
+    reprojection_flag_px: float = REPROJECTION_FLAG_PX
+
+    def __post_init__(self) -> None:
+        for key in _FRACTIONS:
+            v = getattr(self, key)
+            if not 0.0 < v <= 1.0:
+                raise ValueError(f"{key}: must be in (0, 1], got {v}")
+        for key, least in _COUNTS.items():
+            if int(getattr(self, key)) < least:
+                raise ValueError(f"{key}: too small ({getattr(self, key)}; at least {least})")
+        for f in fields(self):
+            if f.name in _COUNTS or f.name in _FRACTIONS or isinstance(f.default, bool):
+                continue
+            v = float(getattr(self, f.name))
+            least_ok = v >= 0 if f.name == "prior_weight" else v > 0
+            if not np.isfinite(v) or not least_ok:
+                want = ">= 0" if f.name == "prior_weight" else "a positive number"
+                raise ValueError(f"{f.name}: must be {want}, got {getattr(self, f.name)!r}")
+
+
+@dataclass(frozen=True)
+class IterationRecord:
+    """One solve of the registration: iteration 0 is the landmark-only solve.
+
+    ``kind`` is ``"sdp"`` for a convex re-solve (its ``certificate`` is that solve's; ``cost``
+    the match-independent iteration cost of :mod:`.silhouettes`, ``n_matches`` the outline
+    matches used) and ``"local"`` for an accepted Levenberg-Marquardt step of the final
+    refinement (``cost`` is the objective it minimises, :mod:`.outline_fit`, which never
+    increases; ``n_matches`` the annotated outline samples within its gate; ``certificate``
+    is the last SDP's). The two costs are not on one scale.
+    """
+
+    index: int
+    cost: float
+    n_matches: int  # 0 at iteration 0
+    certificate: float
+    seconds: float
+    kind: str = "sdp"
