@@ -133,10 +133,138 @@ def _check_uv(
     return [u, v]
 
 
-def _check_keys(obj: Mapping[str, Any], allowed: set[str], where: str, warnings: list[str]):
+def _check_keys(obj: Mapping[str, Any], allowed: set[str], where: str, warnings: list[str]) -> None:
+    """Append a warning for each key of ``obj`` outside ``allowed`` (unknown keys are ignored)."""
     for key in obj:
         if key not in allowed:
             warnings.append(f"{where}: unknown key {key!r} ignored")
+
+
+def _validate_landmark(
+    ldata: object,
+    lw: str,
+    size: tuple[int, int] | None,
+    problems: list[str],
+    warnings: list[str],
+) -> tuple[list[float], float] | None:
+    """Check one landmark object ``{"uv": [u, v], "sigma_px": s}``.
+
+    Parameters
+    ----------
+    ldata : object
+        The landmark's JSON value.
+    lw : str
+        Its place in the document (``views.<view>.landmarks.<name>``), for messages.
+    size : (W, H) or None
+        Image size in pixels; when given, ``uv`` must lie within half a pixel of the pixel
+        centres.
+    problems, warnings : list of str
+        Appended to (a bad ``uv`` and a bad ``sigma_px`` are both reported).
+
+    Returns
+    -------
+    (uv, sigma_px) or None
+        ``uv`` as two floats (pixels) and the positive ``sigma_px`` (pixels, default 1.0);
+        None when the landmark is invalid.
+    """
+    if not isinstance(ldata, dict) or "uv" not in ldata:
+        problems.append(f"{lw}: expected an object with 'uv'")
+        return None
+    _check_keys(ldata, {"uv", "sigma_px"}, lw, warnings)
+    uv = _check_uv(ldata["uv"], f"{lw}.uv", size, problems)
+    sigma = ldata.get("sigma_px", 1.0)
+    if not is_finite_number(sigma) or sigma <= 0:
+        problems.append(f"{lw}.sigma_px: must be a positive number, got {sigma!r}")
+        return None
+    if uv is None:
+        return None
+    return uv, float(sigma)
+
+
+def _validate_landmarks(
+    lms: object,
+    vw: str,
+    known_landmarks: Collection[str] | None,
+    size: tuple[int, int] | None,
+    problems: list[str],
+    warnings: list[str],
+) -> dict[str, tuple[list[float], float]]:
+    """Check the ``landmarks`` object of one view (``vw`` names the view, for messages).
+
+    Landmark names outside ``known_landmarks`` (when given) are problems; every landmark is
+    checked with :func:`_validate_landmark`. Returns the valid ones as ``name -> (uv, sigma_px)``
+    (pixels).
+    """
+    out: dict[str, tuple[list[float], float]] = {}
+    if not isinstance(lms, dict):
+        problems.append(f"{vw}.landmarks: expected an object, got {type(lms).__name__}")
+        return out
+    for lname, ldata in lms.items():
+        lw = f"{vw}.landmarks.{lname}"
+        if known_landmarks is not None and lname not in known_landmarks:
+            problems.append(f"{lw}: unknown landmark (not in the model's landmark file)")
+            continue
+        checked = _validate_landmark(ldata, lw, size, problems, warnings)
+        if checked is not None:
+            out[lname] = checked
+    return out
+
+
+def _validate_contour(
+    cdata: object,
+    cw: str,
+    size: tuple[int, int] | None,
+    problems: list[str],
+    warnings: list[str],
+) -> tuple[list[list[float]], bool] | None:
+    """Check one contour object ``{"uv": [[u, v], ...], "closed": false}``.
+
+    The contour needs at least 3 points, each a valid pixel position (within half a pixel of
+    the image of ``size`` (W, H) when given), and a boolean ``closed`` (default false). ``cw``
+    names the contour (``views.<view>.contours[i]``) in messages. Returns ``(points, closed)``
+    with the points in pixels, or None (problems appended) when the contour is invalid.
+    """
+    if not isinstance(cdata, dict) or not isinstance(cdata.get("uv"), list):
+        problems.append(f"{cw}: expected an object with a 'uv' list of points")
+        return None
+    _check_keys(cdata, {"uv", "closed"}, cw, warnings)
+    closed = cdata.get("closed", False)
+    if not isinstance(closed, bool):
+        problems.append(f"{cw}.closed: expected true or false, got {closed!r}")
+        return None
+    pts = cdata["uv"]
+    if len(pts) < 3:
+        problems.append(f"{cw}: has {len(pts)} point(s); a contour needs at least 3")
+        return None
+    # every point is checked (and reported) before the contour is judged
+    n_before = len(problems)
+    good = [_check_uv(p, f"{cw}.uv[{j}]", size, problems) for j, p in enumerate(pts)]
+    if len(problems) != n_before:
+        return None
+    return good, closed
+
+
+def _validate_contours(
+    cts: object,
+    vw: str,
+    size: tuple[int, int] | None,
+    problems: list[str],
+    warnings: list[str],
+) -> list[tuple[list[list[float]], bool]]:
+    """Check the ``contours`` list of one view (``vw`` names the view, for messages).
+
+    Every contour is checked with :func:`_validate_contour`; returns the valid ones, in order,
+    as ``(points in pixels, closed)``.
+    """
+    if not isinstance(cts, list):
+        problems.append(f"{vw}.contours: expected a list, got {type(cts).__name__}")
+        return []
+    out = []
+    for i, cdata in enumerate(cts):
+        checked = _validate_contour(cdata, f"{vw}.contours[{i}]", size, problems, warnings)
+        if checked is not None:
+            out.append(checked)
+    return out
 
 
 def _validate_document(
@@ -145,7 +273,23 @@ def _validate_document(
     known_landmarks: Collection[str] | None,
     image_sizes: Mapping[str, tuple[int, int]] | None,
 ) -> tuple[dict[str, Any], list[str], list[str]]:
-    """Check a parsed JSON document; return (clean plain data, problems, warnings)."""
+    """Check a parsed JSON document and collect every problem.
+
+    Checks the top level (an object with ``format`` equal to :data:`FORMAT` and a ``views``
+    object), that each view is known (when ``known_views`` is given) and an object, and its
+    landmarks and contours (:func:`_validate_landmarks`, :func:`_validate_contours`). Unknown
+    keys are warnings, not problems.
+
+    Returns
+    -------
+    clean : dict
+        ``view name -> (landmarks, contours)`` of plain data, the valid parts only (built into
+        objects by :func:`parse_annotations` only when there are no problems).
+    problems : list of str
+        Every problem found, each prefixed with its place in the document.
+    warnings : list of str
+        Unknown keys that were ignored.
+    """
     problems: list[str] = []
     warnings: list[str] = []
     clean: dict[str, Any] = {}
@@ -169,51 +313,12 @@ def _validate_document(
             continue
         _check_keys(vdata, {"landmarks", "contours"}, vw, warnings)
         size = None if image_sizes is None else image_sizes.get(vname)
-        lms_out: dict[str, Any] = {}
         lms = vdata.get("landmarks", {})
-        if not isinstance(lms, dict):
-            problems.append(f"{vw}.landmarks: expected an object, got {type(lms).__name__}")
-            lms = {}
-        for lname, ldata in lms.items():
-            lw = f"{vw}.landmarks.{lname}"
-            if known_landmarks is not None and lname not in known_landmarks:
-                problems.append(f"{lw}: unknown landmark (not in the model's landmark file)")
-                continue
-            if not isinstance(ldata, dict) or "uv" not in ldata:
-                problems.append(f"{lw}: expected an object with 'uv'")
-                continue
-            _check_keys(ldata, {"uv", "sigma_px"}, lw, warnings)
-            uv = _check_uv(ldata["uv"], f"{lw}.uv", size, problems)
-            sigma = ldata.get("sigma_px", 1.0)
-            if not is_finite_number(sigma) or sigma <= 0:
-                problems.append(f"{lw}.sigma_px: must be a positive number, got {sigma!r}")
-                continue
-            if uv is not None:
-                lms_out[lname] = (uv, float(sigma))
-        cts_out: list[Any] = []
         cts = vdata.get("contours", [])
-        if not isinstance(cts, list):
-            problems.append(f"{vw}.contours: expected a list, got {type(cts).__name__}")
-            cts = []
-        for i, cdata in enumerate(cts):
-            cw = f"{vw}.contours[{i}]"
-            if not isinstance(cdata, dict) or not isinstance(cdata.get("uv"), list):
-                problems.append(f"{cw}: expected an object with a 'uv' list of points")
-                continue
-            _check_keys(cdata, {"uv", "closed"}, cw, warnings)
-            closed = cdata.get("closed", False)
-            if not isinstance(closed, bool):
-                problems.append(f"{cw}.closed: expected true or false, got {closed!r}")
-                continue
-            pts = cdata["uv"]
-            if len(pts) < 3:
-                problems.append(f"{cw}: has {len(pts)} point(s); a contour needs at least 3")
-                continue
-            n_before = len(problems)
-            good = [_check_uv(p, f"{cw}.uv[{j}]", size, problems) for j, p in enumerate(pts)]
-            if len(problems) == n_before:
-                cts_out.append((good, closed))
-        clean[vname] = (lms_out, cts_out)
+        clean[vname] = (
+            _validate_landmarks(lms, vw, known_landmarks, size, problems, warnings),
+            _validate_contours(cts, vw, size, problems, warnings),
+        )
     return clean, problems, warnings
 
 

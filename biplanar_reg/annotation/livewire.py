@@ -46,6 +46,34 @@ def snap_to_edge_max(grad: np.ndarray, uv: np.ndarray, radius_px: float) -> np.n
     return out
 
 
+def _gradient_at(
+    image: np.ndarray, uv: np.ndarray, sigma_px: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Gradient of the Gaussian-smoothed image at sub-pixel points (bilinear, edges clamped).
+
+    Parameters
+    ----------
+    image : (H, W) array
+        The image (any units).
+    uv : (K, 2) array
+        Points, pixels (u, v).
+    sigma_px : float
+        Standard deviation of the Gaussian smoothing, pixels.
+
+    Returns
+    -------
+    grad : (K, 2) array
+        The gradient ``(d/du, d/dv)`` at each point, image units per pixel.
+    norm : (K,) array
+        Its length (``ok = norm > 1e-12`` marks points with a usable direction).
+    """
+    gy, gx = np.gradient(ndimage.gaussian_filter(image, sigma_px))
+    rows, cols = uv[:, 1], uv[:, 0]
+    nx = ndimage.map_coordinates(gx, [rows, cols], order=1, mode="nearest")
+    ny = ndimage.map_coordinates(gy, [rows, cols], order=1, mode="nearest")
+    return np.column_stack([nx, ny]), np.hypot(nx, ny)
+
+
 def refine_subpixel(grad: np.ndarray, uv: np.ndarray, sigma_px: float = 1.0) -> np.ndarray:
     """Move points (K, 2) to the sub-pixel gradient-magnitude peak along the edge normal.
 
@@ -53,14 +81,11 @@ def refine_subpixel(grad: np.ndarray, uv: np.ndarray, sigma_px: float = 1.0) -> 
     ridge's cross direction); the peak is a parabola through ``grad`` at -1, 0, +1 px along it,
     and the move is clamped to 1 px so a noisy fit cannot jump to another edge.
     """
-    gy, gx = np.gradient(ndimage.gaussian_filter(grad, sigma_px))
-    rows, cols = uv[:, 1], uv[:, 0]
-    nx = ndimage.map_coordinates(gx, [rows, cols], order=1, mode="nearest")
-    ny = ndimage.map_coordinates(gy, [rows, cols], order=1, mode="nearest")
-    nn = np.hypot(nx, ny)
+    g, nn = _gradient_at(grad, uv, sigma_px)
     ok = nn > 1e-12
-    nx = np.where(ok, nx / np.where(ok, nn, 1), 0.0)
-    ny = np.where(ok, ny / np.where(ok, nn, 1), 0.0)
+    nx = np.where(ok, g[:, 0] / np.where(ok, nn, 1), 0.0)
+    ny = np.where(ok, g[:, 1] / np.where(ok, nn, 1), 0.0)
+    rows, cols = uv[:, 1], uv[:, 0]
     f = [
         ndimage.map_coordinates(grad, [rows + k * ny, cols + k * nx], order=1, mode="nearest")
         for k in (-1.0, 0.0, 1.0)
@@ -132,14 +157,10 @@ def refine_to_outline(
     crop = display[v0:v1, u0:u1]
     img = crop if bone == "dark" else 1.0 - crop
     local = uv - [u0, v0]
-    gy, gx = np.gradient(ndimage.gaussian_filter(img, sigma_px))
-    rows, cols = local[:, 1], local[:, 0]
-    nx = ndimage.map_coordinates(gx, [rows, cols], order=1, mode="nearest")
-    ny = ndimage.map_coordinates(gy, [rows, cols], order=1, mode="nearest")
-    nn = np.hypot(nx, ny)
+    g, nn = _gradient_at(img, local, sigma_px)
     ok = nn > 1e-12
     # into the bone = towards darker (after the polarity flip), against the gradient
-    into = -np.column_stack([nx, ny]) / np.where(ok, nn, 1.0)[:, None]
+    into = -g / np.where(ok, nn, 1.0)[:, None]
     offs, r2s = edge_onset_offsets(
         img, local, into, half_width_px=half_width, max_shift_px=max_shift
     )

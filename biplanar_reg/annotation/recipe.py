@@ -89,6 +89,10 @@ class ContourRecipe:
 
 
 def _points(value: object, where: str, min_points: int, problems: list[str]) -> np.ndarray | None:
+    """Check a list of at least ``min_points`` ``[u, v]`` pairs of finite numbers (pixels).
+
+    Returns the points as a (K, 2) float array, or None (a problem naming ``where`` appended).
+    """
     if not isinstance(value, list) or not all(
         isinstance(p, list) and len(p) == 2 and all(is_finite_number(x) for x in p) for p in value
     ):
@@ -100,11 +104,15 @@ def _points(value: object, where: str, min_points: int, problems: list[str]) -> 
     return np.array(value, float).reshape(-1, 2)
 
 
-def parse_recipe(doc: object, source: str = "recipe") -> ContourRecipe:
-    """Validate a parsed recipe document; raise ``ValueError`` listing every problem."""
-    problems: list[str] = []
-    if not isinstance(doc, dict):
-        raise ValueError(f"{source}: expected a JSON object")
+def _check_header(doc: dict[str, Any], problems: list[str]) -> dict[str, Any]:
+    """Check the recipe's scalar fields: ``format``, ``method``, ``image``, ``frame``, ``view``.
+
+    Also ``closed``. ``method`` must be one of :data:`METHODS`, ``image`` a non-empty path,
+    ``frame`` an integer >= 0 (default 0), ``view`` a string (default ""), ``closed`` a boolean
+    (default false; an invalid value is reported and read as false so that the anchors' minimum
+    count can still be checked). Returns the fields as read, keyed by their
+    :class:`ContourRecipe` attribute names; problems are appended.
+    """
     if doc.get("format") != RECIPE_FORMAT:
         problems.append(f"format: expected {RECIPE_FORMAT!r}, got {doc.get('format')!r}")
     method = doc.get("method")
@@ -123,32 +131,69 @@ def parse_recipe(doc: object, source: str = "recipe") -> ContourRecipe:
     if not isinstance(closed, bool):
         problems.append(f"closed: expected true or false, got {closed!r}")
         closed = False
-    anchors = box = polygon = None
+    return {"method": method, "image": image, "frame": frame, "view": view, "closed": closed}
+
+
+def _check_box(value: object, problems: list[str]) -> np.ndarray | None:
+    """Check a grabcut ``box`` ``[u0, v0, u1, v1]`` of finite numbers (pixels); (4,) or None."""
+    if not (
+        isinstance(value, list) and len(value) == 4 and all(is_finite_number(x) for x in value)
+    ):
+        problems.append(f"box: expected [u0, v0, u1, v1] finite numbers, got {value!r:.60}")
+        return None
+    return np.array(value, float)
+
+
+def _check_inputs(
+    doc: dict[str, Any], method: object, closed: bool, problems: list[str]
+) -> dict[str, np.ndarray | None]:
+    """Check the method's inputs (pixels): livewire ``anchors``, grabcut ``box`` or ``polygon``.
+
+    Livewire needs ``anchors``, at least 2 (3 when ``closed``); grabcut needs exactly one of
+    ``box`` (:func:`_check_box`) and ``polygon`` (at least 3 points). An unknown ``method`` has
+    no inputs to check. Returns ``{"anchors", "box", "polygon"}``, None where absent or invalid.
+    """
+    inputs: dict[str, np.ndarray | None] = {"anchors": None, "box": None, "polygon": None}
     if method == "livewire":
         if "anchors" not in doc:
             problems.append("anchors: required for method 'livewire'")
         else:
-            anchors = _points(doc["anchors"], "anchors", 3 if closed else 2, problems)
+            inputs["anchors"] = _points(doc["anchors"], "anchors", 3 if closed else 2, problems)
     elif method == "grabcut":
         if ("box" in doc) == ("polygon" in doc):
             problems.append("box/polygon: method 'grabcut' needs exactly one of them")
         elif "box" in doc:
-            b = doc["box"]
-            if not (isinstance(b, list) and len(b) == 4 and all(is_finite_number(x) for x in b)):
-                problems.append(f"box: expected [u0, v0, u1, v1] finite numbers, got {b!r:.60}")
-            else:
-                box = np.array(b, float)
+            inputs["box"] = _check_box(doc["box"], problems)
         else:
-            polygon = _points(doc["polygon"], "polygon", 3, problems)
+            inputs["polygon"] = _points(doc["polygon"], "polygon", 3, problems)
+    return inputs
+
+
+def _check_params(doc: dict[str, Any], method: object, problems: list[str]) -> dict[str, Any]:
+    """Check ``params``: an object whose keys are parameters of ``method`` (see ``_PARAMS``).
+
+    The values are checked by the method itself when the recipe is run. Returns a copy of the
+    object ({} when it is not one).
+    """
     params = doc.get("params", {})
     if not isinstance(params, dict):
         problems.append("params: expected an object")
-        params = {}
-    elif method in _PARAMS:
+        return {}
+    if method in _PARAMS:
         for key in params:
             if key not in _PARAMS[method]:
                 known = sorted(_PARAMS[method])
                 problems.append(f"params.{key}: unknown parameter for {method} (known: {known})")
+    return dict(params)
+
+
+def _check_cleaning(doc: dict[str, Any], problems: list[str]) -> dict[str, Any]:
+    """Check ``cleaning``: the options of :func:`~.clean.clean_contour` (see ``_CLEANING``).
+
+    ``exclusion_zones`` must be a list of polygons of at least 3 points (pixels; converted to
+    (P, 2) arrays), ``spacing_px`` a number > 0 and ``border_px`` a number > -1 (pixels).
+    Returns a copy of the object ({} when it is not one).
+    """
     cleaning = doc.get("cleaning", {})
     if not isinstance(cleaning, dict):
         problems.append("cleaning: expected an object")
@@ -169,20 +214,31 @@ def parse_recipe(doc: object, source: str = "recipe") -> ContourRecipe:
     for key, low in (("spacing_px", 0.0), ("border_px", -1.0)):
         if key in cleaning and not (is_finite_number(cleaning[key]) and cleaning[key] > low):
             problems.append(f"cleaning.{key}: expected a number > {low:g}, got {cleaning[key]!r}")
+    return cleaning
+
+
+def parse_recipe(doc: object, source: str = "recipe") -> ContourRecipe:
+    """Validate a parsed recipe document (``json.load`` output) and build a recipe.
+
+    Checks, in order, the scalar fields (format, method, image, frame, view, closed), the
+    method's inputs (anchors, or box / polygon; pixels), ``params`` and ``cleaning``; see the
+    module docstring for the form.
+
+    Raises
+    ------
+    ValueError
+        Naming ``source`` and listing every problem found.
+    """
+    problems: list[str] = []
+    if not isinstance(doc, dict):
+        raise ValueError(f"{source}: expected a JSON object")
+    header = _check_header(doc, problems)
+    inputs = _check_inputs(doc, header["method"], header["closed"], problems)
+    params = _check_params(doc, header["method"], problems)
+    cleaning = _check_cleaning(doc, problems)
     if problems:
         raise ValueError(f"{source}: invalid contour recipe:\n  " + "\n  ".join(problems))
-    return ContourRecipe(
-        image=image,
-        method=method,
-        frame=frame,
-        view=view,
-        anchors=anchors,
-        closed=closed,
-        box=box,
-        polygon=polygon,
-        params=dict(params),
-        cleaning=cleaning,
-    )
+    return ContourRecipe(**header, **inputs, params=params, cleaning=cleaning)
 
 
 def load_recipe(path: str | os.PathLike[str]) -> ContourRecipe:

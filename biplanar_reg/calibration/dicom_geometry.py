@@ -257,6 +257,112 @@ def _ds(x: float) -> float:
     return float(format_number_as_ds(float(x)))
 
 
+def _check_dicom_writable(view: View) -> None:
+    """Check that ``view`` can be written as DICOM X-ray geometry at all.
+
+    It must be a :class:`PerspectiveView` with an image size of 1..65535 pixels a side, and the
+    world origin (the isocentre) must lie in front of its source (``t[2] > 0``, mm). Raises
+    ``ValueError`` saying which condition fails.
+    """
+    if not isinstance(view, PerspectiveView):
+        raise ValueError(
+            f"a {view.kind} view cannot be written as DICOM: its geometry is a point source"
+        )
+    if view.image_size is None:
+        raise ValueError("the view has no image_size; DICOM needs Rows and Columns")
+    W, H = view.image_size
+    if not (1 <= W <= 65535 and 1 <= H <= 65535):
+        raise ValueError(f"image_size {view.image_size}: DICOM Rows/Columns must be 1..65535")
+    sod = float(view.t[2])
+    if sod <= 0:
+        raise ValueError(
+            f"the world origin (DICOM isocentre) is not in front of the source (t[2] = {sod} mm)"
+        )
+
+
+def _intrinsic_problems(view: PerspectiveView, tol_px: float) -> list[str]:
+    """Why the intrinsics of ``view`` depart from the DICOM convention, by more than ``tol_px``.
+
+    Checked: distortion (none allowed), principal point at the image centre
+    ((W-1)/2, (H-1)/2), skew (its shift at the top/bottom image edge, pixels), and the world
+    origin (isocentre) on the central ray (its projection's offset from the principal point,
+    pixels). Returns one message per departure, empty when there is none.
+    """
+    K, t = view.K, view.t
+    W, H = view.image_size
+    sod = float(t[2])
+    problems = []
+    if view.distortion is not None:
+        problems.append("it has lens/intensifier distortion (DICOM geometry holds none)")
+    off = np.array([K[0, 2] - (W - 1) / 2, K[1, 2] - (H - 1) / 2])
+    if np.abs(off).max() > tol_px:
+        problems.append(
+            f"its principal point is ({off[0]:+.6g}, {off[1]:+.6g}) px from the image centre "
+            f"((W-1)/2, (H-1)/2) = ({(W - 1) / 2}, {(H - 1) / 2})"
+        )
+    skew_px = abs(K[0, 1]) * (H / 2) / abs(K[1, 1])  # shift at the top/bottom image edge
+    if skew_px > tol_px:
+        problems.append(f"it has skew K[0,1] = {K[0, 1]:.6g} (up to {skew_px:.3g} px)")
+    iso = np.array([K[0, 0] * t[0] + K[0, 1] * t[1], K[1, 1] * t[1]]) / sod
+    if np.abs(iso).max() > tol_px:
+        problems.append(
+            f"the world origin (DICOM isocentre) projects ({iso[0]:+.6g}, {iso[1]:+.6g}) px "
+            "from the principal point: it must lie on the central ray"
+        )
+    return problems
+
+
+def _image_axes(view: PerspectiveView) -> tuple[np.ndarray, np.ndarray]:
+    """World directions (LPS, unit) of the image's +u and +v.
+
+    The camera's x and y axes, each reversed where ``K`` mirrors that image axis (negative
+    ``K[0,0]`` / ``K[1,1]``).
+    """
+    K, R = view.K, view.R
+    return np.sign(K[0, 0]) * R[0], np.sign(K[1, 1]) * R[1]
+
+
+def _positioner_angles(view: PerspectiveView) -> tuple[float, float]:
+    """PositionerPrimaryAngle and PositionerSecondaryAngle (degrees, DICOM-rounded) of a view.
+
+    The inverse of :func:`beam_direction` for the beam direction ``R[2]``; for a beam along the
+    patient's axis, where the primary angle does not move the beam, it is taken from the
+    direction of the image's +u.
+    """
+    d = view.R[2] / np.linalg.norm(view.R[2])
+    horiz = float(np.hypot(d[0], d[1]))
+    b = np.degrees(np.arctan2(d[2], horiz))
+    if horiz > 1e-12:
+        a = np.degrees(np.arctan2(d[0], -d[1]))
+    else:  # beam along the patient's axis: the primary angle only turns the detector's +u
+        u_img = _image_axes(view)[0]
+        a = np.degrees(np.arctan2(u_img[1], u_img[0]))
+    return _ds(a), _ds(b)
+
+
+def _axes_turn_problems(view: PerspectiveView, a: float, b: float, tol_px: float) -> list[str]:
+    """Whether the image axes are turned about the beam from the C-arm's axes.
+
+    The C-arm's detector axes follow from the positioner angles ``a``, ``b`` (degrees); each
+    image axis may be mirrored (``PatientOrientation`` says so) but not turned. Returns one
+    message when the turn moves the image corners by more than ``tol_px`` pixels, else none.
+    """
+    W, H = view.image_size
+    u_img, v_img = _image_axes(view)
+    u_dir, v_dir = _carm_axes(a, b)
+    turn = max(
+        _angle_rad(np.copysign(1.0, u_img @ u_dir) * u_img, u_dir),
+        _angle_rad(np.copysign(1.0, v_img @ v_dir) * v_img, v_dir),
+    )
+    if turn * np.hypot(W, H) / 2 <= tol_px:
+        return []
+    return [
+        f"its image axes are turned {np.degrees(turn):.6g} deg about the beam from the "
+        f"C-arm's at PositionerPrimaryAngle {a:.6g}, PositionerSecondaryAngle {b:.6g} "
+        "(an in-plane detector rotation the positioner angles cannot express)"
+    ]
+
+
 def geometry_from_view(
     view: View,
     *,
@@ -294,60 +400,13 @@ def geometry_from_view(
     ValueError
         The view is not representable; the message lists every reason.
     """
-    if not isinstance(view, PerspectiveView):
-        raise ValueError(
-            f"a {view.kind} view cannot be written as DICOM: its geometry is a point source"
-        )
-    if view.image_size is None:
-        raise ValueError("the view has no image_size; DICOM needs Rows and Columns")
+    _check_dicom_writable(view)
     W, H = view.image_size
-    if not (1 <= W <= 65535 and 1 <= H <= 65535):
-        raise ValueError(f"image_size {view.image_size}: DICOM Rows/Columns must be 1..65535")
-    K, R, t = view.K, view.R, view.t
-    sod = float(t[2])
-    if sod <= 0:
-        raise ValueError(
-            f"the world origin (DICOM isocentre) is not in front of the source (t[2] = {sod} mm)"
-        )
-    problems = []
-    if view.distortion is not None:
-        problems.append("it has lens/intensifier distortion (DICOM geometry holds none)")
-    off = np.array([K[0, 2] - (W - 1) / 2, K[1, 2] - (H - 1) / 2])
-    if np.abs(off).max() > tol_px:
-        problems.append(
-            f"its principal point is ({off[0]:+.6g}, {off[1]:+.6g}) px from the image centre "
-            f"((W-1)/2, (H-1)/2) = ({(W - 1) / 2}, {(H - 1) / 2})"
-        )
-    skew_px = abs(K[0, 1]) * (H / 2) / abs(K[1, 1])  # shift at the top/bottom image edge
-    if skew_px > tol_px:
-        problems.append(f"it has skew K[0,1] = {K[0, 1]:.6g} (up to {skew_px:.3g} px)")
-    iso = np.array([K[0, 0] * t[0] + K[0, 1] * t[1], K[1, 1] * t[1]]) / sod
-    if np.abs(iso).max() > tol_px:
-        problems.append(
-            f"the world origin (DICOM isocentre) projects ({iso[0]:+.6g}, {iso[1]:+.6g}) px "
-            "from the principal point: it must lie on the central ray"
-        )
-    # positioner angles from the beam direction d = R[2] (inverse of beam_direction)
-    d = R[2] / np.linalg.norm(R[2])
-    u_img, v_img = np.sign(K[0, 0]) * R[0], np.sign(K[1, 1]) * R[1]  # world +u, +v
-    horiz = float(np.hypot(d[0], d[1]))
-    b = np.degrees(np.arctan2(d[2], horiz))
-    if horiz > 1e-12:
-        a = np.degrees(np.arctan2(d[0], -d[1]))
-    else:  # beam along the patient's axis: the primary angle only turns the detector's +u
-        a = np.degrees(np.arctan2(u_img[1], u_img[0]))
-    a, b = _ds(a), _ds(b)
-    u_dir, v_dir = _carm_axes(a, b)
-    turn = max(
-        _angle_rad(np.copysign(1.0, u_img @ u_dir) * u_img, u_dir),
-        _angle_rad(np.copysign(1.0, v_img @ v_dir) * v_img, v_dir),
-    )
-    if turn * np.hypot(W, H) / 2 > tol_px:
-        problems.append(
-            f"its image axes are turned {np.degrees(turn):.6g} deg about the beam from the "
-            f"C-arm's at PositionerPrimaryAngle {a:.6g}, PositionerSecondaryAngle {b:.6g} "
-            "(an in-plane detector rotation the positioner angles cannot express)"
-        )
+    K = view.K
+    sod = float(view.t[2])
+    problems = _intrinsic_problems(view, tol_px)
+    a, b = _positioner_angles(view)
+    problems += _axes_turn_problems(view, a, b, tol_px)
     sid = 1.5 * sod if source_detector_distance is None else float(source_detector_distance)
     if not np.isfinite(sid) or sid <= sod:
         problems.append(
@@ -355,6 +414,7 @@ def geometry_from_view(
         )
     if problems:
         raise ValueError("view not representable in DICOM X-ray geometry: " + "; ".join(problems))
+    u_img, v_img = _image_axes(view)
     return {
         "Rows": int(H),
         "Columns": int(W),

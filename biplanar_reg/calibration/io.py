@@ -21,6 +21,7 @@ The format is detected from the content when not given (:func:`detect_format`).
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from pathlib import Path
 
 from ._textio import CalibrationFormatError, atomic_write_text, is_numeric_line, read_lines
@@ -76,6 +77,38 @@ def detect_format(path: Path | str) -> str:
     )
 
 
+#: the reader of each format but DLT (which needs a column and the image size)
+_READERS: dict[str, Callable[[Path, str], View]] = {
+    "mayacam2": read_mayacam2,
+    "mayacam1": read_mayacam1,
+    "json": read_native_json,
+    "dicom": view_from_dicom,
+}
+
+
+def _read_dlt_view(
+    path: Path, dlt_column: int | None, image_size: tuple[int, int] | None, name: str
+) -> View:
+    """The view of one camera column (1-based) of a DLT CSV.
+
+    ``dlt_column`` may be left out only when the file has one column; ``image_size`` (W, H)
+    pixels is needed to turn the DLT's y-up pixels into image rows (see :func:`view_from_dlt`).
+    The view's name defaults to the column's header. Raises ``ValueError`` naming the file.
+    """
+    names, coeffs = read_dlt_csv(path)
+    n = coeffs.shape[1]
+    if dlt_column is None and n > 1:
+        raise ValueError(
+            f"{path}: {n} cameras in this DLT file; choose one with dlt_column (1..{n})"
+        )
+    col = 1 if dlt_column is None else int(dlt_column)
+    if not 1 <= col <= n:
+        raise ValueError(
+            f"{path}: dlt_column={dlt_column} but the file has {n} column(s) (1-based)"
+        )
+    return view_from_dlt(coeffs[:, col - 1], image_size, name or names[col - 1])
+
+
 def load_calibration(
     path: Path | str,
     format: str | None = None,  # noqa: A002 - the public name the case format uses
@@ -114,27 +147,10 @@ def load_calibration(
     if image_size is not None:
         image_size = (int(image_size[0]), int(image_size[1]))
     try:
-        if fmt == "mayacam2":
-            view = read_mayacam2(path, name)
-        elif fmt == "mayacam1":
-            view = read_mayacam1(path, name)
-        elif fmt == "json":
-            view = read_native_json(path, name)
-        elif fmt == "dicom":
-            view = view_from_dicom(path, name)
+        if fmt == "dlt":
+            view = _read_dlt_view(path, dlt_column, image_size, name)
         else:
-            names, coeffs = read_dlt_csv(path)
-            n = coeffs.shape[1]
-            if dlt_column is None and n > 1:
-                raise ValueError(
-                    f"{path}: {n} cameras in this DLT file; choose one with dlt_column (1..{n})"
-                )
-            col = 1 if dlt_column is None else int(dlt_column)
-            if not 1 <= col <= n:
-                raise ValueError(
-                    f"{path}: dlt_column={dlt_column} but the file has {n} column(s) (1-based)"
-                )
-            view = view_from_dlt(coeffs[:, col - 1], image_size, name or names[col - 1])
+            view = _READERS[fmt](path, name)
     except CalibrationFormatError:
         raise
     except ValueError as exc:

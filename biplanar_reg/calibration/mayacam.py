@@ -64,10 +64,18 @@ def _require_size(view: View, fmt_name: str) -> tuple[int, int]:
 
 
 # -- MayaCam 2.0 --------------------------------------------------------------------------------
-def read_mayacam2(path: Path | str, name: str = "") -> PerspectiveView:
-    """Read a MayaCam 2.0 file (layout in the module docstring)."""
-    path = Path(path)
-    blocks: dict[str, list[tuple[int, str]]] = {}
+#: the lines of each block of a MayaCam 2.0 file: block name -> [(line number, text), ...]
+_Blocks = dict[str, list[tuple[int, str]]]
+
+
+def _mayacam2_blocks(path: Path) -> _Blocks:
+    """Split a MayaCam 2.0 file into its blocks of number lines.
+
+    Raises ``CalibrationFormatError`` naming the line for a duplicate block, text before the
+    ``image size`` header or a line that is not numbers, and naming the block when one of the
+    four required blocks (all but ``undistortion``) is missing.
+    """
+    blocks: _Blocks = {}
     current = None
     for lineno, text in read_lines(path):
         key = text.lower().rstrip(":")
@@ -90,41 +98,60 @@ def read_mayacam2(path: Path | str, name: str = "") -> PerspectiveView:
             raise CalibrationFormatError(
                 f"{path}: missing the {key!r} block (truncated or not a MayaCam 2.0 file?)"
             )
+    return blocks
 
-    def rows(key: str, n_rows: int, n_cols: int) -> np.ndarray:
-        lines = blocks[key]
-        if len(lines) != n_rows:
-            raise CalibrationFormatError(
-                f"{path}: block {key!r} has {len(lines)} line(s), expected {n_rows}"
-            )
-        return np.array(
-            [
-                parse_numbers(path, ln, tx, n_cols, f"{key} row {i + 1}")
-                for i, (ln, tx) in enumerate(lines)
-            ]
+
+def _block_rows(path: Path, blocks: _Blocks, key: str, n_rows: int, n_cols: int) -> np.ndarray:
+    """The block ``key`` as a matrix (n_rows, n_cols): one line per row, ``n_cols`` numbers each.
+
+    Raises ``CalibrationFormatError`` naming the block or the line when the counts differ.
+    """
+    lines = blocks[key]
+    if len(lines) != n_rows:
+        raise CalibrationFormatError(
+            f"{path}: block {key!r} has {len(lines)} line(s), expected {n_rows}"
         )
+    return np.array(
+        [
+            parse_numbers(path, ln, tx, n_cols, f"{key} row {i + 1}")
+            for i, (ln, tx) in enumerate(lines)
+        ]
+    )
 
-    def flat(key: str, counts: tuple[int, ...]) -> np.ndarray:
-        vals = [parse_numbers(path, ln, tx, None, key) for ln, tx in blocks[key]]
-        arr = np.concatenate(vals) if vals else np.zeros(0)
-        if arr.size not in counts:
-            where = f"line {blocks[key][0][0]}" if blocks[key] else "end of file"
-            raise CalibrationFormatError(
-                f"{path}: {where}: block {key!r} has {arr.size} number(s), expected "
-                + " or ".join(str(c) for c in counts)
-            )
-        return arr
 
-    size = rows("image size", 1, 2)[0]
+def _block_flat(path: Path, blocks: _Blocks, key: str, counts: tuple[int, ...]) -> np.ndarray:
+    """All numbers of the block ``key``, in order, however they are split into lines.
+
+    Their count must be one of ``counts``; else ``CalibrationFormatError`` naming the block's
+    first line (or the end of the file for an empty block).
+    """
+    vals = [parse_numbers(path, ln, tx, None, key) for ln, tx in blocks[key]]
+    arr = np.concatenate(vals) if vals else np.zeros(0)
+    if arr.size not in counts:
+        where = f"line {blocks[key][0][0]}" if blocks[key] else "end of file"
+        raise CalibrationFormatError(
+            f"{path}: {where}: block {key!r} has {arr.size} number(s), expected "
+            + " or ".join(str(c) for c in counts)
+        )
+    return arr
+
+
+def read_mayacam2(path: Path | str, name: str = "") -> PerspectiveView:
+    """Read a MayaCam 2.0 file (layout in the module docstring)."""
+    path = Path(path)
+    blocks = _mayacam2_blocks(path)
+    size = _block_rows(path, blocks, "image size", 1, 2)[0]
     if np.any(size <= 0) or np.any(size != np.round(size)):
         raise CalibrationFormatError(
             f"{path}: line {blocks['image size'][0][0]}: image size must be two positive "
             f"integers, got {size.tolist()}"
         )
-    K = rows("camera matrix", 3, 3)
-    R = rows("rotation", 3, 3)
-    t = flat("translation", (3,))
-    dist = flat("undistortion", (4, 5, 8)) if "undistortion" in blocks else None
+    K = _block_rows(path, blocks, "camera matrix", 3, 3)
+    R = _block_rows(path, blocks, "rotation", 3, 3)
+    t = _block_flat(path, blocks, "translation", (3,))
+    dist = (
+        _block_flat(path, blocks, "undistortion", (4, 5, 8)) if "undistortion" in blocks else None
+    )
     return PerspectiveView(
         K=K, R=R, t=t, distortion=dist, image_size=(int(size[0]), int(size[1])), name=name
     )

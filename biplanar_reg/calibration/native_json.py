@@ -35,13 +35,22 @@ _KNOWN = {
 }
 
 
+def read_json(path: Path) -> object:
+    """Parse a JSON file (UTF-8, with or without a byte-order mark).
+
+    Raises ``ValueError`` naming the file when it is not valid JSON (``OSError`` when it cannot
+    be read).
+    """
+    try:
+        return json.loads(path.read_text(encoding="utf-8-sig"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+
+
 def read_native_json(path: Path | str, name: str = "") -> View:
     """Read a native calibration JSON file; errors name the file and key."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8-sig"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    data = read_json(path)
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a JSON object, got {type(data).__name__}")
     for key in sorted(set(data) - _KNOWN):

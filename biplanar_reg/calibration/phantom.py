@@ -23,7 +23,6 @@ this is not corrected.
 
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,6 +36,7 @@ from scipy.spatial.transform import Rotation
 
 from .._validate import as_array
 from ._textio import CalibrationFormatError, is_numeric_line, parse_numbers, read_lines
+from .native_json import read_json
 from .pinhole import project_camera_points
 from .projection_matrix import decompose_projection, dlt_projection
 from .views import PerspectiveView
@@ -134,10 +134,7 @@ def read_seeds_json(path: Path | str, labels: list[str]) -> tuple[np.ndarray, np
     Returns the bead indices (K,) and their approximate pixels (K, 2).
     """
     path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8-sig"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    data = read_json(path)
     if isinstance(data, dict) and isinstance(data.get("seeds"), dict):
         data = data["seeds"]
     if not isinstance(data, dict):
@@ -417,6 +414,108 @@ def _match(
     return front[ok], j[ok]
 
 
+def _snap_seeds(
+    det: np.ndarray,
+    seed_index: np.ndarray,
+    seed_uv: np.ndarray,
+    labels: list[str],
+    snap_px: float,
+) -> np.ndarray:
+    """Snap each seed (K, 2) pixels to its nearest detected bead (N, 2) pixels.
+
+    Returns the detection index (K,) of each seed. Raises ``ValueError`` naming the beads
+    (up to 5 labels) whose seed has no detection within ``snap_px`` pixels, or when two seeds
+    snap to the same detection.
+    """
+    dist, j = cKDTree(det).query(seed_uv)
+    far = np.flatnonzero(dist > snap_px)
+    if far.size:
+        bad = [labels[seed_index[k]] for k in far[:5]]
+        raise ValueError(f"seeds: no detected bead within {snap_px} px of seed(s) {bad}")
+    if len(set(j.tolist())) < len(j):
+        raise ValueError("seeds: two seeds snap to the same detected bead")
+    return j
+
+
+@dataclass(frozen=True, eq=False)
+class _BeadMatch:
+    """A camera and the beads matched under it.
+
+    ``bead_idx`` (M,) indexes the bead table, ``det_idx`` (M,) the detections, pairwise;
+    ``residuals_px`` (M,) are the reprojection errors of the final fit, pixels (None before).
+    """
+
+    view: PerspectiveView
+    bead_idx: np.ndarray
+    det_idx: np.ndarray
+    residuals_px: np.ndarray | None = None
+
+
+def _rematch_until_stable(
+    start: _BeadMatch,
+    xyz: np.ndarray,
+    det: np.ndarray,
+    gate_px: float,
+    image_size: tuple[int, int],
+) -> _BeadMatch:
+    """Match every bead under the current camera and refit, until the matching stops changing.
+
+    At most 20 rounds; each round matches with :func:`_match` (gate ``gate_px`` pixels) and
+    refits the camera (no distortion) from its previous estimate. Raises ``ValueError`` when
+    fewer than 6 beads match.
+    """
+    view, bead_idx, det_idx = start.view, start.bead_idx, start.det_idx
+    for _ in range(20):
+        new_b, new_d = _match(view, xyz, det, gate_px)
+        if len(new_b) < 6:
+            raise ValueError(f"matching: only {len(new_b)} beads matched; check the seeds")
+        same = len(new_b) == len(bead_idx) and np.array_equal(np.sort(new_b), np.sort(bead_idx))
+        bead_idx, det_idx = new_b, new_d
+        view, _ = calibrate_from_beads(
+            xyz[bead_idx], det[det_idx], image_size=image_size, initial=view
+        )
+        if same:
+            break
+    return _BeadMatch(view, bead_idx, det_idx)
+
+
+def _final_fit(
+    match: _BeadMatch,
+    xyz: np.ndarray,
+    det: np.ndarray,
+    image_size: tuple[int, int],
+    *,
+    n_distortion: int,
+    fix_skew: bool,
+    outlier_factor: float,
+    name: str,
+) -> _BeadMatch:
+    """Fit the full camera model to the matched beads, drop outliers once and refit.
+
+    Beads whose residual exceeds ``outlier_factor`` times the median residual are dropped
+    unless fewer than 6 would remain. Returns the final match with its residuals, sorted by
+    bead index.
+    """
+    view, bead_idx, det_idx = match.view, match.bead_idx, match.det_idx
+    for _ in range(2):  # final fit; then drop outliers (> ~3 sigma, sigma from the median)
+        view, res = calibrate_from_beads(
+            xyz[bead_idx],
+            det[det_idx],
+            image_size=image_size,
+            n_distortion=n_distortion,
+            fix_skew=fix_skew,
+            initial=view,
+            name=name,
+        )
+        inl = res <= outlier_factor * np.median(res)
+        if np.all(inl) or inl.sum() < 6:
+            break
+        log.info("dropping %d outlier bead(s)", int((~inl).sum()))
+        bead_idx, det_idx = bead_idx[inl], det_idx[inl]
+    order = np.argsort(bead_idx)
+    return _BeadMatch(view, bead_idx[order], det_idx[order], res[order])
+
+
 def calibrate_phantom(
     image: np.ndarray,
     xyz: np.ndarray,
@@ -472,50 +571,29 @@ def calibrate_phantom(
     log.info("detected %d blobs", len(det))
     if len(det) < 4:
         raise ValueError(f"image: only {len(det)} bead(s) detected; need at least 4")
-    dist, j = cKDTree(det).query(seed_uv)
-    far = np.flatnonzero(dist > snap_px)
-    if far.size:
-        bad = [labels[seed_index[k]] for k in far[:5]]
-        raise ValueError(f"seeds: no detected bead within {snap_px} px of seed(s) {bad}")
-    if len(set(j.tolist())) < len(j):
-        raise ValueError("seeds: two seeds snap to the same detected bead")
-    bead_idx, det_idx = seed_index, j
-    if len(bead_idx) >= 6:
-        view, _ = calibrate_from_beads(xyz[bead_idx], det[det_idx], image_size=(W, H))
+    j = _snap_seeds(det, seed_index, seed_uv, labels, snap_px)
+    # the DLT needs 6 correspondences; with 4-5 seeds, PnP with a focal-length sweep
+    if len(seed_index) >= 6:
+        view, _ = calibrate_from_beads(xyz[seed_index], det[j], image_size=(W, H))
     else:
-        view = _pnp_sweep(xyz[bead_idx], det[det_idx], (W, H))
-    for _ in range(20):
-        new_b, new_d = _match(view, xyz, det, gate_px)
-        if len(new_b) < 6:
-            raise ValueError(f"matching: only {len(new_b)} beads matched; check the seeds")
-        same = len(new_b) == len(bead_idx) and np.array_equal(np.sort(new_b), np.sort(bead_idx))
-        bead_idx, det_idx = new_b, new_d
-        view, _ = calibrate_from_beads(xyz[bead_idx], det[det_idx], image_size=(W, H), initial=view)
-        if same:
-            break
-    for _ in range(2):  # final fit; then drop outliers (> ~3 sigma, sigma from the median)
-        view, res = calibrate_from_beads(
-            xyz[bead_idx],
-            det[det_idx],
-            image_size=(W, H),
-            n_distortion=n_distortion,
-            fix_skew=fix_skew,
-            initial=view,
-            name=name,
-        )
-        inl = res <= outlier_factor * np.median(res)
-        if np.all(inl) or inl.sum() < 6:
-            break
-        log.info("dropping %d outlier bead(s)", int((~inl).sum()))
-        bead_idx, det_idx = bead_idx[inl], det_idx[inl]
-    order = np.argsort(bead_idx)
-    bead_idx, det_idx, res = bead_idx[order], det_idx[order], res[order]
+        view = _pnp_sweep(xyz[seed_index], det[j], (W, H))
+    match = _rematch_until_stable(_BeadMatch(view, seed_index, j), xyz, det, gate_px, (W, H))
+    match = _final_fit(
+        match,
+        xyz,
+        det,
+        (W, H),
+        n_distortion=n_distortion,
+        fix_skew=fix_skew,
+        outlier_factor=outlier_factor,
+        name=name,
+    )
     return PhantomCalibration(
-        view=view,
-        bead_index=bead_idx,
-        labels=[labels[i] for i in bead_idx],
-        detected_uv=det[det_idx],
-        residuals_px=res,
-        rms_px=float(np.sqrt(np.mean(res**2))),
+        view=match.view,
+        bead_index=match.bead_idx,
+        labels=[labels[i] for i in match.bead_idx],
+        detected_uv=det[match.det_idx],
+        residuals_px=match.residuals_px,
+        rms_px=float(np.sqrt(np.mean(match.residuals_px**2))),
         n_detected=len(det),
     )

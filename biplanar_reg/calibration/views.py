@@ -29,20 +29,22 @@ __all__ = [
 ]
 
 
-def as_uv(uv: object, name: str = "uv") -> np.ndarray:
-    """Validate pixel coordinates: (K, 2) or (2,) finite floats; returns (K, 2)."""
-    arr = np.asarray(uv, dtype=float)
+def _as_rows(values: object, name: str, width: int) -> np.ndarray:
+    """Validate (K, width) or (width,) finite floats; a single row becomes (1, width)."""
+    arr = np.asarray(values, dtype=float)
     if arr.ndim == 1:
         arr = arr[None, :]
-    return as_array(name, arr, (None, 2))
+    return as_array(name, arr, (None, width))
+
+
+def as_uv(uv: object, name: str = "uv") -> np.ndarray:
+    """Validate pixel coordinates: (K, 2) or (2,) finite floats; returns (K, 2)."""
+    return _as_rows(uv, name, 2)
 
 
 def as_points(X: object, name: str = "X") -> np.ndarray:
     """Validate 3D points: (K, 3) or (3,) finite floats; returns (K, 3)."""
-    arr = np.asarray(X, dtype=float)
-    if arr.ndim == 1:
-        arr = arr[None, :]
-    return as_array(name, arr, (None, 3))
+    return _as_rows(X, name, 3)
 
 
 def _check_intrinsics(K: object, *, orthographic: bool) -> np.ndarray:
@@ -97,6 +99,20 @@ class View:
     def to_world(self, Xc: np.ndarray) -> np.ndarray:
         """Camera coordinates (K, 3) -> world points (K, 3)."""
         return (np.asarray(Xc, dtype=float) - self.t) @ self.R
+
+    def _to_camera_in_front(self, X: object) -> np.ndarray:
+        """World points (K, 3) mm -> camera coordinates (K, 3) mm, all in front of the source.
+
+        For the views with a point source (perspective, slot-scanning), where a point at camera
+        depth ``z <= 0`` has no image. Raises ``ValueError`` naming the first (up to 10) such
+        points.
+        """
+        Xc = self.to_camera(X)
+        z = Xc[:, 2]
+        if np.any(z <= 0):
+            bad = np.flatnonzero(z <= 0)[:10].tolist()
+            raise ValueError(f"X: point(s) {bad} lie behind the source of view {self.name!r}")
+        return Xc
 
     def _rays_camera(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError
@@ -171,11 +187,7 @@ class PerspectiveView(View):
         return np.zeros_like(dc), dc
 
     def project(self, X: object) -> np.ndarray:
-        Xc = self.to_camera(X)
-        z = Xc[:, 2]
-        if np.any(z <= 0):
-            bad = np.flatnonzero(z <= 0)[:10].tolist()
-            raise ValueError(f"X: point(s) {bad} lie behind the source of view {self.name!r}")
+        Xc = self._to_camera_in_front(X)
         return project_camera_points(Xc, self.K, self.distortion)
 
 
@@ -256,11 +268,8 @@ class SlotScanningView(View):
         return oc, dc
 
     def project(self, X: object) -> np.ndarray:
-        Xc = self.to_camera(X)
+        Xc = self._to_camera_in_front(X)
         z = Xc[:, 2]
-        if np.any(z <= 0):
-            bad = np.flatnonzero(z <= 0)[:10].tolist()
-            raise ValueError(f"X: point(s) {bad} lie behind the source of view {self.name!r}")
         return np.column_stack(
             [self.fu * Xc[:, 0] / z + self.cu, Xc[:, 1] / self.row_pitch + self.cv]
         )

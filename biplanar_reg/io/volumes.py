@@ -17,8 +17,9 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -174,6 +175,180 @@ def _floats(ds, tag: str, n: int, path: Path) -> np.ndarray:
     return values
 
 
+#: one slice of a series: its file and its pydicom Dataset (imported lazily, hence Any)
+_Slice = tuple[Path, Any]
+
+
+def _series_files(folder: Path) -> list[Path]:
+    """The files of a DICOM series folder, sorted by name.
+
+    Hidden files and ``DICOMDIR`` are skipped. Raises ``ValueError`` when ``folder`` is not a
+    folder or holds no other file.
+    """
+    if not folder.is_dir():
+        raise ValueError(f"{folder}: not a folder")
+    files = sorted(
+        p
+        for p in folder.iterdir()
+        if p.is_file() and not p.name.startswith(".") and p.name.upper() != "DICOMDIR"
+    )
+    if not files:
+        raise ValueError(f"{folder}: no files in the DICOM series folder")
+    return files
+
+
+def _select_series(folder: Path, datasets: list[_Slice], series: str | None) -> list[_Slice]:
+    """Keep the ``(path, dataset)`` pairs of one series (grouped by SeriesInstanceUID).
+
+    A folder holding several series needs ``series`` (a SeriesNumber or SeriesInstanceUID)
+    matching exactly one of them; a folder of one series must match ``series`` when given.
+
+    Raises
+    ------
+    ValueError
+        Mixed series without ``series``, ``series`` not found or ambiguous, or fewer than 2
+        slices left; the message summarises the series found (numbers, counts, a file name).
+    """
+    groups: dict[str, list[_Slice]] = {}
+    for p, ds in datasets:
+        groups.setdefault(str(ds.get("SeriesInstanceUID", "")), []).append((p, ds))
+    if len(groups) > 1:
+        summary = "; ".join(
+            f"SeriesNumber {items[0][1].get('SeriesNumber', '?')}: {len(items)} files "
+            f"(e.g. {items[0][0].name})"
+            for items in groups.values()
+        )
+        if series is None:
+            raise ValueError(f"{folder}: mixed series in one folder ({summary}); choose one")
+        chosen = [
+            items
+            for uid, items in groups.items()
+            if str(series) in (uid, str(items[0][1].get("SeriesNumber", "")))
+        ]
+        if len(chosen) != 1:
+            raise ValueError(f"{folder}: series {series!r} not found or ambiguous ({summary})")
+        datasets = chosen[0]
+    elif series is not None and str(datasets[0][1].get("SeriesNumber", "")) != str(series):
+        raise ValueError(f"{folder}: series {series!r} not found")
+    if len(datasets) < 2:
+        raise ValueError(f"{folder}: a volume needs at least 2 slices, found {len(datasets)}")
+    return datasets
+
+
+@dataclass(frozen=True, eq=False)
+class _SliceGeometry:
+    """Geometry shared by the slices of a series (patient frame, LPS, mm).
+
+    Attributes
+    ----------
+    row_dir, col_dir : (3,) arrays
+        Unit directions along an image row (increasing column) and along a column (increasing
+        row), from ImageOrientationPatient.
+    normal : (3,) array
+        ``cross(row_dir, col_dir)``, the slice normal.
+    pixel_spacing : (2,) array
+        PixelSpacing: (row spacing, column spacing), mm.
+    positions : (N, 3) array
+        ImagePositionPatient of each slice (centre of its first pixel), mm, in file order.
+    """
+
+    row_dir: np.ndarray
+    col_dir: np.ndarray
+    normal: np.ndarray
+    pixel_spacing: np.ndarray
+    positions: np.ndarray
+
+
+def _slice_geometry(datasets: list[_Slice]) -> _SliceGeometry:
+    """Read and cross-check the geometry of the ``(path, dataset)`` slices of one series.
+
+    The first slice's ImageOrientationPatient must be two orthonormal directions (to 1e-3);
+    every slice must be single-frame and share the first one's orientation and PixelSpacing
+    (to 1e-4) and image size (Rows, Columns). Raises ``ValueError`` naming the file.
+    """
+    p0, ds0 = datasets[0]
+    iop0 = _floats(ds0, "ImageOrientationPatient", 6, p0)
+    row_dir, col_dir = iop0[:3], iop0[3:]
+    normal = np.cross(row_dir, col_dir)
+    if abs(np.linalg.norm(normal) - 1.0) > 1e-3 or abs(row_dir @ col_dir) > 1e-3:
+        raise ValueError(f"{p0}: ImageOrientationPatient is not two orthonormal directions")
+    spacing0 = _floats(ds0, "PixelSpacing", 2, p0)
+    shape0 = (int(ds0.get("Rows", 0)), int(ds0.get("Columns", 0)))
+    positions = []
+    for p, ds in datasets:
+        if int(ds.get("NumberOfFrames", 1) or 1) > 1:
+            raise ValueError(f"{p}: multi-frame DICOM is not supported (one slice per file)")
+        if np.max(np.abs(_floats(ds, "ImageOrientationPatient", 6, p) - iop0)) > 1e-4:
+            raise ValueError(f"{p}: ImageOrientationPatient differs from {p0.name}")
+        if np.max(np.abs(_floats(ds, "PixelSpacing", 2, p) - spacing0)) > 1e-4:
+            raise ValueError(f"{p}: PixelSpacing differs from {p0.name}")
+        if (int(ds.get("Rows", 0)), int(ds.get("Columns", 0))) != shape0:
+            raise ValueError(f"{p}: image size differs from {p0.name}")
+        positions.append(_floats(ds, "ImagePositionPatient", 3, p))
+    return _SliceGeometry(row_dir, col_dir, normal, spacing0, np.array(positions))
+
+
+def _check_slice_steps(folder: Path, depth: np.ndarray, names: list[str]) -> None:
+    """Check that the sorted slice depths (mm along the normal) are evenly spaced.
+
+    Raises ``ValueError`` naming the two files of the first pair at the same position (step
+    below 1e-3 mm), or of the first step off the median by more than max(0.01 mm, 5 %) (told
+    as missing slices when it is close to a whole multiple of the median step).
+    """
+    steps = np.diff(depth)
+    dup = np.flatnonzero(steps < 1e-3)
+    if dup.size:
+        i = int(dup[0])
+        raise ValueError(f"{folder}: {names[i]} and {names[i + 1]} are at the same slice position")
+    step = float(np.median(steps))
+    bad = np.flatnonzero(np.abs(steps - step) > max(0.01, 0.05 * step))
+    if bad.size:
+        i = int(bad[0])
+        ratio = steps[i] / step
+        kind = (
+            f"{round(ratio) - 1} missing slice(s)"
+            if ratio > 1.5 and abs(ratio - round(ratio)) < 0.1
+            else "inconsistent slice spacing"
+        )
+        raise ValueError(
+            f"{folder}: {kind} between {names[i]} and {names[i + 1]} "
+            f"(step {steps[i]:.4g} mm, typical {step:.4g} mm)"
+        )
+
+
+def _stack_slices(datasets: list[_Slice]) -> np.ndarray:
+    """Decode the slices' pixels and apply RescaleSlope / RescaleIntercept (float32, (K, J, I)).
+
+    Raises ``ValueError`` naming a file whose pixel data cannot be decoded.
+    """
+    slices = []
+    for p, ds in datasets:
+        try:
+            pixels = ds.pixel_array.astype(np.float32)
+        except Exception as exc:
+            raise ValueError(f"{p}: cannot decode the pixel data ({exc})") from None
+        slope = float(ds.get("RescaleSlope", 1.0) or 1.0)
+        intercept = float(ds.get("RescaleIntercept", 0.0) or 0.0)
+        slices.append(pixels * np.float32(slope) + np.float32(intercept))
+    return np.stack(slices)
+
+
+def _series_affine(geometry: _SliceGeometry) -> np.ndarray:
+    """Voxel (i, j, k, 1) -> patient mm affine of slices sorted along the normal.
+
+    The slice axis is the mean step between the first and last slice positions, so a gantry
+    tilt (positions not along the normal) is honoured.
+    """
+    row_dir, col_dir, spacing = geometry.row_dir, geometry.col_dir, geometry.pixel_spacing
+    positions = geometry.positions
+    affine = np.eye(4)
+    affine[:3, 0] = row_dir * spacing[1]  # column index i moves along the row direction
+    affine[:3, 1] = col_dir * spacing[0]  # row index j moves along the column direction
+    affine[:3, 2] = (positions[-1] - positions[0]) / (len(positions) - 1)
+    affine[:3, 3] = positions[0]
+    return affine
+
+
 def read_dicom_series(folder: str | os.PathLike, series: str | None = None) -> Volume:
     """Read one DICOM series (a folder of single-frame slices) into a :class:`Volume` in HU.
 
@@ -198,107 +373,21 @@ def read_dicom_series(folder: str | os.PathLike, series: str | None = None) -> V
         message names the file(s).
     """
     folder = Path(folder)
-    if not folder.is_dir():
-        raise ValueError(f"{folder}: not a folder")
-    files = sorted(
-        p
-        for p in folder.iterdir()
-        if p.is_file() and not p.name.startswith(".") and p.name.upper() != "DICOMDIR"
-    )
-    if not files:
-        raise ValueError(f"{folder}: no files in the DICOM series folder")
-    datasets = [(p, _read_dicom_file(p)) for p in files]
-
-    groups: dict[str, list] = {}
-    for p, ds in datasets:
-        groups.setdefault(str(ds.get("SeriesInstanceUID", "")), []).append((p, ds))
-    if len(groups) > 1:
-        summary = "; ".join(
-            f"SeriesNumber {items[0][1].get('SeriesNumber', '?')}: {len(items)} files "
-            f"(e.g. {items[0][0].name})"
-            for items in groups.values()
-        )
-        if series is None:
-            raise ValueError(f"{folder}: mixed series in one folder ({summary}); choose one")
-        chosen = [
-            items
-            for uid, items in groups.items()
-            if str(series) in (uid, str(items[0][1].get("SeriesNumber", "")))
-        ]
-        if len(chosen) != 1:
-            raise ValueError(f"{folder}: series {series!r} not found or ambiguous ({summary})")
-        datasets = chosen[0]
-    elif series is not None and str(datasets[0][1].get("SeriesNumber", "")) != str(series):
-        raise ValueError(f"{folder}: series {series!r} not found")
-    if len(datasets) < 2:
-        raise ValueError(f"{folder}: a volume needs at least 2 slices, found {len(datasets)}")
-
-    p0, ds0 = datasets[0]
-    iop0 = _floats(ds0, "ImageOrientationPatient", 6, p0)
-    row_dir, col_dir = iop0[:3], iop0[3:]
-    normal = np.cross(row_dir, col_dir)
-    if abs(np.linalg.norm(normal) - 1.0) > 1e-3 or abs(row_dir @ col_dir) > 1e-3:
-        raise ValueError(f"{p0}: ImageOrientationPatient is not two orthonormal directions")
-    spacing0 = _floats(ds0, "PixelSpacing", 2, p0)
-    shape0 = (int(ds0.get("Rows", 0)), int(ds0.get("Columns", 0)))
-    positions = []
-    for p, ds in datasets:
-        if int(ds.get("NumberOfFrames", 1) or 1) > 1:
-            raise ValueError(f"{p}: multi-frame DICOM is not supported (one slice per file)")
-        if np.max(np.abs(_floats(ds, "ImageOrientationPatient", 6, p) - iop0)) > 1e-4:
-            raise ValueError(f"{p}: ImageOrientationPatient differs from {p0.name}")
-        if np.max(np.abs(_floats(ds, "PixelSpacing", 2, p) - spacing0)) > 1e-4:
-            raise ValueError(f"{p}: PixelSpacing differs from {p0.name}")
-        if (int(ds.get("Rows", 0)), int(ds.get("Columns", 0))) != shape0:
-            raise ValueError(f"{p}: image size differs from {p0.name}")
-        positions.append(_floats(ds, "ImagePositionPatient", 3, p))
-    positions_arr = np.array(positions)
-    depth = positions_arr @ normal
+    datasets = [(p, _read_dicom_file(p)) for p in _series_files(folder)]
+    datasets = _select_series(folder, datasets, series)
+    geometry = _slice_geometry(datasets)
+    ds0 = datasets[0][1]  # the first file (by name) of the series names the modality
+    depth = geometry.positions @ geometry.normal
     order = np.argsort(depth, kind="stable")
     datasets = [datasets[i] for i in order]
-    positions_arr, depth = positions_arr[order], depth[order]
-
-    steps = np.diff(depth)
+    geometry = replace(geometry, positions=geometry.positions[order])
     names = [p.name for p, _ in datasets]
-    dup = np.flatnonzero(steps < 1e-3)
-    if dup.size:
-        i = int(dup[0])
-        raise ValueError(f"{folder}: {names[i]} and {names[i + 1]} are at the same slice position")
-    step = float(np.median(steps))
-    bad = np.flatnonzero(np.abs(steps - step) > max(0.01, 0.05 * step))
-    if bad.size:
-        i = int(bad[0])
-        ratio = steps[i] / step
-        kind = (
-            f"{round(ratio) - 1} missing slice(s)"
-            if ratio > 1.5 and abs(ratio - round(ratio)) < 0.1
-            else "inconsistent slice spacing"
-        )
-        raise ValueError(
-            f"{folder}: {kind} between {names[i]} and {names[i + 1]} "
-            f"(step {steps[i]:.4g} mm, typical {step:.4g} mm)"
-        )
-
-    slices = []
-    for p, ds in datasets:
-        try:
-            pixels = ds.pixel_array.astype(np.float32)
-        except Exception as exc:
-            raise ValueError(f"{p}: cannot decode the pixel data ({exc})") from None
-        slope = float(ds.get("RescaleSlope", 1.0) or 1.0)
-        intercept = float(ds.get("RescaleIntercept", 0.0) or 0.0)
-        slices.append(pixels * np.float32(slope) + np.float32(intercept))
-    data = np.stack(slices)
-
-    affine = np.eye(4)
-    affine[:3, 0] = row_dir * spacing0[1]  # column index i moves along the row direction
-    affine[:3, 1] = col_dir * spacing0[0]  # row index j moves along the column direction
-    affine[:3, 2] = (positions_arr[-1] - positions_arr[0]) / (len(datasets) - 1)
-    affine[:3, 3] = positions_arr[0]
+    _check_slice_steps(folder, depth[order], names)
+    data = _stack_slices(datasets)
     units = "HU" if str(ds0.get("Modality", "")) == "CT" else "intensity"
     return Volume(
         data=data,
-        affine=affine,
+        affine=_series_affine(geometry),
         units=units,
         source=str(folder),
         meta={"files": names, "modality": str(ds0.get("Modality", ""))},
