@@ -31,7 +31,7 @@ from threadpoolctl import threadpool_limits
 
 from biplanar_reg.registration import RegistrationOptions, register_views
 from biplanar_reg.registration.rotations import so3_exp
-from biplanar_reg.synthetic import boosting_case, synthetic_bone_model
+from biplanar_reg.simulate import boosting_case, synthetic_bone_model
 
 NOISE_PX = 0.5
 FRACTION = 0.8

@@ -19,7 +19,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from biplanar_reg.registration import solve_gsft
-from biplanar_reg.synthetic import biplanar_views, observe, random_pose, synthetic_bone_model
+from biplanar_reg.simulate import biplanar_views, observe, random_pose, synthetic_bone_model
 
 
 def _rms(a, b):

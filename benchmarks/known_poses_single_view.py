@@ -43,7 +43,7 @@ from _common import (
 
 from biplanar_reg.registration import SolverFailure, solve_gsft
 from biplanar_reg.registration.baselines import prox_admm
-from biplanar_reg.synthetic import look_at_view
+from biplanar_reg.simulate import look_at_view
 
 NOISE_FRACTIONS = (0.0, 0.005, 0.01, 0.02, 0.04)
 LAMBDAS = (1e-6, 1e-5, 1e-4, 1e-3)

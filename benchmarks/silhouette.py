@@ -28,8 +28,8 @@ from threadpoolctl import threadpool_limits
 from biplanar_reg.io import read_volume
 from biplanar_reg.registration import RegistrationOptions, register_views
 from biplanar_reg.silhouette import mesh_silhouette
+from biplanar_reg.simulate import biplanar_views, boosting_case, random_pose
 from biplanar_reg.ssm import ShapeModel, bone_surface, build_ssm, synthesise_population
-from biplanar_reg.synthetic import biplanar_views, boosting_case, random_pose
 
 CT = Path(__file__).resolve().parents[1] / "sample_cases/wrist_radius/data/radius_ct.tif"
 VOXEL = (0.39625, 0.39625, 0.625)

@@ -47,7 +47,7 @@ from _common import (
 from biplanar_reg.annotation.annotations import Contour
 from biplanar_reg.registration import RegistrationOptions, ViewObservations, register_views
 from biplanar_reg.silhouette import chain_edges, mesh_silhouette
-from biplanar_reg.synthetic import biplanar_views
+from biplanar_reg.simulate import biplanar_views
 
 MAX_IT = 10
 #: Recorded iterations at most: the start, MAX_IT convex re-solves, the local refinement.

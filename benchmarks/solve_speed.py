@@ -39,7 +39,7 @@ from biplanar_reg.registration.lifting import (
 )
 from biplanar_reg.registration.rotations import rotation_angle, skew
 from biplanar_reg.registration.sdp import KnownPoseIPM
-from biplanar_reg.synthetic import biplanar_views, observe, random_pose, synthetic_bone_model
+from biplanar_reg.simulate import biplanar_views, observe, random_pose, synthetic_bone_model
 
 
 def straightforward(D, origins, directions, eps, n_modes):

@@ -45,8 +45,8 @@ from biplanar_reg.registration.unknown_poses import (
     similarity_fit,
     solve_gsft_unknown_poses,
 )
+from biplanar_reg.simulate import look_at_view, random_pose
 from biplanar_reg.ssm.model import ShapeModel
-from biplanar_reg.synthetic import look_at_view, random_pose
 
 CONFIGS = [(2, [50, 50]), (3, [33, 33, 34]), (4, [25] * 4), (10, [10] * 10), (20, [5] * 20)]
 N_POSES = 12

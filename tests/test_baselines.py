@@ -14,7 +14,7 @@ from biplanar_reg.registration.baselines import (
     spectral_norm_prox,
 )
 from biplanar_reg.registration.rotations import rotation_angle
-from biplanar_reg.synthetic import biplanar_views, observe, random_pose, synthetic_bone_model
+from biplanar_reg.simulate import biplanar_views, observe, random_pose, synthetic_bone_model
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ import pytest
 
 from biplanar_reg.cases.batch import run_batch
 from biplanar_reg.cases.outputs import is_complete
-from biplanar_reg.cases.synthetic_case import write_synthetic_case
+from biplanar_reg.simulate import write_synthetic_case
 
 
 def _make(root: Path, n: int, broken: tuple[int, ...] = ()) -> list[Path]:

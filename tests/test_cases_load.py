@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from biplanar_reg.cases import CaseError, load_case, to_view_observations
-from biplanar_reg.cases.synthetic_case import write_synthetic_case
 from biplanar_reg.cli import main
 from biplanar_reg.io import read_mesh, write_mesh
+from biplanar_reg.simulate import write_synthetic_case
 from biplanar_reg.ssm import ShapeModel
 
 

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from biplanar_reg.cases.synthetic_case import write_synthetic_case
 from biplanar_reg.cli import main
 from biplanar_reg.io import read_mesh
+from biplanar_reg.simulate import write_synthetic_case
 
 
 @pytest.fixture(scope="module")
@@ -26,8 +26,9 @@ def registered(tmp_path_factory) -> tuple[Path, Path, dict]:
 def test_metrics_within_bounds(registered):
     _, out, doc = registered
     m = doc["metrics"]
-    # noise: landmarks 0.5 px, contours 0.3 px (see synthetic_case); a correct registration
-    # reprojects to about that noise and recovers the surface to a fraction of a mm
+    # noise: landmarks 0.5 px, contours 0.3 px (see biplanar_reg.simulate.write_synthetic_case);
+    # a correct registration reprojects to about that noise and recovers the surface to a
+    # fraction of a mm
     assert m["landmark_rms_px"] < 1.0
     assert m["contour_rms_px"] < 1.0
     assert m["vertex_rms_mm"] < 0.5

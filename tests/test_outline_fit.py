@@ -11,7 +11,7 @@ from biplanar_reg.registration.outline_fit import OutlineTerm, refine_on_outline
 from biplanar_reg.registration.rotations import so3_exp
 from biplanar_reg.registration.silhouettes import prepare_outline
 from biplanar_reg.silhouette import chain_edges, half_edges, mesh_silhouette
-from biplanar_reg.synthetic import (
+from biplanar_reg.simulate import (
     biplanar_views,
     boosting_case,
     random_pose,

@@ -11,7 +11,7 @@ from biplanar_reg.annotation.annotations import Contour
 from biplanar_reg.registration import ViewObservations, register_views
 from biplanar_reg.registration.rotations import rotation_angle, so3_exp
 from biplanar_reg.silhouette import chain_edges, mesh_silhouette
-from biplanar_reg.synthetic import biplanar_views, random_pose, synthetic_bone_model
+from biplanar_reg.simulate import biplanar_views, random_pose, synthetic_bone_model
 
 
 @pytest.fixture(scope="module")

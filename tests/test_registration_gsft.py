@@ -8,14 +8,14 @@ import pytest
 from biplanar_reg.calibration import OrthographicView, SlotScanningView
 from biplanar_reg.registration import SolverFailure, solve_gsft
 from biplanar_reg.registration.rotations import rotation_angle
-from biplanar_reg.ssm import ShapeModel
-from biplanar_reg.synthetic import (
+from biplanar_reg.simulate import (
     biplanar_views,
     look_at_view,
     observe,
     random_pose,
     synthetic_bone_model,
 )
+from biplanar_reg.ssm import ShapeModel
 
 M = 8
 

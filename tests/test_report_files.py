@@ -12,7 +12,7 @@ from biplanar_reg.report import overlay_figure, render_template
 
 def test_matplotlib_fallback_when_pyvista_fails(tmp_path, monkeypatch, caplog):
     from biplanar_reg.report import render3d
-    from biplanar_reg.synthetic import synthetic_bone_model
+    from biplanar_reg.simulate import synthetic_bone_model
 
     m = synthetic_bone_model(2)
 

@@ -18,8 +18,8 @@ from biplanar_reg.cases.expect import (
     expected_from_result,
     run_case,
 )
-from biplanar_reg.cases.synthetic_case import write_synthetic_case
 from biplanar_reg.io import read_mesh
+from biplanar_reg.simulate import write_synthetic_case
 
 ROOT = Path(__file__).resolve().parents[1] / "sample_cases"
 CASES = sorted(p.parent for p in ROOT.glob(f"*/{EXPECTED_FILE}"))

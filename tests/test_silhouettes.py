@@ -18,13 +18,13 @@ from biplanar_reg.registration.silhouettes import (
     prepare_outline,
 )
 from biplanar_reg.silhouette import alpha_silhouette, chain_edges, mesh_silhouette
-from biplanar_reg.ssm import ShapeModel
-from biplanar_reg.synthetic import (
+from biplanar_reg.simulate import (
     biplanar_views,
     boosting_case,
     random_pose,
     synthetic_bone_model,
 )
+from biplanar_reg.ssm import ShapeModel
 
 
 @pytest.fixture(scope="module")

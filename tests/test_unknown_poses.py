@@ -13,7 +13,7 @@ from biplanar_reg.registration.unknown_poses import (
     similarity_fit,
     solve_gsft_unknown_poses,
 )
-from biplanar_reg.synthetic import biplanar_views, look_at_view, random_pose, synthetic_bone_model
+from biplanar_reg.simulate import biplanar_views, look_at_view, random_pose, synthetic_bone_model
 
 
 def _scene(n_views: int, k_per_view: int, seed: int, sod: float = 900.0):

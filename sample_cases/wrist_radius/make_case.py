@@ -19,6 +19,7 @@ committed annotation inputs in ``annotation/`` (livewire recipes, landmark click
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -34,11 +35,13 @@ from biplanar_reg.annotation import (
 from biplanar_reg.annotation._fileio import atomic_write_bytes, atomic_write_json, read_json
 from biplanar_reg.annotation.recipe import load_recipe, run_recipe
 from biplanar_reg.annotation.snap import snap_landmark
-from biplanar_reg.cases.reference import radius_model, radius_template
 from biplanar_reg.io import write_mesh
 from biplanar_reg.ssm import ShapeModel
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))  # sample_cases/reference.py, the sample cases' generator
+from reference import radius_model, radius_template  # noqa: E402
+
 VIEWS = ("cam01", "cam02")
 
 CASE_TOML = """format = "biplanar-reg/case@1"

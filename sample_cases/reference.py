@@ -1,6 +1,10 @@
-"""Building blocks of the bundled sample cases (``sample_cases/``): the distal-radius template
-from the shipped CT, its harmonic-population shape model, cropped wrist views, and the
-synthetic reference cases with full ground truth.
+"""Building blocks of the bundled sample cases (this folder, ``sample_cases/``): the
+distal-radius template from the shipped CT, its harmonic-population shape model, cropped wrist
+views, and the synthetic reference cases with full ground truth.
+
+Not part of the installed package: it reads the data of this source tree
+(``wrist_radius/data/``) and is imported by the generator scripts beside it
+(``make_reference_cases.py``, ``wrist_radius/make_case.py``), which run from a clone.
 
 Everything is deterministic (fixed seeds). Lengths are mm; the template lives in the CT's frame
 (voxel grid scaled by the voxel size, origin at the centre of voxel (0, 0, 0); +z runs from
@@ -14,11 +18,13 @@ import os
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-from ..calibration import load_calibration
-from ..calibration.views import PerspectiveView
-from ..io import read_volume
-from ..ssm import ShapeModel, bone_surface, build_ssm, synthesise_population
+from biplanar_reg.calibration import load_calibration
+from biplanar_reg.calibration.views import PerspectiveView
+from biplanar_reg.io import read_volume
+from biplanar_reg.simulate import synthetic_landmarks, write_synthetic_case
+from biplanar_reg.ssm import ShapeModel, bone_surface, build_ssm, synthesise_population
 
 __all__ = [
     "WRIST_DATA",
@@ -32,8 +38,8 @@ __all__ = [
     "write_reference_cases",
 ]
 
-#: The shipped real data (source tree).
-WRIST_DATA = Path(__file__).resolve().parents[2] / "sample_cases" / "wrist_radius" / "data"
+#: The shipped real data (beside this file in the source tree).
+WRIST_DATA = Path(__file__).resolve().parent / "wrist_radius" / "data"
 #: Voxel size of ``radius_ct.tif`` (column, row, slice), mm.
 CT_VOXEL_MM = (0.39625, 0.39625, 0.625)
 #: A realistic pose of the radius in the wrist calibrations' world frame (template frame ->
@@ -96,7 +102,9 @@ def crop_view(view: PerspectiveView, u0: int, v0: int, width: int, height: int) 
     return dataclasses.replace(view, K=K, image_size=(int(width), int(height)))
 
 
-def crop_to_points(view: PerspectiveView, points: np.ndarray, margin_px: int = 40):
+def crop_to_points(
+    view: PerspectiveView, points: np.ndarray, margin_px: int = 40
+) -> PerspectiveView:
     """:func:`crop_view` around the projection of ``points`` (mm) plus a margin, sizes rounded
     up to multiples of 8 pixels."""
     uv = view.project(points)
@@ -119,16 +127,12 @@ def write_reference_cases(root: str | os.PathLike, target_vertices: int = 1000) 
 
     The model is :func:`radius_model` of a ``target_vertices`` radius template with the
     eight extreme-vertex landmarks of
-    :func:`~biplanar_reg.cases.synthetic_case.synthetic_landmarks` (distal = low CT z); the
+    :func:`biplanar_reg.simulate.synthetic_landmarks` (distal = low CT z); the
     truth of case ``seed`` is one harmonic deformation of the template drawn with population
     seed ``100 + seed`` (not a member of the model's population, so it is not exactly in the
     model's span), placed near :data:`WRIST_RADIUS_POSE` (rotation perturbed by up to 10
     degrees, translation by up to 3 mm), viewed by the wrist calibrations cropped to the bone.
     """
-    from scipy.spatial.transform import Rotation
-
-    from .synthetic_case import synthetic_landmarks, write_synthetic_case
-
     verts, faces = radius_template(target_vertices)
     model = radius_model(verts, faces)
     model = ShapeModel(

@@ -1,30 +1,44 @@
-"""Synthetic scenes with known ground truth: bone-like shape models, X-ray geometries, rays.
+"""Synthetic scenes with a known ground truth: a bone-like shape model, X-ray views, poses,
+the rays and outlines a registration sees.
 
-Used by the demo, the tests and the benchmarks. Everything is seeded and deterministic.
+Everything is seeded and deterministic: the same arguments (and the same state of a given
+``numpy.random.Generator``) give the same numbers. Lengths are mm, pixels ``(u, v)`` are
+(column, row) of the view's image; the world frame is the views' (``X_cam = R @ X + t``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-from .calibration.views import PerspectiveView, View
-from .ssm.model import ShapeModel
+from ..annotation import Contour
+from ..calibration.views import PerspectiveView, View
+from ..registration import ViewObservations
+from ..registration.rays import RayObservations
+from ..silhouette import chain_edges, mesh_silhouette
+from ..ssm import ShapeModel
 
 __all__ = [
     "synthetic_bone_model",
     "look_at_view",
     "biplanar_views",
     "random_pose",
-    "Observations",
+    "noisy_pixels",
     "observe",
     "outline_stretch",
+    "boosting_case",
 ]
 
 
-def _capsule_mesh(length: float, radius: float, n_u: int, n_v: int) -> tuple[np.ndarray, ...]:
-    """A closed, outward-oriented capsule-like surface along z (vertices, faces, normals)."""
+def _capsule_mesh(
+    length: float, radius: float, n_u: int, n_v: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """A closed, outward-oriented capsule-like surface along z, centred at the origin.
+
+    Returns the vertices ``(n_u * n_v + 2, 3)`` (mm; the two poles last) and the faces
+    ``(F, 3)``."""
     v = np.linspace(0.0, np.pi, n_v + 2)[1:-1]  # polar angle, poles added separately
     u = np.linspace(0.0, 2 * np.pi, n_u, endpoint=False)
     V, U = np.meshgrid(v, u, indexing="ij")
@@ -61,6 +75,7 @@ def _capsule_mesh(length: float, radius: float, n_u: int, n_v: int) -> tuple[np.
 
 
 def _vertex_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unit vertex normals (N, 3): the area-weighted sum of the adjacent face normals."""
     tri = verts[faces]
     fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     vn = np.zeros_like(verts)
@@ -127,8 +142,29 @@ def look_at_view(
 ) -> PerspectiveView:
     """A perspective X-ray view with its source at ``source`` looking at ``target``.
 
-    ``sdd`` is the source-detector distance (mm) and ``pixel`` the detector pixel spacing (mm);
-    the focal length is ``sdd / pixel`` pixels and the principal point the image centre.
+    Parameters
+    ----------
+    source : (3,) array
+        X-ray source (camera centre), world frame, mm.
+    target : (3,) array, optional
+        Point on the principal ray, world frame, mm (default: the origin).
+    sdd : float
+        Source-detector distance, mm.
+    pixel : float
+        Detector pixel spacing, mm; the focal length is ``sdd / pixel`` pixels.
+    image_size : (W, H)
+        Image size, pixels; the principal point is the image centre ``((W-1)/2, (H-1)/2)``.
+    up : (3,) array
+        World direction of the image's +v axis (rows), projected perpendicular to the
+        principal ray ``z``: the camera x axis is ``up x z``, its y axis ``z x x``. When
+        ``up`` is parallel to the principal ray, world x takes its place.
+    name : str
+        The view's name.
+
+    Returns
+    -------
+    PerspectiveView
+        No distortion; extrinsics ``X_cam = R @ X + t``.
     """
     target = np.zeros(3) if target is None else np.asarray(target, float)
     z = target - np.asarray(source, float)
@@ -149,7 +185,16 @@ def look_at_view(
 def biplanar_views(
     angle_deg: float = 75.0, *, sod: float = 900.0, sdd: float = 1200.0, pixel: float = 0.3
 ) -> list[View]:
-    """Two perspective views of the origin ``angle_deg`` apart (source-object ``sod`` mm)."""
+    """Two perspective views of the origin, ``angle_deg`` apart about the world y axis.
+
+    Sources at ``sod`` mm from the origin (source-object distance) on either side of the -z
+    axis; ``sdd`` (mm) and ``pixel`` (mm) as for :func:`look_at_view` (1024 x 1024 pixels).
+
+    Returns
+    -------
+    list of PerspectiveView
+        Named ``cam1`` (source at -x) and ``cam2`` (+x).
+    """
     a = np.deg2rad(angle_deg) / 2
     s1 = sod * np.array([-np.sin(a), 0.0, -np.cos(a)])
     s2 = sod * np.array([np.sin(a), 0.0, -np.cos(a)])
@@ -159,57 +204,101 @@ def biplanar_views(
     ]
 
 
-def random_pose(rng: np.random.Generator, max_offset: float = 10.0) -> tuple[np.ndarray, ...]:
-    """A uniformly random rotation and a translation within ``max_offset`` mm of the origin."""
-    from scipy.spatial.transform import Rotation
+def random_pose(
+    rng: np.random.Generator, max_offset: float = 10.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """A uniformly random rotation and a translation within ``max_offset`` mm of the origin.
 
+    Draws the rotation, then the translation (uniform in each coordinate), from ``rng``.
+
+    Returns
+    -------
+    R : (3, 3) array
+        Rotation (object frame -> world).
+    t : (3,) array
+        Translation, mm.
+    """
     R = Rotation.random(random_state=rng).as_matrix()
     t = rng.uniform(-max_offset, max_offset, size=3)
     return R, t
 
 
-@dataclass(frozen=True)
-class Observations:
-    """Rays observing model vertices, with their pixels and views."""
-
-    vertex_ids: np.ndarray  # (K,)
-    origins: np.ndarray  # (K, 3) mm
-    directions: np.ndarray  # (K, 3)
-    uv: np.ndarray  # (K, 2) noisy pixels
-    view_index: np.ndarray  # (K,)
-
-
-def observe(
-    views: list[View],
+def noisy_pixels(
+    views: Sequence[View],
     vertices: np.ndarray,
-    ids_per_view: list[np.ndarray],
+    ids_per_view: Sequence[np.ndarray],
     *,
     noise_px: float = 0.0,
     rng: np.random.Generator | None = None,
-) -> Observations:
-    """Project the given vertices into each view, add pixel noise, back-project to rays."""
+) -> list[np.ndarray]:
+    """The pixels of the given vertices in each view, plus Gaussian pixel noise.
+
+    Parameters
+    ----------
+    views : sequence of View
+        The views (world frame, mm).
+    vertices : (N, 3) array
+        Posed model vertices, world frame, mm.
+    ids_per_view : sequence of (K_i,) int arrays
+        The vertices seen in each view (one array per view; may be empty).
+    noise_px : float
+        Standard deviation of the noise added to each pixel coordinate, pixels (0: exact).
+    rng : numpy.random.Generator, optional
+        Source of the noise (default ``default_rng(0)``); one ``normal`` draw of shape
+        ``(K_i, 2)`` per non-empty view, in view order, only when ``noise_px > 0``.
+
+    Returns
+    -------
+    list of (K_i, 2) arrays
+        Pixels ``(u, v)`` of each view, in the order of ``ids_per_view[i]``.
+    """
     rng = rng or np.random.default_rng(0)
-    out = {k: [] for k in ("ids", "o", "d", "uv", "vi")}
-    for i, (view, ids) in enumerate(zip(views, ids_per_view, strict=True)):
+    out = []
+    for view, ids in zip(views, ids_per_view, strict=True):
         ids = np.asarray(ids, dtype=np.int64)
-        if ids.size == 0:
+        if ids.size == 0:  # no draw: an empty view leaves the noise of the others unchanged
+            out.append(np.zeros((0, 2)))
             continue
         uv = view.project(vertices[ids])
         if noise_px > 0:
             uv = uv + rng.normal(scale=noise_px, size=uv.shape)
+        out.append(uv)
+    return out
+
+
+def observe(
+    views: Sequence[View],
+    vertices: np.ndarray,
+    ids_per_view: Sequence[np.ndarray],
+    *,
+    noise_px: float = 0.0,
+    rng: np.random.Generator | None = None,
+) -> RayObservations:
+    """Rays through the (noisy) pixels of the given vertices in each view.
+
+    The pixels are those of :func:`noisy_pixels` (same arguments, same draws); each is
+    back-projected to its view's ray (``View.rays``). Call :func:`noisy_pixels` itself when the
+    pixels are needed too: ``observe`` is that followed by the back-projection.
+
+    Parameters
+    ----------
+    views, vertices, ids_per_view, noise_px, rng
+        As for :func:`noisy_pixels`.
+
+    Returns
+    -------
+    RayObservations
+        The rays in the world frame (origins mm, unit directions), view by view in order,
+        ``view_index`` the index of each ray's view in ``views``, ``sigmas`` unknown (None).
+    """
+    pixels = noisy_pixels(views, vertices, ids_per_view, noise_px=noise_px, rng=rng)
+    parts = []
+    for i, (view, ids, uv) in enumerate(zip(views, ids_per_view, pixels, strict=True)):
+        if len(uv) == 0:
+            continue
         o, d = view.rays(uv)
-        out["ids"].append(ids)
-        out["o"].append(o)
-        out["d"].append(d)
-        out["uv"].append(uv)
-        out["vi"].append(np.full(len(ids), i))
-    return Observations(
-        vertex_ids=np.concatenate(out["ids"]),
-        origins=np.vstack(out["o"]),
-        directions=np.vstack(out["d"]),
-        uv=np.vstack(out["uv"]),
-        view_index=np.concatenate(out["vi"]),
-    )
+        parts.append(RayObservations(np.asarray(ids, np.int64), o, d, None, np.full(len(uv), i)))
+    return RayObservations.concatenate(parts)
 
 
 def outline_stretch(
@@ -236,7 +325,7 @@ def boosting_case(
     landmarks_per_view: int | tuple[int, int] = 3,
     outline_noise_px: float | None = None,
     random_stretch: bool = False,
-) -> tuple[list, tuple[np.ndarray, ...]]:
+) -> tuple[list[ViewObservations], tuple[np.ndarray, ...]]:
     """A seeded two-view silhouette-boosting problem with its truth.
 
     A random instance (weights ~ N(0, 1)) in a random pose (:func:`random_pose`), the two views
@@ -254,10 +343,6 @@ def boosting_case(
     truth : (w, R, t, X)
         Weights, object-to-world rotation and translation (mm) and the posed vertices (N, 3).
     """
-    from .annotation.annotations import Contour  # the layers above; imported on use
-    from .registration.observations import ViewObservations
-    from .silhouette import chain_edges, mesh_silhouette
-
     rng = np.random.default_rng(seed)
     w = rng.normal(size=model.n_modes)
     R, t = random_pose(rng)
