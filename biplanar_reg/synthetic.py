@@ -255,8 +255,8 @@ def boosting_case(
         Weights, object-to-world rotation and translation (mm) and the posed vertices (N, 3).
     """
     from .annotation.annotations import Contour  # the layers above; imported on use
+    from .outline import outline_polylines
     from .registration.observations import ViewObservations
-    from .silhouette import chain_edges, mesh_silhouette
 
     rng = np.random.default_rng(seed)
     w = rng.normal(size=model.n_modes)
@@ -268,8 +268,7 @@ def boosting_case(
     for name, view, n in zip(("cam1", "cam2"), biplanar_views(75.0), counts, strict=True):
         ids = rng.choice(model.n_vertices, n, replace=False)
         uv = view.project(X[ids]) + noise_px * rng.normal(size=(n, 2))
-        edges, uv_all = mesh_silhouette(X, model.faces, view)
-        polys, closed = chain_edges(edges, uv_all)
+        polys, closed = outline_polylines(X, view, model.faces)
         outline = polys[0]
         if random_stretch:
             outline = outline_stretch(outline, closed[0], fraction, rng)
