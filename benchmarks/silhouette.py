@@ -26,8 +26,8 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from biplanar_reg.io import read_volume
+from biplanar_reg.outline import alpha_outline, mesh_outline
 from biplanar_reg.registration import RegistrationOptions, register_views
-from biplanar_reg.silhouette import mesh_silhouette
 from biplanar_reg.simulate import biplanar_views, boosting_case, random_pose
 from biplanar_reg.ssm import ShapeModel, bone_surface, build_ssm, synthesise_population
 
@@ -77,7 +77,6 @@ def compare_outline_methods(model: ShapeModel) -> list[str]:
     from scipy.spatial import cKDTree
 
     from biplanar_reg.annotation.render import path_lengths
-    from biplanar_reg.silhouette import alpha_silhouette
 
     rng = np.random.default_rng(1)
     view = biplanar_views(75.0)[0]
@@ -93,9 +92,9 @@ def compare_outline_methods(model: ShapeModel) -> list[str]:
         for name in names:
             t0 = time.perf_counter()
             if name == names[0]:
-                edges, uv = mesh_silhouette(X, model.faces, view)
+                edges, uv = mesh_outline(X, model.faces, view)
             else:
-                edges, uv = alpha_silhouette(X, view)
+                edges, uv = alpha_outline(X, view)
             times[name].append(time.perf_counter() - t0)
             d, _ = border.query(uv[np.unique(edges)])
             stats[name].append((len(d), d.mean(), d.max()))

@@ -5,8 +5,8 @@ The seed paper's silhouette-boosted G-SfT tests. Models as in ``known_poses_sing
 apart (``biplanar_views``: source-object 900 mm, source-detector 1200 mm, 0.3 mm pixels).
 K landmark observations in total, split as in the paper: the first view gets 2 (1 when K = 3),
 the second the rest; landmarks noise-free at random vertices. Outlines: the true posed mesh's
-projected occluding contour in each view (``mesh_silhouette`` + ``chain_edges``), every outline
-point moved by Gaussian noise of ``sigma`` px (both coordinates).
+projected occluding contour in each view (``biplanar_reg.outline.outline_polylines``), every
+outline point moved by Gaussian noise of ``sigma`` px (both coordinates).
 
 Registration: ``register_views(model, views, silhouettes=True)`` with its defaults except
 ``max_iterations = 10`` and ``robust = False`` (the landmarks are exact; the blunder screen
@@ -45,8 +45,8 @@ from _common import (
 )
 
 from biplanar_reg.annotation.annotations import Contour
+from biplanar_reg.outline import outline_polylines
 from biplanar_reg.registration import RegistrationOptions, ViewObservations, register_views
-from biplanar_reg.silhouette import chain_edges, mesh_silhouette
 from biplanar_reg.simulate import biplanar_views
 
 MAX_IT = 10
@@ -63,8 +63,7 @@ def scene(model, K, outline_px, rng):
     obs = []
     for i, (view, k) in enumerate(zip(VIEWS, split, strict=True)):
         ids = rng.choice(model.n_vertices, k, replace=False)
-        edges, uv_all = mesh_silhouette(X, model.faces, view)
-        polys, closed = chain_edges(edges, uv_all)
+        polys, closed = outline_polylines(X, view, model.faces)
         contours = [
             Contour(uv=p + rng.normal(scale=outline_px, size=p.shape), closed=c)
             for p, c in zip(polys, closed, strict=True)

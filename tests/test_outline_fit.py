@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from biplanar_reg.annotation.annotations import Contour
+from biplanar_reg.outline import half_edges, outline_polylines
 from biplanar_reg.registration import RegistrationOptions, ViewObservations, register_views
 from biplanar_reg.registration.outline_fit import OutlineTerm, refine_on_outlines
+from biplanar_reg.registration.outline_match import prepare_outline
 from biplanar_reg.registration.rotations import so3_exp
-from biplanar_reg.registration.silhouettes import prepare_outline
-from biplanar_reg.silhouette import chain_edges, half_edges, mesh_silhouette
 from biplanar_reg.simulate import (
     biplanar_views,
     boosting_case,
@@ -34,8 +34,7 @@ def _truth(model, seed):
 def _terms(model, X, frac):
     terms = []
     for view in biplanar_views(75.0):
-        edges, uv = mesh_silhouette(X, model.faces, view)
-        outline = chain_edges(edges, uv)[0][0]
+        outline = outline_polylines(X, view, model.faces)[0][0]
         outline = outline[: int(frac * len(outline))]
         target = prepare_outline([Contour(uv=outline, closed=False)])
         mmpp = 900.0 / 4000.0  # source-object over focal length (biplanar_views)
@@ -132,8 +131,7 @@ def test_boosting_with_other_camera_kinds(model, kind):
     views = []
     for name, view in (("persp", v1), (kind, other)):
         ids = rng.choice(model.n_vertices, 3, replace=False)
-        edges, uv = mesh_silhouette(X, model.faces, view)
-        outline = chain_edges(edges, uv)[0][0]
+        outline = outline_polylines(X, view, model.faces)[0][0]
         views.append(
             ViewObservations(
                 name=name,

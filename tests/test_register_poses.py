@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from biplanar_reg.annotation.annotations import Contour
+from biplanar_reg.outline import outline_polylines
 from biplanar_reg.registration import ViewObservations, register_views
 from biplanar_reg.registration.rotations import rotation_angle, so3_exp
-from biplanar_reg.silhouette import chain_edges, mesh_silhouette
 from biplanar_reg.simulate import biplanar_views, random_pose, synthetic_bone_model
 
 
@@ -24,8 +24,7 @@ def scene():
     views = []
     for name, view in zip(("cam1", "cam2"), biplanar_views(75.0), strict=True):
         ids = rng.choice(model.n_vertices, 15, replace=False)
-        edges, uv_all = mesh_silhouette(X, model.faces, view)
-        outline = chain_edges(edges, uv_all)[0][0]
+        outline = outline_polylines(X, view, model.faces)[0][0]
         views.append(
             ViewObservations(
                 name=name,

@@ -1,4 +1,4 @@
-"""Model silhouettes, outline matching and silhouette boosting."""
+"""Outline matching and silhouette boosting (the outline itself: tests/test_outline.py)."""
 
 from __future__ import annotations
 
@@ -6,18 +6,16 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from scipy import ndimage
 
 from biplanar_reg.annotation.annotations import Contour
-from biplanar_reg.annotation.render import path_lengths
+from biplanar_reg.outline import chain_edges
 from biplanar_reg.registration import RegistrationOptions, register_views
-from biplanar_reg.registration.silhouettes import (
+from biplanar_reg.registration.outline_match import (
     END_MARGIN_PX,
     match_outline,
     model_outline,
     prepare_outline,
 )
-from biplanar_reg.silhouette import alpha_silhouette, chain_edges, mesh_silhouette
 from biplanar_reg.simulate import (
     biplanar_views,
     boosting_case,
@@ -38,45 +36,6 @@ def posed(model):
     w = rng.normal(size=8)
     R, t = random_pose(rng)
     return rng, w, model.instance(w) @ R.T + t
-
-
-def _mask_border(mask: np.ndarray) -> np.ndarray:
-    """(u, v) of covered pixels with an uncovered 4-neighbour."""
-    border = mask & ~ndimage.binary_erosion(mask)
-    v, u = np.nonzero(border)
-    return np.column_stack([u, v]).astype(float)
-
-
-def test_mesh_silhouette_lies_on_the_rendered_outline(model, posed):
-    _, _, X = posed
-    view = biplanar_views(75.0)[0]
-    edges, uv = mesh_silhouette(X, model.faces, view)
-    ids = np.unique(edges)
-    _, mask = path_lengths(X, model.faces, view)  # independent: ray casting per pixel
-    border = _mask_border(mask)
-    from scipy.spatial import cKDTree
-
-    # every silhouette vertex is on the border of the rendered coverage (pixel quantisation)
-    d_sil, _ = cKDTree(border).query(uv[ids])
-    assert np.max(d_sil) < 1.5
-    # and the outline reaches every part of the border (no missing stretches)
-    d_border, _ = cKDTree(uv[ids]).query(border)
-    longest = np.max(np.linalg.norm(uv[edges[:, 0]] - uv[edges[:, 1]], axis=1))
-    assert np.max(d_border) < 0.5 * longest + 1.5  # half an outline edge plus quantisation
-    polys, _ = chain_edges(edges, uv)
-    assert sum(len(p) for p in polys) >= 0.95 * len(ids)  # chaining keeps the outline
-
-
-def test_alpha_silhouette_matches_mesh_silhouette(model, posed):
-    _, _, X = posed
-    view = biplanar_views(75.0)[1]
-    e_mesh, uv = mesh_silhouette(X, model.faces, view)
-    e_alpha, _ = alpha_silhouette(X, view)
-    from biplanar_reg.annotation.clean import distance_to_polyline
-
-    outline = chain_edges(e_mesh, uv)[0][0]
-    d = distance_to_polyline(uv[np.unique(e_alpha)], outline, closed=True)
-    assert np.mean(d) < 0.5 and np.max(d) < 1.5
 
 
 def test_matching_respects_gate_ends_and_direction(model, posed):

@@ -9,7 +9,8 @@ wrist radiographs), optionally with Poisson or Gaussian noise and a Gaussian det
 
 Ground truth: ``mask`` (pixel centres covered by the projected mesh) and ``outlines``, the
 projected occluding contour: mesh edges between a front- and a back-facing triangle, chained into
-polylines, keeping only the edges that lie on the border of the mask (inner folds dropped).
+polylines, keeping only the edges that lie on the border of the mask (inner folds dropped); the
+outline is :func:`biplanar_reg.outline.outline_polylines` with this exact coverage as its mask.
 """
 
 from __future__ import annotations
@@ -21,9 +22,9 @@ from scipy import ndimage
 
 from .._validate import as_array, check_positive
 from ..calibration.views import View
-from ..silhouette import chain_edges, contour_generator_edges, half_edges, outer_edges
+from ..outline import outline_polylines
 
-__all__ = ["Radiograph", "render_radiograph", "path_lengths", "silhouette_outlines"]
+__all__ = ["Radiograph", "render_radiograph", "path_lengths"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -37,9 +38,9 @@ class Radiograph:
     path_length : (H, W) float64
         Noise-free path length of each pixel's ray through the mesh, mm.
     mask : (H, W) bool
-        Pixels whose centre ray hits the mesh (the exact silhouette sampled at pixel centres).
+        Pixels whose centre ray hits the mesh (the exact coverage sampled at pixel centres).
     outlines : list of (K, 2) float64
-        Silhouette outline polylines in pixels (u, v); closed loops repeat no point.
+        Outline polylines in pixels (u, v), longest first; closed loops repeat no point.
     outline_closed : list of bool
         Whether each outline polyline is a closed loop.
     """
@@ -182,38 +183,6 @@ def path_lengths(
     return length, mask
 
 
-def silhouette_outlines(
-    vertices: object,
-    faces: object,
-    view: View,
-    mask: np.ndarray | None = None,
-    image_size: tuple[int, int] | None = None,
-) -> tuple[list[np.ndarray], list[bool]]:
-    """Projected occluding contour of a closed mesh as pixel polylines.
-
-    Parameters
-    ----------
-    vertices, faces, view, image_size
-        As for :func:`path_lengths`.
-    mask : (H, W) bool, optional
-        The coverage mask; when given, contour-generator edges whose outer side is covered
-        (inner folds of the projection) are dropped.
-
-    Returns
-    -------
-    outlines : list of (K, 2) arrays
-        Polylines in pixels (u, v), longest first.
-    closed : list of bool
-        Whether each polyline is a closed loop.
-    """
-    V, F = _check_mesh(vertices, faces)
-    uv = view.project(V)
-    edges = contour_generator_edges(V, half_edges(F, len(V)), F, view)
-    if mask is not None:
-        edges = outer_edges(uv, edges, mask, np.zeros(2))
-    return chain_edges(edges, uv)
-
-
 def render_radiograph(
     vertices: object,
     faces: object,
@@ -227,7 +196,7 @@ def render_radiograph(
     supersample: int = 3,
     seed: int | None = 0,
 ) -> Radiograph:
-    """Render a synthetic radiograph of a closed mesh with its silhouette ground truth.
+    """Render a synthetic radiograph of a closed mesh with its outline ground truth.
 
     Parameters
     ----------
@@ -261,7 +230,8 @@ def render_radiograph(
         raise ValueError(f"noise_sigma: must be >= 0, got {noise_sigma!r}")
     if blur_sigma_px < 0 or not np.isfinite(blur_sigma_px):
         raise ValueError(f"blur_sigma_px: must be >= 0, got {blur_sigma_px!r}")
-    length, mask = path_lengths(vertices, faces, view, image_size, supersample)
+    V, F = _check_mesh(vertices, faces)
+    length, mask = path_lengths(V, F, view, image_size, supersample)
     img = np.exp(-mu * length)
     if blur_sigma_px > 0:
         img = ndimage.gaussian_filter(img, blur_sigma_px, mode="nearest")
@@ -272,5 +242,6 @@ def render_radiograph(
     if noise_sigma > 0:
         img = img + rng.normal(0.0, noise_sigma, img.shape)
     img = np.clip(img, 0.0, 1.0)
-    outlines, closed = silhouette_outlines(vertices, faces, view, mask, image_size)
+    # ground truth: the occluding contour on the border of this exact coverage
+    outlines, closed = outline_polylines(V, view, F, mask=mask)
     return Radiograph(img, length, mask, outlines, closed)

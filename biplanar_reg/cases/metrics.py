@@ -11,8 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..annotation.clean import distance_to_polyline
-from ..annotation.render import silhouette_outlines
+from ..annotation.render import path_lengths
 from ..io.meshes import to_polydata
+from ..outline import outline_polylines
 from ..registration import ViewObservations
 
 __all__ = [
@@ -105,16 +106,15 @@ def surface_metrics(
 def model_outlines(vertices: np.ndarray, faces: np.ndarray, view) -> list[np.ndarray]:
     """The registered surface's outline in one view (pixel polylines), outer contour only.
 
-    Uses the exact occluding contour of :func:`biplanar_reg.annotation.render.silhouette_outlines`
-    with the rendered coverage mask (so inner folds are dropped) when the view has an image
-    size, else all contour-generator edges.
+    :func:`biplanar_reg.outline.outline_polylines` of the mesh; when the view has an image size
+    its outer border is decided on the exact pixel-centre coverage (the one a rendered
+    radiograph has, :func:`biplanar_reg.annotation.render.path_lengths`), else on the outline
+    module's fast raster (as the registration's outline).
     """
     mask = None
     if view.image_size is not None:
-        from ..annotation.render import path_lengths
-
         _, mask = path_lengths(vertices, faces, view, image_size=view.image_size)
-    lines, _ = silhouette_outlines(vertices, faces, view, mask=mask)
+    lines, _ = outline_polylines(vertices, view, faces, mask=mask)
     return lines
 
 

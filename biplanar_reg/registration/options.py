@@ -40,7 +40,7 @@ class RegistrationOptions:
     ----------
     landmark_weight : float
         ``lambda`` in (0, 1]: landmarks weigh ``lambda``, outline matches ``1 - lambda``
-        (per observation, relative to their counts; see :mod:`.silhouettes`).
+        (per observation, relative to their counts; see :mod:`.outline_match`).
     max_iterations : int
         Maximum outline-boosting iterations with a convex re-solve each.
     refine_iterations : int
@@ -148,7 +148,7 @@ class IterationRecord:
     """One solve of the registration: iteration 0 is the landmark-only solve.
 
     ``kind`` is ``"sdp"`` for a convex re-solve (its ``certificate`` is that solve's; ``cost``
-    the match-independent iteration cost of :mod:`.silhouettes`, ``n_matches`` the outline
+    the match-independent iteration cost of :mod:`.outline_match`, ``n_matches`` the outline
     matches used) and ``"local"`` for an accepted Levenberg-Marquardt step of the final
     refinement (``cost`` is the objective it minimises, :mod:`.outline_fit`, which never
     increases; ``n_matches`` the annotated outline samples within its gate; ``certificate``

@@ -1,6 +1,6 @@
 """Final local refinement on the annotated outlines: each annotated point to the model's outline.
 
-The convex boosting iterations (:mod:`.silhouettes`) pair model silhouette points with the
+The convex boosting iterations (:mod:`.outline_match`) pair model silhouette points with the
 annotated outline and re-solve with those pairs fixed; the pairs only change between solves,
 so the fit creeps towards the outline and stalls where the discrete silhouette vertex set
 flips back and forth. This refinement instead minimises the registration's objective itself,
@@ -35,9 +35,9 @@ import numpy as np
 
 from ..calibration.views import View
 from ..ssm.model import ShapeModel
+from .outline_match import OutlineTarget, Segments, model_outline
 from .polish import _jacobian, levenberg_marquardt, tangent_bases
 from .rotations import so3_exp
-from .silhouettes import OutlineTarget, Segments, model_outline
 
 __all__ = ["OutlineTerm", "OutlineFitResult", "refine_on_outlines"]
 

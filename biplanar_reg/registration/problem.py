@@ -20,8 +20,7 @@ from ..ssm.model import ShapeModel
 from .gsft import GsftResult, solve_gsft
 from .observations import ViewObservations, landmark_rays, mm_per_pixel
 from .options import RegistrationOptions
-from .rays import RayObservations
-from .silhouettes import (
+from .outline_match import (
     ModelOutline,
     OutlineTarget,
     mesh_topology,
@@ -29,6 +28,7 @@ from .silhouettes import (
     outline_distances,
     prepare_outline,
 )
+from .rays import RayObservations
 
 __all__ = ["Landmarks", "Problem", "make_problem", "solve"]
 
@@ -148,7 +148,7 @@ class Problem:
     def cost(
         self, result: GsftResult, outlines: dict[int, ModelOutline], rejected: frozenset[int]
     ) -> float:
-        """The match-independent iteration cost of :mod:`.silhouettes` (dimensionless)."""
+        """The match-independent iteration cost of :mod:`.outline_match` (dimensionless)."""
         opts = self.options
         lam = opts.landmark_weight
         acc = np.array([i not in rejected for i in range(len(self.landmarks))], dtype=bool)

@@ -2,7 +2,7 @@
 
 :func:`register_views` takes per-view observations (landmarks and outline contours in pixels,
 with calibrated views) and runs the pipeline of :mod:`.stages`: G-SfT on the landmarks (with
-blunder rejection), a choice of start, outline boosting (:mod:`.silhouettes`) and a final local
+blunder rejection), a choice of start, outline boosting (:mod:`.outline_match`) and a final local
 refinement of the registration objective. It returns everything a report needs: the pose,
 weights and registered vertices, per-iteration records, per-view reprojection errors in pixels,
 the projected model outlines, rejected observations and quality flags.
@@ -16,13 +16,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..silhouette import chain_edges
+from ..outline import chain_edges
 from ..ssm.model import ShapeModel
 from .gsft import GsftResult, solve_gsft
 from .observations import ViewObservations
 from .options import CERTIFICATE_FLAG, REPROJECTION_FLAG_PX, IterationRecord, RegistrationOptions
+from .outline_match import outline_distances
 from .problem import Problem, make_problem, stack_landmarks
-from .silhouettes import outline_distances
 from .stages import boost, landmark_consensus, landmark_start, refine_final
 from .view_poses import estimate_view_poses
 

@@ -26,9 +26,9 @@ from .blunders import find_blunder
 from .gsft import GsftResult
 from .options import IterationRecord
 from .outline_fit import OutlineTerm, refine_on_outlines
+from .outline_match import ModelOutline, adaptive_gate, match_outline, outline_distances
 from .problem import Problem, solve, with_pose
 from .rays import RayObservations
-from .silhouettes import ModelOutline, adaptive_gate, match_outline, outline_distances
 
 __all__ = [
     "Iterate",
@@ -222,7 +222,7 @@ def match_outlines(
 
     On the first matching from a landmark-only start (``wide``) the gate is widened to twice
     the landmark RMS (a start still far off must not drop every match) and is the threshold;
-    later the threshold adapts to the match distances (:func:`.silhouettes.adaptive_gate`).
+    later the threshold adapts to the match distances (:func:`.outline_match.adaptive_gate`).
     """
     opts = problem.options
     lm_err = problem.landmark_px_errors(result.vertices)

@@ -15,9 +15,9 @@ from scipy.spatial.transform import Rotation
 
 from ..annotation import Contour
 from ..calibration.views import PerspectiveView, View
+from ..outline import outline_polylines
 from ..registration import ViewObservations
 from ..registration.rays import RayObservations
-from ..silhouette import chain_edges, mesh_silhouette
 from ..ssm import ShapeModel
 
 __all__ = [
@@ -353,8 +353,7 @@ def boosting_case(
     for name, view, n in zip(("cam1", "cam2"), biplanar_views(75.0), counts, strict=True):
         ids = rng.choice(model.n_vertices, n, replace=False)
         uv = view.project(X[ids]) + noise_px * rng.normal(size=(n, 2))
-        edges, uv_all = mesh_silhouette(X, model.faces, view)
-        polys, closed = chain_edges(edges, uv_all)
+        polys, closed = outline_polylines(X, view, model.faces)
         outline = polys[0]
         if random_stretch:
             outline = outline_stretch(outline, closed[0], fraction, rng)

@@ -1,10 +1,12 @@
-"""Silhouette boosting: match the model's outline to annotated contours, re-solve, repeat.
+"""Outline matching: pair the model's outline with the annotated outlines of a view.
 
-One iteration (the seed paper's third method):
+The model's outline itself (vertex ids of the mesh's outer occluding contour, or of the
+alpha-shape boundary for point models) comes from :mod:`biplanar_reg.outline`; this module
+prepares it for matching (:func:`model_outline`: thinned, with tangents) and matches it.
+One boosting iteration (the seed paper's third method):
 
-1. find the model's silhouette points in every view with contours (vertex ids; the mesh's outer
-   occluding contour, or the alpha-shape boundary for point models, :mod:`biplanar_reg.silhouette`),
-   thinned to about ``silhouette_points`` per view;
+1. find the model's outline points in every view with contours, thinned to about
+   ``silhouette_points`` per view;
 2. match each to the nearest point of the annotated outline in pixel space (a 2D KD-tree over the
    outline resampled at 1 px); drop matches farther than ``gate_px`` and matches that land on
    the first or last ``END_MARGIN_PX`` of an open contour (the annotation says nothing beyond
@@ -14,7 +16,7 @@ One iteration (the seed paper's third method):
 The iteration cost used to pick the best iterate and to stop does not depend on the matches:
 ``lambda * mean_l (e_l / sigma_l)^2 + (1 - lambda) * mean_c min(d_c, gate)^2 / sigma_c^2`` with
 ``e_l`` the landmark reprojection errors and ``d_c`` the distance of each annotated contour point
-to the projected model silhouette (pixels).
+to the projected model outline (pixels).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from scipy.spatial import cKDTree
 
 from ..annotation.clean import resample_polyline
 from ..calibration.views import View
-from ..silhouette import alpha_silhouette, half_edges, mesh_silhouette, subsample_evenly
+from ..outline import HalfEdges, half_edges, outline_edges, outline_tangents, subsample_evenly
 from ..ssm.model import ShapeModel
 
 __all__ = [
@@ -40,6 +42,7 @@ __all__ = [
     "MAX_TANGENT_ANGLE_DEG",
     "Segments",
     "adaptive_gate",
+    "mesh_topology",
 ]
 
 #: Matches within this many pixels of an open contour's ends are dropped.
@@ -134,12 +137,24 @@ def prepare_outline(contours, spacing_px: float = 1.0) -> OutlineTarget | None:
 
 @dataclass(frozen=True)
 class ModelOutline:
-    """The model's silhouette in one view for the current shape."""
+    """The model's outline in one view for the current shape, prepared for matching.
 
-    ids: np.ndarray  # (S,) silhouette vertex ids (thinned)
-    uv_all: np.ndarray  # (N, 2) projections of all vertices
-    edges: np.ndarray  # (C, 2) outline edges (vertex ids) for distances and drawing
-    tangent: np.ndarray  # (N, 2) unit outline tangent at silhouette vertices (0 elsewhere)
+    Attributes
+    ----------
+    ids : (S,) int array
+        Outline vertex ids, thinned (:func:`biplanar_reg.outline.subsample_evenly`).
+    uv_all : (N, 2) array
+        Projections of all vertices, pixels.
+    edges : (C, 2) int array
+        Outline edges (vertex ids) for distances and drawing.
+    tangent : (N, 2) array
+        Unit outline tangent at outline vertices (0 elsewhere).
+    """
+
+    ids: np.ndarray
+    uv_all: np.ndarray
+    edges: np.ndarray
+    tangent: np.ndarray
 
 
 def model_outline(
@@ -147,24 +162,29 @@ def model_outline(
     model: ShapeModel,
     view: View,
     n_points: int,
-    he=None,
+    he: HalfEdges | None = None,
 ) -> ModelOutline:
-    """Silhouette of the posed model in ``view``: the mesh's outer occluding contour when the
-    model has faces, else the alpha-shape boundary of its projected points."""
-    if model.faces is not None:
-        edges, uv = mesh_silhouette(vertices, model.faces, view, he)
-    else:
-        edges, uv = alpha_silhouette(vertices, view)
-    tangent = np.zeros_like(uv)
-    if len(edges):
-        d = uv[edges[:, 1]] - uv[edges[:, 0]]
-        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
-        # undirected tangents (alpha edges have no orientation): align to a common half-plane
-        d *= np.where(d[:, :1] < 0, -1.0, 1.0)
-        for k in range(2):
-            np.add.at(tangent, edges[:, k], d)
-        nrm = np.linalg.norm(tangent, axis=1, keepdims=True)
-        tangent = np.where(nrm > 1e-12, tangent / np.maximum(nrm, 1e-12), 0.0)
+    """Outline of the posed model in ``view``: the mesh's outer occluding contour when the
+    model has faces, else the alpha-shape boundary of its projected points.
+
+    Parameters
+    ----------
+    vertices : (N, 3) array
+        The posed model's vertices in the view's world frame, mm.
+    model : ShapeModel
+        Its faces (or None) decide the outline kind.
+    view : View
+    n_points : int
+        About this many outline vertices are kept for matching.
+    he : HalfEdges, optional
+        The mesh topology (:func:`mesh_topology`), computed once by the caller.
+
+    Returns
+    -------
+    ModelOutline
+    """
+    edges, uv = outline_edges(vertices, view, model.faces, topology=he)
+    tangent = outline_tangents(edges, uv)
     ids = subsample_evenly(np.unique(edges), uv, n_points) if len(edges) else np.zeros(0, int)
     return ModelOutline(ids, uv, edges, tangent)
 
@@ -176,7 +196,7 @@ MAX_TANGENT_ANGLE_DEG = 45.0
 def match_outline(
     outline: ModelOutline, target: OutlineTarget, gate_px: float, mutual: bool = False
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Match model silhouette points to the nearest points of the annotated outline.
+    """Match model outline points to the nearest points of the annotated outline.
 
     A match is kept when it is within ``gate_px``, its foot point is not within
     ``END_MARGIN_PX`` of an open contour's end, and the model outline's direction there agrees
@@ -204,7 +224,7 @@ def match_outline(
     cos = np.abs(np.einsum("pc,pc->p", st, outline.tangent[outline.ids]))
     keep &= cos >= np.cos(np.deg2rad(MAX_TANGENT_ANGLE_DEG))
     if mutual and np.any(keep):
-        # the foot point's nearest model silhouette point must be the same model point
+        # the foot point's nearest model outline point must be the same model point
         _, back = cKDTree(p).query(foot)
         keep &= back == np.arange(len(p))
     return outline.ids[keep], foot[keep], seg[keep], dist[keep]
@@ -222,7 +242,7 @@ def adaptive_gate(dist: np.ndarray, floor_px: float) -> float:
 
 
 def outline_distances(outline: ModelOutline, target: OutlineTarget) -> np.ndarray:
-    """Distance (px) from every usable annotated outline point to the projected silhouette."""
+    """Distance (px) from every usable annotated outline point to the projected model outline."""
     q = target.points[target.usable]
     if len(outline.edges) == 0:
         return np.full(len(q), np.inf)
@@ -230,6 +250,6 @@ def outline_distances(outline: ModelOutline, target: OutlineTarget) -> np.ndarra
     return segs.nearest(q)[1]
 
 
-def mesh_topology(model: ShapeModel):
+def mesh_topology(model: ShapeModel) -> HalfEdges | None:
     """Half-edge table of the model's mesh (None for point models); computed once per run."""
     return None if model.faces is None else half_edges(model.faces, model.n_vertices)

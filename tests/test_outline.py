@@ -1,0 +1,200 @@
+"""Model outlines in a view (biplanar_reg.outline): occluding contour, alpha shape, chaining."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from biplanar_reg.synthetic import biplanar_views, random_pose, synthetic_bone_model
+from scipy import ndimage
+from scipy.spatial import cKDTree
+
+from biplanar_reg.annotation.clean import distance_to_polyline
+from biplanar_reg.annotation.render import path_lengths, render_radiograph
+from biplanar_reg.calibration import OrthographicView, SlotScanningView
+from biplanar_reg.cases.metrics import model_outlines
+from biplanar_reg.outline import (
+    alpha_outline,
+    chain_edges,
+    half_edges,
+    mesh_outline,
+    outline_edges,
+    outline_polylines,
+)
+from biplanar_reg.ssm import ShapeModel
+
+
+@pytest.fixture(scope="module")
+def model() -> ShapeModel:
+    return synthetic_bone_model(8, seed=0, resolution=(40, 32))
+
+
+@pytest.fixture(scope="module")
+def posed(model):
+    rng = np.random.default_rng(0)
+    w = rng.normal(size=8)
+    R, t = random_pose(rng)
+    return rng, w, model.instance(w) @ R.T + t
+
+
+def _view(kind: str):
+    v1, _ = biplanar_views(75.0)
+    if kind == "perspective":
+        return v1
+    if kind == "orthographic":
+        # 4.4 px/mm: the perspective view's scale at the bone
+        K = [[4.4, 0, 511.5], [0, 4.4, 511.5], [0, 0, 1]]
+        return OrthographicView(R=v1.R, t=v1.t, K=K, image_size=(1024, 1024))
+    return SlotScanningView(
+        R=v1.R, t=v1.t, fu=4000.0, cu=511.5, cv=511.5, row_pitch=0.225, image_size=(1024, 1024)
+    )
+
+
+def _mask_border(mask: np.ndarray) -> np.ndarray:
+    """(u, v) of covered pixels with an uncovered 4-neighbour."""
+    border = mask & ~ndimage.binary_erosion(mask)
+    v, u = np.nonzero(border)
+    return np.column_stack([u, v]).astype(float)
+
+
+@pytest.mark.parametrize("kind", ["perspective", "orthographic", "slot scanning"])
+def test_mesh_outline_lies_on_the_rendered_outline(model, posed, kind):
+    _, _, X = posed
+    view = _view(kind)
+    edges, uv = mesh_outline(X, model.faces, view)
+    ids = np.unique(edges)
+    _, mask = path_lengths(X, model.faces, view)  # independent: ray casting per pixel
+    border = _mask_border(mask)
+    # every outline vertex is on the border of the rendered coverage (pixel quantisation)
+    d_sil, _ = cKDTree(border).query(uv[ids])
+    assert np.max(d_sil) < 1.5
+    # and the outline reaches every part of the border (no missing stretches)
+    d_border, _ = cKDTree(uv[ids]).query(border)
+    longest = np.max(np.linalg.norm(uv[edges[:, 0]] - uv[edges[:, 1]], axis=1))
+    assert np.max(d_border) < 0.5 * longest + 1.5  # half an outline edge plus quantisation
+    polys, _ = chain_edges(edges, uv)
+    assert sum(len(p) for p in polys) >= 0.95 * len(ids)  # chaining keeps the outline
+
+
+def test_alpha_outline_matches_mesh_outline(model, posed):
+    _, _, X = posed
+    view = biplanar_views(75.0)[1]
+    e_mesh, uv = mesh_outline(X, model.faces, view)
+    e_alpha, _ = alpha_outline(X, view)
+    outline = chain_edges(e_mesh, uv)[0][0]
+    d = distance_to_polyline(uv[np.unique(e_alpha)], outline, closed=True)
+    assert np.mean(d) < 0.5 and np.max(d) < 1.5
+
+
+def test_point_set_outline_chains_into_one_loop(model, posed):
+    # alpha-shape edges are undirected: chained as such they close into one loop on the mesh's
+    # outline, where a directed walk of the (a < b) pairs breaks into pieces
+    _, _, X = posed
+    view = biplanar_views(75.0)[1]
+    lines, closed = outline_polylines(X, view)
+    e_alpha, uv = alpha_outline(X, view)
+    assert closed[0] and len(lines[0]) >= 0.9 * len(np.unique(e_alpha))
+    mesh_line = outline_polylines(X, view, model.faces)[0][0]
+    assert np.max(distance_to_polyline(lines[0], mesh_line, closed=True)) < 1.5
+    directed, _ = chain_edges(e_alpha, uv)
+    assert not directed or len(directed[0]) < len(lines[0])
+
+
+def test_outline_polylines_is_the_chained_outline_edges(model, posed):
+    _, _, X = posed
+    view = biplanar_views(75.0)[0]
+    he = half_edges(model.faces, model.n_vertices)
+    lines, closed = outline_polylines(X, view, model.faces, topology=he)
+    edges, uv = outline_edges(X, view, model.faces)
+    ref, ref_closed = chain_edges(edges, uv)
+    assert closed == ref_closed and len(lines) == len(ref)
+    assert all(np.array_equal(a, b) for a, b in zip(lines, ref, strict=True))
+    # the main outline holds nearly all of the outline (longest first)
+    assert len(lines[0]) > 0.9 * sum(len(p) for p in lines)
+
+
+def test_the_outline_does_not_depend_on_the_mesh_orientation(model, posed):
+    _, _, X = posed
+    view = biplanar_views(75.0)[0]
+    a, _ = mesh_outline(X, model.faces, view)
+    b, _ = mesh_outline(X, model.faces[:, ::-1], view)
+    assert {tuple(e) for e in a.tolist()} == {tuple(e) for e in b.tolist()}
+
+
+def test_radiograph_ground_truth_is_the_outline_on_its_exact_coverage(model, posed):
+    _, _, X = posed
+    view = replace(biplanar_views(75.0)[0], image_size=(512, 512))
+    r = render_radiograph(X, model.faces, view, supersample=1)
+    lines, closed = outline_polylines(X, view, model.faces, mask=r.mask)
+    assert closed == r.outline_closed
+    assert all(np.array_equal(a, b) for a, b in zip(lines, r.outlines, strict=True))
+    # the report's outline of a mesh is the same computation
+    report = model_outlines(X, model.faces, view)
+    assert all(np.array_equal(a, b) for a, b in zip(report, lines, strict=True))
+
+
+def test_the_given_coverage_decides_the_outer_border(model, posed):
+    _, _, X = posed
+    view = biplanar_views(75.0)[0]
+    edges, uv = mesh_outline(X, model.faces, view)
+    # nothing covered: every contour-generator edge is on the border (inner folds included)
+    all_edges, _ = mesh_outline(X, model.faces, view, mask=np.zeros((1, 1), bool))
+    assert {tuple(e) for e in edges.tolist()} <= {tuple(e) for e in all_edges.tolist()}
+    # everything covered: no edge is on the border
+    full = np.ones((1024, 1024), bool)
+    assert len(mesh_outline(X, model.faces, view, mask=full)[0]) == 0
+    # without an image size the report's outline is the outline module's default
+    view0 = replace(view, image_size=None)
+    ref = outline_polylines(X, view0, model.faces)[0]
+    got = model_outlines(X, model.faces, view0)
+    assert all(np.array_equal(a, b) for a, b in zip(got, ref, strict=True))
+
+
+def test_chain_edges_directed_and_undirected():
+    uv = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [3.0, 0.0], [4.0, 0.0]])
+    square = np.array([[0, 1], [1, 2], [2, 3], [3, 0]])
+    lines, closed = chain_edges(square, uv)
+    assert closed == [True] and len(lines[0]) == 4
+    # the same loop as (a < b) pairs: only an undirected walk closes it
+    pairs = np.sort(square, axis=1)
+    lines, closed = chain_edges(pairs, uv, directed=False)
+    assert closed == [True] and len(lines[0]) == 4
+    assert chain_edges(pairs, uv)[1] == [False]  # a directed walk ends at vertex 3
+    # an open chain starts at its end and chains of fewer than 3 points are dropped
+    lines, closed = chain_edges([[2, 3], [1, 2], [4, 5]], uv)
+    assert closed == [False] and np.array_equal(lines[0], uv[[1, 2, 3]])
+    assert chain_edges(np.zeros((0, 2), int), uv) == ([], [])
+
+
+def test_outline_input_is_validated(model, posed):
+    _, _, X = posed
+    view = biplanar_views(75.0)[0]
+    with pytest.raises(ValueError, match="faces"):
+        outline_polylines(X, view, model.faces + len(X))
+    with pytest.raises(ValueError, match="vertices"):
+        outline_polylines(X[:, :2], view, model.faces)
+    with pytest.raises(ValueError, match="only for meshes"):
+        outline_polylines(X, view, mask=np.zeros((4, 4), bool))
+    with pytest.raises(ValueError, match="only for point sets"):
+        outline_polylines(X, view, model.faces, alpha=3.0)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="coverage_mask's single cv2.fillPoly leaves holes where triangles overlap, so inner "
+    "contour edges next to them pass as outer (docs/registration.md, known limitation)",
+)
+def test_default_coverage_keeps_no_inner_contour_edges():
+    from pathlib import Path
+
+    from biplanar_reg.cases.case import load_case
+
+    case = load_case(Path(__file__).resolve().parents[1] / "sample_cases/synthetic_radius_unknown")
+    V, F = case.ground_truth.vertices, case.ground_truth.faces
+    view = case.views[0].view
+    _, mask = path_lengths(V, F, view)  # exact pixel-centre coverage by ray casting
+    edges, uv = mesh_outline(V, F, view)
+    d, _ = cKDTree(_mask_border(mask)).query(uv[np.unique(edges)])
+    # measured today: 35.6 px (18 of 119 vertices inside); with a per-triangle fill 2.3 px
+    assert np.max(d) < 5.0
