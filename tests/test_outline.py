@@ -6,7 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from biplanar_reg.synthetic import biplanar_views, random_pose, synthetic_bone_model
+from biplanar_reg.simulate import biplanar_views, random_pose, synthetic_bone_model
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
