@@ -1,0 +1,75 @@
+"""Seeded registration problems shared by ``test_registration_stages.py`` and
+``test_registration_options.py`` (not a test module).
+
+The set-up is that of ``tests/test_silhouettes.py`` and ``benchmarks/blunder.py``: the
+synthetic bone (1,282 vertices, 8 modes, truth in the span), two views 75 deg apart, 3
+landmarks per view with 0.5 px noise, 80 % of each outline (open).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
+
+from biplanar_reg.registration import RegistrationOptions, ViewObservations, solve_gsft
+from biplanar_reg.registration.problem import Problem, make_problem, stack_landmarks
+
+try:  # the fixtures moved to the public ``simulate`` subpackage (issue 14)
+    from biplanar_reg.simulate import boosting_case, synthetic_bone_model
+except ImportError:  # pragma: no cover - before that move
+    from biplanar_reg.synthetic import boosting_case, synthetic_bone_model
+
+__all__ = ["bone_model", "clean_views", "with_blunder", "problem_for", "BLUNDER_PX"]
+
+#: The benchmark's blunder: 40 px, along (0.6, 0.8).
+BLUNDER_PX = 40.0 * np.array([0.6, 0.8])
+
+
+def bone_model():
+    """The synthetic bone model of the silhouette tests."""
+    return synthetic_bone_model(8, seed=0, resolution=(40, 32))
+
+
+def clean_views(
+    model, seed: int = 0, landmarks_per_view: int = 3
+) -> tuple[list[ViewObservations], np.ndarray]:
+    """The two views of ``boosting_case`` (80 % outlines, 0.5 px noise) and the true vertices."""
+    views, truth = boosting_case(
+        model, seed, fraction=0.8, noise_px=0.5, landmarks_per_view=landmarks_per_view
+    )
+    return views, truth[3]
+
+
+def with_blunder(views: list[ViewObservations], view: int, landmark: int) -> list:
+    """``views`` with landmark ``landmark`` of view ``view`` moved by :data:`BLUNDER_PX`."""
+    uv = views[view].landmark_uv.copy()
+    uv[landmark] += BLUNDER_PX
+    out = list(views)
+    out[view] = replace(views[view], landmark_uv=uv)
+    return out
+
+
+def problem_for(
+    model,
+    views: list[ViewObservations],
+    options: RegistrationOptions | None = None,
+    *,
+    outlines: bool = True,
+    say: Callable[[str], None] | None = None,
+) -> Problem:
+    """The :class:`Problem` ``register_views`` builds for known poses: pixel sigmas converted
+    to mm at the centroid of an equal-weight landmark-only solve."""
+    opts = options or RegistrationOptions()
+    rays = stack_landmarks(views, None).rays
+    first = solve_gsft(
+        model,
+        rays.vertex_ids,
+        rays.origins,
+        rays.directions,
+        eps=opts.eps,
+        prior_weight=opts.prior_weight,
+    )
+    centre = first.vertices.mean(axis=0)
+    return make_problem(model, views, opts, centre, outlines, say or (lambda msg: None))

@@ -1,0 +1,334 @@
+"""The registration pipeline's stages (``registration/stages.py``, ``blunders.py``) one at a time,
+on small seeded synthetic problems (set-ups in ``tests/registration_problems.py``)."""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from registration_problems import bone_model, clean_views, problem_for, with_blunder
+
+from biplanar_reg.registration import RegistrationOptions, register_views
+from biplanar_reg.registration.blunders import find_blunder, max_rejections
+from biplanar_reg.registration.problem import solve
+from biplanar_reg.registration.rays import RayObservations
+from biplanar_reg.registration.stages import (
+    BoostRun,
+    Start,
+    boost,
+    choose_start,
+    landmark_consensus,
+    landmark_start,
+    match_outlines,
+    refine_final,
+    rigid_mean_start,
+    start_from_landmarks,
+)
+from biplanar_reg.registration.view_poses import estimate_view_poses
+
+NONE: frozenset[int] = frozenset()
+
+
+@pytest.fixture(scope="module")
+def model():
+    return bone_model()
+
+
+@pytest.fixture(scope="module")
+def views(model):
+    return clean_views(model, 0)[0]
+
+
+@pytest.fixture(scope="module")
+def clean(model, views):
+    """The clean problem, its landmark start and a boosted run from it."""
+    p = problem_for(model, views)
+    start = landmark_start(p)
+    run = boost(p, start.result, NONE, p.options.max_iterations, detect=True)
+    return p, start, run
+
+
+@pytest.fixture(scope="module")
+def blunder(model, views):
+    """View 1's first landmark (index 0) 40 px off: it spoils the landmark-only start."""
+    p = problem_for(model, with_blunder(views, 0, 0))
+    return p, landmark_start(p)
+
+
+def _same_records(a, b, atol=1e-9):
+    assert [(r.index, r.kind, r.n_matches) for r in a] == [
+        (r.index, r.kind, r.n_matches) for r in b
+    ]
+    np.testing.assert_allclose([r.cost for r in a], [r.cost for r in b], rtol=0, atol=atol)
+
+
+# -- landmark start --------------------------------------------------------------------------
+
+
+def test_landmark_start_is_the_landmark_solve_and_leaves_the_problem_alone(model, views):
+    p = problem_for(model, views)
+    sigmas, uv = p.landmarks.rays.sigmas.copy(), views[0].landmark_uv.copy()
+    start = landmark_start(p)
+    assert start.rejected == NONE and start.short_fit is None
+    direct = solve(model, p.landmark_rays(NONE), p.options)
+    np.testing.assert_allclose(start.result.vertices, direct.vertices, atol=1e-9)
+    # landmark_rays builds new sigmas for the rejected ones: the problem's own stay put
+    p.landmark_rays(frozenset({0, 3}))
+    np.testing.assert_array_equal(p.landmarks.rays.sigmas, sigmas)
+    np.testing.assert_array_equal(views[0].landmark_uv, uv)
+
+
+def test_six_landmarks_are_too_few_to_test_a_blunder_at_the_start(blunder):
+    """With 6 landmark rays the leave-one-out test has no redundancy (< 2 (6 + 8) rays): the
+    blunder spoils the start, which is what the consensus stage is for."""
+    p, start = blunder
+    assert start.rejected == NONE
+    err = p.landmark_px_errors(start.result.vertices) / p.landmarks.sigma_px
+    assert err.max() > p.options.consensus_trigger
+    assert find_blunder(p, start.result, p.landmark_rays(NONE), NONE) is None
+
+
+# -- start choice ----------------------------------------------------------------------------
+
+
+def test_choose_start_keeps_a_tight_start_unchanged(model, views, clean):
+    p, start, _ = clean
+    assert start.result.certificate > p.options.certificate_flag  # the default tries the other
+    loose = problem_for(model, views, RegistrationOptions(certificate_flag=1.0))
+    assert choose_start(loose, start) is start
+    no_outlines = problem_for(model, views, outlines=False)
+    assert choose_start(no_outlines, start) is start
+
+
+def test_choose_start_returns_the_better_short_fit(clean):
+    p, start, _ = clean
+    chosen = choose_start(p, start)
+    assert chosen.rejected == start.rejected and chosen.short_fit is not None
+    n = p.options.consensus_iterations
+    own = boost(p, start.result, NONE, n, detect=False).best
+    rigid = rigid_mean_start(p, start.result, NONE)
+    other = boost(p, rigid, NONE, n, detect=False).best
+    assert chosen.short_fit.cost == pytest.approx(min(own.cost, other.cost), rel=1e-12)
+    kept = rigid if other.cost < own.cost else start.result
+    np.testing.assert_allclose(chosen.result.vertices, kept.vertices, atol=1e-9)
+    assert start.short_fit is None  # the input is not touched
+
+
+def test_rigid_mean_start_is_the_posed_mean_shape(model, clean):
+    p, start, _ = clean
+    r = rigid_mean_start(p, start.result, NONE)
+    np.testing.assert_array_equal(r.weights, np.zeros(model.n_modes))
+    np.testing.assert_allclose(r.rotation @ r.rotation.T, np.eye(3), atol=1e-9)
+    np.testing.assert_allclose(r.vertices, model.mean @ r.rotation.T + r.translation, atol=1e-9)
+
+
+# -- consensus -------------------------------------------------------------------------------
+
+
+def test_landmark_consensus_rejects_a_blunder_that_spoils_the_start(blunder):
+    p, start = blunder
+    before = start.result.vertices.copy()
+    out = landmark_consensus(p, start)
+    assert out.rejected == frozenset({0})
+    assert start.rejected == NONE  # input unchanged
+    np.testing.assert_array_equal(start.result.vertices, before)
+    # the new start ignores the blunder (it is its 40 px off) and fits the other landmarks
+    # much better than the spoiled start (up to 16 px there)
+    err = p.landmark_px_errors(out.result.vertices)
+    spoiled = p.landmark_px_errors(start.result.vertices)
+    assert err[0] > 30.0 and np.max(err[1:]) < 0.5 * np.max(spoiled[1:])
+
+
+def test_landmark_consensus_is_the_start_choice_on_clean_data(clean):
+    p, start, _ = clean
+    err = p.landmark_px_errors(start.result.vertices) / p.landmarks.sigma_px
+    assert err.max() < p.options.consensus_trigger  # the consensus is not triggered
+    out = landmark_consensus(p, start)
+    assert out.rejected == NONE
+    np.testing.assert_allclose(out.result.vertices, choose_start(p, start).result.vertices)
+
+
+# -- boosting --------------------------------------------------------------------------------
+
+
+def test_boost_without_iterations_returns_the_start(clean):
+    p, start, _ = clean
+    run = boost(p, start.result, frozenset({1}), 0, detect=True)
+    assert isinstance(run, BoostRun) and len(run.records) == 1 and len(run.iterates) == 1
+    rec = run.records[0]
+    assert (rec.index, rec.kind, rec.n_matches) == (0, "sdp", 0)
+    assert rec.cost == pytest.approx(p.cost(start.result, p.outlines(start.result), {1}))
+    assert run.best.result is start.result and run.best.index == 0
+    assert run.best.cost == rec.cost and run.rejected == frozenset({1})
+    np.testing.assert_array_equal(run.iterates[0], start.result.vertices)
+
+
+def test_boost_records_are_consecutive_and_its_best_is_the_lowest_cost(clean):
+    p, start, run = clean
+    idx = [r.index for r in run.records]
+    assert idx == list(range(len(idx))) and 3 <= len(idx) <= p.options.max_iterations + 1
+    assert all(r.kind == "sdp" for r in run.records) and len(run.iterates) == len(idx)
+    assert all(r.n_matches > 50 for r in run.records[1:])
+    costs = [r.cost for r in run.records]
+    assert run.rejected == NONE and run.best.cost == min(costs)
+    assert run.best.cost < 0.5 * costs[0]  # the outlines help
+    np.testing.assert_array_equal(run.best.result.vertices, run.iterates[run.best.index])
+    assert set(run.best.outlines) == set(p.targets)
+
+
+def test_boost_restarts_without_a_blunder_it_detects(blunder):
+    """From the spoiled start, boosting with detection rejects the blunder once the fit has
+    settled and restarts from a landmark-only start without it (a record with no matches);
+    the best iterate is the lowest-cost one since that restart."""
+    p, start = blunder
+    rejected = NONE
+    run = boost(p, start.result, rejected, p.options.max_iterations, detect=True)
+    assert rejected == NONE and run.rejected == frozenset({0})
+    assert [r.index for r in run.records] == list(range(len(run.records)))
+    restarts = [r.index for r in run.records if r.n_matches == 0]
+    assert restarts[0] == 0 and len(restarts) == 2
+    k = restarts[-1]
+    fresh = start_from_landmarks(p, run.rejected).result
+    np.testing.assert_allclose(run.iterates[k], fresh.vertices, atol=1e-9)
+    costs = [r.cost for r in run.records]
+    assert run.best.index >= k and run.best.cost == min(costs[k:])
+    assert run.best.cost == run.records[run.best.index].cost
+
+
+# -- outline matches -------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("wide", [True, False])
+def test_match_outlines_gives_one_ray_per_match_in_the_views_with_outlines(model, views, wide):
+    one = [replace(views[0], contours=[]), views[1]]  # only the second view has an outline
+    p = problem_for(model, one)
+    assert set(p.targets) == {1}
+    res = landmark_start(p).result
+    m = match_outlines(p, res, p.outlines(res), wide, NONE)
+    rays = m.rays
+    assert len(rays) == len(m.key) > 20
+    assert set(rays.view_index.tolist()) == {1} and {k[0] for k in m.key} == {1}
+    np.testing.assert_allclose(rays.sigmas, p.outline_sigma[1])
+    # the rays observe the matched model vertices, one ray per match
+    assert Counter(rays.vertex_ids.tolist()) == Counter(k[1] for k in m.key)
+    np.testing.assert_allclose(np.linalg.norm(rays.directions, axis=1), 1.0, atol=1e-9)
+
+
+def test_match_outlines_first_matching_keeps_every_match_in_the_gate(clean):
+    """``wide`` (first matching of a start): the gate is the threshold; later the adaptive
+    threshold may only drop matches."""
+    p, _, run = clean
+    res = run.best.result
+    outlines = p.outlines(res)
+    wide = match_outlines(p, res, outlines, True, NONE)
+    narrow = match_outlines(p, res, outlines, False, NONE)
+    assert narrow.key <= wide.key and len(narrow.key) > 0.8 * len(wide.key)
+
+
+# -- blunders --------------------------------------------------------------------------------
+
+
+def _rays_of_fit(p, result, rejected=NONE):
+    m = match_outlines(p, result, p.outlines(result), False, rejected)
+    return RayObservations.concatenate([p.landmark_rays(rejected), m.rays])
+
+
+def test_find_blunder_names_a_40_px_blunder_and_nothing_on_clean_data(model, views, clean):
+    p, _, run = clean
+    res = run.best.result  # a good fit: the refits start near the truth
+    assert find_blunder(p, res, _rays_of_fit(p, res), NONE) is None
+    bad = problem_for(model, with_blunder(views, 1, 1))  # landmark index 3 + 1
+    assert find_blunder(bad, res, _rays_of_fit(bad, res), NONE) == 4
+    # a rejected landmark is not tested again (and the cap of one is reached)
+    assert find_blunder(bad, res, _rays_of_fit(bad, res, frozenset({4})), frozenset({4})) is None
+
+
+@pytest.mark.parametrize(
+    ("n", "fraction", "cap"),
+    [(0, 0.125, 1), (6, 0.125, 1), (15, 0.125, 1), (16, 0.125, 2), (24, 0.25, 6), (5, 1.0, 5)],
+)
+def test_max_rejections(n, fraction, cap):
+    assert max_rejections(n, fraction) == cap
+
+
+# -- final refinement ------------------------------------------------------------------------
+
+
+def test_refine_final_never_increases_the_objective(clean):
+    p, _, run = clean
+    n_before = len(run.records)
+    fin = refine_final(p, run)
+    assert len(run.records) == n_before and len(run.iterates) == n_before  # input unchanged
+    _same_records(fin.records[:n_before], run.records, atol=0)
+    local = fin.records[n_before:]
+    assert local and all(r.kind == "local" for r in local)
+    assert [r.index for r in fin.records] == list(range(len(fin.records)))
+    assert np.all(np.diff([r.cost for r in local]) <= 0)
+    assert fin.best_index == fin.records[-1].index and fin.rejected == NONE
+    assert len(fin.iterates) == len(fin.records)
+    np.testing.assert_allclose(fin.iterates[-1], fin.result.vertices, atol=1e-9)
+
+
+def test_refine_final_without_iterations_returns_the_best_iterate(model, views, clean):
+    _, _, run = clean
+    p = problem_for(model, views, RegistrationOptions(refine_iterations=0))
+    fin = refine_final(p, run)
+    assert fin.result is run.best.result and fin.best_index == run.best.index
+    _same_records(fin.records, run.records, atol=0)
+
+
+def test_refine_final_takes_back_a_wrongly_rejected_landmark(model, views, clean):
+    """A good landmark (index 2) rejected: the final fit reproduces it within
+    ``readmit_sigmas``, so it is taken back and the refinement repeated with it."""
+    _, start, _ = clean
+    msgs: list[str] = []
+    p = problem_for(model, views, say=msgs.append)
+    run = boost(p, start.result, frozenset({2}), p.options.max_iterations, detect=False)
+    fin = refine_final(p, run)
+    assert run.rejected == frozenset({2}) and fin.rejected == NONE
+    assert any(m.startswith("taken back") and "v" in m for m in msgs)
+    err = p.landmark_px_errors(fin.result.vertices) / p.landmarks.sigma_px
+    assert err[2] <= p.options.readmit_sigmas
+    # each refinement's objective never increases; the one rise is the re-admission (the
+    # objective gains the landmark's term)
+    local = np.array([r.cost for r in fin.records if r.kind == "local"])
+    assert np.sum(np.diff(local) > 0) <= 1
+
+
+# -- the composition -------------------------------------------------------------------------
+
+
+def _composed(model, views, poses):
+    """``register_views`` spelt out with the stages."""
+    opts = RegistrationOptions()
+    if poses != "known":
+        views = estimate_view_poses(model, views, poses, opts).views
+    p = problem_for(model, views, opts)
+    start = landmark_consensus(p, landmark_start(p))
+    run = boost(p, start.result, start.rejected, opts.max_iterations, detect=opts.robust)
+    return p, refine_final(p, run)
+
+
+@pytest.mark.parametrize(
+    ("kind", "poses"), [("clean", "known"), ("blunder", "known"), ("clean", "refine")]
+)
+def test_register_views_is_the_composition_of_the_stages(model, views, kind, poses):
+    if poses == "refine":  # estimating a view pose needs >= 10 landmarks with 8 modes
+        views = clean_views(model, 0, landmarks_per_view=5)[0]
+    obs = views if kind == "clean" else with_blunder(views, 0, 0)
+    p, fin = _composed(model, obs, poses)
+    res = register_views(model, obs, poses=poses)
+    np.testing.assert_allclose(res.vertices, fin.result.vertices, rtol=0, atol=1e-9)
+    _same_records(res.iterations, fin.records)
+    assert res.best_iteration == fin.best_index
+    assert res.rejected == [p.landmarks.names[i] for i in sorted(fin.rejected)]
+    assert res.rejected == ([] if kind == "clean" else [("cam1", views[0].landmark_names[0])])
+
+
+def test_start_is_frozen(clean):
+    _, start, _ = clean
+    assert isinstance(start, Start)
+    with pytest.raises(AttributeError):
+        start.rejected = frozenset({1})  # type: ignore[misc]
