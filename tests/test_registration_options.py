@@ -84,25 +84,18 @@ def test_boundary_values_are_accepted():
     )
 
 
-@pytest.mark.xfail(
-    strict=True, reason="not validated: non-integer counts are accepted (the case loader refuses)"
-)
 @pytest.mark.parametrize("key", ["max_iterations", "silhouette_points", "consensus_iterations"])
 def test_a_non_integer_count_raises_naming_the_field(key):
     with pytest.raises(ValueError, match=rf"^{key}: "):
         RegistrationOptions(**{key: FIELDS[key].default + 0.5})
 
 
-@pytest.mark.xfail(strict=True, reason="not validated: bool fields accept any value")
 @pytest.mark.parametrize("key", ["mutual", "robust"])
 def test_a_non_bool_switch_raises_naming_the_field(key):
     with pytest.raises(ValueError, match=rf"^{key}: "):
         RegistrationOptions(**{key: "yes"})
 
 
-@pytest.mark.xfail(
-    strict=True, reason="float('x') raises its own ValueError, which does not name the field"
-)
 def test_a_non_numeric_value_raises_naming_the_field():
     with pytest.raises(ValueError, match=r"^gate_px: "):
         RegistrationOptions(gate_px="x")

@@ -126,21 +126,32 @@ class RegistrationOptions:
     reprojection_flag_px: float = REPROJECTION_FLAG_PX
 
     def __post_init__(self) -> None:
-        for key in _FRACTIONS:
-            v = getattr(self, key)
-            if not 0.0 < v <= 1.0:
-                raise ValueError(f"{key}: must be in (0, 1], got {v}")
-        for key, least in _COUNTS.items():
-            if int(getattr(self, key)) < least:
-                raise ValueError(f"{key}: too small ({getattr(self, key)}; at least {least})")
         for f in fields(self):
-            if f.name in _COUNTS or f.name in _FRACTIONS or isinstance(f.default, bool):
-                continue
-            v = float(getattr(self, f.name))
-            least_ok = v >= 0 if f.name == "prior_weight" else v > 0
-            if not np.isfinite(v) or not least_ok:
-                want = ">= 0" if f.name == "prior_weight" else "a positive number"
-                raise ValueError(f"{f.name}: must be {want}, got {getattr(self, f.name)!r}")
+            _check_field(f.name, getattr(self, f.name), f.default)
+
+
+def _check_field(key: str, value: object, default: object) -> None:
+    """Raise ``ValueError`` naming ``key`` when ``value`` is not a valid option value."""
+    if isinstance(default, bool):
+        if not isinstance(value, (bool, np.bool_)):
+            raise ValueError(f"{key}: expected true or false, got {value!r}")
+        return
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
+        raise ValueError(f"{key}: expected a number, got {value!r}")
+    v = float(value)
+    if key in _COUNTS:
+        if not np.isfinite(v) or not v.is_integer():
+            raise ValueError(f"{key}: expected a whole number, got {value!r}")
+        if v < _COUNTS[key]:
+            raise ValueError(f"{key}: too small ({value}; at least {_COUNTS[key]})")
+    elif key in _FRACTIONS:
+        if not 0.0 < v <= 1.0:
+            raise ValueError(f"{key}: must be in (0, 1], got {value}")
+    elif key == "prior_weight":
+        if not np.isfinite(v) or v < 0:
+            raise ValueError(f"{key}: must be >= 0, got {value!r}")
+    elif not np.isfinite(v) or v <= 0:
+        raise ValueError(f"{key}: must be a positive number, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -151,8 +162,10 @@ class IterationRecord:
     the match-independent iteration cost of :mod:`.outline_match`, ``n_matches`` the outline
     matches used) and ``"local"`` for an accepted Levenberg-Marquardt step of the final
     refinement (``cost`` is the objective it minimises, :mod:`.outline_fit`, which never
-    increases; ``n_matches`` the annotated outline samples within its gate; ``certificate``
-    is the last SDP's). The two costs are not on one scale.
+    increases within one refinement; a re-admitted landmark starts a second refinement whose
+    objective includes it, so the costs may rise once there; ``n_matches`` the annotated
+    outline samples within its gate; ``certificate`` is the last SDP's).
+    The two costs are not on one scale.
     """
 
     index: int
