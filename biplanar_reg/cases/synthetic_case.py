@@ -44,11 +44,11 @@ from ..annotation import (
     render_radiograph,
     save_annotations,
 )
-from ..annotation._fileio import atomic_write_bytes, atomic_write_json
 from ..annotation.clean import resample_polyline
 from ..calibration import save_calibration
 from ..calibration.views import View
 from ..io import write_mesh
+from ..io.atomic import atomic_write_bytes, atomic_write_json
 from ..ssm import ShapeModel
 from ..synthetic import look_at_view, outline_stretch, random_pose, synthetic_bone_model
 
