@@ -16,7 +16,7 @@ import logging
 import os
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -27,6 +27,9 @@ from ..registration import RegistrationResult, ViewObservations, register_views
 from .case import Case, load_case, to_view_observations
 from .metrics import contour_errors, model_outlines, summary_stats, surface_metrics
 from .outputs import atomic_output_dir, clean_stale
+
+if TYPE_CHECKING:  # the report (matplotlib, VTK) is imported when a case is written
+    from ..report.case_report import ReportView
 
 __all__ = [
     "RESULT_FORMAT",
@@ -307,7 +310,7 @@ def _report_views(
     obs: list[ViewObservations],
     res: RegistrationResult,
     outlines: dict[str, list[np.ndarray]],
-) -> list:
+) -> list[ReportView]:
     """What the report draws per view (:class:`biplanar_reg.report.ReportView`), pixels."""
     from ..report.case_report import ReportView
 

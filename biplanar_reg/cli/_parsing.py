@@ -16,12 +16,13 @@ import argparse
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["Wanted", "add_command", "wanted_words"]
+__all__ = ["Builder", "Wanted", "add_command", "wanted_words"]
 
 #: The words of the command line that may name a (sub)command; ``None``: build every parser.
 Wanted = frozenset[str] | None
 
-Builder = Callable[[argparse.ArgumentParser, "Wanted"], None]
+#: Adds a command's arguments (and its own sub-commands, passing ``wanted`` on).
+Builder = Callable[[argparse.ArgumentParser, Wanted], None]
 
 
 def wanted_words(argv: Sequence[str] | None) -> Wanted:

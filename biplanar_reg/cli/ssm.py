@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..errors import CommandError
-from ._parsing import Wanted, add_command
+from ._parsing import Builder, Wanted, add_command
 
 if TYPE_CHECKING:
     from ..ssm.model import ShapeModel
@@ -132,7 +132,7 @@ def _build_densify(p: argparse.ArgumentParser, wanted: Wanted) -> None:
 
 
 #: The three groups: (name, help, dest of the chosen sub-command, its sub-commands).
-_GROUPS: tuple[tuple[str, str, str, tuple[tuple[str, Any, str], ...]], ...] = (
+_GROUPS: tuple[tuple[str, str, str, tuple[tuple[str, Builder, str], ...]], ...] = (
     (
         "template",
         "bone templates from CT volumes",
@@ -158,7 +158,7 @@ _GROUPS: tuple[tuple[str, str, str, tuple[tuple[str, Any, str], ...]], ...] = (
 )
 
 
-def _group_builder(dest: str, commands: tuple[tuple[str, Any, str], ...]) -> Any:
+def _group_builder(dest: str, commands: tuple[tuple[str, Builder, str], ...]) -> Builder:
     """The builder of one group: a required sub-command among ``commands``."""
 
     def build(parser: argparse.ArgumentParser, wanted: Wanted) -> None:
