@@ -31,13 +31,13 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import tempfile
 import time
 import warnings
 from pathlib import Path
 
 import numpy as np
 
+from biplanar_reg.io.atomic import atomic_write_text
 from biplanar_reg.registration import solve_gsft
 from biplanar_reg.registration.rotations import rotation_angle
 from biplanar_reg.registration.unknown_poses import (
@@ -329,11 +329,7 @@ def main() -> None:
             "",
         ]
     )
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=args.out.parent, suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text)
-    os.replace(tmp, args.out)
+    atomic_write_text(args.out, text)
     print(f"wrote {args.out} ({total:.0f} s)")
 
 

@@ -1,4 +1,5 @@
-"""``biplanar-reg demo``: register the bundled sample case end to end and print the report path.
+"""The demo: register the bundled sample case end to end (the ``biplanar-reg demo`` command,
+:mod:`biplanar_reg.cli.demo`, prints where its report is).
 
 The bundled case is ``sample_cases/wrist_radius/`` of the source tree: the distal radius
 registered to two real biplanar radiographs, its surface compared with the same subject's CT
@@ -8,12 +9,13 @@ outputs go to ``--out`` (default ``./biplanar-reg-demo``).
 
 from __future__ import annotations
 
-import argparse
-import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
-__all__ = ["DEMO_CASE", "find_demo_case", "register", "run_demo"]
+if TYPE_CHECKING:  # the type only; importing cases here would load the whole library
+    from .cases.run import RunOutcome
+
+__all__ = ["DEMO_CASE", "find_demo_case", "run_demo"]
 
 _CASE = Path("sample_cases") / "wrist_radius"
 #: The bundled sample case in the source tree (a source checkout or an editable install).
@@ -32,54 +34,22 @@ def find_demo_case() -> Path:
     )
 
 
-def run_demo(out: str | Path, case_dir: str | Path | None = None):
-    """Register the sample case into ``out``; returns the :class:`RunOutcome`."""
+def run_demo(out: str | Path, case_dir: str | Path | None = None) -> RunOutcome:
+    """Register the sample case (or ``case_dir``) into the folder ``out``.
+
+    Returns
+    -------
+    RunOutcome
+        The output folder and the result document (see :mod:`biplanar_reg.cases.run`).
+
+    Raises
+    ------
+    ValueError
+        The case folder was not found or holds no ``case.toml``.
+    """
     from .cases.run import run_case_dir
 
     case_dir = find_demo_case() if case_dir is None else Path(case_dir)
     if not (case_dir / "case.toml").is_file():
         raise ValueError(f"{case_dir}: no case.toml (not a case folder)")
     return run_case_dir(case_dir, out)
-
-
-def _cmd_demo(args: argparse.Namespace) -> int:
-    outcome = run_demo(args.out, args.case)
-    report = outcome.out_dir / "report.html"
-    m = outcome.document["metrics"]
-    if args.json:
-        print(
-            json.dumps(
-                {
-                    "report": str(report),
-                    "out": str(outcome.out_dir),
-                    "metrics": m,
-                    "flags": outcome.document["flags"],
-                }
-            )
-        )
-    else:
-        for key, unit in (
-            ("vertex_rms_mm", "mm"),
-            ("surface_mean_mm", "mm"),
-            ("surface_rms_mm", "mm"),
-            ("landmark_rms_px", "px"),
-            ("contour_rms_px", "px"),
-        ):
-            if m.get(key) is not None:
-                print(f"{key}: {m[key]:.3f} {unit}")
-        if outcome.document.get("ground_truth", {}).get("up_to_pose"):
-            print("(ground-truth distances after rigid alignment: the CT is known up to pose)")
-        print(f"report: {report}")
-    return 0
-
-
-def register(subparsers: Any) -> None:
-    """Add ``demo`` to the ``biplanar-reg`` parser."""
-    p = subparsers.add_parser(
-        "demo",
-        help="run the bundled sample case end to end and print where the report is",
-        description="Register the bundled sample case and write its report into --out.",
-    )
-    p.add_argument("--out", default="biplanar-reg-demo", help="output folder (./biplanar-reg-demo)")
-    p.add_argument("--case", help=argparse.SUPPRESS)  # another case folder (for development)
-    p.set_defaults(func=_cmd_demo)

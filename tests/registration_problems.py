@@ -16,10 +16,7 @@ import numpy as np
 from biplanar_reg.registration import RegistrationOptions, ViewObservations, solve_gsft
 from biplanar_reg.registration.problem import Problem, make_problem, stack_landmarks
 
-try:  # the fixtures moved to the public ``simulate`` subpackage (issue 14)
-    from biplanar_reg.simulate import boosting_case, synthetic_bone_model
-except ImportError:  # pragma: no cover - before that move
-    from biplanar_reg.synthetic import boosting_case, synthetic_bone_model
+from biplanar_reg.simulate import boosting_case, synthetic_bone_model
 
 __all__ = ["bone_model", "clean_views", "with_blunder", "problem_for", "BLUNDER_PX"]
 

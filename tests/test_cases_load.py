@@ -255,3 +255,34 @@ def test_template_route_builds_a_model(case):
     assert c.model_source["population_size"] == 5 and c.model_source["ssm_variance"] == 0.98
     again = load_case(case)  # seeded: the same model
     np.testing.assert_array_equal(again.model.modes, c.model.modes)
+
+
+def test_read_case_views_is_the_light_reading_of_the_same_format(case, tmp_path):
+    from biplanar_reg.cases import read_case_views
+
+    views, ann = read_case_views(case)
+    full = load_case(case)
+    assert [n for n, _ in views] == [v.name for v in full.views]
+    assert [p for _, p in views] == [v.image_path for v in full.views]
+    assert ann == full.annotations_path
+    # a case being set up: no model, no calibration files, an image outside the folder
+    partial = tmp_path / "partial"
+    partial.mkdir()
+    image = views[0][1]
+    (partial / "a.json").write_text("{}")
+    (partial / "case.toml").write_text(
+        f'[[views]]\nname = "cam1"\nimage = "{image}"\ncalibration = "none.txt"\n'
+        '[[views]]\nname = "cam2"\n[annotations]\nfile = "a.json"\n'
+    )
+    views, ann = read_case_views(partial)
+    assert views == [("cam1", image), ("cam2", None)] and ann == (partial / "a.json").resolve()
+    # the same rules and messages as load_case
+    _edit_toml(partial, 'name = "cam2"', 'name = "cam1"')
+    with pytest.raises(CaseError, match=r"\[\[views\]\]\[1\] \(cam1\) name: duplicate view name"):
+        read_case_views(partial)
+    with pytest.raises(CaseError, match="outside the case folder"):
+        read_case_views(partial, allow_outside=False)
+    (partial / "a.json").unlink()
+    _edit_toml(partial, 'name = "cam1"\n[annotations]', 'name = "cam2"\n[annotations]')
+    with pytest.raises(CaseError, match=r"\[annotations\] file: a.json: file not found"):
+        read_case_views(partial)

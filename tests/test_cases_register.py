@@ -122,3 +122,36 @@ def test_json_output_and_escaping(registered, tmp_path, capsys):
     # silhouettes off: contour errors are computed by the report from the mesh outline
     doc = json.loads((dst / "out/result.json").read_text())
     assert doc["metrics"]["contour_errors_source"].startswith("report")
+
+
+def test_report_from_document_and_former_signature_agree(registered, tmp_path):
+    """``write_case_report`` takes the result document and arrays; the former signature (a
+    loaded case, its observations, the result) still works, warns, and writes the same files."""
+    from types import SimpleNamespace
+
+    from biplanar_reg.cases import load_case, to_view_observations
+    from biplanar_reg.cases.metrics import model_outlines
+    from biplanar_reg.cases.run import _report_views
+    from biplanar_reg.report import ReportView, write_case_report
+
+    case_dir, out, doc = registered
+    case = load_case(case_dir)
+    obs = to_view_observations(case)
+    V, F = read_mesh(out / "registered.ply")
+    res = SimpleNamespace(vertices=V)  # the former path reads only the registered vertices
+    outlines = {o.name: model_outlines(V, F, o.view) for o in obs}
+    error = np.linspace(0.0, 1.0, len(V))
+    views = _report_views(case, obs, res, outlines)
+    assert [v.name for v in views] == ["cam1", "cam2"] and isinstance(views[0], ReportView)
+    assert set(views[0].landmarks_px) == set(doc["views"]["cam1"]["landmark_errors_px"])
+    new, old = tmp_path / "new", tmp_path / "old"
+    new.mkdir()
+    old.mkdir()
+    got = write_case_report(new, doc, views, vertices=V, faces=F, vertex_error=error)
+    with pytest.warns(DeprecationWarning, match="deprecated"):
+        got_old = write_case_report(old, case, obs, res, doc, outlines, error)
+    assert got == got_old and got["figures"][0] == "error_3d.png"
+    assert sorted(p.name for p in new.iterdir()) == sorted(p.name for p in old.iterdir())
+    for p in new.iterdir():
+        if p.name != "error_3d.png":  # an off-screen GL render need not be bit-identical
+            assert p.read_bytes() == (old / p.name).read_bytes(), p.name

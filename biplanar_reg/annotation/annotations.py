@@ -22,7 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from ._fileio import atomic_write_json, is_finite_number, read_json
+from ..errors import AnnotationError
+from ..io.atomic import atomic_write_json
+from ..io.jsonfile import is_finite_number, read_json
 
 __all__ = [
     "FORMAT",
@@ -40,24 +42,6 @@ __all__ = [
 
 FORMAT = "biplanar-reg/annotations@1"
 log = logging.getLogger(__name__)
-
-_MAX_REPORTED = 20  # problems listed in one error message
-
-
-class AnnotationError(ValueError):
-    """An annotation document is invalid; ``problems`` lists every problem found."""
-
-    def __init__(self, source: str, problems: list[str]):
-        self.source = source
-        self.problems = list(problems)
-        shown = problems[:_MAX_REPORTED]
-        more = len(problems) - len(shown)
-        text = f"{source}: invalid annotations ({len(problems)} problem(s)):\n  " + "\n  ".join(
-            shown
-        )
-        if more:
-            text += f"\n  ... and {more} more"
-        super().__init__(text)
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,22 +1,24 @@
 """Overlay previews: landmarks and contours drawn over each view's radiograph.
 
-``read_case_views`` reads only what a preview needs from ``case.toml`` (the ``[[views]]``
-``name``/``image`` keys and ``[annotations] file``); the full case loader lives elsewhere.
+The views and the annotation file come from the caller (``biplanar-reg annotate preview``
+reads them from ``case.toml`` with :func:`biplanar_reg.cases.case.read_case_views`, the one
+reader of the case format).
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from ._fileio import atomic_write_bytes
-from .annotations import Annotations, ViewAnnotations
+from ..io.atomic import atomic_write_bytes
+from .annotations import Annotations, ViewAnnotations, load_annotations
 from .image import XrayImage, load_image
 
-__all__ = ["draw_overlay", "compose_panels", "read_case_views", "preview_case"]
+__all__ = ["draw_overlay", "compose_panels", "preview_annotations"]
 
 _CONTOUR_BGR = (40, 40, 230)  # red
 _OPEN_END_BGR = (0, 200, 255)  # amber: ends of open contours
@@ -80,66 +82,42 @@ def compose_panels(panels: list[np.ndarray], titles: list[str]) -> np.ndarray:
     return np.hstack(cols[:-1])
 
 
-def read_case_views(
-    case_dir: str | os.PathLike[str],
-) -> tuple[list[tuple[str, Path | None]], Path]:
-    """Minimal reader of ``case.toml``: (view name, image path or None) pairs, annotation file.
+def preview_annotations(
+    views: Sequence[tuple[str, str | os.PathLike[str] | None]],
+    annotations_file: str | os.PathLike[str],
+    out_png: str | os.PathLike[str],
+    *,
+    max_height: int = 900,
+) -> Path:
+    """Write one PNG with every view's image (that has one) and its annotations.
 
-    Only ``[[views]] name``/``image`` and ``[annotations] file`` are read. Paths are resolved
-    against the case folder.
+    Parameters
+    ----------
+    views : sequence of (str, path or None)
+        Each view's name and radiograph (``None``: no image; the view still counts as known
+        when the annotations are validated).
+    annotations_file : path
+        The annotation file, validated against the view names and the image sizes first.
+    out_png : path
+        The PNG to write (atomically).
+    max_height : int
+        Height limit of each panel, pixels; the panels are drawn side by side.
+
+    Returns
+    -------
+    Path
+        ``out_png``.
 
     Raises
     ------
     ValueError
-        Missing/malformed ``case.toml``, a view without a name, no ``[annotations] file``.
+        No view has an image, an image cannot be read, or the annotations are invalid.
     """
-    try:
-        import tomllib
-    except ImportError:  # Python 3.10
-        raise ValueError("reading case.toml needs Python >= 3.11 (tomllib)") from None
-    case = Path(case_dir)
-    path = case / "case.toml"
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ValueError(f"{path}: case file not found") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise ValueError(f"{path}: cannot be read ({exc})") from None
-    views = doc.get("views")
-    if not isinstance(views, list) or not views:
-        raise ValueError(f"{path}: [[views]]: expected at least one view table")
-    out = []
-    for i, v in enumerate(views):
-        name = v.get("name") if isinstance(v, dict) else None
-        if not isinstance(name, str) or not name:
-            raise ValueError(f"{path}: views[{i}].name: expected a non-empty string")
-        image = v.get("image")
-        if image is not None and not isinstance(image, str):
-            raise ValueError(f"{path}: views[{i}] ({name}).image: expected a path string")
-        out.append((name, None if image is None else case / image))
-    ann = doc.get("annotations", {})
-    file = ann.get("file") if isinstance(ann, dict) else None
-    if not isinstance(file, str):
-        raise ValueError(f"{path}: [annotations] file: expected a path string")
-    return out, case / file
-
-
-def preview_case(
-    case_dir: str | os.PathLike[str], out_png: str | os.PathLike[str], *, max_height: int = 900
-) -> Path:
-    """Write one PNG with every view's image (that has an ``image``) and its annotations.
-
-    Views are drawn side by side, each scaled to at most ``max_height`` pixels high. The
-    annotation file is validated against the case's view names and image sizes first.
-    """
-    from .annotations import load_annotations
-
-    views, ann_path = read_case_views(case_dir)
     images = {name: load_image(p) for name, p in views if p is not None}
     if not images:
-        raise ValueError(f"{Path(case_dir) / 'case.toml'}: no view has an 'image' to preview")
+        raise ValueError(f"{annotations_file}: no view has an 'image' to preview")
     ann: Annotations = load_annotations(
-        ann_path,
+        annotations_file,
         known_views={name for name, _ in views},
         image_sizes={n: im.size for n, im in images.items()},
     )

@@ -24,7 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from ._fileio import atomic_write_json, is_finite_number, read_json
+from ..io.atomic import atomic_write_json
+from ..io.jsonfile import is_finite_number, read_json
 from .annotations import Contour
 from .clean import clean_contour
 from .image import XrayImage, load_image

@@ -1,29 +1,24 @@
-"""Small helpers shared by the calibration readers and writers: numbered text lines, numeric
-fields with errors that name the file and line, and atomic writes."""
+"""Small helpers shared by the calibration readers and writers: numbered text lines and numeric
+fields with errors that name the file and line (files are written by
+:func:`biplanar_reg.io.atomic.atomic_write_text`)."""
 
 from __future__ import annotations
 
-import os
 import re
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from ..errors import CalibrationFormatError
 
 __all__ = [
     "read_lines",
     "parse_numbers",
     "is_numeric_line",
-    "atomic_write_text",
     "fmt",
-    "CalibrationFormatError",
 ]
 
 _SPLIT = re.compile(r"[,;\s]+")
-
-
-class CalibrationFormatError(ValueError):
-    """A calibration file is truncated, garbled or inconsistent (the message names it)."""
 
 
 def read_lines(path: Path) -> list[tuple[int, str]]:
@@ -82,18 +77,3 @@ def is_numeric_line(text: str) -> bool:
 def fmt(x: float) -> str:
     """A float with 17 significant digits (round-trips exactly through text)."""
     return repr(float(x))
-
-
-def atomic_write_text(path: Path | str, text: str) -> None:
-    """Write ``text`` to ``path`` via a temporary file in the same folder and ``os.replace``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise

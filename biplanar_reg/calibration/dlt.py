@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from .._validate import as_array
-from ._textio import CalibrationFormatError, fmt, is_numeric_line, parse_numbers, read_lines
+from ..errors import CalibrationFormatError
+from ._textio import fmt, is_numeric_line, parse_numbers, read_lines
 from .projection_matrix import decompose_projection
 from .views import PerspectiveView, View
 

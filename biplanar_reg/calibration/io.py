@@ -24,7 +24,9 @@ import logging
 from collections.abc import Callable
 from pathlib import Path
 
-from ._textio import CalibrationFormatError, atomic_write_text, is_numeric_line, read_lines
+from ..errors import CalibrationFormatError
+from ..io.atomic import atomic_write_text
+from ._textio import is_numeric_line, read_lines
 from .dicom_geometry import view_from_dicom, write_dicom_geometry
 from .dlt import dlt_from_view, format_dlt_csv, read_dlt_csv, view_from_dlt
 from .mayacam import format_mayacam1, format_mayacam2, read_mayacam1, read_mayacam2

@@ -36,7 +36,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ._textio import CalibrationFormatError, fmt, is_numeric_line, parse_numbers, read_lines
+from ..errors import CalibrationFormatError
+from ._textio import fmt, is_numeric_line, parse_numbers, read_lines
 from .views import PerspectiveView, View
 
 __all__ = ["read_mayacam2", "format_mayacam2", "read_mayacam1", "format_mayacam1"]

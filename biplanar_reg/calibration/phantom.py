@@ -35,7 +35,8 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from .._validate import as_array
-from ._textio import CalibrationFormatError, is_numeric_line, parse_numbers, read_lines
+from ..errors import CalibrationFormatError
+from ._textio import is_numeric_line, parse_numbers, read_lines
 from .native_json import read_json
 from .pinhole import project_camera_points
 from .projection_matrix import decompose_projection, dlt_projection

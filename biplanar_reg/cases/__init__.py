@@ -8,6 +8,7 @@ from .case import (
     CaseView,
     GroundTruth,
     load_case,
+    read_case_views,
     registration_options,
     to_view_observations,
 )
@@ -20,6 +21,7 @@ __all__ = [
     "CaseView",
     "GroundTruth",
     "load_case",
+    "read_case_views",
     "registration_options",
     "to_view_observations",
 ]

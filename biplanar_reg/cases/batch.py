@@ -32,7 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from .outputs import clean_stale, is_complete, write_text_atomic
+from ..io.atomic import atomic_write_text
+from .outputs import clean_stale, is_complete
 
 __all__ = [
     "SUMMARY_COLUMNS",
@@ -215,14 +216,14 @@ def write_summary(out: Path, summary: BatchSummary) -> None:
     w.writerow(SUMMARY_COLUMNS)
     for r in summary.rows:
         w.writerow([_fmt(r.get(c)) for c in SUMMARY_COLUMNS])
-    write_text_atomic(out / "summary.csv", buf.getvalue())
+    atomic_write_text(out / "summary.csv", buf.getvalue())
     names = ("n", "mean", "median", "p95", "max")
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["metric", *names])
     for key, s in summary.stats.items():
         w.writerow([key, *(_fmt(s[n]) for n in names)])
-    write_text_atomic(out / "summary_stats.csv", buf.getvalue())
+    atomic_write_text(out / "summary_stats.csv", buf.getvalue())
     rows = [
         {
             **{c: _fmt(r.get(c)) for c in SUMMARY_COLUMNS},

@@ -17,6 +17,7 @@ import logging
 import math
 import os
 import tomllib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,7 +27,9 @@ import numpy as np
 from ..annotation import AnnotationError, Annotations, XrayImage, load_annotations, load_image
 from ..calibration import FORMATS, load_calibration
 from ..calibration.views import OrthographicView, PerspectiveView, SlotScanningView, View
+from ..errors import CaseError
 from ..io import read_mesh
+from ..io.jsonfile import read_json
 from ..registration import RegistrationOptions, ViewObservations
 from ..ssm import ShapeModel, build_ssm, synthesise_population
 from ..ssm.population import FAMILIES
@@ -41,6 +44,7 @@ __all__ = [
     "GroundTruth",
     "Case",
     "load_case",
+    "read_case_views",
     "to_view_observations",
     "registration_options",
     "scale_view",
@@ -75,10 +79,6 @@ _KEYS = {
 }
 _OPTION_FIELDS = {f.name: f for f in dataclasses.fields(RegistrationOptions)}
 POSES = ("known", "unknown", "refine")
-
-
-class CaseError(ValueError):
-    """A case is invalid; the one-line message names the file and the key."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -322,8 +322,6 @@ def _read_toml(ctx: _Ctx) -> dict:
 
 
 def _read_landmarks(ctx: _Ctx, path: Path, n_vertices: int) -> dict[str, int]:
-    from ..annotation._fileio import read_json
-
     where = "[model] landmarks"
     try:
         data = read_json(path)
@@ -423,19 +421,31 @@ def _units_name(scale: float) -> str:
     return next(k for k, v in UNIT_SCALE.items() if v == scale)
 
 
-def _load_views(ctx: _Ctx, doc: dict, scale: float) -> list[CaseView]:
+def _view_tables(ctx: _Ctx, doc: dict) -> Iterator[tuple[str, str, dict]]:
+    """``(where, name, table)`` of each ``[[views]]`` table, its name checked (non-empty, unique).
+
+    A generator, so that each view is checked in full before the next one's name: the first
+    problem of the file is the one reported.
+    """
     tables = doc.get("views")
     if not isinstance(tables, list) or not tables:
         raise ctx.error("[[views]]", "expected at least one [[views]] table")
-    views: list[CaseView] = []
+    seen: set[str] = set()
     for i, table in enumerate(tables):
         where = f"[[views]][{i}]"
         if not isinstance(table, dict):
             raise ctx.error(where, "expected a table")
         name = ctx.string(table, "name", where)
         where = f"[[views]][{i}] ({name})"
-        if any(v.name == name for v in views):
+        if name in seen:
             raise ctx.error(f"{where} name", f"duplicate view name {name!r}")
+        seen.add(name)
+        yield where, name, table
+
+
+def _load_views(ctx: _Ctx, doc: dict, scale: float) -> list[CaseView]:
+    views: list[CaseView] = []
+    for where, name, table in _view_tables(ctx, doc):
         ctx.unknown_keys(table, "views", where)
         fmt = table.get("calibration_format")
         if fmt is not None and (not isinstance(fmt, str) or fmt.lower() not in FORMATS):
@@ -481,12 +491,16 @@ def _detected(path: Path) -> str:
     return detect_format(path)
 
 
+def _annotations_path(ctx: _Ctx, doc: dict) -> Path:
+    """The ``[annotations] file`` of the case (an existing file)."""
+    return ctx.path(ctx.table(doc, "annotations", required=True), "file", "[annotations]")
+
+
 def _load_annotations(
     ctx: _Ctx, doc: dict, views: list[CaseView], landmarks: dict[str, int]
 ) -> tuple[Annotations, Path]:
-    table = ctx.table(doc, "annotations", required=True)
-    ctx.unknown_keys(table, "annotations", "[annotations]")
-    path = ctx.path(table, "file", "[annotations]")
+    ctx.unknown_keys(ctx.table(doc, "annotations", required=True), "annotations", "[annotations]")
+    path = _annotations_path(ctx, doc)
     sizes = {v.name: v.image_size for v in views if v.image_size is not None}
     try:
         ann = load_annotations(
@@ -590,6 +604,46 @@ def load_case(case_dir: str | os.PathLike, *, allow_outside: bool = False) -> Ca
         ground_truth=gt,
         warnings=ctx.warnings,
     )
+
+
+def read_case_views(
+    case_dir: str | os.PathLike, *, allow_outside: bool = True
+) -> tuple[list[tuple[str, Path | None]], Path]:
+    """Read only each view's name and image, and the annotation file, from ``case.toml``.
+
+    The light reading of the case format, for tools that work on a case still being set up
+    (``biplanar-reg annotate preview``): only ``[[views]] name``/``image`` and
+    ``[annotations] file`` are read and checked, with the same rules and messages as
+    :func:`load_case`; the model, the calibrations and the other keys are neither read nor
+    checked, and unknown keys give no warning.
+
+    Parameters
+    ----------
+    case_dir : path
+        The folder holding ``case.toml``.
+    allow_outside : bool
+        Allow paths that resolve outside the case folder (default: allowed, a preview reads the
+        images where they are).
+
+    Returns
+    -------
+    views : list of (str, Path or None)
+        Each view's name and its image (resolved, existing), ``None`` for a view without one.
+    annotations_file : Path
+        The annotation file (resolved, existing; not validated here).
+
+    Raises
+    ------
+    CaseError
+        (a ``ValueError``) naming the file and the key.
+    """
+    ctx = _Ctx(Path(case_dir).resolve(), allow_outside)
+    doc = _read_toml(ctx)
+    views = [
+        (name, ctx.path(table, "image", where, required=False))
+        for where, name, table in _view_tables(ctx, doc)
+    ]
+    return views, _annotations_path(ctx, doc)
 
 
 def to_view_observations(case: Case) -> list[ViewObservations]:

@@ -23,7 +23,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..annotation._fileio import atomic_write_json, read_json
+from ..io.atomic import atomic_write_json
+from ..io.jsonfile import read_json
 
 __all__ = [
     "EXPECTED_FILE",

@@ -28,7 +28,6 @@ __all__ = [
     "clean_stale",
     "is_complete",
     "check_output_target",
-    "write_text_atomic",
 ]
 
 #: Files whose presence marks a complete case output folder.
@@ -93,10 +92,3 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
-
-
-def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
-    """Write a text file atomically (UTF-8)."""
-    from ..annotation._fileio import atomic_write_bytes
-
-    return atomic_write_bytes(path, text.encode("utf-8"))

@@ -2,7 +2,11 @@
 
 Error mapping (exit codes of ``biplanar-reg register``): bad input -> :class:`CaseError`
 (a ``ValueError``, exit 2); the registration failing -> :class:`CaseFailure` (a
-``CommandError``, exit 1). Quality flags are recorded in ``result.json``, never raised.
+``CommandError``, exit 1); both live in :mod:`biplanar_reg.errors`. Quality flags are recorded
+in ``result.json``, never raised.
+
+This module orchestrates: it registers, measures, builds the result document and hands the
+document and the arrays the report draws to :func:`biplanar_reg.report.write_case_report`.
 """
 
 from __future__ import annotations
@@ -12,17 +16,20 @@ import logging
 import os
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..annotation._fileio import atomic_write_json
-from ..cli import CommandError
+from ..errors import CaseError, CaseFailure, SolverFailure
 from ..io import write_mesh
-from ..registration import RegistrationResult, SolverFailure, ViewObservations, register_views
-from .case import Case, CaseError, load_case, to_view_observations
+from ..io.atomic import atomic_write_json
+from ..registration import RegistrationResult, ViewObservations, register_views
+from .case import Case, load_case, to_view_observations
 from .metrics import contour_errors, model_outlines, summary_stats, surface_metrics
 from .outputs import atomic_output_dir, clean_stale
+
+if TYPE_CHECKING:  # the report (matplotlib, VTK) is imported when a case is written
+    from ..report.case_report import ReportView
 
 __all__ = [
     "RESULT_FORMAT",
@@ -44,10 +51,6 @@ SURFACE_METHOD = (
 )
 #: DICOM attributes shown with --include-phi (never read otherwise).
 PHI_TAGS = ("PatientName", "PatientID", "PatientBirthDate", "StudyDate", "AccessionNumber")
-
-
-class CaseFailure(CommandError):
-    """The registration of a valid case failed (solver failure, numerical breakdown)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -132,6 +135,74 @@ def _view_errors(
     return errs, sils, "; ".join(sorted(sources))
 
 
+def _view_entry(
+    o: ViewObservations, res: RegistrationResult, contour_errors_px: np.ndarray
+) -> dict[str, Any]:
+    """``result.json["views"][name]``: the view's pose (estimated or given) and its errors."""
+    pose = res.view_poses.get(o.name) or {
+        "R": o.view.R,
+        "t": o.view.t,
+        "centre": -o.view.R.T @ o.view.t,
+    }
+    lm = res.landmark_errors_px.get(o.name, {})
+    ce = contour_errors_px
+    return {
+        "R": pose["R"],
+        "t": pose["t"],
+        "centre": pose["centre"],
+        "landmark_errors_px": lm,
+        "landmark_rms_px": float(np.sqrt(np.mean(np.square(list(lm.values()))))) if lm else None,
+        "contour_errors_px": ce,
+        "contour_error_stats_px": summary_stats(ce[np.isfinite(ce)]),
+    }
+
+
+def _metrics(
+    res: RegistrationResult,
+    landmark_errors: list[float],
+    contour_errors_px: list[float],
+    contour_source: str,
+    gt_metrics: dict[str, float],
+) -> dict[str, Any]:
+    """``result.json["metrics"]``: errors pooled over the views (px), ground truth (mm)."""
+    all_lm, all_ct = landmark_errors, contour_errors_px
+    metrics: dict[str, Any] = {
+        "landmark_rms_px": float(np.sqrt(np.mean(np.square(all_lm)))) if all_lm else None,
+        "landmark_max_px": float(np.max(all_lm)) if all_lm else None,
+        **{f"contour_{k}_px": v for k, v in summary_stats(np.asarray(all_ct)).items()},
+        "contour_errors_source": contour_source if all_ct else None,
+        "certificate": res.certificate,
+        **gt_metrics,
+    }
+    if any(k.startswith("surface_") for k in gt_metrics):
+        metrics["surface_distance_method"] = SURFACE_METHOD
+    return metrics
+
+
+def _model_entry(case: Case) -> dict[str, Any]:
+    """``result.json["model"]``: size and source (paths relative to the case folder)."""
+    return {
+        "n_vertices": case.model.n_vertices,
+        "n_modes": case.model.n_modes,
+        "source": {
+            k: _relative(Path(v), case.case_dir) if k in ("ssm", "template", "landmarks") else v
+            for k, v in case.model_source.items()
+        },
+    }
+
+
+def _ground_truth_entry(case: Case) -> dict[str, Any] | None:
+    """``result.json["ground_truth"]`` (the alignment, if any, is added by the caller)."""
+    gt = case.ground_truth
+    if gt is None:
+        return None
+    return {
+        "mesh": _relative(gt.path, case.case_dir),
+        "same_vertex_count": len(gt.vertices) == case.model.n_vertices,
+        "up_to_pose": gt.up_to_pose,
+    }
+
+
 def result_document(
     case: Case,
     obs: list[ViewObservations],
@@ -143,43 +214,12 @@ def result_document(
 ) -> dict[str, Any]:
     """The content of ``result.json`` (see docs/cases.md for every key)."""
     rejected = {(v, n) for v, n in res.rejected}
-    views: dict[str, Any] = {}
-    all_lm, all_ct = [], []
-    for o in obs:
-        pose = res.view_poses.get(o.name) or {
-            "R": o.view.R,
-            "t": o.view.t,
-            "centre": -o.view.R.T @ o.view.t,
-        }
-        lm = res.landmark_errors_px.get(o.name, {})
-        all_lm += list(lm.values())
-        ce = contour_errs[o.name]
-        all_ct += list(ce[np.isfinite(ce)])
-        views[o.name] = {
-            "R": pose["R"],
-            "t": pose["t"],
-            "centre": pose["centre"],
-            "landmark_errors_px": lm,
-            "landmark_rms_px": float(np.sqrt(np.mean(np.square(list(lm.values())))))
-            if lm
-            else None,
-            "contour_errors_px": ce,
-            "contour_error_stats_px": summary_stats(ce[np.isfinite(ce)]),
-        }
+    views = {o.name: _view_entry(o, res, contour_errs[o.name]) for o in obs}
+    all_lm = [e for v in views.values() for e in v["landmark_errors_px"].values()]
+    all_ct = [e for v in views.values() for e in v["contour_errors_px"] if np.isfinite(e)]
     flags = list(res.flags)
     if rejected and not any("reject" in f for f in flags):
         flags.append(f"rejected observations: {sorted(rejected)}")
-    metrics: dict[str, Any] = {
-        "landmark_rms_px": float(np.sqrt(np.mean(np.square(all_lm)))) if all_lm else None,
-        "landmark_max_px": float(np.max(all_lm)) if all_lm else None,
-        **{f"contour_{k}_px": v for k, v in summary_stats(np.asarray(all_ct)).items()},
-        "contour_errors_source": contour_source if all_ct else None,
-        "certificate": res.certificate,
-        **gt_metrics,
-    }
-    if any(k.startswith("surface_") for k in gt_metrics):
-        metrics["surface_distance_method"] = SURFACE_METHOD
-    gt = case.ground_truth
     return _jsonable(
         {
             "format": RESULT_FORMAT,
@@ -199,7 +239,7 @@ def result_document(
             "best_iteration": res.best_iteration,
             "rejected": sorted(rejected),
             "flags": flags,
-            "metrics": metrics,
+            "metrics": _metrics(res, all_lm, all_ct, contour_source, gt_metrics),
             "timings": timings,
             "registration": {
                 "poses": case.poses,
@@ -207,26 +247,91 @@ def result_document(
                 "silhouettes": case.silhouettes,
                 "options": dataclasses.asdict(case.options),
             },
-            "model": {
-                "n_vertices": case.model.n_vertices,
-                "n_modes": case.model.n_modes,
-                "source": {
-                    k: _relative(Path(v), case.case_dir)
-                    if k in ("ssm", "template", "landmarks")
-                    else v
-                    for k, v in case.model_source.items()
-                },
-            },
-            "ground_truth": None
-            if gt is None
-            else {
-                "mesh": _relative(gt.path, case.case_dir),
-                "same_vertex_count": len(gt.vertices) == case.model.n_vertices,
-                "up_to_pose": gt.up_to_pose,
-            },
+            "model": _model_entry(case),
+            "ground_truth": _ground_truth_entry(case),
             "warnings": case.warnings,
         }
     )
+
+
+def _register(case: Case, obs: list[ViewObservations]) -> RegistrationResult:
+    """Run the registration; its failures become :class:`CaseFailure`/:class:`CaseError`."""
+    try:
+        res = register_views(
+            case.model,
+            obs,
+            silhouettes=case.silhouettes,
+            poses=case.poses,
+            options=case.options,
+            progress=lambda msg: log.info("%s: %s", case.id, msg),
+        )
+    except SolverFailure as exc:
+        raise CaseFailure(f"{case.case_file}: registration failed: {exc}") from None
+    except (np.linalg.LinAlgError, FloatingPointError, ArithmeticError) as exc:
+        raise CaseFailure(f"{case.case_file}: registration failed (numerical): {exc}") from None
+    except ValueError as exc:
+        msg = " ".join(str(exc).split())
+        raise CaseError(f"{case.case_file}: [registration]: {msg}") from None
+    if not np.all(np.isfinite(res.vertices)):
+        raise CaseFailure(f"{case.case_file}: registration failed: non-finite vertices")
+    return res
+
+
+def _ground_truth_metrics(
+    case: Case, res: RegistrationResult
+) -> tuple[dict[str, float], np.ndarray | None, dict[str, Any] | None]:
+    """Metrics against the ground truth (mm), per-vertex error, and the rigid alignment entry
+    of ``result.json["ground_truth"]`` (``up_to_pose`` only)."""
+    gt = case.ground_truth
+    if gt is None:
+        return {}, None, None
+    gt_vertices, alignment = gt.vertices, None
+    if gt.up_to_pose and case.model.faces is not None:
+        from .alignment import align_rigid
+
+        fit = align_rigid(gt.vertices, gt.faces, res.vertices, case.model.faces)
+        gt_vertices = fit.apply(gt.vertices)
+        alignment = _jsonable(
+            {
+                "R": fit.R,
+                "t": fit.t,
+                "init": fit.init,
+                "icp_cost_mm2": fit.icp_cost_mm2,
+                "note": "ground truth moved rigidly onto the registered surface (up_to_pose); "
+                "the ground-truth metrics are measured after this alignment",
+            }
+        )
+    metrics, vertex_error = surface_metrics(res.vertices, case.model.faces, gt_vertices, gt.faces)
+    return metrics, vertex_error, alignment
+
+
+def _report_views(
+    case: Case,
+    obs: list[ViewObservations],
+    res: RegistrationResult,
+    outlines: dict[str, list[np.ndarray]],
+) -> list[ReportView]:
+    """What the report draws per view (:class:`biplanar_reg.report.ReportView`), pixels."""
+    from ..report.case_report import ReportView
+
+    views = []
+    for o in obs:
+        cv = case.view(o.name)
+        lm_px = {}
+        if len(o.landmark_ids):
+            uv = o.view.project(res.vertices[o.landmark_ids])
+            lm_px = dict(zip(o.landmark_names, uv, strict=True))
+        views.append(
+            ReportView(
+                name=o.name,
+                image_size=cv.image_size,
+                display=None if cv.image is None else cv.image.display,
+                annotations=case.annotations.views.get(o.name),
+                outlines=outlines.get(o.name, []),
+                landmarks_px=lm_px,
+            )
+        )
+    return views
 
 
 def register_case(
@@ -255,7 +360,7 @@ def register_case(
     CaseFailure
         The registration failed.
     """
-    from ..report.case_report import write_case_report
+    from ..report import case_report  # looked up at call time (tests replace the writer)
 
     out_dir = Path(out) if out is not None else case.case_dir / "out"
     out_dir = out_dir.resolve()
@@ -264,42 +369,12 @@ def register_case(
     clean_stale(out_dir)
     obs = to_view_observations(case)
     t0 = time.perf_counter()
-    try:
-        res = register_views(
-            case.model,
-            obs,
-            silhouettes=case.silhouettes,
-            poses=case.poses,
-            options=case.options,
-            progress=lambda msg: log.info("%s: %s", case.id, msg),
-        )
-    except SolverFailure as exc:
-        raise CaseFailure(f"{case.case_file}: registration failed: {exc}") from None
-    except (np.linalg.LinAlgError, FloatingPointError, ArithmeticError) as exc:
-        raise CaseFailure(f"{case.case_file}: registration failed (numerical): {exc}") from None
-    except ValueError as exc:
-        msg = " ".join(str(exc).split())
-        raise CaseError(f"{case.case_file}: [registration]: {msg}") from None
+    res = _register(case, obs)
     t_reg = time.perf_counter() - t0
-    if not np.all(np.isfinite(res.vertices)):
-        raise CaseFailure(f"{case.case_file}: registration failed: non-finite vertices")
 
     t1 = time.perf_counter()
-    contour_errs, sils, source = _view_errors(case, obs, res)
-    gt_metrics: dict[str, float] = {}
-    vertex_error = None
-    alignment = None
-    if case.ground_truth is not None:
-        gt = case.ground_truth
-        gt_vertices = gt.vertices
-        if gt.up_to_pose and case.model.faces is not None:
-            from .alignment import align_rigid
-
-            alignment = align_rigid(gt.vertices, gt.faces, res.vertices, case.model.faces)
-            gt_vertices = alignment.apply(gt.vertices)
-        gt_metrics, vertex_error = surface_metrics(
-            res.vertices, case.model.faces, gt_vertices, gt.faces
-        )
+    contour_errs, outlines, source = _view_errors(case, obs, res)
+    gt_metrics, vertex_error, alignment = _ground_truth_metrics(case, res)
     t_metrics = time.perf_counter() - t1
     timings = {
         "load": load_seconds,
@@ -309,23 +384,21 @@ def register_case(
     }
     doc = result_document(case, obs, res, contour_errs, source, gt_metrics, timings)
     if alignment is not None:
-        doc["ground_truth"]["alignment"] = _jsonable(
-            {
-                "R": alignment.R,
-                "t": alignment.t,
-                "init": alignment.init,
-                "icp_cost_mm2": alignment.icp_cost_mm2,
-                "note": "ground truth moved rigidly onto the registered surface (up_to_pose); "
-                "the ground-truth metrics are measured after this alignment",
-            }
-        )
+        doc["ground_truth"]["alignment"] = alignment
     if include_phi:
         doc["phi"] = dicom_identifiers(case)
+    views = _report_views(case, obs, res, outlines)
     with atomic_output_dir(out_dir) as tmp:
         t2 = time.perf_counter()
         write_mesh(tmp / "registered.ply", res.vertices, case.model.faces)
-        report = write_case_report(tmp, case, obs, res, doc, sils, vertex_error)
-        doc["report"] = report
+        doc["report"] = case_report.write_case_report(
+            tmp,
+            doc,
+            views,
+            vertices=res.vertices,
+            faces=case.model.faces,
+            vertex_error=vertex_error,
+        )
         doc["timings"]["report"] = time.perf_counter() - t2
         doc["timings"]["total"] = load_seconds + (time.perf_counter() - t0)
         atomic_write_json(tmp / "result.json", doc)

@@ -1,6 +1,7 @@
-"""File input/output: meshes and point clouds, CT volumes, atomic writes."""
+"""File input/output: meshes and point clouds, CT volumes, atomic writes, strict JSON."""
 
-from .atomic import atomic_path
+from .atomic import atomic_path, atomic_write_bytes, atomic_write_json, atomic_write_text
+from .jsonfile import read_json
 from .meshes import MESH_SUFFIXES, check_manifold, read_mesh, write_mesh
 from .volumes import Volume, read_dicom_series, read_volume
 
@@ -8,8 +9,12 @@ __all__ = [
     "MESH_SUFFIXES",
     "Volume",
     "atomic_path",
+    "atomic_write_bytes",
+    "atomic_write_json",
+    "atomic_write_text",
     "check_manifold",
     "read_dicom_series",
+    "read_json",
     "read_mesh",
     "read_volume",
     "write_mesh",

@@ -30,6 +30,7 @@ import clarabel
 import numpy as np
 import scipy.sparse as sp
 
+from ..errors import SolverFailure
 from .ipm import dense_kkt_factor, skron
 from .lifting import (
     gram_size,
@@ -42,10 +43,6 @@ from .lifting import (
 from .rotations import skew
 
 __all__ = ["KnownPoseSDP", "KnownPoseIPM", "SdpSolution", "SolverFailure", "depth_reward"]
-
-
-class SolverFailure(RuntimeError):
-    """The conic solver did not return a usable solution (infeasible, numerical trouble)."""
 
 
 @dataclass(frozen=True)

@@ -1,11 +1,12 @@
 """Error reports: figures (matplotlib, off-screen PyVista) and HTML pages (Jinja2)."""
 
-from .case_report import metric_rows, write_case_report
+from .case_report import ReportView, metric_rows, write_case_report
 from .figures import convergence_figure, histogram_figure, overlay_figure
 from .html import render_template, write_page
 from .render3d import render_error_mesh
 
 __all__ = [
+    "ReportView",
     "convergence_figure",
     "histogram_figure",
     "metric_rows",

@@ -10,7 +10,7 @@ from typing import Any
 import jinja2
 
 from .. import __version__
-from ..cases.outputs import write_text_atomic
+from ..io.atomic import atomic_write_text
 
 __all__ = ["render_template", "write_page"]
 
@@ -33,4 +33,4 @@ def render_template(name: str, **context: Any) -> str:
 
 def write_page(path: str | os.PathLike, name: str, **context: Any) -> Path:
     """Render a template and write it atomically to ``path``."""
-    return write_text_atomic(path, render_template(name, **context))
+    return atomic_write_text(path, render_template(name, **context))

@@ -52,8 +52,7 @@ from ..annotation import (
     save_annotations,
 )
 
-# TODO(issue 14): the public atomic writer of biplanar_reg.io replaces this private import
-from ..annotation._fileio import atomic_write_bytes, atomic_write_json
+from ..io.atomic import atomic_write_bytes, atomic_write_json
 from ..calibration import save_calibration
 from ..calibration.views import View
 from ..io import write_mesh

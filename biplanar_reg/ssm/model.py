@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .._validate import as_array
+from ..io.atomic import atomic_path
 
 __all__ = ["ShapeModel"]
 
@@ -151,10 +152,9 @@ class ShapeModel:
             arrays["faces"] = self.faces
         if self.variances is not None:
             arrays["variances"] = self.variances
-        tmp = path.with_name(path.name + ".part")
-        with open(tmp, "wb") as fh:
+        # through a file object: given a name, numpy would append ".npz" to the temporary one
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
             np.savez_compressed(fh, **arrays)
-        os.replace(tmp, path)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> ShapeModel:

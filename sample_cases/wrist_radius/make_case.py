@@ -32,7 +32,7 @@ from biplanar_reg.annotation import (
     merge_annotations,
     save_annotations,
 )
-from biplanar_reg.annotation._fileio import atomic_write_bytes, atomic_write_json, read_json
+from biplanar_reg.io import atomic_write_bytes, atomic_write_json, read_json
 from biplanar_reg.annotation.recipe import load_recipe, run_recipe
 from biplanar_reg.annotation.snap import snap_landmark
 from biplanar_reg.io import write_mesh

@@ -6,22 +6,12 @@ import argparse
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
+from ._parsing import Wanted, add_command
 
-from ._fileio import read_json
-from .annotations import (
-    Annotations,
-    Landmark,
-    ViewAnnotations,
-    load_annotations,
-    merge_annotations,
-    save_annotations,
-)
-from .image import load_image
-from .recipe import load_recipe, parse_recipe, run_recipe, save_recipe
-from .snap import SNAP_MODES, snap_landmark
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = ["register", "recipe_path_for"]
 
@@ -41,6 +31,8 @@ def _relative_to(path: Path, folder: Path) -> str:
 
 def _contour_inputs(path: Path) -> dict[str, Any]:
     """Read the anchors file: a list of [u, v] or an object with anchors/box/polygon/zones."""
+    from ..io.jsonfile import read_json
+
     doc = read_json(path)
     if isinstance(doc, list):
         return {"anchors": doc}
@@ -54,6 +46,9 @@ def _contour_inputs(path: Path) -> dict[str, Any]:
 
 
 def _cmd_contour(args: argparse.Namespace) -> int:
+    from ..annotation import Annotations, ViewAnnotations, load_image, save_annotations
+    from ..annotation.recipe import parse_recipe, run_recipe, save_recipe
+
     image_path = Path(args.image)
     image = load_image(image_path, args.frame)
     inputs = _contour_inputs(Path(args.anchors)) if args.anchors else {}
@@ -102,6 +97,8 @@ def _cmd_contour(args: argparse.Namespace) -> int:
 
 
 def _cmd_regenerate(args: argparse.Namespace) -> int:
+    from ..annotation import Annotations, ViewAnnotations, load_recipe, run_recipe, save_annotations
+
     rpath = Path(args.recipe)
     recipe = load_recipe(rpath)
     contours = run_recipe(recipe, base_dir=rpath.parent)
@@ -119,6 +116,10 @@ def _cmd_regenerate(args: argparse.Namespace) -> int:
 
 def _read_points(path: Path) -> dict[str, np.ndarray]:
     """Points file: {"name": [u, v]} or {"name": {"uv": [u, v]}} or an annotation file's view."""
+    import numpy as np
+
+    from ..io.jsonfile import read_json
+
     doc = read_json(path)
     if not isinstance(doc, dict) or not doc:
         raise ValueError(f"{path}: expected an object {{name: [u, v]}}")
@@ -140,6 +141,15 @@ def _read_points(path: Path) -> dict[str, np.ndarray]:
 
 
 def _cmd_snap(args: argparse.Namespace) -> int:
+    from ..annotation import (
+        Annotations,
+        Landmark,
+        ViewAnnotations,
+        load_image,
+        save_annotations,
+        snap_landmark,
+    )
+
     image = load_image(args.image, args.frame)
     points = _read_points(Path(args.points))
     results = {
@@ -165,6 +175,8 @@ def _cmd_snap(args: argparse.Namespace) -> int:
 
 
 def _cmd_merge(args: argparse.Namespace) -> int:
+    from ..annotation import load_annotations, merge_annotations, save_annotations
+
     parts = [load_annotations(p) for p in args.inputs]  # all validated before anything is written
     merged = merge_annotations(parts, overwrite=args.overwrite)
     save_annotations(merged, args.output)
@@ -177,9 +189,14 @@ def _cmd_merge(args: argparse.Namespace) -> int:
 
 
 def _cmd_preview(args: argparse.Namespace) -> int:
-    from .preview import preview_case
+    # the case format belongs to cases (the one case.toml reader); drawing to annotation
+    from ..annotation.preview import preview_annotations
+    from ..cases.case import CASE_FILE, read_case_views
 
-    out = preview_case(args.case_dir, args.output, max_height=args.max_height)
+    views, annotations_file = read_case_views(args.case_dir)
+    if all(image is None for _, image in views):
+        raise ValueError(f"{Path(args.case_dir) / CASE_FILE}: no view has an 'image' to preview")
+    out = preview_annotations(views, annotations_file, args.output, max_height=args.max_height)
     _report(args, {"output": str(out)}, f"wrote {out}")
     return 0
 
@@ -191,18 +208,7 @@ def _report(args: argparse.Namespace, data: dict[str, Any], text: str) -> None:
         print(text)
 
 
-def register(subparsers: Any) -> None:
-    """Add the ``annotate`` command group to the ``biplanar-reg`` parser."""
-    p = subparsers.add_parser(
-        "annotate",
-        help="annotation tools: contours, snapping, merge, preview",
-        description="Semi-automatic annotation of radiographs (pixels: u = column, v = row, "
-        "0-based, origin at the centre of the top-left pixel).",
-    )
-    sub = p.add_subparsers(dest="annotate_command", metavar="ACTION")
-    sub.required = True
-
-    c = sub.add_parser("contour", help="trace a contour (livewire) or segment one (grabcut)")
+def _build_contour(c: argparse.ArgumentParser, wanted: Wanted) -> None:
     c.add_argument("image", help="radiograph (DICOM, TIFF, PNG, JPEG)")
     c.add_argument(
         "--anchors",
@@ -231,12 +237,16 @@ def register(subparsers: Any) -> None:
     )
     c.set_defaults(func=_cmd_contour)
 
-    r = sub.add_parser("regenerate", help="re-run a contour recipe")
+
+def _build_regenerate(r: argparse.ArgumentParser, wanted: Wanted) -> None:
     r.add_argument("recipe", help="a <stem>.recipe.json written by 'annotate contour'")
     r.add_argument("-o", "--output", required=True, help="output annotations JSON")
     r.set_defaults(func=_cmd_regenerate)
 
-    s = sub.add_parser("snap", help="refine clicked landmarks to nearby corners/edges")
+
+def _build_snap(s: argparse.ArgumentParser, wanted: Wanted) -> None:
+    from ..annotation.snap import SNAP_MODES
+
     s.add_argument("image")
     s.add_argument("--points", required=True, help='JSON {"name": [u, v], ...}')
     s.add_argument("--radius", type=float, default=5.0, help="search radius, px (5)")
@@ -246,7 +256,8 @@ def register(subparsers: Any) -> None:
     s.add_argument("-o", "--output", required=True, help="output annotations JSON")
     s.set_defaults(func=_cmd_snap)
 
-    m = sub.add_parser("merge", help="merge annotation files (contours appended)")
+
+def _build_merge(m: argparse.ArgumentParser, wanted: Wanted) -> None:
     m.add_argument("inputs", nargs="+")
     m.add_argument(
         "--overwrite",
@@ -256,8 +267,35 @@ def register(subparsers: Any) -> None:
     m.add_argument("-o", "--output", required=True)
     m.set_defaults(func=_cmd_merge)
 
-    v = sub.add_parser("preview", help="draw a case's annotations over its images (PNG)")
+
+def _build_preview(v: argparse.ArgumentParser, wanted: Wanted) -> None:
     v.add_argument("case_dir")
     v.add_argument("-o", "--output", required=True, help="output PNG")
     v.add_argument("--max-height", type=int, default=900, help="panel height, px (900)")
     v.set_defaults(func=_cmd_preview)
+
+
+def _build_group(p: argparse.ArgumentParser, wanted: Wanted) -> None:
+    sub = p.add_subparsers(dest="annotate_command", metavar="ACTION")
+    sub.required = True
+    for name, build, help_text in (
+        ("contour", _build_contour, "trace a contour (livewire) or segment one (grabcut)"),
+        ("regenerate", _build_regenerate, "re-run a contour recipe"),
+        ("snap", _build_snap, "refine clicked landmarks to nearby corners/edges"),
+        ("merge", _build_merge, "merge annotation files (contours appended)"),
+        ("preview", _build_preview, "draw a case's annotations over its images (PNG)"),
+    ):
+        add_command(sub, name, build, wanted, help=help_text)
+
+
+def register(subparsers: Any, wanted: Wanted = None) -> None:
+    """Add the ``annotate`` command group (see :mod:`._parsing` for ``wanted``)."""
+    add_command(
+        subparsers,
+        "annotate",
+        _build_group,
+        wanted,
+        help="annotation tools: contours, snapping, merge, preview",
+        description="Semi-automatic annotation of radiographs (pixels: u = column, v = row, "
+        "0-based, origin at the centre of the top-left pixel).",
+    )

@@ -11,11 +11,13 @@ import json
 import sys
 from typing import Any
 
+from ._parsing import Wanted, add_command
+
 __all__ = ["register"]
 
 
 def _cmd_register(args: argparse.Namespace) -> int:
-    from .run import run_case_dir
+    from ..cases.run import run_case_dir
 
     outcome = run_case_dir(
         args.case_dir, args.out, allow_outside=args.allow_outside, include_phi=args.include_phi
@@ -49,7 +51,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
-    from .batch import run_batch
+    from ..cases.batch import run_batch
 
     if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers: must be >= 1, got {args.workers}")
@@ -90,14 +92,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     return 1 if c["failed"] else 0
 
 
-def register(subparsers: Any) -> None:
-    """Add ``register`` and ``batch`` to the ``biplanar-reg`` parser."""
-    p = subparsers.add_parser(
-        "register",
-        help="register the model of a case folder to its annotated views",
-        description="Register a case (case.toml; see docs/cases.md) and write registered.ply, "
-        "result.json and report.html atomically into --out (default CASE_DIR/out).",
-    )
+def _build_register(p: argparse.ArgumentParser, wanted: Wanted) -> None:
     p.add_argument("case_dir", help="case folder holding case.toml")
     p.add_argument("--out", help="output folder (default: CASE_DIR/out); replaced as a whole")
     p.add_argument(
@@ -112,12 +107,8 @@ def register(subparsers: Any) -> None:
     )
     p.set_defaults(func=_cmd_register)
 
-    b = subparsers.add_parser(
-        "batch",
-        help="register many cases (process pool or Dask cluster), resumable",
-        description="Register many case folders into OUT/<case folder name>/, with a progress "
-        "bar, summary.csv/summary_stats.csv/summary.html; complete cases are skipped on rerun.",
-    )
+
+def _build_batch(b: argparse.ArgumentParser, wanted: Wanted) -> None:
     b.add_argument("cases", nargs="+", help="case folders")
     b.add_argument("--out", required=True, help="batch output folder")
     b.add_argument("--workers", type=int, help="local worker processes (default: CPU count)")
@@ -129,3 +120,25 @@ def register(subparsers: Any) -> None:
         help="allow case paths that point outside each case folder",
     )
     b.set_defaults(func=_cmd_batch)
+
+
+def register(subparsers: Any, wanted: Wanted = None) -> None:
+    """Add ``register`` and ``batch`` to the ``biplanar-reg`` parser."""
+    add_command(
+        subparsers,
+        "register",
+        _build_register,
+        wanted,
+        help="register the model of a case folder to its annotated views",
+        description="Register a case (case.toml; see docs/cases.md) and write registered.ply, "
+        "result.json and report.html atomically into --out (default CASE_DIR/out).",
+    )
+    add_command(
+        subparsers,
+        "batch",
+        _build_batch,
+        wanted,
+        help="register many cases (process pool or Dask cluster), resumable",
+        description="Register many case folders into OUT/<case folder name>/, with a progress "
+        "bar, summary.csv/summary_stats.csv/summary.html; complete cases are skipped on rerun.",
+    )

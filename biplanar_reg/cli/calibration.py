@@ -5,18 +5,21 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
+from ._parsing import Wanted, add_command
 
-from ._textio import atomic_write_text
-from .geometry import describe_view, principal_rays_distance, view_angle_deg
-from .io import FORMATS, WRITABLE_FORMATS, load_calibration, save_calibration
-from .views import View
+if TYPE_CHECKING:
+    import numpy as np
+
+    from ..calibration.views import View
 
 __all__ = ["register"]
 
 
 def _add_read_options(p: argparse.ArgumentParser) -> None:
+    from ..calibration.io import FORMATS
+
     p.add_argument(
         "--from",
         dest="from_format",
@@ -40,6 +43,8 @@ def _add_read_options(p: argparse.ArgumentParser) -> None:
 
 
 def _load(args: argparse.Namespace, path: str) -> View:
+    from ..calibration.io import load_calibration
+
     return load_calibration(
         path,
         args.from_format,
@@ -54,6 +59,8 @@ def _format_from_suffix(path: str) -> str:
 
 
 def _cmd_convert(args: argparse.Namespace) -> int:
+    from ..calibration.io import save_calibration
+
     view = _load(args, args.input)
     save_calibration(view, args.output, args.to)
     print(f"wrote {args.output} ({args.to})")
@@ -61,10 +68,14 @@ def _cmd_convert(args: argparse.Namespace) -> int:
 
 
 def _fmt_matrix(m: object) -> str:
+    import numpy as np
+
     return "\n".join("    " + "  ".join(f"{x:14.6f}" for x in row) for row in np.asarray(m))
 
 
 def _cmd_show(args: argparse.Namespace) -> int:
+    from ..calibration.geometry import describe_view, principal_rays_distance, view_angle_deg
+
     views = [_load(args, f) for f in args.files]
     info: dict[str, object] = {"views": [describe_view(v) for v in views]}
     if len(views) == 2:
@@ -112,6 +123,8 @@ def _cmd_show(args: argparse.Namespace) -> int:
 
 
 def _read_image(path: str) -> np.ndarray:
+    import numpy as np
+
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"{p}: no such image")
@@ -135,7 +148,9 @@ def _read_image(path: str) -> np.ndarray:
 
 
 def _cmd_from_phantom(args: argparse.Namespace) -> int:
-    from .phantom import calibrate_phantom, read_beads_csv, read_seeds_json
+    from ..calibration.io import save_calibration
+    from ..calibration.phantom import calibrate_phantom, read_beads_csv, read_seeds_json
+    from ..io.atomic import atomic_write_text
 
     image = _read_image(args.image)
     labels, xyz = read_beads_csv(args.beads)
@@ -172,30 +187,25 @@ def _cmd_from_phantom(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add the ``calibration`` command group."""
-    grp = subparsers.add_parser(
-        "calibration", help="read, convert and estimate X-ray view calibrations"
-    )
-    sub = grp.add_subparsers(dest="calibration_command", metavar="SUBCOMMAND")
-    grp.set_defaults(func=lambda a: (grp.print_help(), 0)[1])
+def _build_convert(p: argparse.ArgumentParser, wanted: Wanted) -> None:
+    from ..calibration.io import WRITABLE_FORMATS
 
-    p = sub.add_parser("convert", help="convert a calibration file to another format")
     p.add_argument("input")
     p.add_argument("output")
     p.add_argument("--to", required=True, choices=WRITABLE_FORMATS, help="output format")
     _add_read_options(p)
     p.set_defaults(func=_cmd_convert)
 
-    p = sub.add_parser(
-        "show",
-        help="print K, pose, source position and principal ray (and the angle between two views)",
-    )
+
+def _build_show(p: argparse.ArgumentParser, wanted: Wanted) -> None:
     p.add_argument("files", nargs="+", metavar="FILE", help="one or two calibration files")
     _add_read_options(p)
     p.set_defaults(func=_cmd_show)
 
-    p = sub.add_parser("from-phantom", help="calibrate a view from a bead-phantom radiograph")
+
+def _build_from_phantom(p: argparse.ArgumentParser, wanted: Wanted) -> None:
+    from ..calibration.io import WRITABLE_FORMATS
+
     p.add_argument("image", help="the phantom radiograph (TIFF, PNG, ...)")
     p.add_argument("beads", help="CSV of bead coordinates in mm: x,y,z or label,x,y,z")
     p.add_argument(
@@ -222,3 +232,36 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--report", default=None, help="write the per-bead residuals (JSON) here")
     p.add_argument("--name", default="", help="view name (default: the image's stem)")
     p.set_defaults(func=_cmd_from_phantom)
+
+
+def _build_group(grp: argparse.ArgumentParser, wanted: Wanted) -> None:
+    sub = grp.add_subparsers(dest="calibration_command", metavar="SUBCOMMAND")
+    grp.set_defaults(func=lambda a: (grp.print_help(), 0)[1])
+    add_command(
+        sub, "convert", _build_convert, wanted, help="convert a calibration file to another format"
+    )
+    add_command(
+        sub,
+        "show",
+        _build_show,
+        wanted,
+        help="print K, pose, source position and principal ray (and the angle between two views)",
+    )
+    add_command(
+        sub,
+        "from-phantom",
+        _build_from_phantom,
+        wanted,
+        help="calibrate a view from a bead-phantom radiograph",
+    )
+
+
+def register(subparsers: Any, wanted: Wanted = None) -> None:
+    """Add the ``calibration`` command group (see :mod:`._parsing` for ``wanted``)."""
+    add_command(
+        subparsers,
+        "calibration",
+        _build_group,
+        wanted,
+        help="read, convert and estimate X-ray view calibrations",
+    )

@@ -1,4 +1,4 @@
-"""CLI groups ``template``, ``population`` and ``ssm`` (see docs/ssm.md)."""
+"""``biplanar-reg template ...``, ``population ...`` and ``ssm ...`` (see docs/ssm.md)."""
 
 from __future__ import annotations
 
@@ -7,31 +7,28 @@ import json
 import logging
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
+from ..errors import CommandError
+from ._parsing import Builder, Wanted, add_command
 
-from ..cli import CommandError
-from ..io.atomic import atomic_path
-from ..io.meshes import MESH_SUFFIXES, check_manifold, read_mesh, write_mesh
-from ..io.volumes import read_volume
-from .build import affine_fractions, build_ssm, explained_fractions
-from .dense import densify
-from .inputs import read_landmarks, read_shapes
-from .model import ShapeModel
-from .population import FAMILIES, synthesise_population
-from .template import bone_surface
+if TYPE_CHECKING:
+    from ..ssm.model import ShapeModel
+
+__all__ = ["AFFINE_WARNING", "register"]
 
 log = logging.getLogger(__name__)
 
-#: Affine fraction above which a mode is flagged as affine-like (see :mod:`.build`).
+#: Affine fraction above which a mode is flagged as affine-like (see :mod:`biplanar_reg.ssm.build`).
 AFFINE_WARNING = 0.9
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add the ``template``, ``population`` and ``ssm`` command groups."""
-    tpl = subparsers.add_parser("template", help="bone templates from CT volumes")
-    tsub = tpl.add_subparsers(dest="template_command", metavar="COMMAND", required=True)
-    p = tsub.add_parser("from-ct", help="CT volume (DICOM folder, TIFF stack, .npy) -> bone mesh")
+# -- parsers ------------------------------------------------------------------------------------
+
+
+def _build_from_ct(p: argparse.ArgumentParser, wanted: Wanted) -> None:
+    from ..io.meshes import MESH_SUFFIXES
+
     p.add_argument("volume", help="DICOM series folder, multi-page .tif/.tiff, or .npy (K, J, I)")
     p.add_argument("-o", "--output", required=True, help=f"mesh file ({', '.join(MESH_SUFFIXES)})")
     p.add_argument(
@@ -69,9 +66,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.set_defaults(func=_cmd_from_ct)
 
-    pop = subparsers.add_parser("population", help="synthetic shape populations")
-    psub = pop.add_subparsers(dest="population_command", metavar="COMMAND", required=True)
-    p = psub.add_parser("synth", help="harmonic-deformation population of a template mesh")
+
+def _build_synth(p: argparse.ArgumentParser, wanted: Wanted) -> None:
+    from ..io.meshes import MESH_SUFFIXES
+    from ..ssm.population import FAMILIES
+
     p.add_argument("template", help="template mesh or point file")
     p.add_argument("-o", "--output", required=True, help="output folder (created if needed)")
     p.add_argument("--size", type=int, default=9, help="number of shapes (default 9)")
@@ -95,9 +94,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.set_defaults(func=_cmd_synth)
 
-    ssm = subparsers.add_parser("ssm", help="statistical shape models")
-    ssub = ssm.add_subparsers(dest="ssm_command", metavar="COMMAND", required=True)
-    p = ssub.add_parser("build", help="PCA shape model from shapes in correspondence")
+
+def _build_build(p: argparse.ArgumentParser, wanted: Wanted) -> None:
     p.add_argument("inputs", nargs="+", help="mesh/point files or folders of them")
     p.add_argument("-o", "--output", required=True, help="model file (.npz)")
     group = p.add_mutually_exclusive_group()
@@ -117,11 +115,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--landmarks", help='JSON file {"name": vertex index}')
     p.set_defaults(func=_cmd_build)
 
-    p = ssub.add_parser("info", help="modes, variances and affine fractions of a model")
+
+def _build_info(p: argparse.ArgumentParser, wanted: Wanted) -> None:
     p.add_argument("model", help="model file (.npz)")
     p.set_defaults(func=_cmd_info)
 
-    p = ssub.add_parser("densify", help="add interior points that deform barycentrically")
+
+def _build_densify(p: argparse.ArgumentParser, wanted: Wanted) -> None:
     p.add_argument("model", help="surface model file (.npz)")
     p.add_argument("-o", "--output", required=True, help="dense point model file (.npz)")
     p.add_argument(
@@ -129,6 +129,53 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.set_defaults(func=_cmd_densify)
+
+
+#: The three groups: (name, help, dest of the chosen sub-command, its sub-commands).
+_GROUPS: tuple[tuple[str, str, str, tuple[tuple[str, Builder, str], ...]], ...] = (
+    (
+        "template",
+        "bone templates from CT volumes",
+        "template_command",
+        (("from-ct", _build_from_ct, "CT volume (DICOM folder, TIFF stack, .npy) -> bone mesh"),),
+    ),
+    (
+        "population",
+        "synthetic shape populations",
+        "population_command",
+        (("synth", _build_synth, "harmonic-deformation population of a template mesh"),),
+    ),
+    (
+        "ssm",
+        "statistical shape models",
+        "ssm_command",
+        (
+            ("build", _build_build, "PCA shape model from shapes in correspondence"),
+            ("info", _build_info, "modes, variances and affine fractions of a model"),
+            ("densify", _build_densify, "add interior points that deform barycentrically"),
+        ),
+    ),
+)
+
+
+def _group_builder(dest: str, commands: tuple[tuple[str, Builder, str], ...]) -> Builder:
+    """The builder of one group: a required sub-command among ``commands``."""
+
+    def build(parser: argparse.ArgumentParser, wanted: Wanted) -> None:
+        sub = parser.add_subparsers(dest=dest, metavar="COMMAND", required=True)
+        for name, build_command, help_text in commands:
+            add_command(sub, name, build_command, wanted, help=help_text)
+
+    return build
+
+
+def register(subparsers: Any, wanted: Wanted = None) -> None:
+    """Add the ``template``, ``population`` and ``ssm`` command groups."""
+    for name, help_text, dest, commands in _GROUPS:
+        add_command(subparsers, name, _group_builder(dest, commands), wanted, help=help_text)
+
+
+# -- commands -----------------------------------------------------------------------------------
 
 
 def _emit(args: argparse.Namespace, result: dict, lines: list[str]) -> None:
@@ -146,6 +193,10 @@ def _npz_path(path: str) -> Path:
 
 
 def _cmd_from_ct(args: argparse.Namespace) -> int:
+    from ..io.meshes import write_mesh
+    from ..io.volumes import read_volume
+    from ..ssm.template import bone_surface
+
     t0 = time.perf_counter()
     volume = read_volume(args.volume, voxel_size=args.voxel_size, series=args.series)
     try:
@@ -185,6 +236,12 @@ def _cmd_from_ct(args: argparse.Namespace) -> int:
 
 
 def _cmd_synth(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from ..io.atomic import atomic_write_text
+    from ..io.meshes import check_manifold, read_mesh, write_mesh
+    from ..ssm.population import synthesise_population
+
     t0 = time.perf_counter()
     vertices, faces = read_mesh(args.template)
     if faces is not None:
@@ -221,8 +278,7 @@ def _cmd_synth(args: argparse.Namespace) -> int:
             for n, r, p in zip(names, rms, pop.parameters, strict=True)
         ],
     }
-    with atomic_path(out / "population.json") as tmp:
-        tmp.write_text(json.dumps(manifest, indent=2))
+    atomic_write_text(out / "population.json", json.dumps(manifest, indent=2))
     seconds = time.perf_counter() - t0
     result = {
         "output": str(out),
@@ -239,6 +295,10 @@ def _cmd_synth(args: argparse.Namespace) -> int:
 
 
 def _mode_report(model: ShapeModel) -> tuple[list[dict], list[str]]:
+    import numpy as np
+
+    from ..ssm.build import affine_fractions, explained_fractions
+
     frac = explained_fractions(model)
     aff = affine_fractions(model)
     rows = []
@@ -272,6 +332,9 @@ def _mode_report(model: ShapeModel) -> tuple[list[dict], list[str]]:
 
 
 def _cmd_build(args: argparse.Namespace) -> int:
+    from ..ssm.build import build_ssm
+    from ..ssm.inputs import read_landmarks, read_shapes
+
     out = _npz_path(args.output)
     shapes, faces, files = read_shapes(args.inputs)
     landmarks = read_landmarks(args.landmarks) if args.landmarks else None
@@ -308,6 +371,8 @@ def _cmd_build(args: argparse.Namespace) -> int:
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
+    from ..ssm.model import ShapeModel
+
     model = ShapeModel.load(args.model)
     rows, lines = _mode_report(model)
     header = f"{args.model}: {model!r}, size (RMS radius) {model.size:.2f} mm"
@@ -320,6 +385,9 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 
 def _cmd_densify(args: argparse.Namespace) -> int:
+    from ..ssm.dense import densify
+    from ..ssm.model import ShapeModel
+
     out = _npz_path(args.output)
     model = ShapeModel.load(args.model)
     try:

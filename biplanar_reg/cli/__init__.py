@@ -1,0 +1,98 @@
+"""The ``biplanar-reg`` command line, on top of the library.
+
+One module per command group (:mod:`.demo`, :mod:`.cases`, :mod:`.calibration`,
+:mod:`.annotation`, :mod:`.ssm`), each with ``register(subparsers, wanted)``. This module only
+assembles them, sets up logging and maps the exceptions of :mod:`biplanar_reg.errors` (and the
+standard input errors) to exit codes and a one-line ``error: ...`` message:
+
+* 0: success (quality flags in a result are not failures);
+* 1: the work failed (:class:`~biplanar_reg.errors.CommandError`, e.g. a failed case, or a
+  :class:`~biplanar_reg.errors.SolverFailure`);
+* 2: bad input (a ``ValueError`` such as ``CaseError``, ``AnnotationError``,
+  ``CalibrationFormatError``, or a ``FileNotFoundError``; the message says which file or key);
+* 130: interrupted.
+
+The command modules are imported when the parser is built, never at import time, and they
+import the library only inside their handlers (and, through :mod:`._parsing`, only for the
+selected command), so ``biplanar-reg --help`` imports no numpy.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from collections.abc import Sequence
+
+from .. import __version__
+from ..errors import CommandError, SolverFailure
+
+__all__ = ["COMMAND_MODULES", "CommandError", "build_parser", "main"]
+
+#: Modules that contribute sub-commands, in the order they appear in ``--help``.
+COMMAND_MODULES: tuple[str, ...] = (
+    "biplanar_reg.cli.demo",
+    "biplanar_reg.cli.cases",
+    "biplanar_reg.cli.calibration",
+    "biplanar_reg.cli.annotation",
+    "biplanar_reg.cli.ssm",
+)
+
+log = logging.getLogger("biplanar_reg")
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The argument parser with every registered sub-command.
+
+    Parameters
+    ----------
+    argv : sequence of str, optional
+        The command line about to be parsed: only the commands named in it get their arguments
+        (see :mod:`._parsing`). ``None`` builds every parser in full.
+    """
+    from ._parsing import wanted_words
+
+    parser = argparse.ArgumentParser(
+        prog="biplanar-reg",
+        description="Register statistical bone models to calibrated biplanar X-rays "
+        "(silhouette-boosted Generalised Shape-from-Template).",
+    )
+    parser.add_argument("--version", action="version", version=f"biplanar-reg {__version__}")
+    parser.add_argument(
+        "-v", "--verbose", action="count", default=0, help="more log output (-v info, -vv debug)"
+    )
+    parser.add_argument(
+        "--json", action="store_true", help="print a machine-readable JSON result on stdout"
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    wanted = wanted_words(argv)
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub, wanted)
+    return parser
+
+
+def _fail(exc: BaseException, code: int) -> int:
+    print(f"error: {exc}", file=sys.stderr)
+    return code
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the console script; returns the exit code."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv)
+    args = parser.parse_args(argv)
+    level = logging.WARNING if args.verbose == 0 else logging.INFO if args.verbose == 1 else 10
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 0
+    try:
+        return int(args.func(args) or 0)
+    except (CommandError, SolverFailure) as exc:
+        return _fail(exc, 1)
+    except (ValueError, FileNotFoundError) as exc:
+        return _fail(exc, 2)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130

@@ -1,0 +1,65 @@
+"""``biplanar-reg demo``: register the bundled sample case end to end and print the report path.
+
+The library part (finding the case, running it) is :mod:`biplanar_reg.demo`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from typing import Any
+
+from ._parsing import Wanted, add_command
+
+__all__ = ["register"]
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from ..demo import run_demo
+
+    outcome = run_demo(args.out, args.case)
+    report = outcome.out_dir / "report.html"
+    m = outcome.document["metrics"]
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "report": str(report),
+                    "out": str(outcome.out_dir),
+                    "metrics": m,
+                    "flags": outcome.document["flags"],
+                }
+            )
+        )
+    else:
+        for key, unit in (
+            ("vertex_rms_mm", "mm"),
+            ("surface_mean_mm", "mm"),
+            ("surface_rms_mm", "mm"),
+            ("landmark_rms_px", "px"),
+            ("contour_rms_px", "px"),
+        ):
+            if m.get(key) is not None:
+                print(f"{key}: {m[key]:.3f} {unit}")
+        if (outcome.document.get("ground_truth") or {}).get("up_to_pose"):
+            print("(ground-truth distances after rigid alignment: the CT is known up to pose)")
+        print(f"report: {report}")
+    return 0
+
+
+def _build_demo(p: argparse.ArgumentParser, wanted: Wanted) -> None:
+    p.add_argument("--out", default="biplanar-reg-demo", help="output folder (./biplanar-reg-demo)")
+    p.add_argument("--case", help=argparse.SUPPRESS)  # another case folder (for development)
+    p.set_defaults(func=_cmd_demo)
+
+
+def register(subparsers: Any, wanted: Wanted = None) -> None:
+    """Add ``demo`` to the ``biplanar-reg`` parser (see :mod:`._parsing` for ``wanted``)."""
+    add_command(
+        subparsers,
+        "demo",
+        _build_demo,
+        wanted,
+        help="run the bundled sample case end to end and print where the report is",
+        description="Register the bundled sample case and write its report into --out.",
+    )

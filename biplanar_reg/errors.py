@@ -1,0 +1,82 @@
+"""The exception types of the package, in one place at the bottom of the layering.
+
+Every package raises these, and the command line (:mod:`biplanar_reg.cli`) maps them to exit
+codes without importing the code that raises them:
+
+========================== ================ ====================================== =====
+exception                  base             raised when                            exit
+========================== ================ ====================================== =====
+``CommandError``           ``Exception``    a command's work failed (not its input) 1
+``CaseFailure``            ``CommandError`` the registration of a valid case failed 1
+``SolverFailure``          ``RuntimeError`` the conic solver gave no usable answer  1 [1]_
+``CalibrationFormatError`` ``ValueError``   a calibration file is garbled           2
+``AnnotationError``        ``ValueError``   an annotation document is invalid       2
+``CaseError``              ``ValueError``   a case folder is invalid                2
+========================== ================ ====================================== =====
+
+.. [1] Inside ``register``/``batch`` it is re-raised as a ``CaseFailure`` naming the case.
+
+Each type stays importable from the module that documents it (e.g.
+``biplanar_reg.registration.SolverFailure``, ``biplanar_reg.cases.CaseError``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+__all__ = [
+    "AnnotationError",
+    "CalibrationFormatError",
+    "CaseError",
+    "CaseFailure",
+    "CommandError",
+    "SolverFailure",
+]
+
+
+class CommandError(Exception):
+    """A failure to report on one line with exit code 1 (not bad input)."""
+
+
+class CaseFailure(CommandError):
+    """The registration of a valid case failed (solver failure, numerical breakdown)."""
+
+
+class SolverFailure(RuntimeError):
+    """The conic solver did not return a usable solution (infeasible, numerical trouble)."""
+
+
+class CalibrationFormatError(ValueError):
+    """A calibration file is truncated, garbled or inconsistent (the message names it)."""
+
+
+class CaseError(ValueError):
+    """A case is invalid; the one-line message names the file and the key."""
+
+
+class AnnotationError(ValueError):
+    """An annotation document is invalid; ``problems`` lists every problem found.
+
+    Parameters
+    ----------
+    source : str
+        What was read (a file name or ``"<annotations>"``); starts the message.
+    problems : sequence of str
+        Every problem found, each naming its key; the message lists the first
+        :attr:`MAX_REPORTED`.
+    """
+
+    #: Problems listed in the message (all of them stay in :attr:`problems`).
+    MAX_REPORTED = 20
+
+    def __init__(self, source: str, problems: Sequence[str]):
+        self.source = source
+        self.problems = list(problems)
+        shown = self.problems[: self.MAX_REPORTED]
+        more = len(self.problems) - len(shown)
+        text = f"{source}: invalid annotations ({len(self.problems)} problem(s)):\n  " + (
+            "\n  ".join(shown)
+        )
+        if more:
+            text += f"\n  ... and {more} more"
+        super().__init__(text)
