@@ -15,7 +15,6 @@ import numpy as np
 
 from biplanar_reg.registration import RegistrationOptions, ViewObservations, solve_gsft
 from biplanar_reg.registration.problem import Problem, make_problem, stack_landmarks
-
 from biplanar_reg.simulate import boosting_case, synthetic_bone_model
 
 __all__ = ["bone_model", "clean_views", "with_blunder", "problem_for", "BLUNDER_PX"]

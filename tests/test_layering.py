@@ -22,7 +22,7 @@ import biplanar_reg
 PACKAGE = "biplanar_reg"
 PACKAGE_DIR = Path(biplanar_reg.__file__).resolve().parent
 
-#: Layer of each top-level module or package of ``biplanar_reg`` (README, "How data flows"): a module
+#: Layer of each top-level module or package (README, "How data flows"): a module
 #: may import its own package and lower layers only.
 LAYERS: dict[str, int] = {
     "": 0,  # biplanar_reg/__init__.py: the version only

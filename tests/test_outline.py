@@ -6,7 +6,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from biplanar_reg.simulate import biplanar_views, random_pose, synthetic_bone_model
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
@@ -22,6 +21,7 @@ from biplanar_reg.outline import (
     outline_edges,
     outline_polylines,
 )
+from biplanar_reg.simulate import biplanar_views, random_pose, synthetic_bone_model
 from biplanar_reg.ssm import ShapeModel
 
 

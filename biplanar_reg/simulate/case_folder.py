@@ -51,11 +51,10 @@ from ..annotation import (
     resample_polyline,
     save_annotations,
 )
-
-from ..io.atomic import atomic_write_bytes, atomic_write_json
 from ..calibration import save_calibration
 from ..calibration.views import View
 from ..io import write_mesh
+from ..io.atomic import atomic_write_bytes, atomic_write_json
 from ..ssm import ShapeModel
 from .scenes import look_at_view, outline_stretch, random_pose, synthetic_bone_model
 

@@ -32,10 +32,9 @@ from biplanar_reg.annotation import (
     merge_annotations,
     save_annotations,
 )
-from biplanar_reg.io import atomic_write_bytes, atomic_write_json, read_json
 from biplanar_reg.annotation.recipe import load_recipe, run_recipe
 from biplanar_reg.annotation.snap import snap_landmark
-from biplanar_reg.io import write_mesh
+from biplanar_reg.io import atomic_write_bytes, atomic_write_json, read_json, write_mesh
 from biplanar_reg.ssm import ShapeModel
 
 HERE = Path(__file__).resolve().parent
