@@ -9,7 +9,7 @@ result. Per trial three fits of the same data are compared:
 
 plus, from the Fisher information of the clean and dropped data at the truth, the *expected*
 vertex RMS of each (bias of the MAP prior plus noise), which says how much the lost landmark is
-worth in that configuration. Setup as in ``tests/test_silhouettes.py``: the synthetic bone
+worth in that configuration. Setup as in ``tests/registration/test_boosting.py``: the synthetic bone
 (1,282 vertices, 8 modes, truth in the span), two views 75 deg apart, 0.5 px noise on landmarks
 and outlines, 80 % of each outline (open).
 

@@ -15,7 +15,7 @@ from biplanar_reg.calibration import (
     view_angle_deg,
 )
 
-DATA = Path(__file__).resolve().parents[1] / "sample_cases" / "wrist_radius" / "data"
+DATA = Path(__file__).resolve().parents[2] / "sample_cases" / "wrist_radius" / "data"
 FILES = [DATA / "cam01_calibration_mayacam2.txt", DATA / "cam02_calibration_mayacam2.txt"]
 SCENE = np.random.default_rng(3).uniform(-60, 60, (200, 3)) + [115.0, 73.0, 115.0]  # the wrist
 

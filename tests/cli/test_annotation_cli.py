@@ -14,7 +14,7 @@ from biplanar_reg.annotation.render import render_radiograph
 from biplanar_reg.calibration.views import OrthographicView
 from biplanar_reg.cli import main
 
-DATA = Path(__file__).resolve().parents[1] / "sample_cases" / "wrist_radius" / "data"
+DATA = Path(__file__).resolve().parents[2] / "sample_cases" / "wrist_radius" / "data"
 WRIST = DATA / "cam01_frame0099.tif"
 
 

@@ -1,7 +1,7 @@
 """Seeded registration problems shared by ``test_registration_stages.py`` and
 ``test_registration_options.py`` (not a test module).
 
-The set-up is that of ``tests/test_silhouettes.py`` and ``benchmarks/blunder.py``: the
+The set-up is that of ``tests/registration/test_boosting.py`` and ``benchmarks/blunder.py``: the
 synthetic bone (1,282 vertices, 8 modes, truth in the span), two views 75 deg apart, 3
 landmarks per view with 0.5 px noise, 80 % of each outline (open).
 """

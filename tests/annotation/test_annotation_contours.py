@@ -29,7 +29,7 @@ from biplanar_reg.annotation.render import path_lengths, render_radiograph
 from biplanar_reg.annotation.snap import snap_landmark
 from biplanar_reg.calibration.views import OrthographicView, PerspectiveView
 
-DATA = Path(__file__).resolve().parents[1] / "sample_cases" / "wrist_radius" / "data"
+DATA = Path(__file__).resolve().parents[2] / "sample_cases" / "wrist_radius" / "data"
 
 # Anchors on the lateral (radial-side) cortex of the distal radius in cam01_frame0099.tif,
 # proximal to distal, chosen by eye on a contrast-enhanced crop (u 840..1000, v 1180..1700).

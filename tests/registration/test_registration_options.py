@@ -1,6 +1,6 @@
 """``RegistrationOptions``: every field validated, documented (docstring and docs/cases.md) and
 accepted as a case file's ``[registration]`` key, and the pipeline options changing what they
-should (cheap: single stages on the seeded problems of ``tests/registration_problems.py``)."""
+should (cheap: single stages on the seeded problems of ``tests/registration/registration_problems.py``)."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ from biplanar_reg.registration.stages import (
     refine_final,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FIELDS = {f.name: f for f in dataclasses.fields(RegistrationOptions)}
 NONE: frozenset[int] = frozenset()
 

@@ -1,5 +1,5 @@
 """The registration pipeline's stages (``registration/stages.py``, ``blunders.py``) one at a time,
-on small seeded synthetic problems (set-ups in ``tests/registration_problems.py``)."""
+on small seeded synthetic problems (set-ups in ``tests/registration/registration_problems.py``)."""
 
 from __future__ import annotations
 

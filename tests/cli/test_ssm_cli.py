@@ -13,7 +13,7 @@ from biplanar_reg.cli import main
 from biplanar_reg.io.meshes import read_mesh, write_mesh
 from biplanar_reg.ssm.model import ShapeModel
 
-DATA = Path(__file__).resolve().parents[1] / "sample_cases" / "wrist_radius" / "data"
+DATA = Path(__file__).resolve().parents[2] / "sample_cases" / "wrist_radius" / "data"
 
 
 def test_ct_to_population_to_model(tmp_path, capsys):

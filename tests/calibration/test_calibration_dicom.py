@@ -21,7 +21,7 @@ from biplanar_reg.calibration import (
 from biplanar_reg.calibration.dicom_geometry import beam_direction, write_dicom_geometry
 from biplanar_reg.cli import main
 
-DATA = Path(__file__).resolve().parents[1] / "sample_cases" / "wrist_radius" / "data"
+DATA = Path(__file__).resolve().parents[2] / "sample_cases" / "wrist_radius" / "data"
 
 SID, SOD, SP = 1200.0, 800.0, 0.2  # mm, mm, mm per pixel at the detector
 

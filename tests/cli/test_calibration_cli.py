@@ -10,7 +10,7 @@ import numpy as np
 from biplanar_reg.calibration import load_calibration
 from biplanar_reg.cli import main
 
-DATA = Path(__file__).resolve().parents[1] / "sample_cases" / "wrist_radius" / "data"
+DATA = Path(__file__).resolve().parents[2] / "sample_cases" / "wrist_radius" / "data"
 CAM1 = DATA / "cam01_calibration_mayacam2.txt"
 CAM2 = DATA / "cam02_calibration_mayacam2.txt"
 

@@ -11,7 +11,7 @@ from biplanar_reg.io.volumes import Volume, grid_affine, read_volume
 from biplanar_reg.ssm.surface import count_components, is_closed_manifold, signed_volume
 from biplanar_reg.ssm.template import bone_surface, segment_bone
 
-DATA = Path(__file__).resolve().parents[1] / "sample_cases" / "wrist_radius" / "data"
+DATA = Path(__file__).resolve().parents[2] / "sample_cases" / "wrist_radius" / "data"
 RADIUS_VOXEL = (0.39625, 0.39625, 0.625)
 
 

@@ -21,7 +21,7 @@ from biplanar_reg.cases.expect import (
 from biplanar_reg.io import read_mesh
 from biplanar_reg.simulate import write_synthetic_case
 
-ROOT = Path(__file__).resolve().parents[1] / "sample_cases"
+ROOT = Path(__file__).resolve().parents[2] / "sample_cases"
 CASES = sorted(p.parent for p in ROOT.glob(f"*/{EXPECTED_FILE}"))
 
 
