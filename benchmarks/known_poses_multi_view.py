@@ -41,9 +41,9 @@ from _common import (
     volumetric_models,
     write_text,
 )
+from baselines import repeated_single_view
 
 from biplanar_reg.registration import SolverFailure, solve_gsft
-from biplanar_reg.registration.baselines import repeated_single_view
 from biplanar_reg.simulate import look_at_view
 
 CONFIGS = {2: [50, 50], 3: [33, 33, 34], 4: [25] * 4, 10: [10] * 10, 100: [1] * 100}

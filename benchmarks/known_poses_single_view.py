@@ -40,9 +40,9 @@ from _common import (
     volumetric_models,
     write_text,
 )
+from baselines import prox_admm
 
 from biplanar_reg.registration import SolverFailure, solve_gsft
-from biplanar_reg.registration.baselines import prox_admm
 from biplanar_reg.simulate import look_at_view
 
 NOISE_FRACTIONS = (0.0, 0.005, 0.01, 0.02, 0.04)

@@ -2,16 +2,19 @@
 
 from .gsft import DEFAULT_EPS, GsftResult, SolverFailure, solve_gsft
 from .observations import Contour, ViewObservations
+from .rays import RayObservations
 from .register import IterationRecord, RegistrationOptions, RegistrationResult, register_views
 from .unknown_poses import (
     RefinedPosesResult,
     UnknownPosesResult,
+    UnknownPoseView,
     ViewRays,
     refine_view_poses,
     solve_gsft_unknown_poses,
 )
 
 __all__ = [
+    "RayObservations",
     "solve_gsft",
     "GsftResult",
     "SolverFailure",
@@ -24,6 +27,7 @@ __all__ = [
     "IterationRecord",
     "solve_gsft_unknown_poses",
     "UnknownPosesResult",
+    "UnknownPoseView",
     "ViewRays",
     "refine_view_poses",
     "RefinedPosesResult",

@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 
 from .gsft import GsftResult
-from .polish import polish_pose_shape
 from .problem import Problem
 from .rays import RayObservations
+from .refine import refine_pose_shape
 
 __all__ = ["find_blunder", "max_rejections"]
 
@@ -38,16 +38,10 @@ def _leave_one_out_scores(
             continue
         keep = np.ones(len(rays), bool)
         keep[i] = False
-        r = rays.select(keep)
-        fit = polish_pose_shape(
-            result.rotation,
-            result.translation,
-            result.weights,
-            model.mean[r.vertex_ids],
-            model.modes[:, r.vertex_ids],
-            r.origins,
-            r.directions,
-            r.sigmas,
+        fit = refine_pose_shape(
+            model,
+            rays.select(keep),
+            (result.rotation, result.translation, result.weights),
             prior_weight=opts.prior_weight,
             max_iter=opts.blunder_refine_iterations,
         )

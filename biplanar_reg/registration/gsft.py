@@ -11,7 +11,11 @@ Pipeline of :func:`solve_gsft`:
    re-centre on it and solve once more;
 4. round: ``R`` = SVD projection of the rotation block read from the Gram matrix's first row,
    ``w`` = its weight entries, ``t`` from the SDP;
-5. polish: Levenberg-Marquardt on the ray offsets plus the prior (``polish.py``).
+5. refine: Levenberg-Marquardt on the ray offsets plus the prior (``refine.py``).
+
+The conic solvers (``backend``): the structured interior-point method (``ipm.py`` with
+``sdp.KnownPoseIPM``), Clarabel on the explicit-point form (``sdp.KnownPoseSDP``) and the same
+program stated readably in cvxpy (``cvxpy_program.py``, the reference statement).
 """
 
 from __future__ import annotations
@@ -21,15 +25,36 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validate import as_array, unit_directions
 from ..ssm.model import ShapeModel
-from .ipm import solve_conic
+from ._compat import renamed_options
+from .ipm import smat, solve_conic
 from .lifting import point_map_values
-from .polish import polish_cost, polish_pose_shape, ray_offsets, tangent_bases
+from .rays import RayObservations, as_rays, check_rays
+from .refine import (
+    DEFAULT_MAX_REFINE_ITER,
+    PoseShape,
+    ray_distances,
+    refine_cost,
+    refine_pose_shape,
+    tangent_bases,
+)
 from .rotations import project_to_so3
 from .sdp import KnownPoseIPM, KnownPoseSDP, SolverFailure, depth_reward
 
-__all__ = ["GsftResult", "solve_gsft", "DEFAULT_EPS", "MIN_DEPTH_SIZES", "SolverFailure"]
+__all__ = [
+    "GsftResult",
+    "solve_gsft",
+    "DEFAULT_EPS",
+    "DEFAULT_DEPTH_REWARD",
+    "DEFAULT_MAX_REFINE_ITER",
+    "MIN_DEPTH_SIZES",
+    "BACKENDS",
+    "SolverFailure",
+    "check_model",
+    "check_options",
+    "nearest_point_to_rays",
+    "common_sigma",
+]
 
 #: Default trace weight per unit of observation weight (normalised units); see docs/solver.md.
 DEFAULT_EPS = 1e-3
@@ -37,6 +62,11 @@ DEFAULT_EPS = 1e-3
 MIN_DEPTH_SIZES = 5.0
 #: Default ``depth_reward_weight`` (a fraction of the L1 term's restoring rate).
 DEFAULT_DEPTH_REWARD = 0.1
+#: The conic solvers of ``solve_gsft(..., backend=...)``.
+BACKENDS = ("auto", "ipm", "clarabel", "cvxpy")
+#: The SDP is solved again, centred on the object, when it lands farther than this from the
+#: guessed centre (normalised units: model RMS radii).
+RECENTRE_DISTANCE = 3.0
 
 try:  # small dense BLAS calls: one thread is faster than two fighting over a shared machine
     from threadpoolctl import threadpool_limits
@@ -85,9 +115,9 @@ class GsftResult:
         Normalising world centre (mm).
     sdp_iterations : int
     backend : str
-        ``"ipm"`` or ``"clarabel"`` (the one that produced the SDP solution).
+        ``"ipm"``, ``"clarabel"`` or ``"cvxpy"`` (the one that produced the SDP solution).
     timings : dict
-        Seconds: ``build``, ``solve``, ``polish``, ``total``.
+        Seconds: ``build``, ``solve``, ``polish`` (the refinement), ``total``.
     """
 
     rotation: np.ndarray
@@ -115,46 +145,29 @@ class GsftResult:
     timings: dict = field(default_factory=dict)
 
 
-@dataclass(frozen=True)
-class _Observations:
-    ids: np.ndarray
-    origins: np.ndarray
-    directions: np.ndarray
-    sigmas: np.ndarray | None
-
-
-def check_observations(
-    model: ShapeModel,
-    vertex_ids: object,
-    origins: object,
-    directions: object,
-    sigmas: object | None,
-) -> _Observations:
-    """Validate the inputs of :func:`solve_gsft`; raise ``ValueError`` naming the argument."""
+def check_model(model: object) -> None:
+    """Check that ``model`` is a :class:`ShapeModel` whose mean shape has an extent (its size,
+    the RMS radius in mm, is the solvers' normalising length)."""
     if not isinstance(model, ShapeModel):
         raise ValueError(f"model: expected a ShapeModel, got {type(model).__name__}")
-    ids = model.check_vertex_ids(vertex_ids)
-    K = len(ids)
-    o = as_array("origins", origins, (K, 3))
-    d = unit_directions("directions", as_array("directions", directions, (K, 3)))
-    s = None
-    if sigmas is not None:
-        s = as_array("sigmas", sigmas, (K,))
-        if np.any(s <= 0):
-            raise ValueError(f"sigmas: must be positive (row {int(np.argmin(s))} is {s.min()})")
-    if K < 4:
-        raise ValueError(f"vertex_ids: at least 4 observations are needed in total, got {K}")
-    if len(np.unique(ids)) < 3:
+    if model.size <= 0:
+        raise ValueError("model: the mean shape has zero extent")
+
+
+def check_options(
+    eps: float, prior_weight: float, depth_reward_weight: float, backend: str = "auto"
+) -> None:
+    """Check the options the solvers share (``ValueError`` naming the option)."""
+    if not np.isfinite(eps) or eps <= 0:
+        raise ValueError(f"eps: must be a positive number, got {eps!r}")
+    if not np.isfinite(depth_reward_weight) or not 0 <= depth_reward_weight < 1:
+        raise ValueError(f"depth_reward_weight: must be in [0, 1), got {depth_reward_weight!r}")
+    if not np.isfinite(prior_weight) or prior_weight < 0:
+        raise ValueError(f"prior_weight: must be >= 0, got {prior_weight!r}")
+    if backend not in BACKENDS:
         raise ValueError(
-            "vertex_ids: observations of fewer than 3 distinct model points cannot fix the pose"
+            f"backend: expected one of {', '.join(map(repr, BACKENDS))}, got {backend!r}"
         )
-    ev = np.linalg.eigvalsh(d.T @ d / K)
-    if ev[1] < 1e-12 * ev[2]:
-        raise ValueError(
-            "directions: all rays are parallel (e.g. a single orthographic view); the depth "
-            "along them is unobservable"
-        )
-    return _Observations(ids, o, d, s)
 
 
 def nearest_point_to_rays(origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
@@ -168,62 +181,238 @@ def nearest_point_to_rays(origins: np.ndarray, directions: np.ndarray) -> np.nda
     return np.linalg.solve(A, b)
 
 
-def _solve_sdp(D, origins, directions, a, eps, n_modes, backend, settings, min_depth, t_cost):
-    """One SDP solve in normalised units; returns (gram, t, objective, status, iters, backend)."""
-    if backend in ("auto", "ipm"):
-        prob = KnownPoseIPM(D, origins, directions, a, eps, n_modes, min_depth, t_cost)
-        sol = solve_conic(prob, **(settings or {}))
-        if sol.status != "failed" or backend == "ipm":
-            if sol.status == "failed":
-                raise SolverFailure(
-                    f"SDP interior-point solver did not converge (residual {sol.residual:.2e}, "
-                    f"gap {sol.gap:.2e} after {sol.iterations} iterations)"
-                )
-            from .ipm import smat
+@dataclass(frozen=True)
+class _Normalised:
+    """The known-pose program's data in the solver's units (``docs/solver.md``,
+    Normalisation): model centred at ``cm`` and divided by ``scale``."""
 
-            gram = smat(sol.x[: prob.nt], prob.n)
-            t = sol.x[prob.nt : prob.nt + 3]
+    scale: float  # model RMS radius, mm
+    cm: np.ndarray  # (3,) centroid of the mean shape, object frame, mm
+    D: np.ndarray  # (K, 3 + 3M) per-observation model data (``lifting.point_map_values``)
+    a: np.ndarray  # (K,) weights of the L1 terms (1 / sigma normalised to mean 1)
+    eps: float  # trace weight, eps * K
+    min_depth: float  # minimum depth of every point along its ray, normalised
+    t_cost: np.ndarray | None  # (3,) depth reward of a central view, or None
+
+
+def _normalise(
+    model: ShapeModel,
+    rays: RayObservations,
+    eps: float,
+    min_depth: float | None,
+    depth_reward_weight: float,
+) -> _Normalised:
+    scale = model.size
+    cm = model.mean.mean(axis=0)
+    ids = rays.vertex_ids
+    D = point_map_values((model.mean[ids] - cm) / scale, model.modes[:, ids] / scale)
+    inv = np.ones(len(rays)) if rays.sigmas is None else 1.0 / rays.sigmas
+    a = inv / inv.mean()
+    depth = (MIN_DEPTH_SIZES * scale if min_depth is None else float(min_depth)) / scale
+    # one central view (all rays from one source): reward depth so the relaxation stays tight
+    t_cost = depth_reward(rays.directions, a, depth_reward_weight) if rays.is_central else None
+    return _Normalised(scale, cm, D, a, eps * len(rays), depth, t_cost)
+
+
+@dataclass(frozen=True)
+class _SdpSolution:
+    """One solve of the program: Gram matrix and translation in normalised units."""
+
+    gram: np.ndarray  # (10 + M, 10 + M)
+    t_n: np.ndarray  # (3,) translation, normalised, relative to ``centre``
+    objective: float
+    status: str  # "solved" or "solved_reduced"
+    iterations: int
+    backend: str  # the backend that produced it
+    centre: np.ndarray  # (3,) world point (mm) the program was centred on
+
+
+def _solve_sdp(
+    prob: _Normalised,
+    rays_n: RayObservations,
+    n_modes: int,
+    backend: str,
+    settings: dict | None,
+) -> tuple[np.ndarray, np.ndarray, float, str, int, str]:
+    """One SDP solve on the normalised rays ``rays_n``; returns
+    ``(gram, t, objective, status, iterations, backend)``."""
+    args = (prob.D, rays_n.origins, rays_n.directions, prob.a, prob.eps)
+    if backend in ("auto", "ipm"):
+        ipm = KnownPoseIPM(*args, n_modes, prob.min_depth, prob.t_cost)
+        sol = solve_conic(ipm, **(settings or {}))
+        if sol.status != "failed":
+            gram = smat(sol.x[: ipm.nt], ipm.n)
+            t = sol.x[ipm.nt : ipm.nt + 3]
             return gram, t, sol.primal_objective, sol.status, sol.iterations, "ipm"
-    if backend not in ("auto", "clarabel", "ipm"):
-        raise ValueError(f"backend: expected 'auto', 'ipm' or 'clarabel', got {backend!r}")
-    sdp = KnownPoseSDP(len(D), n_modes, settings=settings if backend == "clarabel" else None)
-    sol = sdp.solve(D, origins, directions, a, eps, min_depth, t_cost)
+        if backend == "ipm":
+            raise SolverFailure(
+                f"SDP interior-point solver did not converge (residual {sol.residual:.2e}, "
+                f"gap {sol.gap:.2e} after {sol.iterations} iterations)"
+            )
+    if backend == "cvxpy":
+        from .cvxpy_program import solve_known_pose_cvxpy  # cvxpy is slow to import
+
+        sol = solve_known_pose_cvxpy(*args, n_modes, prob.min_depth, prob.t_cost, settings)
+        return sol.gram, sol.translation, sol.objective, sol.status, sol.iterations, "cvxpy"
+    # the IPM's settings are not Clarabel's: a fallback from "auto" uses Clarabel's defaults
+    sdp = KnownPoseSDP(len(prob.D), n_modes, settings=settings if backend == "clarabel" else None)
+    sol = sdp.solve(*args, prob.min_depth, prob.t_cost)
     status = "solved" if sol.status == "Solved" else "solved_reduced"
     return sol.gram, sol.translation, sol.objective, status, sol.iterations, "clarabel"
 
 
+def _solve_recentred(
+    prob: _Normalised,
+    rays: RayObservations,
+    n_modes: int,
+    backend: str,
+    settings: dict | None,
+) -> _SdpSolution:
+    """The SDP centred at the point nearest to all rays, solved once more centred on the object
+    if it lands farther than ``RECENTRE_DISTANCE`` from that guess (e.g. one perspective view,
+    whose rays all meet at the source)."""
+    centre = nearest_point_to_rays(rays.origins, rays.directions)
+    limits = threadpool_limits(1) if threadpool_limits is not None else None
+    try:
+        for attempt in range(2):
+            out = _solve_sdp(prob, rays.normalised(centre, prob.scale), n_modes, backend, settings)
+            if attempt == 1 or np.linalg.norm(out[1]) <= RECENTRE_DISTANCE:
+                break
+            centre = centre + prob.scale * out[1]
+    finally:
+        if limits is not None:
+            limits.unregister()
+    return _SdpSolution(*out, centre=centre)
+
+
+def _round(prob: _Normalised, sol: _SdpSolution) -> tuple[float, PoseShape]:
+    """Certificate ``lambda_2 / lambda_1`` and the rounded ``(R, t, w)`` (world, mm)."""
+    ev = np.linalg.eigvalsh(sol.gram)
+    certificate = float(max(ev[-2], 0.0) / ev[-1]) if ev[-1] > 0 else 1.0
+    R = project_to_so3(sol.gram[0, 1:10].reshape(3, 3))
+    w = sol.gram[0, 10:].copy()
+    # V = R (Q - cm) / s * s + s t_n + centre  =>  t = s t_n + centre - R cm
+    t = prob.scale * sol.t_n + sol.centre - R @ prob.cm
+    return certificate, (R, t, w)
+
+
+@dataclass(frozen=True)
+class _Refined:
+    """Outcome of the refinement stage of :func:`solve_gsft`."""
+
+    state: PoseShape  # (R, t, w), world frame, mm
+    sigmas: np.ndarray  # (K,) mm, given or estimated
+    cost_before: float
+    cost_after: float
+    iterations: int
+    converged: bool
+
+
+def _refine_with_sigma_estimate(
+    model: ShapeModel,
+    rays: RayObservations,
+    start: PoseShape,
+    sig: np.ndarray,
+    prior_weight: float,
+    max_iter: int,
+) -> tuple[PoseShape, np.ndarray, int, bool]:
+    """Refine from ``start``; without given sigmas re-estimate the common sigma from the
+    refined residuals until it settles. Returns the state, the sigmas, iterations, converged."""
+    state, iters, converged = start, 0, True
+    bases = tangent_bases(rays.directions)
+    K, M = len(rays), model.n_modes
+    for _ in range(10):  # sigma converges quadratically to 0 on noise-free data
+        res = refine_pose_shape(
+            model, rays.with_sigmas(sig), state, prior_weight=prior_weight, max_iter=max_iter
+        )
+        state = (res.rotation, res.translation, res.weights)
+        iters, converged = iters + res.iterations, res.converged
+        if rays.sigmas is not None:
+            break
+        # one common sigma, re-estimated from the refined residuals until it settles
+        new = _estimate_sigma(ray_distances(model, rays, state, bases), K, M, model.size)
+        if abs(new - sig[0]) <= 0.1 * sig[0]:
+            break
+        sig = np.full(K, new)
+    return state, sig, iters, converged
+
+
+def _refine_stage(
+    model: ShapeModel,
+    rays: RayObservations,
+    sdp_state: PoseShape,
+    sdp_dist: np.ndarray,
+    initial: PoseShape | None,
+    refine: bool,
+    prior_weight: float,
+    max_iter: int,
+) -> _Refined:
+    """Sigmas and the local refinement from the rounded SDP solution (and ``initial``)."""
+    if rays.sigmas is not None:
+        sig = rays.sigmas
+    else:
+        sig = np.full(len(rays), _estimate_sigma(sdp_dist, len(rays), model.n_modes, model.size))
+    if not refine:
+        return _Refined(sdp_state, sig, float("nan"), float("nan"), 0, True)
+    state, sig, iters, conv = _refine_with_sigma_estimate(
+        model, rays, sdp_state, sig, prior_weight, max_iter
+    )
+    final = rays.with_sigmas(sig)
+    cost_before = refine_cost(model, final, sdp_state, prior_weight)
+    cost_after = refine_cost(model, final, state, prior_weight)
+    opts = {"prior_weight": prior_weight, "max_iter": max_iter}
+    if cost_after > cost_before:  # sigma moved between rounds: restart from the SDP point
+        res = refine_pose_shape(model, final, sdp_state, **opts)
+        state, cost_after = (res.rotation, res.translation, res.weights), res.cost_after
+        iters, conv = iters + res.iterations, res.converged
+    if initial is not None:
+        R0, t0, w0 = (np.asarray(a, dtype=float) for a in initial)
+        alt = refine_pose_shape(model, final, (R0, t0, model.check_weights(w0)), **opts)
+        if alt.cost_after < cost_after:
+            state, cost_after = (alt.rotation, alt.translation, alt.weights), alt.cost_after
+            iters, conv = iters + alt.iterations, alt.converged
+    return _Refined(state, sig, float(cost_before), float(cost_after), iters, conv)
+
+
 def solve_gsft(
     model: ShapeModel,
-    vertex_ids: object,
-    origins: object,
-    directions: object,
+    rays: RayObservations | object = None,
+    origins: object | None = None,
+    directions: object | None = None,
     sigmas: object | None = None,
     *,
     eps: float = DEFAULT_EPS,
-    polish: bool = True,
+    refine: bool = True,
     prior_weight: float = 1.0,
-    max_polish_iter: int = 50,
+    max_refine_iter: int = DEFAULT_MAX_REFINE_ITER,
     min_depth: float | None = None,
     depth_reward_weight: float = DEFAULT_DEPTH_REWARD,
     backend: str = "auto",
     solver_settings: dict | None = None,
-    initial: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    initial: PoseShape | None = None,
+    vertex_ids: object | None = None,
+    **deprecated: object,
 ) -> GsftResult:
     """Register a shape model to rays with known view poses (the seed paper's G-SfT).
+
+    Call forms: ``solve_gsft(model, rays)`` with a :class:`RayObservations` (world frame), or
+    the array form ``solve_gsft(model, vertex_ids, origins, directions, sigmas=None)``.
 
     Parameters
     ----------
     model : ShapeModel
         The shape model (object frame, mm).
-    vertex_ids : (K,) int array
-        Model vertex observed by each ray.
-    origins : (K, 3) array
-        Ray origins in the world frame, mm (the X-ray source for a perspective view).
-    directions : (K, 3) array
-        Ray directions in the world frame (normalised here; zero length is an error).
+    rays : RayObservations or (K,) int array
+        The rays in the world frame, mm, one per observed model vertex, with optional sigmas
+        (see below); or, in the array form, the model vertex observed by each ray.
+    origins : (K, 3) array, optional
+        Array form: ray origins in the world frame, mm (the X-ray source of a perspective view).
+    directions : (K, 3) array, optional
+        Array form: ray directions in the world frame (normalised; zero length is an error).
     sigmas : (K,) array, optional
-        Standard deviation of each observation's distance from its ray, mm (for a pixel with
-        ``sigma_px``: ``sigma_px * pixel spacing * source-object / source-detector distance``).
+        Array form (a :class:`RayObservations` carries its own): standard deviation of each
+        observation's distance from its ray, mm (for a pixel with ``sigma_px``:
+        ``sigma_px * pixel spacing * source-object / source-detector distance``).
         Relative values weight the SDP's terms (``a_j`` proportional to ``1 / sigma_j``);
         absolute values set the balance of data and prior in the refinement. When omitted,
         all observations weigh the same and the refinement estimates one common sigma from the
@@ -231,13 +420,15 @@ def solve_gsft(
     eps : float
         Trace weight per unit observation weight, in normalised units: the SDP uses
         ``eps * K * tr(Delta)`` so the balance does not change with the number of observations.
-    polish : bool
-        Run the Levenberg-Marquardt refinement (default) after rounding.
+    refine : bool
+        Run the Levenberg-Marquardt refinement (default) after rounding. (Old spelling
+        ``polish``, deprecated.)
     prior_weight : float
         Weight ``lambda`` of ``1/2 lambda ||w||^2`` in the refinement (1 = Gaussian prior with
         the model's standard deviations).
-    max_polish_iter : int
-        Iteration limit of the refinement.
+    max_refine_iter : int
+        Iteration limit of each refinement run (default ``DEFAULT_MAX_REFINE_ITER``, 50; old
+        spelling ``max_polish_iter``, deprecated).
     min_depth : float, optional
         Every observed point must lie at least this far (mm) in front of its ray's origin
         along the ray. Without it the relaxation can mix the solution with its mirror image
@@ -248,16 +439,21 @@ def solve_gsft(
         In [0, 1). When every ray comes from one source (a single perspective view), a small
         linear reward on the depth along the mean ray keeps the relaxation tight (see
         :func:`sdp.depth_reward`: it cannot move a consistent solution). 0 = the paper's program.
-    backend : {"auto", "ipm", "clarabel"}
+    backend : {"auto", "ipm", "clarabel", "cvxpy"}
         Conic solver: the project's structured interior-point method (fast), Clarabel (a general
-        sparse solver, slower at many observations), or "auto": the IPM, falling back to
-        Clarabel if the IPM does not converge.
+        sparse solver, slower at many observations), the same program stated in cvxpy and
+        solved by Clarabel through it (the readable reference statement,
+        ``cvxpy_program.py``; slowest), or "auto": the IPM, falling back to Clarabel if the
+        IPM does not converge.
     solver_settings : dict, optional
-        Options for the backend (``solve_conic`` keywords or Clarabel settings).
+        Options for the backend (``solve_conic`` keywords, Clarabel settings, or for "cvxpy"
+        keywords of ``cvxpy.Problem.solve`` such as Clarabel settings).
     initial : (R, t, w), optional
         A second starting point for the local refinement (e.g. the previous iterate of
         silhouette boosting): the refinement also runs from it and the lower-cost result is
         kept, so a non-tight SDP cannot pull a good estimate into a worse basin.
+    vertex_ids : (K,) int array, optional
+        The array form's first array given by keyword (instead of ``rays``).
 
     Returns
     -------
@@ -271,145 +467,58 @@ def solve_gsft(
         The conic solver did not produce a usable solution.
     """
     t_start = time.perf_counter()
-    obs = check_observations(model, vertex_ids, origins, directions, sigmas)
-    if not np.isfinite(eps) or eps <= 0:
-        raise ValueError(f"eps: must be a positive number, got {eps!r}")
-    if not np.isfinite(depth_reward_weight) or not 0 <= depth_reward_weight < 1:
-        raise ValueError(f"depth_reward_weight: must be in [0, 1), got {depth_reward_weight!r}")
-    if not np.isfinite(prior_weight) or prior_weight < 0:
-        raise ValueError(f"prior_weight: must be >= 0, got {prior_weight!r}")
-    K, M = len(obs.ids), model.n_modes
-
-    # -- normalisation --------------------------------------------------------------------------
-    scale = model.size
-    if scale <= 0:
-        raise ValueError("model: the mean shape has zero extent")
-    cm = model.mean.mean(axis=0)
-    mean_pts = model.mean[obs.ids]  # mm, object frame
-    mode_pts = model.modes[:, obs.ids]
-    D = point_map_values((mean_pts - cm) / scale, mode_pts / scale)
-    inv = np.ones(K) if obs.sigmas is None else 1.0 / obs.sigmas
-    a = inv / inv.mean()
-    eps_abs = eps * K
-    depth_n = (MIN_DEPTH_SIZES * scale if min_depth is None else float(min_depth)) / scale
-    centre = nearest_point_to_rays(obs.origins, obs.directions)
-    # one central view (all rays from one source): reward depth so the relaxation stays tight
-    central = np.ptp(obs.origins, axis=0).max() <= 1e-9 * max(1.0, np.abs(obs.origins).max())
-    t_cost = depth_reward(obs.directions, a, depth_reward_weight) if central else None
+    opts = renamed_options("solve_gsft", deprecated)
+    refine = opts.get("refine", refine)
+    max_refine_iter = opts.get("max_refine_iter", max_refine_iter)
+    check_model(model)
+    if rays is not None and vertex_ids is not None:
+        raise ValueError("vertex_ids: give either rays or vertex_ids, not both")
+    rays = as_rays(vertex_ids if rays is None else rays, origins, directions, sigmas)
+    check_rays(model, rays)
+    check_options(eps, prior_weight, depth_reward_weight, backend)
+    prob = _normalise(model, rays, eps, min_depth, depth_reward_weight)
     t_build = time.perf_counter() - t_start
 
-    # -- SDP, re-centred once if the object is far from the guessed centre --------------------
     t0 = time.perf_counter()
-    limits = threadpool_limits(1) if threadpool_limits is not None else None
-    try:
-        for _ in range(2):
-            o_n = (obs.origins - centre) / scale
-            gram, t_n, objective, status, iters, used = _solve_sdp(
-                D, o_n, obs.directions, a, eps_abs, M, backend, solver_settings, depth_n, t_cost
-            )
-            if np.linalg.norm(t_n) <= 3.0:
-                break
-            centre = centre + scale * t_n
-    finally:
-        if limits is not None:
-            limits.unregister()
+    sol = _solve_recentred(prob, rays, model.n_modes, backend, solver_settings)
     t_solve = time.perf_counter() - t0
+    certificate, sdp_state = _round(prob, sol)
 
-    ev = np.linalg.eigvalsh(gram)
-    certificate = float(max(ev[-2], 0.0) / ev[-1]) if ev[-1] > 0 else 1.0
-    R_sdp = project_to_so3(gram[0, 1:10].reshape(3, 3))
-    w_sdp = gram[0, 10:].copy()
-    # V = R (Q - cm) / s * s + s t_n + centre  =>  t = s t_n + centre - R cm
-    t_sdp = scale * t_n + centre - R_sdp @ cm
-
-    # -- refinement -----------------------------------------------------------------------------
     t0 = time.perf_counter()
-    bases = tangent_bases(obs.directions)
-
-    def offsets(R, t, w):
-        V = (mean_pts + np.tensordot(w, mode_pts, axes=1)) @ R.T + t
-        return np.linalg.norm(ray_offsets(V, obs.origins, bases), axis=1)
-
-    sdp_res = offsets(R_sdp, t_sdp, w_sdp)
-    R, t, w = R_sdp, t_sdp, w_sdp
-    cost_before = cost_after = float("nan")
-    p_iters, p_conv = 0, True
-    if obs.sigmas is not None:
-        sig = obs.sigmas
-    else:
-        sig = np.full(K, _estimate_sigma(sdp_res, K, M, scale))
-    if polish:
-        data = (mean_pts, mode_pts, obs.origins, obs.directions)
-        for _ in range(10):  # sigma converges quadratically to 0 on noise-free data
-            res = polish_pose_shape(
-                R, t, w, *data, sig, prior_weight=prior_weight, max_iter=max_polish_iter
-            )
-            R, t, w = res.rotation, res.translation, res.weights
-            p_iters, p_conv = p_iters + res.iterations, res.converged
-            if obs.sigmas is not None:
-                break
-            # one common sigma, re-estimated from the refined residuals until it settles
-            new = _estimate_sigma(offsets(R, t, w), K, M, scale)
-            if abs(new - sig[0]) <= 0.1 * sig[0]:
-                break
-            sig = np.full(K, new)
-        cost_before = polish_cost(R_sdp, t_sdp, w_sdp, *data, sig, prior_weight)
-        cost_after = polish_cost(R, t, w, *data, sig, prior_weight)
-        if cost_after > cost_before:  # sigma moved between rounds: restart from the SDP point
-            res = polish_pose_shape(
-                R_sdp,
-                t_sdp,
-                w_sdp,
-                *data,
-                sig,
-                prior_weight=prior_weight,
-                max_iter=max_polish_iter,
-            )
-            R, t, w, cost_after = res.rotation, res.translation, res.weights, res.cost_after
-            p_iters, p_conv = p_iters + res.iterations, res.converged
-        if initial is not None:
-            R0, t0_, w0 = (np.asarray(a, dtype=float) for a in initial)
-            alt = polish_pose_shape(
-                R0,
-                t0_,
-                model.check_weights(w0),
-                *data,
-                sig,
-                prior_weight=prior_weight,
-                max_iter=max_polish_iter,
-            )
-            if alt.cost_after < cost_after:
-                R, t, w, cost_after = alt.rotation, alt.translation, alt.weights, alt.cost_after
-                p_iters, p_conv = p_iters + alt.iterations, alt.converged
-    t_polish = time.perf_counter() - t0
-    vertices = model.instance(w) @ R.T + t
+    bases = tangent_bases(rays.directions)
+    sdp_dist = ray_distances(model, rays, sdp_state, bases)
+    fit = _refine_stage(
+        model, rays, sdp_state, sdp_dist, initial, refine, prior_weight, max_refine_iter
+    )
+    t_refine = time.perf_counter() - t0
+    R, t, w = fit.state
     return GsftResult(
         rotation=R,
         translation=t,
         weights=w,
-        vertices=vertices,
+        vertices=model.instance(w) @ R.T + t,
         certificate=certificate,
-        objective=float(objective),
-        status=status,
-        sdp_rotation=R_sdp,
-        sdp_translation=t_sdp,
-        sdp_weights=w_sdp,
-        residuals=offsets(R, t, w),
-        sdp_residuals=sdp_res,
-        sigmas=sig,
-        polish_cost_before=float(cost_before),
-        polish_cost_after=float(cost_after),
-        polish_iterations=p_iters,
-        polish_converged=p_conv,
-        eps=eps_abs,
-        scale=scale,
-        centre=centre,
-        sdp_iterations=iters,
-        backend=used,
+        objective=float(sol.objective),
+        status=sol.status,
+        sdp_rotation=sdp_state[0],
+        sdp_translation=sdp_state[1],
+        sdp_weights=sdp_state[2],
+        residuals=ray_distances(model, rays, fit.state, bases),
+        sdp_residuals=sdp_dist,
+        sigmas=fit.sigmas,
+        polish_cost_before=fit.cost_before,
+        polish_cost_after=fit.cost_after,
+        polish_iterations=fit.iterations,
+        polish_converged=fit.converged,
+        eps=prob.eps,
+        scale=prob.scale,
+        centre=sol.centre,
+        sdp_iterations=sol.iterations,
+        backend=sol.backend,
         timings={
             "build": t_build,
             "solve": t_solve,
-            "polish": t_polish,
+            "polish": t_refine,
             "total": time.perf_counter() - t_start,
         },
     )

@@ -269,6 +269,87 @@ def _newton(prob, cones, sc, solve, res, rs):
 
 
 # -- the solver -----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Point:
+    """A primal-dual iterate: ``x``, ``y`` (equalities), slack ``s`` and cone dual ``z``."""
+
+    x: np.ndarray
+    y: np.ndarray
+    s: np.ndarray
+    z: np.ndarray
+
+
+@dataclass(frozen=True)
+class _Stats:
+    """Residuals and objectives of an iterate."""
+
+    rx: np.ndarray  # dual residual c + A'y + G'z
+    ry: np.ndarray  # primal equality residual A x - b
+    rz: np.ndarray  # primal cone residual G x + s - h
+    gap: float  # s . z
+    pcost: float
+    dcost: float
+    pres: float  # relative primal residual
+    dres: float  # relative dual residual
+
+    @property
+    def rel_gap(self) -> float:
+        return self.gap / max(abs(self.pcost), abs(self.dcost), 1e-12)
+
+
+def _starting_point(prob: ConicProblem, cones: _Cones) -> _Point:
+    """CVXOPT's start: least-squares primal and dual points with W = I, shifted inside."""
+    e = cones.identity()
+    ident = [np.eye(n) for n in cones.sizes]
+    solve = prob.kkt_factor(np.ones(cones.n_lp), ident)
+    x, _ = solve(prob.Gt(prob.h), prob.b)
+    s = prob.h - prob.G(x)
+    xd, y = solve(-prob.c, np.zeros_like(prob.b))
+    z = prob.G(xd)
+    for v in (s, z):
+        a = cones.min_eig(v)
+        if a <= 0:
+            v += (1.0 - a) * e
+    return _Point(x, y, s, z)
+
+
+def _stats(prob: ConicProblem, p: _Point, norms: tuple[float, float, float]) -> _Stats:
+    nrm_c, nrm_b, nrm_h = norms
+    rx = prob.c + prob.At(p.y) + prob.Gt(p.z)
+    ry = prob.A(p.x) - prob.b
+    rz = prob.G(p.x) + p.s - prob.h
+    pres = max(float(np.linalg.norm(ry)) / nrm_b, float(np.linalg.norm(rz)) / nrm_h)
+    dres = float(np.linalg.norm(rx)) / nrm_c
+    pcost, dcost = float(prob.c @ p.x), float(-prob.b @ p.y - prob.h @ p.z)
+    return _Stats(rx, ry, rz, float(p.s @ p.z), pcost, dcost, pres, dres)
+
+
+def _step(prob, cones, p: _Point, st: _Stats, step_fraction, verbose):
+    """Mehrotra predictor-corrector direction at ``p`` and its step length."""
+    e = cones.identity()
+    mu = st.gap / cones.degree
+    sc = _nt_scaling(cones, p.s, p.z)
+    solve = prob.kkt_factor(sc.w ** (-2.0), [Rti @ Rti.T for Rti in sc.Rti])
+    lam2 = _lam_sq(cones, sc)
+    res = (st.rx, st.ry, st.rz)
+    dx, dy, ds, dz = _newton(prob, cones, sc, solve, res, -lam2)
+    ds_t = _apply(cones, sc, ds, "Winvt")
+    dz_t = _apply(cones, sc, dz, "W")
+    a_aff = min(1.0, _max_step(cones, sc, ds_t), _max_step(cones, sc, dz_t))
+    s_aff = p.s + a_aff * ds
+    z_aff = p.z + a_aff * dz
+    sigma = min(1.0, max(0.0, float(s_aff @ z_aff) / st.gap)) ** 3
+    rs = -lam2 + sigma * mu * e - _sprod(cones, ds_t, dz_t)
+    dx, dy, ds, dz = _newton(prob, cones, sc, solve, res, rs)
+    ds_t = _apply(cones, sc, ds, "Winvt")
+    dz_t = _apply(cones, sc, dz, "W")
+    a_max = min(_max_step(cones, sc, ds_t), _max_step(cones, sc, dz_t))
+    alpha = min(1.0, step_fraction * a_max)
+    if verbose:
+        print(f"      a_aff {a_aff:.3g} sigma {sigma:.3g} alpha {alpha:.3g}")
+    return _Point(dx, dy, ds, dz), alpha
+
+
 def solve_conic(
     prob: ConicProblem,
     *,
@@ -288,103 +369,57 @@ def solve_conic(
     its residuals are below 1e-6 and its relative gap below 1e-4, else ``"failed"``.
     """
     cones = _Cones(prob.n_lp, tuple(prob.psd_sizes))
-    c, b, h = prob.c, prob.b, prob.h
-    e = cones.identity()
-    nrm_c = max(1.0, float(np.linalg.norm(c)))
-    nrm_b = max(1.0, float(np.linalg.norm(b)))
-    nrm_h = max(1.0, float(np.linalg.norm(h)))
-
-    # Starting point (CVXOPT): least-squares primal and dual points with W = I, shifted inside.
-    ident = [np.eye(n) for n in cones.sizes]
-    solve = prob.kkt_factor(np.ones(cones.n_lp), ident)
-    x, _ = solve(prob.Gt(h), b)
-    s = h - prob.G(x)
-    xd, y = solve(-c, np.zeros_like(b))
-    z = prob.G(xd)
-    for v in (s, z):
-        a = cones.min_eig(v)
-        if a <= 0:
-            v += (1.0 - a) * e
-
+    norms = tuple(max(1.0, float(np.linalg.norm(v))) for v in (prob.c, prob.b, prob.h))
+    p = _starting_point(prob, cones)
     status = "max_iter"
     it = 0
-    best = None  # (merit, x, y, s, z, stats) of the best iterate so far
+    best = None  # (merit, point, stats) of the best iterate so far
     stall = 0
-    gap = pres = dres = np.inf
-    pcost = dcost = np.nan
     for it in range(max_iter + 1):
-        rx = c + prob.At(y) + prob.Gt(z)
-        ry = prob.A(x) - b
-        rz = prob.G(x) + s - h
-        gap = float(s @ z)
-        pcost = float(c @ x)
-        dcost = float(-b @ y - h @ z)
-        pres = max(float(np.linalg.norm(ry)) / nrm_b, float(np.linalg.norm(rz)) / nrm_h)
-        dres = float(np.linalg.norm(rx)) / nrm_c
-        rel_gap = gap / max(abs(pcost), abs(dcost), 1e-12)
+        st = _stats(prob, p, norms)
         if verbose:
             print(
-                f"{it:3d} pcost {pcost: .9e} dcost {dcost: .9e} gap {gap:.2e} "
-                f"pres {pres:.2e} dres {dres:.2e}"
+                f"{it:3d} pcost {st.pcost: .9e} dcost {st.dcost: .9e} gap {st.gap:.2e} "
+                f"pres {st.pres:.2e} dres {st.dres:.2e}"
             )
-        if max(pres, dres) < tol_feas and (gap < tol_gap_abs or rel_gap < tol_gap_rel):
+        if max(st.pres, st.dres) < tol_feas and (st.gap < tol_gap_abs or st.rel_gap < tol_gap_rel):
             status = "solved"
             break
-        merit = max(pres / tol_feas, dres / tol_feas, min(gap / tol_gap_abs, rel_gap / tol_gap_rel))
+        merit = max(
+            st.pres / tol_feas,
+            st.dres / tol_feas,
+            min(st.gap / tol_gap_abs, st.rel_gap / tol_gap_rel),
+        )
         if best is None or merit < best[0]:
-            best = (merit, x, y, s, z, (pcost, dcost, gap, pres, dres))
+            best = (merit, p, st)
         # Close to a rank-deficient optimum the scaled KKT system loses accuracy and the
         # iterates stop improving: then return the best one instead of wandering off.
-        endgame = max(pres, dres) < 1e-6 and rel_gap < 1e-3
+        endgame = max(st.pres, st.dres) < 1e-6 and st.rel_gap < 1e-3
         stall = stall + 1 if endgame and merit >= 0.9 * best[0] else 0
         if it == max_iter or stall >= 3:
-            _, x, y, s, z, (pcost, dcost, gap, pres, dres) = best
+            _, p, st = best
             break
-        mu = gap / cones.degree
-        sc = _nt_scaling(cones, s, z)
-        solve = prob.kkt_factor(sc.w ** (-2.0), [Rti @ Rti.T for Rti in sc.Rti])
-
-        lam2 = _lam_sq(cones, sc)
-        res = (rx, ry, rz)
-        dx, dy, ds, dz = _newton(prob, cones, sc, solve, res, -lam2)
-        ds_t = _apply(cones, sc, ds, "Winvt")
-        dz_t = _apply(cones, sc, dz, "W")
-        a_aff = min(1.0, _max_step(cones, sc, ds_t), _max_step(cones, sc, dz_t))
-        s_aff = s + a_aff * ds
-        z_aff = z + a_aff * dz
-        sigma = min(1.0, max(0.0, float(s_aff @ z_aff) / gap)) ** 3
-        rs = -lam2 + sigma * mu * e - _sprod(cones, ds_t, dz_t)
-        dx, dy, ds, dz = _newton(prob, cones, sc, solve, res, rs)
-        ds_t = _apply(cones, sc, ds, "Winvt")
-        dz_t = _apply(cones, sc, dz, "W")
-        a_max = min(_max_step(cones, sc, ds_t), _max_step(cones, sc, dz_t))
-        alpha = min(1.0, step_fraction * a_max)
-        if verbose:
-            print(f"      a_aff {a_aff:.3g} sigma {sigma:.3g} alpha {alpha:.3g}")
+        d, alpha = _step(prob, cones, p, st, step_fraction, verbose)
         if alpha < 1e-10:
-            _, x, y, s, z, (pcost, dcost, gap, pres, dres) = best
+            _, p, st = best
             break
-        x = x + alpha * dx
-        y = y + alpha * dy
-        s = s + alpha * ds
-        z = z + alpha * dz
+        p = _Point(p.x + alpha * d.x, p.y + alpha * d.y, p.s + alpha * d.s, p.z + alpha * d.z)
     if status != "solved":
         # Clarabel's "AlmostSolved" analogue: reduced tolerances that the rounding and the local
         # refinement downstream comfortably absorb.
-        rel = gap / max(abs(pcost), abs(dcost), 1e-12)
-        reduced = max(pres, dres) < 1e-6 and (gap < 1e-6 or rel < 1e-4)
+        reduced = max(st.pres, st.dres) < 1e-6 and (st.gap < 1e-6 or st.rel_gap < 1e-4)
         status = "solved_reduced" if reduced else "failed"
     return ConicSolution(
-        x=x,
-        y=y,
-        s=s,
-        z=z,
+        x=p.x,
+        y=p.y,
+        s=p.s,
+        z=p.z,
         status=status,
         iterations=it,
-        primal_objective=pcost,
-        dual_objective=dcost,
-        gap=gap,
-        residual=max(pres, dres),
+        primal_objective=st.pcost,
+        dual_objective=st.dcost,
+        gap=st.gap,
+        residual=max(st.pres, st.dres),
     )
 
 

@@ -15,6 +15,7 @@ import numpy as np
 from .._validate import as_array
 from ..annotation.annotations import Contour
 from ..calibration.views import View
+from .rays import RayObservations
 
 __all__ = ["ViewObservations", "Contour", "landmark_rays", "mm_per_pixel"]
 
@@ -98,8 +99,8 @@ def mm_per_pixel(view: View, X: np.ndarray) -> np.ndarray:
 
 def landmark_rays(
     views: list[ViewObservations], centre: np.ndarray | None = None
-) -> tuple[np.ndarray, ...]:
-    """Stack every view's landmarks as rays.
+) -> RayObservations:
+    """Every view's landmarks as rays (world frame).
 
     Parameters
     ----------
@@ -110,7 +111,10 @@ def landmark_rays(
 
     Returns
     -------
-    vertex_ids (K,), origins (K, 3), directions (K, 3), sigmas_mm (K,), view_index (K,)
+    RayObservations
+        The landmarks of ``views[0]``, then ``views[1]``, ... (in each view's order), with
+        sigmas in mm (``mm_per_pixel`` at ``centre`` times the pixel sigmas) and ``view_index``
+        the index into ``views``.
     """
     from .gsft import nearest_point_to_rays
 
@@ -125,13 +129,7 @@ def landmark_rays(
         sig_px.append(v.landmark_sigma_px)
         vi.append(np.full(len(o), i))
     if not ids:
-        return (
-            np.zeros(0, np.int64),
-            np.zeros((0, 3)),
-            np.zeros((0, 3)),
-            np.zeros(0),
-            np.zeros(0, np.int64),
-        )
+        return RayObservations.empty()
     ids, org, dirs = np.concatenate(ids), np.vstack(org), np.vstack(dirs)
     sig_px, vi = np.concatenate(sig_px), np.concatenate(vi)
     if centre is None:
@@ -141,4 +139,4 @@ def landmark_rays(
         sel = vi == i
         if np.any(sel):
             scale[sel] = mm_per_pixel(v.view, centre[None, :])[0]
-    return ids, org, dirs, sig_px * scale, vi
+    return RayObservations(ids, org, dirs, sig_px * scale, vi)

@@ -76,12 +76,12 @@ class Landmarks:
 def stack_landmarks(views: list[ViewObservations], centre: np.ndarray | None) -> Landmarks:
     """The views' landmarks as :class:`Landmarks`; pixel sigmas converted to mm at ``centre``
     (mm, world; default: the point nearest to all landmark rays)."""
-    ids, org, dirs, sig, vi = landmark_rays(views, centre)
-    n = len(ids)
+    rays = landmark_rays(views, centre)
+    n = len(rays)
     sig_px = np.concatenate([v.landmark_sigma_px for v in views]) if n else np.zeros(0)
     uv = np.vstack([v.landmark_uv for v in views]) if n else np.zeros((0, 2))
     names = [(v.name, name) for v in views for name in v.landmark_names]
-    return Landmarks(RayObservations(ids, org, dirs, sig, vi), uv, sig_px, names)
+    return Landmarks(rays, uv, sig_px, names)
 
 
 @dataclass(frozen=True)
@@ -178,27 +178,32 @@ def solve(
     from ``start``'s pose and weights when given."""
     initial = None if start is None else (start.rotation, start.translation, start.weights)
     return solve_gsft(
-        model,
-        rays.vertex_ids,
-        rays.origins,
-        rays.directions,
-        sigmas=rays.sigmas,
-        eps=options.eps,
-        prior_weight=options.prior_weight,
-        initial=initial,
+        model, rays, eps=options.eps, prior_weight=options.prior_weight, initial=initial
     )
+
+
+def rough_centre(
+    model: ShapeModel, views: list[ViewObservations], options: RegistrationOptions
+) -> np.ndarray:
+    """Where the bone is (mm, world): the centroid of a first landmark-only solve with equal
+    weights (the annotators' sigmas are not in mm yet)."""
+    rays = stack_landmarks(views, None).rays.with_sigmas(None)
+    res = solve_gsft(model, rays, eps=options.eps, prior_weight=options.prior_weight)
+    return res.vertices.mean(axis=0)
 
 
 def make_problem(
     model: ShapeModel,
     views: list[ViewObservations],
     options: RegistrationOptions,
-    centre: np.ndarray,
     use_outlines: bool,
     say: Callable[[str], None],
+    centre: np.ndarray | None = None,
 ) -> Problem:
     """The :class:`Problem` for ``views``; pixel sigmas are converted to mm at ``centre``
-    (mm, world: the first landmark-only estimate's centroid)."""
+    (mm, world; default: :func:`rough_centre`)."""
+    if centre is None:
+        centre = rough_centre(model, views, options)
     targets = {i: prepare_outline(v.contours) for i, v in enumerate(views)}
     targets = {i: t for i, t in targets.items() if t is not None}
     use_outlines = use_outlines and bool(targets)

@@ -18,11 +18,11 @@ import numpy as np
 
 from ..outline import chain_edges
 from ..ssm.model import ShapeModel
-from .gsft import GsftResult, solve_gsft
+from .gsft import GsftResult
 from .observations import ViewObservations
 from .options import CERTIFICATE_FLAG, REPROJECTION_FLAG_PX, IterationRecord, RegistrationOptions
 from .outline_match import outline_distances
-from .problem import Problem, make_problem, stack_landmarks
+from .problem import Problem, make_problem
 from .stages import boost, landmark_consensus, landmark_start, refine_final
 from .view_poses import estimate_view_poses
 
@@ -176,7 +176,7 @@ def register_views(
         posed = estimate_view_poses(model, views, poses, opts)
         views, pose_info = posed.views, posed.info
         say(f"view poses ({poses}): {pose_info}")
-    problem = make_problem(model, views, opts, _rough_centre(model, views, opts), silhouettes, say)
+    problem = make_problem(model, views, opts, silhouettes, say)
     start = landmark_consensus(problem, landmark_start(problem))
     run = boost(problem, start.result, start.rejected, opts.max_iterations, detect=opts.robust)
     final = refine_final(problem, run)
@@ -184,21 +184,6 @@ def register_views(
     if problem.use_outlines and not outlines:
         outlines = problem.outlines(final.result)
     return _result(problem, final, outlines, pose_info, time.perf_counter() - t0)
-
-
-def _rough_centre(model: ShapeModel, views: list[ViewObservations], opts) -> np.ndarray:
-    """Where the bone is (mm, world): the centroid of a first landmark-only solve with equal
-    weights, at which pixel sigmas are converted to mm."""
-    rays = stack_landmarks(views, None).rays
-    res = solve_gsft(
-        model,
-        rays.vertex_ids,
-        rays.origins,
-        rays.directions,
-        eps=opts.eps,
-        prior_weight=opts.prior_weight,
-    )
-    return res.vertices.mean(axis=0)
 
 
 def _flags(problem: Problem, res: GsftResult, rejected: frozenset[int]) -> list[str]:

@@ -373,7 +373,7 @@ def refine_once(
     fit = refine_on_outlines(
         problem.model,
         (result.rotation, result.translation, result.weights),
-        (lm.vertex_ids, lm.origins, lm.directions, lm.sigmas),
+        lm,
         terms,
         prior_weight=opts.prior_weight,
         max_iter=opts.refine_iterations,

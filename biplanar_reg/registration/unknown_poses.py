@@ -4,8 +4,9 @@ Two entry points:
 
 :func:`solve_gsft_unknown_poses`
     Every view gives its observations in its **own** camera frame (OpenCV: x right, y down,
-    z forward; rays from the frame's origin, the X-ray source, unless ``origins`` are given).
-    The seed paper's "Solution for NSC":
+    z forward): a :class:`.rays.RayObservations` per view (rays from the frame's origin, the
+    X-ray source, for a perspective view), optionally wrapped in an :class:`UnknownPoseView`
+    with a rough prior pose and a name. The seed paper's "Solution for NSC":
 
     1. validate each view (at least 3 observations of 3 distinct model points; a view whose
        rays are all parallel cannot fix its depth and is reported in ``depth_constrained``);
@@ -15,15 +16,15 @@ Two entry points:
     3. one SDP with a Gram matrix per view over ``(1, vec R_x, w_x)`` (``unknown_sdp.py``):
        weights tied across views, rotation rows, per-point depth rows and a minimum depth
        ``t_x,3 >= f_x`` of the model centroid in every view, plus a small reward on each
-       perspective view's depth (``depth_reward``; see :func:`_depth_reward`) that makes the
-       relaxation tight where the paper's program drifts in scale;
+       perspective view's depth (``depth_reward_weight``; see :func:`_depth_reward`) that makes
+       the relaxation tight where the paper's program drifts in scale;
     4. round every view: the shape ``A_x (Q(w) - c) + t_x`` read from the Gram matrix's first
        row (``A_x`` is ``R_x`` when the Gram matrix is rank one) is matched to ``Q(w)`` by a
        similarity Procrustes fit ``sigma_x R_x Q + t``. ``sigma_x`` is the paper's "scale drift"
        of a rank-relaxed solution; for a central (perspective) view scaling about its source
        leaves every ray unchanged, so the pose is ``(R_x, t / sigma_x)``;
     5. joint Levenberg-Marquardt over the shape weights and every view's object pose
-       (``joint_polish.py``), equivalent to "object pose + every view's pose but the gauge";
+       (``joint_refine.py``), equivalent to "object pose + every view's pose but the gauge";
     6. report everything in the first view's frame (the gauge).
 
 :func:`refine_view_poses`
@@ -32,6 +33,10 @@ Two entry points:
     the known-pose solution (:func:`gsft.solve_gsft`); the correction of each view's extrinsics
     is reported (degrees, mm). This is what a case file's ``[registration] poses = "refine"``
     runs; ``poses = "unknown"`` maps to :func:`solve_gsft_unknown_poses`.
+
+The options shared with :func:`gsft.solve_gsft` have its spelling and defaults (``eps``,
+``depth_reward_weight``, ``refine``, ``prior_weight``, ``max_refine_iter``); the old spellings
+``depth_reward``, ``polish`` and ``max_polish_iter`` are accepted with a DeprecationWarning.
 """
 
 from __future__ import annotations
@@ -39,28 +44,35 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .._validate import as_array, check_rotation, unit_directions
+from .._validate import as_array, check_rotation
 from ..ssm.model import ShapeModel
+from ._compat import renamed_options
 from .gsft import (
     DEFAULT_DEPTH_REWARD,
     DEFAULT_EPS,
     MIN_DEPTH_SIZES,
+    RECENTRE_DISTANCE,
+    GsftResult,
+    check_model,
+    check_options,
     common_sigma,
     nearest_point_to_rays,
     solve_gsft,
 )
-from .joint_polish import ViewData, joint_cost, polish_views
+from .joint_refine import ViewPoses, joint_cost, refine_views
 from .lifting import point_map_values
-from .polish import ray_offsets, tangent_bases
+from .rays import RayObservations, as_rays, check_rays
+from .refine import DEFAULT_MAX_REFINE_ITER, ray_distances
 from .rotations import project_to_so3, rotation_angle
-from .sdp import depth_reward
-from .unknown_sdp import ViewBlockData, solve_multiview_sdp
+from .sdp import SolverFailure, depth_reward
+from .unknown_sdp import MultiViewSdpSolution, SdpViewBlock, solve_multiview_sdp
 
 __all__ = [
+    "UnknownPoseView",
     "ViewRays",
     "UnknownPosesResult",
     "RefinedPosesResult",
@@ -70,26 +82,17 @@ __all__ = [
     "relative_pose",
 ]
 
-#: A view needs this many observations (of as many distinct model points) to fix its 6-dof pose.
-MIN_VIEW_OBSERVATIONS = 3
-
 
 @dataclass(frozen=True)
-class ViewRays:
-    """Observations of one view, in that view's camera frame.
+class UnknownPoseView:
+    """One view of unknown pose: its rays in its own camera frame, a prior pose and a name.
 
     Attributes
     ----------
-    vertex_ids : (K,) int array
-        Model vertex observed by each ray.
-    directions : (K, 3) array
-        Ray directions in the view's camera frame (normalised on use).
-    sigmas : (K,) array, optional
-        Standard deviation of each observation's distance from its ray, mm.
-    origins : (K, 3) array, optional
-        Ray origins in the view's frame, mm; default: all at the frame's origin (a perspective
-        view whose source is the origin). Give them for a non-central (e.g. orthographic)
-        view.
+    rays : RayObservations
+        The view's rays in its camera frame (OpenCV, mm): origins at the frame's origin (the
+        X-ray source) for a perspective view, distinct origins for a non-central (e.g.
+        orthographic) one; ``sigmas`` (mm, distance of the point from its ray) weight them.
     prior_rotation, prior_translation : arrays (3, 3), (3,), optional
         A rough world-to-camera pose of the view (``X_cam = R X_world + t``, mm). When every
         view has one, the refinement is also started from the relative poses they imply and
@@ -98,27 +101,39 @@ class ViewRays:
         Label used in messages.
     """
 
-    vertex_ids: np.ndarray
-    directions: np.ndarray
-    sigmas: np.ndarray | None = None
-    origins: np.ndarray | None = None
+    rays: RayObservations
     prior_rotation: np.ndarray | None = None
     prior_translation: np.ndarray | None = None
     name: str = ""
 
 
-@dataclass(frozen=True)
-class _View:
-    """A validated view (mm, its own frame)."""
+def ViewRays(  # noqa: N802 - the old class name, kept as a constructor
+    vertex_ids: object,
+    directions: object,
+    sigmas: object | None = None,
+    origins: object | None = None,
+    prior_rotation: object | None = None,
+    prior_translation: object | None = None,
+    name: str = "",
+) -> UnknownPoseView:
+    """Deprecated: ``UnknownPoseView(RayObservations(vertex_ids, origins, directions,
+    sigmas), prior_rotation, prior_translation, name)``, ``origins`` defaulting to the frame's
+    origin (a perspective view).
 
-    label: str
-    ids: np.ndarray
-    origins: np.ndarray
-    directions: np.ndarray
-    sigmas: np.ndarray | None
-    central: bool
-    depth_constrained: bool
-    prior: tuple[np.ndarray, np.ndarray] | None
+    The fields are validated here (a ``ValueError`` names the view and the field).
+    """
+    warnings.warn(
+        "ViewRays is deprecated: pass a RayObservations (camera frame) per view, or an "
+        "UnknownPoseView(rays, prior_rotation, prior_translation, name)",
+        DeprecationWarning,
+        stacklevel=2,
+    )
+    o = np.zeros((np.size(vertex_ids), 3)) if origins is None else origins
+    try:
+        rays = RayObservations(vertex_ids, o, directions, sigmas)
+    except ValueError as exc:
+        raise ValueError(f"ViewRays{f' ({name})' if name else ''}.{exc}") from None
+    return UnknownPoseView(rays, prior_rotation, prior_translation, name)
 
 
 @dataclass(frozen=True)
@@ -294,61 +309,38 @@ def relative_pose(
 
 
 # -- validation -----------------------------------------------------------------------------------
-def _check_view(model: ShapeModel, x: int, view: object) -> _View:
-    """Validate ``views[x]``; raise ``ValueError`` naming it and the field."""
-    if isinstance(view, ViewRays):
-        obs = view
-    elif isinstance(view, Sequence) and not isinstance(view, str) and len(view) == 2:
-        obs = ViewRays(vertex_ids=view[0], directions=view[1])
-    else:
-        raise ValueError(
-            f"views[{x}]: expected a (vertex_ids, directions) pair or a ViewRays, "
-            f"got {type(view).__name__}"
-        )
-    label = f"views[{x}]" + (f" ({obs.name})" if obs.name else "")
-    ids = model.check_vertex_ids(obs.vertex_ids, name=f"{label}.vertex_ids")
-    K = len(ids)
-    d = as_array(f"{label}.directions", obs.directions, (K, 3))
-    d = unit_directions(f"{label}.directions", d)
-    if K < MIN_VIEW_OBSERVATIONS or len(np.unique(ids)) < MIN_VIEW_OBSERVATIONS:
-        raise ValueError(
-            f"{label}: {K} observations of {len(np.unique(ids))} distinct model points; at "
-            f"least {MIN_VIEW_OBSERVATIONS} distinct points are needed to fix a view's pose "
-            "(remove the view or annotate more points)"
-        )
-    s = None
-    if obs.sigmas is not None:
-        s = as_array(f"{label}.sigmas", obs.sigmas, (K,))
-        if np.any(s <= 0):
-            raise ValueError(f"{label}.sigmas: must be positive (row {int(np.argmin(s))})")
-    if obs.origins is None:
-        o = np.zeros((K, 3))
-    else:
-        o = as_array(f"{label}.origins", obs.origins, (K, 3))
-    central = bool(np.all(np.abs(o - o[0]) <= 1e-9 * (1.0 + np.abs(o[0]).max())))
-    ev = np.linalg.eigvalsh(d.T @ d / K)
-    parallel = bool(ev[1] < 1e-12 * ev[2])
-    if central and parallel:
-        raise ValueError(
-            f"{label}.directions: all rays are the same line (one source, parallel "
-            "directions); they cannot fix the view's pose"
-        )
-    prior = None
-    if (obs.prior_rotation is None) != (obs.prior_translation is None):
+def _label(x: int, name: str) -> str:
+    return f"views[{x}]" + (f" ({name})" if name else "")
+
+
+def _check_view(model: ShapeModel, x: int, view: object) -> tuple[UnknownPoseView, bool]:
+    """``views[x]`` as a validated :class:`UnknownPoseView` and whether its depth is
+    constrained; raise ``ValueError`` naming it and the field."""
+    if isinstance(view, RayObservations):
+        view = UnknownPoseView(view)
+    elif not isinstance(view, UnknownPoseView):
+        if isinstance(view, str) or not isinstance(view, Sequence) or len(view) != 2:
+            raise ValueError(
+                f"views[{x}]: expected a (vertex_ids, directions) pair, a RayObservations or "
+                f"an UnknownPoseView, got {type(view).__name__}"
+            )
+        try:  # the pair form: a perspective view, every ray from the frame's origin
+            view = UnknownPoseView(
+                RayObservations(view[0], np.zeros((np.size(view[0]), 3)), view[1])
+            )
+        except ValueError as exc:
+            raise ValueError(f"views[{x}].{exc}") from None
+    label = _label(x, view.name)
+    if not isinstance(view.rays, RayObservations):
+        raise ValueError(f"{label}.rays: expected a RayObservations")
+    constrained = check_rays(model, view.rays, view=label)
+    R, t = view.prior_rotation, view.prior_translation
+    if (R is None) != (t is None):
         raise ValueError(f"{label}: give both prior_rotation and prior_translation, or neither")
-    if obs.prior_rotation is not None:
-        prior = (
-            check_rotation(f"{label}.prior_rotation", obs.prior_rotation, tol=1e-4),
-            as_array(f"{label}.prior_translation", obs.prior_translation, (3,)),
-        )
-    return _View(label, ids, o, d, s, central, not parallel, prior)
-
-
-def _check_options(eps: float, prior_weight: float) -> None:
-    if not np.isfinite(eps) or eps <= 0:
-        raise ValueError(f"eps: must be a positive number, got {eps!r}")
-    if not np.isfinite(prior_weight) or prior_weight < 0:
-        raise ValueError(f"prior_weight: must be >= 0, got {prior_weight!r}")
+    if R is not None:
+        R = check_rotation(f"{label}.prior_rotation", R, tol=1e-4)
+        t = as_array(f"{label}.prior_translation", t, (3,))
+    return UnknownPoseView(view.rays, R, t, view.name), constrained
 
 
 def _min_depths(min_depth: object, P: int, scale: float) -> np.ndarray:
@@ -362,68 +354,114 @@ def _min_depths(min_depth: object, P: int, scale: float) -> np.ndarray:
     return f
 
 
+def _check_views(model: ShapeModel, views: object) -> tuple[list[UnknownPoseView], np.ndarray]:
+    """Every view validated; their ``depth_constrained`` flags (a warning for each that is
+    not)."""
+    if isinstance(views, (str, bytes)) or not isinstance(views, Sequence) or not views:
+        raise ValueError("views: expected a non-empty sequence of views")
+    checked, constrained = zip(
+        *(_check_view(model, x, v) for x, v in enumerate(views)), strict=True
+    )
+    for x, (v, ok) in enumerate(zip(checked, constrained, strict=True)):
+        if not ok:
+            warnings.warn(
+                f"{_label(x, v.name)}: all rays are parallel; the view's depth is unobservable "
+                "and is set by min_depth",
+                stacklevel=3,
+            )
+    return list(checked), np.array(constrained)
+
+
 # -- the pipeline ---------------------------------------------------------------------------------
-def _centre_guess(view: _View, model: ShapeModel, f: float) -> np.ndarray:
+def _centre_guess(
+    rays: RayObservations, constrained: bool, model: ShapeModel, f: float
+) -> np.ndarray:
     """A rough object centre in the view's frame (mm), for conditioning the SDP only.
 
     Central view: along the mean ray, at the depth where the observed points' spread (model
     mean, mm) subtends the rays' angular spread. Non-central view: the point nearest to the
     rays, or (parallel rays) ``f`` along the mean direction from the origins' centroid.
     """
-    m = view.directions.mean(axis=0)
+    d = rays.directions
+    m = d.mean(axis=0)
     m /= np.linalg.norm(m)
-    if view.central:
-        perp = view.directions - np.outer(view.directions @ m, m)
+    if rays.is_central:
+        perp = d - np.outer(d @ m, m)
         ang = float(np.sqrt(np.mean(np.sum(perp**2, axis=1))))
-        pts = model.mean[view.ids]
+        pts = model.mean[rays.vertex_ids]
         spread = float(np.sqrt(np.mean(np.sum((pts - pts.mean(axis=0)) ** 2, axis=1))))
         depth = max(0.8 * spread / max(ang, 1e-12), f)
-        return view.origins[0] + depth * m
-    if view.depth_constrained:
-        return nearest_point_to_rays(view.origins, view.directions)
-    return view.origins.mean(axis=0) + f * m
+        return rays.origins[0] + depth * m
+    if constrained:
+        return nearest_point_to_rays(rays.origins, d)
+    return rays.origins.mean(axis=0) + f * m
 
 
-def _depth_reward(view: _View, a: np.ndarray, reward: float) -> np.ndarray:
+def _depth_reward(rays: RayObservations, a: np.ndarray, weight: float) -> np.ndarray:
     """:func:`sdp.depth_reward` for central views; non-central ones get none (their depth may
     be unobservable)."""
-    if not view.central or reward <= 0:
+    if not rays.is_central or weight <= 0:
         return np.zeros(3)
-    return depth_reward(view.directions, a, reward)
+    return depth_reward(rays.directions, a, weight)
 
 
-def _sdp_stage(model, views, f_mm, eps, reward, settings):
+def _sdp_blocks(
+    model: ShapeModel,
+    rays: list[RayObservations],
+    centres: list[np.ndarray],
+    f_mm: np.ndarray,
+    eps: float,
+    data: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
+) -> list[SdpViewBlock]:
+    """Every view's SDP block in normalised units, its frame shifted to ``centres[x]``."""
+    scale = model.size
+    return [
+        SdpViewBlock(
+            D=D,
+            rays=r.normalised(c, scale),
+            obs_weights=a,
+            eps=eps * len(r),
+            point_depth=0.0,
+            min_tz=(f - c[2]) / scale,
+            t_cost=tc,
+        )
+        for (D, a, tc), r, c, f in zip(data, rays, centres, f_mm, strict=True)
+    ]
+
+
+def _sdp_stage(
+    model: ShapeModel,
+    views: list[UnknownPoseView],
+    constrained: np.ndarray,
+    f_mm: np.ndarray,
+    eps: float,
+    reward: float,
+    settings: dict | None,
+) -> tuple[MultiViewSdpSolution, list[np.ndarray], int, float]:
     """Solve the multi-view SDP (re-centred once if needed); poses in mm per view frame."""
     scale = model.size
     cm = model.mean.mean(axis=0)
-    centres = [_centre_guess(v, model, f) for v, f in zip(views, f_mm, strict=True)]
+    rays = [v.rays for v in views]
+    centres = [
+        _centre_guess(r, c, model, f) for r, c, f in zip(rays, constrained, f_mm, strict=True)
+    ]
     data = []
-    for v in views:
-        D = point_map_values((model.mean[v.ids] - cm) / scale, model.modes[:, v.ids] / scale)
-        inv = np.ones(len(v.ids)) if v.sigmas is None else 1.0 / v.sigmas
+    for r in rays:
+        ids = r.vertex_ids
+        D = point_map_values((model.mean[ids] - cm) / scale, model.modes[:, ids] / scale)
+        inv = np.ones(len(r)) if r.sigmas is None else 1.0 / r.sigmas
         a = inv / inv.mean()
-        data.append((D, a, _depth_reward(v, a, reward)))
+        data.append((D, a, _depth_reward(r, a, reward)))
     iters = 0
     solve_time = 0.0
-    for _ in range(2):
-        blocks = [
-            ViewBlockData(
-                D=D,
-                origins=(v.origins - c) / scale,
-                directions=v.directions,
-                obs_weights=a,
-                eps=eps * len(v.ids),
-                point_depth=0.0,
-                min_tz=(f - c[2]) / scale,
-                t_cost=tc,
-            )
-            for (D, a, tc), v, c, f in zip(data, views, centres, f_mm, strict=True)
-        ]
-        sol = solve_multiview_sdp(blocks, model.n_modes, settings)
+    for attempt in range(2):
+        sol = solve_multiview_sdp(
+            _sdp_blocks(model, rays, centres, f_mm, eps, data), model.n_modes, settings
+        )
         iters += sol.iterations
         solve_time += sol.solve_time
-        far = np.linalg.norm(sol.translations, axis=1) > 3.0
-        if not far.any():
+        far = np.linalg.norm(sol.translations, axis=1) > RECENTRE_DISTANCE
+        if attempt == 1 or not far.any():
             break
         centres = [
             c + scale * t if f else c
@@ -432,7 +470,14 @@ def _sdp_stage(model, views, f_mm, eps, reward, settings):
     return sol, centres, iters, solve_time
 
 
-def _round_view(gram, t_n, centre, w, model, central):
+def _round_view(
+    gram: np.ndarray,
+    t_n: np.ndarray,
+    centre: np.ndarray,
+    w: np.ndarray,
+    model: ShapeModel,
+    central: bool,
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Object pose (mm) in one view's frame from its Gram matrix; also the scale drift."""
     scale = model.size
     cm = model.mean.mean(axis=0)
@@ -447,60 +492,137 @@ def _round_view(gram, t_n, centre, w, model, central):
     return R, Y.mean(axis=0) - R @ Q.mean(axis=0), s
 
 
-def _view_data(model: ShapeModel, views: list[_View], sigmas: list[np.ndarray]) -> list[ViewData]:
-    return [
-        ViewData(model.mean[v.ids], model.modes[:, v.ids], v.origins, v.directions, s)
-        for v, s in zip(views, sigmas, strict=True)
-    ]
+@dataclass(frozen=True)
+class _Rounded:
+    """The rounded SDP solution: object pose in every view frame, shape, per-view quality."""
+
+    state: ViewPoses  # rotations (P, 3, 3), translations (P, 3) mm, weights (M,)
+    certificates: np.ndarray  # (P,)
+    scale_drift: np.ndarray  # (P,)
 
 
-def _distances(model, views, Rs, ts, w) -> list[np.ndarray]:
-    out = []
-    for v, R, t in zip(views, Rs, ts, strict=True):
-        V = model.instance(w)[v.ids] @ R.T + t
-        out.append(np.linalg.norm(ray_offsets(V, v.origins, tangent_bases(v.directions)), axis=1))
-    return out
+def _round_views(
+    model: ShapeModel,
+    views: list[UnknownPoseView],
+    sol: MultiViewSdpSolution,
+    centres: list[np.ndarray],
+) -> _Rounded:
+    """Every view's rounded pose, the shape (mean of the views' weight rows), certificates."""
+    P = len(views)
+    w = np.mean([g[0, 10:] for g in sol.grams], axis=0)
+    certs, drift = np.empty(P), np.empty(P)
+    Rs, ts = np.empty((P, 3, 3)), np.empty((P, 3))
+    for x, (g, v) in enumerate(zip(sol.grams, views, strict=True)):
+        ev = np.linalg.eigvalsh(g)
+        certs[x] = max(ev[-2], 0.0) / ev[-1] if ev[-1] > 0 else 1.0
+        Rs[x], ts[x], drift[x] = _round_view(
+            g, sol.translations[x], centres[x], w, model, v.rays.is_central
+        )
+    return _Rounded((Rs, ts, w), certs, drift)
 
 
-def _refine(model, views, starts, prior_weight, max_iter):
-    """Joint LM from each start; a common sigma re-estimated from the residuals when none was
-    given (as in ``gsft.solve_gsft``). Returns the lowest-cost result and its start index."""
-    given = all(v.sigmas is not None for v in views)
-    K = sum(len(v.ids) for v in views)
-    dof = 2 * K - 6 * len(views) - model.n_modes
-    best = None
-    for i, (Rs, ts, w) in enumerate(starts):
+def _prior_start(views: list[UnknownPoseView], sdp: ViewPoses) -> ViewPoses | None:
+    """Relative poses from the priors (when every view has one), object pose in the first
+    view from the SDP; ``None`` otherwise."""
+    if any(v.prior_rotation is None for v in views):
+        return None
+    Rs_sdp, ts_sdp, w = sdp
+    R1, t1 = views[0].prior_rotation, views[0].prior_translation
+    P = len(views)
+    Rs, ts = np.empty((P, 3, 3)), np.empty((P, 3))
+    for x, v in enumerate(views):
+        # world -> view 1 vs world -> view x
+        Rr, tr_ = relative_pose(R1, t1, v.prior_rotation, v.prior_translation)
+        Rs[x] = Rr @ Rs_sdp[0]
+        ts[x] = Rr @ ts_sdp[0] + tr_
+    return Rs, ts, w
+
+
+def _distances(
+    model: ShapeModel, rays: Sequence[RayObservations], state: ViewPoses
+) -> list[np.ndarray]:
+    """Per view, the distance (mm) of every observed point from its ray."""
+    Rs, ts, w = state
+    return [ray_distances(model, r, (R, t, w)) for r, R, t in zip(rays, Rs, ts, strict=True)]
+
+
+@dataclass(frozen=True)
+class _JointFit:
+    """The best joint refinement over the starts."""
+
+    state: ViewPoses
+    sigmas: list[np.ndarray]  # per view, mm
+    start: int  # index of the start that gave it
+    cost_before: float
+    cost_after: float
+    iterations: int
+    converged: bool
+
+
+def _common_sigmas(
+    model: ShapeModel, rays: Sequence[RayObservations], state: ViewPoses
+) -> list[np.ndarray]:
+    """One sigma for every observation (mm), from the residuals at ``state``."""
+    K = sum(len(r) for r in rays)
+    dof = 2 * K - 6 * len(rays) - model.n_modes
+    s = common_sigma(np.concatenate(_distances(model, rays, state)), dof, model.size)
+    return [np.full(len(r), s) for r in rays]
+
+
+def _refine_from(
+    model: ShapeModel,
+    rays: Sequence[RayObservations],
+    start: ViewPoses,
+    prior_weight: float,
+    max_iter: int,
+) -> _JointFit:
+    """Joint LM from one start; a common sigma re-estimated from the residuals when none was
+    given (as in ``gsft.solve_gsft``)."""
+    given = all(r.sigmas is not None for r in rays)
+    sig = [r.sigmas for r in rays] if given else _common_sigmas(model, rays, start)
+    state, iters = start, 0
+    for _ in range(10):  # a common sigma settles quadratically on noise-free data
+        with_sig = [r.with_sigmas(s) for r, s in zip(rays, sig, strict=True)]
+        res = refine_views(model, with_sig, state, prior_weight=prior_weight, max_iter=max_iter)
+        state = (res.rotations, res.translations, res.weights)
+        iters += res.iterations
         if given:
-            sig = [v.sigmas for v in views]
-        else:
-            d = np.concatenate(_distances(model, views, Rs, ts, w))
-            sig = [np.full(len(v.ids), common_sigma(d, dof, model.size)) for v in views]
-        iters = 0
-        R0, t0, w0 = Rs, ts, w
-        for _ in range(10):  # a common sigma settles quadratically on noise-free data
-            res = polish_views(
-                Rs,
-                ts,
-                w,
-                _view_data(model, views, sig),
-                prior_weight=prior_weight,
-                max_iter=max_iter,
-            )
-            Rs, ts, w = res.rotations, res.translations, res.weights
-            iters += res.iterations
-            if given:
-                break
-            new = common_sigma(np.concatenate(_distances(model, views, Rs, ts, w)), dof, model.size)
-            if abs(new - sig[0][0]) <= 0.1 * sig[0][0]:
-                break
-            sig = [np.full(len(v.ids), new) for v in views]
-        vd = _view_data(model, views, sig)
-        before = joint_cost(R0, t0, w0, vd, prior_weight)
-        after = joint_cost(Rs, ts, w, vd, prior_weight)
-        cand = (after, i, Rs, ts, w, sig, before, iters, res.converged)
-        if best is None or cand[0] < best[0]:
-            best = cand
+            break
+        new = _common_sigmas(model, rays, state)
+        if abs(new[0][0] - sig[0][0]) <= 0.1 * sig[0][0]:
+            break
+        sig = new
+    final = [r.with_sigmas(s) for r, s in zip(rays, sig, strict=True)]
+    before = joint_cost(model, final, start, prior_weight)
+    after = joint_cost(model, final, state, prior_weight)
+    return _JointFit(state, sig, 0, before, after, iters, res.converged)
+
+
+def _refine(
+    model: ShapeModel,
+    rays: Sequence[RayObservations],
+    starts: list[ViewPoses],
+    prior_weight: float,
+    max_iter: int,
+) -> _JointFit:
+    """Joint LM from each start; the lowest-cost result (and its start index)."""
+    best = None
+    for i, start in enumerate(starts):
+        fit = _refine_from(model, rays, start, prior_weight, max_iter)
+        if best is None or fit.cost_after < best.cost_after:
+            best = replace(fit, start=i)
     return best
+
+
+def _unrefined(
+    model: ShapeModel, rays: Sequence[RayObservations], state: ViewPoses, prior_weight: float
+) -> _JointFit:
+    """The rounded SDP solution as the result (``refine=False``), with its sigmas and cost."""
+    common = _common_sigmas(model, rays, state)
+    sig = [c if r.sigmas is None else r.sigmas for r, c in zip(rays, common, strict=True)]
+    final = [r.with_sigmas(s) for r, s in zip(rays, sig, strict=True)]
+    cost = joint_cost(model, final, state, prior_weight)
+    return _JointFit(state, sig, 0, cost, cost, 0, True)
 
 
 def solve_gsft_unknown_poses(
@@ -509,11 +631,12 @@ def solve_gsft_unknown_poses(
     *,
     eps: float = DEFAULT_EPS,
     min_depth: float | Sequence[float] | None = None,
-    depth_reward: float = DEFAULT_DEPTH_REWARD,
-    polish: bool = True,
+    depth_reward_weight: float = DEFAULT_DEPTH_REWARD,
+    refine: bool = True,
     prior_weight: float = 1.0,
-    max_polish_iter: int = 100,
+    max_refine_iter: int = DEFAULT_MAX_REFINE_ITER,
     solver_settings: dict | None = None,
+    **deprecated: object,
 ) -> UnknownPosesResult:
     """Register a shape model to views whose poses are unknown (the seed paper's G-SfT-P).
 
@@ -521,10 +644,12 @@ def solve_gsft_unknown_poses(
     ----------
     model : ShapeModel
         The shape model (object frame, mm).
-    views : sequence of ViewRays or (vertex_ids, directions) pairs
-        One entry per view (P >= 1), each in its own camera frame (OpenCV: z forward). Each
-        view needs at least 3 observations of 3 distinct model points (``ValueError``
-        otherwise, naming the view). Views may observe disjoint sets of points.
+    views : sequence of RayObservations, UnknownPoseView or (vertex_ids, directions) pairs
+        One entry per view (P >= 1), each in its own camera frame (OpenCV: z forward): a
+        :class:`RayObservations`, an :class:`UnknownPoseView` (rays plus a prior pose and a
+        name) or a pair (rays from the frame's origin). Each view needs at least 3
+        observations of 3 distinct model points (``ValueError`` otherwise, naming the view).
+        Views may observe disjoint sets of points.
     eps : float
         Trace weight per observation (normalised units), as in :func:`gsft.solve_gsft`.
     min_depth : float or (P,) sequence, optional
@@ -534,15 +659,18 @@ def solve_gsft_unknown_poses(
         for perspective views, but a bound close below the true depth (e.g. half the
         source-detector distance for X-rays) conditions the SDP better. For a view with
         parallel rays the depth is unobservable and this bound sets it.
-    depth_reward : float
+    depth_reward_weight : float
         In ``[0, 1)``: weight of a small linear reward on each perspective view's depth that
         removes the relaxation's scale drift (see ``_depth_reward``; 0 = the paper's program).
-    polish : bool
-        Run the joint Levenberg-Marquardt refinement after rounding (default).
+        Old spelling ``depth_reward``, deprecated.
+    refine : bool
+        Run the joint Levenberg-Marquardt refinement after rounding (default; old spelling
+        ``polish``, deprecated).
     prior_weight : float
         ``lambda`` of the shape prior ``1/2 lambda ||w||^2`` in the refinement.
-    max_polish_iter : int
-        Iteration limit of each refinement run.
+    max_refine_iter : int
+        Iteration limit of each refinement run (default ``DEFAULT_MAX_REFINE_ITER``, 50; old
+        spelling ``max_polish_iter``, deprecated).
     solver_settings : dict, optional
         Clarabel settings to override.
 
@@ -558,75 +686,61 @@ def solve_gsft_unknown_poses(
         The conic solver did not produce a usable solution.
     """
     t_start = time.perf_counter()
-    if not isinstance(model, ShapeModel):
-        raise ValueError(f"model: expected a ShapeModel, got {type(model).__name__}")
-    if isinstance(views, (str, bytes)) or not isinstance(views, Sequence) or not views:
-        raise ValueError("views: expected a non-empty sequence of views")
-    _check_options(eps, prior_weight)
-    checked = [_check_view(model, x, v) for x, v in enumerate(views)]
-    P, M = len(checked), model.n_modes
-    scale = model.size
-    if scale <= 0:
-        raise ValueError("model: the mean shape has zero extent")
-    f_mm = _min_depths(min_depth, P, scale)
-    for v in checked:
-        if not v.depth_constrained:
-            warnings.warn(
-                f"{v.label}: all rays are parallel; the view's depth is unobservable and is "
-                "set by min_depth",
-                stacklevel=2,
-            )
+    opts = renamed_options("solve_gsft_unknown_poses", deprecated)
+    depth_reward_weight = opts.get("depth_reward_weight", depth_reward_weight)
+    refine = opts.get("refine", refine)
+    max_refine_iter = opts.get("max_refine_iter", max_refine_iter)
+    check_model(model)
+    check_options(eps, prior_weight, depth_reward_weight)
+    checked, constrained = _check_views(model, views)
+    f_mm = _min_depths(min_depth, len(checked), model.size)
     t_build = time.perf_counter() - t_start
 
-    if not np.isfinite(depth_reward) or not 0 <= depth_reward < 1:
-        raise ValueError(f"depth_reward: must be in [0, 1), got {depth_reward!r}")
     sol, centres, sdp_iters, t_solve = _sdp_stage(
-        model, checked, f_mm, eps, depth_reward, solver_settings
+        model, checked, constrained, f_mm, eps, depth_reward_weight, solver_settings
     )
-    w_sdp = np.mean([g[0, 10:] for g in sol.grams], axis=0)
-    certs = np.empty(P)
-    drift = np.empty(P)
-    Rs_sdp, ts_sdp = np.empty((P, 3, 3)), np.empty((P, 3))
-    for x, (g, v) in enumerate(zip(sol.grams, checked, strict=True)):
-        ev = np.linalg.eigvalsh(g)
-        certs[x] = max(ev[-2], 0.0) / ev[-1] if ev[-1] > 0 else 1.0
-        Rs_sdp[x], ts_sdp[x], drift[x] = _round_view(
-            g, sol.translations[x], centres[x], w_sdp, model, v.central
-        )
+    rounded = _round_views(model, checked, sol, centres)
 
     t0 = time.perf_counter()
-    starts = [(Rs_sdp, ts_sdp, w_sdp)]
-    if all(v.prior is not None for v in checked):
-        # relative poses from the priors, object pose in the first view from the SDP
-        R1, t1 = checked[0].prior
-        Rs_p, ts_p = np.empty((P, 3, 3)), np.empty((P, 3))
-        for x, v in enumerate(checked):
-            Rr, tr_ = relative_pose(R1, t1, *v.prior)  # world -> view 1 vs world -> view x
-            Rs_p[x] = Rr @ Rs_sdp[0]
-            ts_p[x] = Rr @ ts_sdp[0] + tr_
-        starts.append((Rs_p, ts_p, w_sdp))
-    if polish:
-        cost, start, Rs, ts, w, sig, cost0, p_iters, p_conv = _refine(
-            model, checked, starts, prior_weight, max_polish_iter
-        )
+    rays = [v.rays for v in checked]
+    if refine:
+        starts = [rounded.state]
+        prior = _prior_start(checked, rounded.state)
+        if prior is not None:
+            starts.append(prior)
+        fit = _refine(model, rays, starts, prior_weight, max_refine_iter)
     else:
-        d = np.concatenate(_distances(model, checked, Rs_sdp, ts_sdp, w_sdp))
-        K = sum(len(v.ids) for v in checked)
-        s = common_sigma(d, 2 * K - 6 * P - M, scale)
-        sig = [v.sigmas if v.sigmas is not None else np.full(len(v.ids), s) for v in checked]
-        Rs, ts, w, start, p_iters, p_conv = Rs_sdp, ts_sdp, w_sdp, 0, 0, True
-        cost0 = cost = joint_cost(Rs, ts, w, _view_data(model, checked, sig), prior_weight)
+        fit = _unrefined(model, rays, rounded.state, prior_weight)
     t_refine = time.perf_counter() - t0
+    timings = {"build": t_build, "solve": t_solve, "refine": t_refine}
+    return _unknown_result(
+        model, rays, rounded, fit, sol, constrained, f_mm, eps, sdp_iters, timings, t_start
+    )
 
+
+def _unknown_result(
+    model: ShapeModel,
+    rays: list[RayObservations],
+    rounded: _Rounded,
+    fit: _JointFit,
+    sol: MultiViewSdpSolution,
+    constrained: np.ndarray,
+    f_mm: np.ndarray,
+    eps: float,
+    sdp_iters: int,
+    timings: dict,
+    t_start: float,
+) -> UnknownPosesResult:
+    """Everything in the first view's frame (the gauge)."""
+    Rs, ts, w = fit.state
+    Rs_sdp, ts_sdp, _ = rounded.state
+    P = len(rays)
     rel = [relative_pose(Rs[0], ts[0], Rs[x], ts[x]) for x in range(P)]
     rel_sdp = [relative_pose(Rs_sdp[0], ts_sdp[0], Rs_sdp[x], ts_sdp[x]) for x in range(P)]
     view_R = np.array([r[0] for r in rel])
     view_t = np.array([r[1] for r in rel])
     vertices = model.instance(w) @ Rs[0].T + ts[0]
-    out = (vertices, w, view_R, view_t, Rs, ts)
-    if not all(np.all(np.isfinite(a)) for a in out):
-        from .sdp import SolverFailure
-
+    if not all(np.all(np.isfinite(a)) for a in (vertices, w, view_R, view_t, Rs, ts)):
         raise SolverFailure("G-SfT-P: the solution contains non-finite values")
     return UnknownPosesResult(
         vertices=vertices,
@@ -638,50 +752,89 @@ def solve_gsft_unknown_poses(
         view_centres=-np.einsum("xji,xj->xi", view_R, view_t),
         object_rotations=Rs,
         object_translations=ts,
-        certificates=certs,
-        scale_drift=drift,
-        depth_constrained=np.array([v.depth_constrained for v in checked]),
+        certificates=rounded.certificates,
+        scale_drift=rounded.scale_drift,
+        depth_constrained=constrained,
         sdp_view_rotations=np.array([r[0] for r in rel_sdp]),
         sdp_view_translations=np.array([r[1] for r in rel_sdp]),
-        sdp_weights=w_sdp,
-        residuals=_distances(model, checked, Rs, ts, w),
-        sigmas=sig,
-        start=("sdp", "prior")[start],
+        sdp_weights=rounded.state[2],
+        residuals=_distances(model, rays, fit.state),
+        sigmas=fit.sigmas,
+        start=("sdp", "prior")[fit.start],
         objective=sol.objective,
         status=sol.status,
         min_depths=f_mm,
         eps=eps,
-        scale=scale,
+        scale=model.size,
         sdp_iterations=sdp_iters,
-        polish_iterations=p_iters,
-        polish_cost_before=float(cost0),
-        polish_cost_after=float(cost),
-        polish_converged=p_conv,
-        timings={
-            "build": t_build,
-            "solve": t_solve,
-            "refine": t_refine,
-            "total": time.perf_counter() - t_start,
-        },
+        polish_iterations=fit.iterations,
+        polish_cost_before=float(fit.cost_before),
+        polish_cost_after=float(fit.cost_after),
+        polish_converged=fit.converged,
+        timings={**timings, "total": time.perf_counter() - t_start},
     )
+
+
+def _refine_pose_args(
+    rays: object, args: tuple, kwargs: dict
+) -> tuple[RayObservations, object, object]:
+    """``refine_view_poses``'s two call forms as ``(rays, views_R, views_t)``."""
+    if isinstance(rays, RayObservations):
+        names = ("views_R", "views_t")
+    else:
+        names = ("origins", "directions", "view_index", "views_R", "views_t", "sigmas")
+        if rays is None:
+            rays = kwargs.pop("vertex_ids", None)
+    if len(args) > len(names):
+        raise TypeError(f"refine_view_poses() takes at most {len(names) + 2} positional arguments")
+    for name, value in zip(names, args, strict=False):
+        if kwargs.get(name) is not None:
+            raise TypeError(f"refine_view_poses() got multiple values for argument {name!r}")
+        kwargs[name] = value
+    arrays = [kwargs.pop(k, None) for k in ("origins", "directions", "sigmas", "view_index")]
+    unknown = sorted(set(kwargs) - {"views_R", "views_t"})
+    if unknown:
+        raise TypeError(f"refine_view_poses() got an unexpected keyword argument {unknown[0]!r}")
+    return as_rays(rays, *arrays), kwargs.get("views_R"), kwargs.get("views_t")
+
+
+def _check_extrinsics(
+    views_R: object, views_t: object, rays: RayObservations, gauge: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The given extrinsics (P, 3, 3), (P, 3) checked against the rays' view indices."""
+    Rv = as_array("views_R", views_R, (None, 3, 3))
+    P = len(Rv)
+    tv = as_array("views_t", views_t, (P, 3))
+    for x in range(P):
+        check_rotation(f"views_R[{x}]", Rv[x], tol=1e-4)
+    if P < 2:
+        raise ValueError(f"views_R: at least 2 views are needed to refine a relative pose, got {P}")
+    vi = rays.view_index
+    if vi.min() < 0 or vi.max() >= P:
+        raise ValueError(f"view_index: values must be in [0, {P}) (got {vi.min()}..{vi.max()})")
+    if not 0 <= gauge < P:
+        raise ValueError(f"gauge: must be in [0, {P}), got {gauge!r}")
+    return Rv, tv
 
 
 def refine_view_poses(
     model: ShapeModel,
-    vertex_ids: object,
-    origins: object,
-    directions: object,
-    view_index: object,
-    views_R: object,
-    views_t: object,
-    sigmas: object | None = None,
-    *,
+    rays: RayObservations | object = None,
+    *args: object,
+    views_R: object | None = None,
+    views_t: object | None = None,
     gauge: int = 0,
     eps: float = DEFAULT_EPS,
     prior_weight: float = 1.0,
-    max_polish_iter: int = 100,
+    max_refine_iter: int = DEFAULT_MAX_REFINE_ITER,
+    **legacy: object,
 ) -> RefinedPosesResult:
     """Refine inaccurate view extrinsics jointly with the shape (calibration refinement).
+
+    Call forms: ``refine_view_poses(model, rays, views_R, views_t)`` with a
+    :class:`RayObservations` in the world frame whose ``view_index`` says each ray's view, or
+    the array form ``refine_view_poses(model, vertex_ids, origins, directions, view_index,
+    views_R, views_t, sigmas=None)``.
 
     The rays were formed with the given extrinsics; they are taken back into each view's
     camera frame with those same extrinsics (which recovers the measured camera-frame rays
@@ -689,33 +842,32 @@ def refine_view_poses(
     starting shape and object pose, and a joint Levenberg-Marquardt refines the shape weights,
     the object pose and the pose of every view relative to the ``gauge`` view, whose
     extrinsics (and hence the world frame) are kept. Intended for ``[registration] poses =
-    "refine"`` in a case file: pass the case's rays, their view index and the calibration's
-    extrinsics; write back ``view_rotations``/``view_translations`` and report
-    ``rotation_corrections_deg`` and ``centre_corrections_mm``.
+    "refine"`` in a case file: pass the case's rays and the calibration's extrinsics; write
+    back ``view_rotations``/``view_translations`` and report ``rotation_corrections_deg`` and
+    ``centre_corrections_mm``.
 
     Parameters
     ----------
     model : ShapeModel
         The shape model (object frame, mm).
-    vertex_ids : (K,) int array
-        Model vertex observed by each ray.
-    origins, directions : (K, 3) arrays
-        Rays in the world frame (mm), as formed with the given extrinsics.
-    view_index : (K,) int array
-        View of each ray, in ``[0, P)``; every view needs at least 3 observations.
+    rays : RayObservations or (K,) int array
+        Rays in the world frame (mm), as formed with the given extrinsics, their view index in
+        ``[0, P)`` (every view needs at least 3 observations) and optional sigmas (mm; when
+        omitted a common sigma is estimated from the residuals, see :func:`gsft.solve_gsft`).
+        Array form: the vertex ids, followed by ``origins``, ``directions`` (K, 3) and
+        ``view_index`` (K,) (positionally or by keyword), ``views_R``, ``views_t`` and
+        ``sigmas``.
     views_R, views_t : arrays (P, 3, 3), (P, 3)
         Given world-to-camera extrinsics (``X_cam = R X + t``, mm).
-    sigmas : (K,) array, optional
-        Standard deviation of each observation's distance from its ray, mm; when omitted a
-        common sigma is estimated from the residuals (see :func:`gsft.solve_gsft`).
     gauge : int
         The view whose extrinsics are trusted (default 0).
     eps : float
         Trace weight of the initial known-pose SDP.
     prior_weight : float
         ``lambda`` of the shape prior in the refinement.
-    max_polish_iter : int
-        Iteration limit of each refinement run.
+    max_refine_iter : int
+        Iteration limit of each refinement run (default ``DEFAULT_MAX_REFINE_ITER``, 50; old
+        spelling ``max_polish_iter``, deprecated).
 
     Returns
     -------
@@ -729,57 +881,58 @@ def refine_view_poses(
         The initial SDP failed or the result is not finite.
     """
     t_start = time.perf_counter()
-    if not isinstance(model, ShapeModel):
-        raise ValueError(f"model: expected a ShapeModel, got {type(model).__name__}")
-    _check_options(eps, prior_weight)
-    ids = model.check_vertex_ids(vertex_ids)
-    K = len(ids)
-    o = as_array("origins", origins, (K, 3))
-    d = unit_directions("directions", as_array("directions", directions, (K, 3)))
-    vi = as_array("view_index", view_index, (K,), dtype=int)
-    Rv = as_array("views_R", views_R, (None, 3, 3))
-    P = len(Rv)
-    tv = as_array("views_t", views_t, (P, 3))
-    for x in range(P):
-        check_rotation(f"views_R[{x}]", Rv[x], tol=1e-4)
-    if P < 2:
-        raise ValueError(f"views_R: at least 2 views are needed to refine a relative pose, got {P}")
-    if vi.min() < 0 or vi.max() >= P:
-        raise ValueError(f"view_index: values must be in [0, {P}) (got {vi.min()}..{vi.max()})")
-    if not 0 <= gauge < P:
-        raise ValueError(f"gauge: must be in [0, {P}), got {gauge!r}")
-    s = None
-    if sigmas is not None:
-        s = as_array("sigmas", sigmas, (K,))
-        if np.any(s <= 0):
-            raise ValueError(f"sigmas: must be positive (row {int(np.argmin(s))})")
+    deprecated = {k: legacy.pop(k) for k in list(legacy) if k == "max_polish_iter"}
+    max_refine_iter = renamed_options("refine_view_poses", deprecated).get(
+        "max_refine_iter", max_refine_iter
+    )
+    check_model(model)
+    rays, views_R, views_t = _refine_pose_args(
+        rays, args, {**legacy, "views_R": views_R, "views_t": views_t}
+    )
+    check_options(eps, prior_weight, 0.0)
+    check_rays(model, rays)
+    Rv, tv = _check_extrinsics(views_R, views_t, rays, gauge)
 
     t0 = time.perf_counter()
-    init = solve_gsft(model, ids, o, d, s, eps=eps, prior_weight=prior_weight)
+    init = solve_gsft(model, rays, eps=eps, prior_weight=prior_weight)
     t_init = time.perf_counter() - t0
 
     # every view's observations in its own camera frame (the measured rays)
-    views = []
-    for x in range(P):
-        m = vi == x
-        sig_x = None if s is None else s[m]
-        obs = ViewRays(
-            ids[m], d[m] @ Rv[x].T, sig_x, o[m] @ Rv[x].T + tv[x], name=f"view_index {x}"
-        )
-        views.append(_check_view(model, x, obs))
+    views = [
+        _check_view(
+            model,
+            x,
+            UnknownPoseView(rays.in_view(x).transformed(Rv[x], tv[x]), name=f"view_index {x}"),
+        )[0].rays
+        for x in range(len(Rv))
+    ]
     # starting object pose in every view frame: the known-pose solution through the extrinsics
-    Rs0 = np.einsum("xij,jk->xik", Rv, init.rotation)
-    ts0 = Rv @ init.translation + tv
+    start = (np.einsum("xij,jk->xik", Rv, init.rotation), Rv @ init.translation + tv, init.weights)
     t0 = time.perf_counter()
-    _, _, Rs, ts, w, _, _, p_iters, p_conv = _refine(
-        model, views, [(Rs0, ts0, init.weights)], prior_weight, max_polish_iter
-    )
+    fit = _refine(model, views, [start], prior_weight, max_refine_iter)
     t_refine = time.perf_counter() - t0
+    timings = {"initial": t_init, "refine": t_refine}
+    return _refined_result(model, rays, views, init, fit, Rv, tv, gauge, timings, t_start)
 
-    # new extrinsics: world -> gauge camera (kept) -> view x through the refined relative pose
+
+def _refined_result(
+    model: ShapeModel,
+    rays: RayObservations,
+    views: list[RayObservations],
+    init: GsftResult,
+    fit: _JointFit,
+    Rv: np.ndarray,
+    tv: np.ndarray,
+    gauge: int,
+    timings: dict,
+    t_start: float,
+) -> RefinedPosesResult:
+    """New extrinsics: world -> gauge camera (kept) -> view x through the refined relative
+    pose; the corrections and residuals."""
+    Rs, ts, w = fit.state
     Rg, tg = Rv[gauge], tv[gauge]
     new_R, new_t = np.empty_like(Rv), np.empty_like(tv)
-    for x in range(P):
+    for x in range(len(Rv)):
         Rr, tr_ = relative_pose(Rs[gauge], ts[gauge], Rs[x], ts[x])
         new_R[x] = Rr @ Rg
         new_t[x] = Rr @ tg + tr_
@@ -787,21 +940,19 @@ def refine_view_poses(
     t_obj = Rg.T @ (ts[gauge] - tg)
     vertices = model.instance(w) @ R_obj.T + t_obj
     if not all(np.all(np.isfinite(a)) for a in (new_R, new_t, vertices)):
-        from .sdp import SolverFailure
-
         raise SolverFailure("refine_view_poses: the solution contains non-finite values")
     centres_old = -np.einsum("xji,xj->xi", Rv, tv)
     centres_new = -np.einsum("xji,xj->xi", new_R, new_t)
     # residuals with the refined extrinsics, in the world-ray order of the input
-    res_after = np.empty(K)
-    for x, dist in enumerate(_distances(model, views, Rs, ts, w)):
-        res_after[vi == x] = dist
+    res_after = np.empty(len(rays))
+    for x, dist in enumerate(_distances(model, views, fit.state)):
+        res_after[rays.view_index == x] = dist
     return RefinedPosesResult(
         view_rotations=new_R,
         view_translations=new_t,
         view_centres=centres_new,
         rotation_corrections_deg=np.array(
-            [np.degrees(rotation_angle(new_R[x], Rv[x])) for x in range(P)]
+            [np.degrees(rotation_angle(new_R[x], Rv[x])) for x in range(len(Rv))]
         ),
         centre_corrections_mm=np.linalg.norm(centres_new - centres_old, axis=1),
         translation_corrections=new_t - tv,
@@ -812,7 +963,7 @@ def refine_view_poses(
         residuals_before=init.residuals,
         residuals=res_after,
         initial=init,
-        polish_iterations=p_iters,
-        polish_converged=p_conv,
-        timings={"initial": t_init, "refine": t_refine, "total": time.perf_counter() - t_start},
+        polish_iterations=fit.iterations,
+        polish_converged=fit.converged,
+        timings={**timings, "total": time.perf_counter() - t_start},
     )

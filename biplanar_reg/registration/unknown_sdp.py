@@ -12,7 +12,7 @@ already centred and scaled by the caller; see ``unknown_poses.py``)::
                 t_x,3 >= f_x                             (the object in front of the camera)
                 Delta_x PSD
 
-plus an optional linear term ``c_x . t_x`` per view (``ViewBlockData.t_cost``).
+plus an optional linear term ``c_x . t_x`` per view (``SdpViewBlock.t_cost``).
 
 Every view's block is exactly the known-pose program of :class:`sdp.KnownPoseSDP` (same
 variables, rows and cones); this module stacks those blocks block-diagonally for Clarabel and
@@ -29,21 +29,23 @@ import numpy as np
 import scipy.sparse as sp
 
 from .lifting import svec_index, svec_to_matrix
+from .rays import RayObservations
 from .sdp import KnownPoseSDP, SolverFailure
 
-__all__ = ["ViewBlockData", "MultiViewSdpSolution", "solve_multiview_sdp"]
+__all__ = ["SdpViewBlock", "MultiViewSdpSolution", "solve_multiview_sdp"]
 
 
 @dataclass(frozen=True)
-class ViewBlockData:
-    """One view's data for :func:`solve_multiview_sdp`, in normalised units.
+class SdpViewBlock:
+    """One view's block of the G-SfT-P SDP (:func:`solve_multiview_sdp`), in normalised units:
+    the program data of one Gram matrix, not observations in the user's units.
 
     Attributes
     ----------
     D : (K, 3 + 3M) array
         Per-observation model data (``lifting.point_map_values``) of the centred, scaled model.
-    origins, directions : (K, 3) arrays
-        Rays in the view's (shifted, scaled) frame; unit directions.
+    rays : RayObservations
+        The view's rays in its shifted, scaled frame (``RayObservations.normalised``).
     obs_weights : (K,) array
         Weight ``a_xj`` of each observation's L1 term.
     eps : float
@@ -58,8 +60,7 @@ class ViewBlockData:
     """
 
     D: np.ndarray
-    origins: np.ndarray
-    directions: np.ndarray
+    rays: RayObservations
     obs_weights: np.ndarray
     eps: float
     point_depth: float
@@ -90,13 +91,13 @@ def _settings(overrides: dict | None) -> clarabel.DefaultSettings:
 
 
 def solve_multiview_sdp(
-    blocks: list[ViewBlockData], n_modes: int, settings: dict | None = None
+    blocks: list[SdpViewBlock], n_modes: int, settings: dict | None = None
 ) -> MultiViewSdpSolution:
     """Assemble and solve the G-SfT-P SDP with Clarabel.
 
     Parameters
     ----------
-    blocks : list of ViewBlockData
+    blocks : list of SdpViewBlock
         One entry per view (P >= 1).
     n_modes : int
         Number of shape modes M.
@@ -115,7 +116,7 @@ def solve_multiview_sdp(
     for blk in blocks:
         sdp = KnownPoseSDP(len(blk.D), n_modes)
         # the known-pose block's own constraint values and objective (its fixed pattern)
-        vals, b = sdp._values(blk.D, blk.origins, blk.directions, blk.point_depth)
+        vals, b = sdp._values(blk.D, blk.rays.origins, blk.rays.directions, blk.point_depth)
         A_blocks.append(sp.csc_matrix((vals, sdp._A.indices, sdp._A.indptr), shape=sdp._A.shape))
         b_parts.append(b)
         q = sdp._objective(blk.obs_weights, blk.eps)

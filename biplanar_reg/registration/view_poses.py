@@ -17,7 +17,8 @@ from ..ssm.model import ShapeModel
 from .observations import ViewObservations
 from .options import RegistrationOptions
 from .problem import stack_landmarks
-from .unknown_poses import ViewRays, refine_view_poses, solve_gsft_unknown_poses
+from .rays import RayObservations
+from .unknown_poses import UnknownPoseView, refine_view_poses, solve_gsft_unknown_poses
 
 __all__ = ["PosedViews", "estimate_view_poses"]
 
@@ -48,13 +49,10 @@ def _per_view(views: list[ViewObservations], values) -> dict[str, float]:
 
 def _refined(model, views, opts):
     """``poses = "refine"``: calibration refinement from the landmarks."""
-    rays = stack_landmarks(views, None).rays
+    rays = stack_landmarks(views, None).rays.with_sigmas(None)
     ref = refine_view_poses(
         model,
-        rays.vertex_ids,
-        rays.origins,
-        rays.directions,
-        rays.view_index,
+        rays,
         [v.view.R for v in views],
         [v.view.t for v in views],
         eps=opts.eps,
@@ -79,9 +77,8 @@ def _estimated(model, views, opts):
             )
         o, d = v.view.rays(v.landmark_uv)  # world rays under the given calibration ...
         # ... brought back into the camera frame, where they do not depend on extrinsics
-        rays.append(
-            ViewRays(v.landmark_ids, d @ v.view.R.T, origins=v.view.to_camera(o), name=v.name)
-        )
+        camera = RayObservations(v.landmark_ids, v.view.to_camera(o), d @ v.view.R.T)
+        rays.append(UnknownPoseView(camera, name=v.name))
     est = solve_gsft_unknown_poses(model, rays, eps=opts.eps, prior_weight=opts.prior_weight)
     info = {"mode": "unknown", "certificates": _per_view(views, est.certificates)}
     return est.view_rotations, est.view_translations, info

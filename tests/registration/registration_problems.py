@@ -13,8 +13,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from biplanar_reg.registration import RegistrationOptions, ViewObservations, solve_gsft
-from biplanar_reg.registration.problem import Problem, make_problem, stack_landmarks
+from biplanar_reg.registration import RegistrationOptions, ViewObservations
+from biplanar_reg.registration.problem import Problem, make_problem
 from biplanar_reg.simulate import boosting_case, synthetic_bone_model
 
 __all__ = ["bone_model", "clean_views", "with_blunder", "problem_for", "BLUNDER_PX"]
@@ -56,16 +56,6 @@ def problem_for(
     say: Callable[[str], None] | None = None,
 ) -> Problem:
     """The :class:`Problem` ``register_views`` builds for known poses: pixel sigmas converted
-    to mm at the centroid of an equal-weight landmark-only solve."""
+    to mm at the centroid of an equal-weight landmark-only solve (:func:`rough_centre`)."""
     opts = options or RegistrationOptions()
-    rays = stack_landmarks(views, None).rays
-    first = solve_gsft(
-        model,
-        rays.vertex_ids,
-        rays.origins,
-        rays.directions,
-        eps=opts.eps,
-        prior_weight=opts.prior_weight,
-    )
-    centre = first.vertices.mean(axis=0)
-    return make_problem(model, views, opts, centre, outlines, say or (lambda msg: None))
+    return make_problem(model, views, opts, outlines, say or (lambda msg: None))

@@ -10,6 +10,7 @@ from biplanar_reg.outline import half_edges, outline_polylines
 from biplanar_reg.registration import RegistrationOptions, ViewObservations, register_views
 from biplanar_reg.registration.outline_fit import OutlineTerm, refine_on_outlines
 from biplanar_reg.registration.outline_match import prepare_outline
+from biplanar_reg.registration.rays import RayObservations
 from biplanar_reg.registration.rotations import so3_exp
 from biplanar_reg.simulate import (
     biplanar_views,
@@ -54,7 +55,7 @@ def test_refinement_recovers_the_truth_from_a_perturbed_start(model, frac):
     R0 = so3_exp(np.deg2rad(2.0) * np.array([0.6, 0.0, 0.8])) @ R
     t0 = t + np.array([1.0, -1.0, 0.5])
     w0 = w + 0.3 * rng.normal(size=w.size)
-    no_lm = (np.zeros(0, int), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+    no_lm = RayObservations.empty()
     costs = []
     fit = refine_on_outlines(
         model,
@@ -76,7 +77,7 @@ def test_refinement_recovers_the_truth_from_a_perturbed_start(model, frac):
 def test_refinement_never_ends_worse_than_its_start(model):
     rng, w, R, t, X = _truth(model, 5)
     terms = _terms(model, X, 0.8)
-    lm = (np.zeros(0, int), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+    lm = RayObservations.empty()
     fit = refine_on_outlines(model, (R, t, w), lm, terms, prior_weight=1.0, max_iter=20)
     assert fit.cost_after <= fit.cost_before
     # from the truth, the prior's pull is all that moves it: a small move

@@ -6,13 +6,13 @@ import cvxpy as cp
 import numpy as np
 import pytest
 
-from biplanar_reg.registration import solve_gsft
-from biplanar_reg.registration.baselines import (
+from benchmarks.baselines import (
     combine_reconstructions,
     prox_admm,
     repeated_single_view,
     spectral_norm_prox,
 )
+from biplanar_reg.registration import solve_gsft
 from biplanar_reg.registration.rotations import rotation_angle
 from biplanar_reg.simulate import biplanar_views, observe, random_pose, synthetic_bone_model
 

@@ -1,4 +1,4 @@
-"""Baselines the seed paper compares G-SfT with, for the benchmarks and for users who want them.
+"""Baselines the seed paper compares G-SfT with, for the benchmarks (not part of the package).
 
 * :func:`prox_admm` -- Zhou et al. (CVPR 2015), "3D shape estimation from 2D landmarks: a convex
   relaxation approach", written from the paper's description. Weak perspective, one view: the
@@ -17,11 +17,15 @@
   rotation (the best rank-one fit of the stacked ``M_i``, projected to orthonormal rows) and
   coefficients ``c_i``; the weights are ``w_i = c_i / c_0`` and ``c_0`` the image scale.
 * :func:`repeated_single_view` -- the "trivial" multi-view approach: solve every view alone with
-  :func:`~biplanar_reg.registration.solve_gsft` (known poses, world frame), rigidly align the
+  :func:`biplanar_reg.registration.solve_gsft` (known poses, world frame), rigidly align the
   per-view reconstructions (generalised Procrustes) and take their Euclidean mean.
 
 Units: model and world coordinates in mm; weak-perspective image coordinates in any unit (the
 scale absorbs it).
+
+Used by ``benchmarks/known_poses_single_view.py``, ``benchmarks/known_poses_multi_view.py`` (as
+``from baselines import ...``: the scripts run from ``benchmarks/``) and
+``tests/test_baselines.py`` (``import benchmarks.baselines``).
 """
 
 from __future__ import annotations
@@ -31,11 +35,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array
-from ..ssm.build import procrustes_align
-from ..ssm.model import ShapeModel
-from .gsft import GsftResult, solve_gsft
-from .unknown_poses import similarity_fit
+from biplanar_reg.registration import GsftResult, RayObservations, solve_gsft
+from biplanar_reg.registration.unknown_poses import similarity_fit
+from biplanar_reg.ssm.build import procrustes_align
+from biplanar_reg.ssm.model import ShapeModel
 
 __all__ = [
     "spectral_norm_prox",
@@ -51,6 +54,22 @@ __all__ = [
 #: the mean shape both scaled to unit RMS radius); chosen by ``benchmarks/known_poses_single_view.py
 #: --lambda-sweep`` (see docs/benchmarks.md).
 DEFAULT_PROX_LAMBDA = 1e-3
+
+
+def _as_array(name: str, value: object, shape: tuple[int | None, ...]) -> np.ndarray:
+    """``value`` as a finite float array of ``shape`` (``None``: any length); a ``ValueError``
+    names the argument."""
+    try:
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: cannot be read as a numeric array ({exc})") from None
+    if arr.ndim != len(shape) or any(
+        w is not None and h != w for h, w in zip(arr.shape, shape, strict=True)
+    ):
+        raise ValueError(f"{name}: expected shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: contains NaN or infinite values")
+    return arr
 
 
 def _project_l1_ball(v: np.ndarray, radius: float) -> np.ndarray:
@@ -91,7 +110,7 @@ def spectral_norm_prox(X: object, alpha: float) -> np.ndarray:
     -------
     (m, n) array
     """
-    x = as_array("X", X, (None, None))
+    x = _as_array("X", X, (None, None))
     if not np.isfinite(alpha) or alpha < 0:
         raise ValueError(f"alpha: must be a number >= 0, got {alpha!r}")
     return _spectral_prox_batch(x[None], float(alpha))[0]
@@ -140,6 +159,39 @@ class ProxAdmmResult:
     dual_residual: float
 
 
+def _admm(WBq, g_val, g_vec, nb, lam_abs, mu, max_iter, tol):
+    """ADMM on ``M = Z`` (normalised units); returns ``M``, iterations, converged and the final
+    primal and dual residuals."""
+    Z = np.zeros((2, 3 * nb))
+    Mv = np.zeros_like(Z)
+    Y = np.zeros_like(Z)
+    rho = float(mu)
+    r = s = np.inf
+    converged = False
+    it = 0
+    while it < int(max_iter):
+        it += 1
+        # M step: block-wise spectral-norm prox at Z - Y / mu
+        V = (Z - Y / rho).reshape(2, nb, 3).transpose(1, 0, 2)
+        Mv = _spectral_prox_batch(V, lam_abs / rho).transpose(1, 0, 2).reshape(2, 3 * nb)
+        # Z step: argmin 1/2 ||W - Z B||^2 + mu/2 ||M - Z + Y/mu||^2
+        Z_prev = Z
+        Z = ((WBq + (rho * Mv + Y) @ g_vec) / (g_val + rho)) @ g_vec.T
+        Y = Y + rho * (Mv - Z)
+        r = float(np.linalg.norm(Mv - Z))
+        s = float(rho * np.linalg.norm(Z - Z_prev))
+        scale_p = max(np.linalg.norm(Mv), np.linalg.norm(Z), 1e-12)
+        if r <= tol * scale_p and s <= tol * max(np.linalg.norm(Y), 1e-12):
+            converged = True
+            break
+        # residual balancing (Y is the unscaled dual, so it needs no rescaling)
+        if r > 10.0 * s:
+            rho *= 2.0
+        elif s > 10.0 * r:
+            rho /= 2.0
+    return Mv, it, converged, r, s
+
+
 def prox_admm(
     model: ShapeModel,
     vertex_ids: object,
@@ -183,7 +235,7 @@ def prox_admm(
         raise ValueError(f"model: expected a ShapeModel, got {type(model).__name__}")
     ids = model.check_vertex_ids(vertex_ids)
     K = len(ids)
-    W = as_array("uv", uv, (K, 2))
+    W = _as_array("uv", uv, (K, 2))
     if K < 3:
         raise ValueError(f"vertex_ids: at least 3 image points are needed, got {K}")
     for name, v in (("lam", lam), ("mu", mu), ("tol", tol)):
@@ -211,36 +263,7 @@ def prox_admm(
 
     # (G + mu I)^-1 for any mu from one eigendecomposition (mu changes with the balancing)
     g_val, g_vec = np.linalg.eigh(G)
-    WBq = WB @ g_vec
-
-    Z = np.zeros((2, 3 * nb))
-    Mv = np.zeros_like(Z)
-    Y = np.zeros_like(Z)
-    rho = float(mu)
-    r = s = np.inf
-    converged = False
-    it = 0
-    while it < int(max_iter):
-        it += 1
-        # M step: block-wise spectral-norm prox at Z - Y / mu
-        V = (Z - Y / rho).reshape(2, nb, 3).transpose(1, 0, 2)
-        Mv = _spectral_prox_batch(V, lam_abs / rho).transpose(1, 0, 2).reshape(2, 3 * nb)
-        # Z step: argmin 1/2 ||W - Z B||^2 + mu/2 ||M - Z + Y/mu||^2
-        Z_prev = Z
-        Z = ((WBq + (rho * Mv + Y) @ g_vec) / (g_val + rho)) @ g_vec.T
-        Y = Y + rho * (Mv - Z)
-        r = float(np.linalg.norm(Mv - Z))
-        s = float(rho * np.linalg.norm(Z - Z_prev))
-        scale_p = max(np.linalg.norm(Mv), np.linalg.norm(Z), 1e-12)
-        if r <= tol * scale_p and s <= tol * max(np.linalg.norm(Y), 1e-12):
-            converged = True
-            break
-        # residual balancing (Y is the unscaled dual, so it needs no rescaling)
-        if r > 10.0 * s:
-            rho *= 2.0
-        elif s > 10.0 * r:
-            rho /= 2.0
-
+    Mv, it, converged, r, s = _admm(WB @ g_vec, g_val, g_vec, nb, lam_abs, mu, max_iter, tol)
     blocks = Mv.reshape(2, nb, 3).transpose(1, 0, 2)  # (M+1, 2, 3)
     # one rotation for all bases: best rank-one fit of [vec M_0 ... vec M_M], sign from M_0
     A = blocks.reshape(nb, 6).T
@@ -319,7 +342,7 @@ def combine_reconstructions(shapes: object) -> np.ndarray:
         The generalised-Procrustes (rigid) mean, rigidly fitted onto the plain mean of
         ``shapes`` (so one shape is returned unchanged).
     """
-    x = as_array("shapes", shapes, (None, None, 3))
+    x = _as_array("shapes", shapes, (None, None, 3))
     if len(x) == 0:
         raise ValueError("shapes: at least one reconstruction is needed")
     mean = procrustes_align(x).mean(axis=0)
@@ -332,9 +355,24 @@ def _min_observations(ids: np.ndarray) -> bool:
     return len(ids) >= 4 and len(np.unique(ids)) >= 3
 
 
+def _view_rays(i: int, view: object) -> RayObservations:
+    """``views[i]`` of :func:`repeated_single_view` as rays."""
+    if isinstance(view, RayObservations):
+        return view
+    if len(view) not in (3, 4):
+        raise ValueError(
+            f"views[{i}]: expected a RayObservations or (vertex_ids, origins, directions[, "
+            f"sigmas]), got {len(view)} items"
+        )
+    try:
+        return RayObservations(view[0], view[1], view[2], view[3] if len(view) == 4 else None)
+    except ValueError as exc:
+        raise ValueError(f"views[{i}]: {exc}") from None
+
+
 def repeated_single_view(
     model: ShapeModel,
-    views: Sequence[Sequence[object]],
+    views: Sequence[object],
     *,
     skip_underdetermined: bool = False,
     **gsft_options: object,
@@ -345,7 +383,7 @@ def repeated_single_view(
     ----------
     model : ShapeModel
         The shape model (object frame, mm).
-    views : sequence of (vertex_ids, origins, directions) or (..., sigmas)
+    views : sequence of RayObservations or (vertex_ids, origins, directions[, sigmas])
         Per-view rays in the world frame (mm), as for :func:`solve_gsft`.
     skip_underdetermined : bool
         Skip views with fewer than 4 observations or 3 distinct points (a single-view solve
@@ -366,18 +404,13 @@ def repeated_single_view(
         raise ValueError("views: at least one view is needed")
     results, solved, skipped = [], [], []
     for i, view in enumerate(views):
-        if len(view) not in (3, 4):
-            raise ValueError(
-                f"views[{i}]: expected (vertex_ids, origins, directions[, sigmas]), "
-                f"got {len(view)} items"
-            )
-        ids = model.check_vertex_ids(view[0], name=f"views[{i}]: vertex_ids")
-        if skip_underdetermined and not _min_observations(ids):
+        rays = _view_rays(i, view)
+        model.check_vertex_ids(rays.vertex_ids, name=f"views[{i}]: vertex_ids")
+        if skip_underdetermined and not _min_observations(rays.vertex_ids):
             skipped.append(i)
             continue
-        sigmas = view[3] if len(view) == 4 else None
         try:
-            results.append(solve_gsft(model, ids, view[1], view[2], sigmas, **gsft_options))
+            results.append(solve_gsft(model, rays, **gsft_options))
         except ValueError as exc:
             raise ValueError(f"views[{i}]: {exc}") from None
         solved.append(i)

@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+from dataclasses import fields
+
 import numpy as np
 import pytest
 
 from biplanar_reg.calibration.views import PerspectiveView
+from biplanar_reg.registration import RayObservations
 from biplanar_reg.registration.rotations import rotation_angle, so3_exp
 from biplanar_reg.registration.unknown_poses import (
+    UnknownPoseView,
     ViewRays,
     refine_view_poses,
     similarity_fit,
@@ -37,11 +41,28 @@ def _scene(n_views: int, k_per_view: int, seed: int, sod: float = 900.0):
     return model, X, views, cams
 
 
+def _camera_rays(ids, d, sigmas=None, origins=None):
+    """One view's rays in its camera frame (from the frame's origin unless given)."""
+    return RayObservations(ids, np.zeros((len(ids), 3)) if origins is None else origins, d, sigmas)
+
+
+def _same_result(a, b):
+    for f in fields(a):
+        if f.name in ("timings", "initial"):
+            continue
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, list):
+            for u, v in zip(x, y, strict=True):
+                np.testing.assert_array_equal(u, v, err_msg=f.name)
+        else:
+            np.testing.assert_array_equal(x, y, err_msg=f.name)
+
+
 @pytest.mark.parametrize("n_views", [2, 3, 5])
 def test_noise_free_recovery_disjoint_views(n_views):
     model, X, views, cams = _scene(n_views, 20, seed=n_views)
     assert len(np.unique(np.concatenate([v[0] for v in views]))) == 20 * n_views  # disjoint
-    res = solve_gsft_unknown_poses(model, views)
+    res = solve_gsft_unknown_poses(model, [_camera_rays(i, d) for i, d in views])
     X1 = X @ cams[0].R.T + cams[0].t  # truth in the first view's frame (the gauge)
     rel = np.sqrt(np.mean(np.sum((res.vertices - X1) ** 2, axis=1))) / model.size
     assert rel < 1e-5
@@ -65,11 +86,11 @@ def test_sdp_alone_is_tight_with_depth_reward_and_drifts_without():
     program (reward 0) shows the scale drift the rounding has to undo."""
     model, X, views, cams = _scene(3, 20, seed=11)
     R_true = cams[1].R @ cams[0].R.T
-    tight = solve_gsft_unknown_poses(model, views, polish=False)
+    tight = solve_gsft_unknown_poses(model, views, refine=False)
     assert tight.certificates.max() < 1e-4
     assert np.all(np.abs(tight.scale_drift - 1) < 1e-4)
     assert rotation_angle(tight.sdp_view_rotations[1], R_true) < 1e-4
-    paper = solve_gsft_unknown_poses(model, views, polish=False, depth_reward=0.0)
+    paper = solve_gsft_unknown_poses(model, views, refine=False, depth_reward_weight=0.0)
     assert paper.certificates.min() > 0.1
     assert np.all(paper.scale_drift < 0.9)
 
@@ -79,13 +100,35 @@ def test_view_observations_with_sigmas_and_prior():
     # sigmas small against the prior (noise-free data: the MAP estimate is the truth)
     sig = np.linspace(1e-4, 3e-4, 15)
     obs = [
-        ViewRays(ids, d, sigmas=sig, prior_rotation=c.R, prior_translation=c.t, name=f"cam{x}")
+        UnknownPoseView(_camera_rays(ids, d, sig), c.R, c.t, name=f"cam{x}")
         for x, ((ids, d), c) in enumerate(zip(views, cams, strict=True))
     ]
     res = solve_gsft_unknown_poses(model, obs)
     assert rotation_angle(res.view_rotations[1], cams[1].R @ cams[0].R.T) < 1e-4
     assert res.start in ("sdp", "prior")
     assert np.allclose(res.sigmas[0], sig)
+    # the deprecated ViewRays constructor builds the same views
+    with pytest.warns(DeprecationWarning, match="ViewRays is deprecated"):
+        old = [
+            ViewRays(ids, d, sigmas=sig, prior_rotation=c.R, prior_translation=c.t, name=f"c{x}")
+            for x, ((ids, d), c) in enumerate(zip(views, cams, strict=True))
+        ]
+    _same_result(res, solve_gsft_unknown_poses(model, old))
+
+
+def test_call_forms_and_deprecated_spellings_agree():
+    """Pairs, RayObservations and the old option spellings are the same problem."""
+    model, X, views, cams = _scene(3, 12, seed=8)
+    ref = solve_gsft_unknown_poses(model, views, refine=False, depth_reward_weight=0.05)
+    rays = [_camera_rays(i, d) for i, d in views]
+    _same_result(ref, solve_gsft_unknown_poses(model, rays, refine=False, depth_reward_weight=0.05))
+    with pytest.warns(DeprecationWarning, match="depth_reward= is deprecated"):
+        with pytest.warns(DeprecationWarning, match="polish= is deprecated"):
+            old = solve_gsft_unknown_poses(model, views, polish=False, depth_reward=0.05)
+    _same_result(ref, old)
+    with pytest.warns(DeprecationWarning, match="max_polish_iter= is deprecated"):
+        old = solve_gsft_unknown_poses(model, rays, max_polish_iter=2)
+    _same_result(old, solve_gsft_unknown_poses(model, rays, max_refine_iter=2))
 
 
 def test_refine_mode_recovers_perturbed_relative_pose():
@@ -106,15 +149,18 @@ def test_refine_mode_recovers_perturbed_relative_pose():
     ]
     # pixels measured by the true cameras, turned into rays with the wrong extrinsics
     rays = [bad[x].rays(cams[x].project(X[ids[x]])) for x in range(2)]
-    res = refine_view_poses(
-        model,
+    arrays = (
         ids.ravel(),
         np.vstack([r[0] for r in rays]),
         np.vstack([r[1] for r in rays]),
         np.repeat([0, 1], 30),
-        [b.R for b in bad],
-        [b.t for b in bad],
     )
+    world = RayObservations(*arrays[:3], view_index=arrays[3])
+    res = refine_view_poses(model, world, [b.R for b in bad], [b.t for b in bad])
+    # the documented array form is the same problem
+    _same_result(res, refine_view_poses(model, *arrays, [b.R for b in bad], [b.t for b in bad]))
+    kw = refine_view_poses(model, *arrays, views_R=[b.R for b in bad], views_t=[b.t for b in bad])
+    _same_result(res, kw)
     assert np.degrees(rotation_angle(res.view_rotations[1], cams[1].R)) < 0.1
     assert np.linalg.norm(res.view_centres[1] - c_true) < 0.5
     assert np.allclose(res.view_rotations[0], cams[0].R) and np.allclose(
@@ -160,8 +206,16 @@ def test_bad_view_entries_are_named():
     same = np.tile([0.0, 0.0, 1.0], (10, 1))
     with pytest.raises(ValueError, match=r"views\[1\]\.directions: all rays are the same line"):
         solve_gsft_unknown_poses(model, [views[0], (views[1][0], same)])
-    with pytest.raises(ValueError, match="depth_reward"):
-        solve_gsft_unknown_poses(model, views, depth_reward=1.5)
+    with pytest.raises(ValueError, match="depth_reward_weight: must be in"):
+        solve_gsft_unknown_poses(model, views, depth_reward_weight=1.5)
+    with pytest.raises(ValueError, match=r"views\[1\] \(b\)\.vertex_ids: index 99999"):
+        solve_gsft_unknown_poses(
+            model,
+            [
+                views[0],
+                UnknownPoseView(_camera_rays(np.r_[99999, views[1][0][1:]], views[1][1]), name="b"),
+            ],
+        )
     with pytest.raises(ValueError, match=r"min_depth: expected shape"):
         solve_gsft_unknown_poses(model, views, min_depth=[1.0, 2.0, 3.0])
 
@@ -173,7 +227,8 @@ def test_parallel_rays_are_reported_not_silent():
     ids = views[1][0]
     Xc = X[ids] @ cams[1].R.T + cams[1].t
     origins = Xc * [1.0, 1.0, 0.0]
-    ortho = ViewRays(ids, np.tile([0.0, 0.0, 1.0], (len(ids), 1)), origins=origins, name="ortho")
+    d = np.tile([0.0, 0.0, 1.0], (len(ids), 1))
+    ortho = UnknownPoseView(_camera_rays(ids, d, origins=origins), name="ortho")
     with pytest.warns(UserWarning, match=r"views\[1\] \(ortho\).*parallel.*unobservable"):
         res = solve_gsft_unknown_poses(model, [views[0], ortho])
     assert res.depth_constrained.tolist() == [True, False]
@@ -196,3 +251,8 @@ def test_refine_mode_bad_input():
         refine_view_poses(model, ids, o, d, np.repeat([0, 1], 10), [Rs[0], -Rs[1]], ts)
     with pytest.raises(ValueError, match="at least 2 views"):
         refine_view_poses(model, ids, o, d, np.zeros(20), Rs[:1], ts[:1])
+    rays = RayObservations(ids, o, d, view_index=np.repeat([0, 1], 10))
+    with pytest.raises(TypeError, match="multiple values for argument 'views_R'"):
+        refine_view_poses(model, rays, Rs, ts, views_R=Rs)
+    with pytest.raises(ValueError, match="view_index: give either a RayObservations"):
+        refine_view_poses(model, rays, view_index=np.zeros(20), views_R=Rs, views_t=ts)
