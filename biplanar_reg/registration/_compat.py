@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import warnings
 
-__all__ = ["RENAMED_OPTIONS", "renamed_options"]
+__all__ = ["RENAMED_OPTIONS", "renamed_options", "renamed_field"]
 
 #: Old keyword -> its one spelling now (``docs/solver.md``, ``docs/unknown_poses.md``).
 RENAMED_OPTIONS = {
@@ -44,3 +44,20 @@ def renamed_options(function: str, old: dict[str, object]) -> dict[str, object]:
         )
         out[new] = value
     return out
+
+
+def renamed_field(new: str) -> property:
+    """A read-only property under a result field's old name (``polish_*``) that returns the
+    field ``new`` (``refine_*``) with a DeprecationWarning."""
+
+    def getter(self: object) -> object:
+        old = next(k for k, v in type(self).__dict__.items() if v is prop)
+        warnings.warn(
+            f"{type(self).__name__}.{old} is deprecated, use .{new}",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(self, new)
+
+    prop = property(getter, doc=f"Old spelling of ``{new}`` (deprecated).")
+    return prop

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..ssm.model import ShapeModel
-from ._compat import renamed_options
+from ._compat import renamed_field, renamed_options
 from .ipm import smat, solve_conic
 from .lifting import point_map_values
 from .rays import RayObservations, as_rays, check_rays
@@ -103,10 +103,10 @@ class GsftResult:
         The same for the rounded SDP solution.
     sigmas : (K,) array
         Standard deviations used by the refinement (given, or estimated from the residuals).
-    polish_cost_before, polish_cost_after : float
+    refine_cost_before, refine_cost_after : float
         Refinement cost at the rounded SDP solution and at the result.
-    polish_iterations : int
-    polish_converged : bool
+    refine_iterations : int
+    refine_converged : bool
     eps : float
         Trace weight used (normalised units).
     scale : float
@@ -117,7 +117,7 @@ class GsftResult:
     backend : str
         ``"ipm"``, ``"clarabel"`` or ``"cvxpy"`` (the one that produced the SDP solution).
     timings : dict
-        Seconds: ``build``, ``solve``, ``polish`` (the refinement), ``total``.
+        Seconds: ``build``, ``solve``, ``refine`` (the refinement), ``total``.
     """
 
     rotation: np.ndarray
@@ -133,16 +133,22 @@ class GsftResult:
     residuals: np.ndarray
     sdp_residuals: np.ndarray
     sigmas: np.ndarray
-    polish_cost_before: float
-    polish_cost_after: float
-    polish_iterations: int
-    polish_converged: bool
+    refine_cost_before: float
+    refine_cost_after: float
+    refine_iterations: int
+    refine_converged: bool
     eps: float
     scale: float
     centre: np.ndarray
     sdp_iterations: int
     backend: str
     timings: dict = field(default_factory=dict)
+
+    # old spellings (the refinement was called 'polish'), kept readable
+    polish_cost_before = renamed_field("refine_cost_before")
+    polish_cost_after = renamed_field("refine_cost_after")
+    polish_iterations = renamed_field("refine_iterations")
+    polish_converged = renamed_field("refine_converged")
 
 
 def check_model(model: object) -> None:
@@ -506,10 +512,10 @@ def solve_gsft(
         residuals=ray_distances(model, rays, fit.state, bases),
         sdp_residuals=sdp_dist,
         sigmas=fit.sigmas,
-        polish_cost_before=fit.cost_before,
-        polish_cost_after=fit.cost_after,
-        polish_iterations=fit.iterations,
-        polish_converged=fit.converged,
+        refine_cost_before=fit.cost_before,
+        refine_cost_after=fit.cost_after,
+        refine_iterations=fit.iterations,
+        refine_converged=fit.converged,
         eps=prob.eps,
         scale=prob.scale,
         centre=sol.centre,
@@ -518,7 +524,7 @@ def solve_gsft(
         timings={
             "build": t_build,
             "solve": t_solve,
-            "polish": t_refine,
+            "refine": t_refine,
             "total": time.perf_counter() - t_start,
         },
     )

@@ -192,7 +192,7 @@ def _flags(problem: Problem, res: GsftResult, rejected: frozenset[int]) -> list[
     flags: list[str] = []
     if res.certificate > opts.certificate_flag:
         flags.append(f"relaxation not tight (certificate {res.certificate:.2g})")
-    if not res.polish_converged:
+    if not res.refine_converged:
         flags.append("local refinement did not converge")
     err = problem.landmark_px_errors(res.vertices)
     acc = [e for i, e in enumerate(err) if i not in rejected]

@@ -387,7 +387,7 @@ def refine_once(
             fit.translation,
             fit.weights,
             fit.vertices,
-            polish_converged=fit.converged,
+            refine_converged=fit.converged,
         )
     return result, fit
 

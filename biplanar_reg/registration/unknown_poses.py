@@ -50,7 +50,7 @@ import numpy as np
 
 from .._validate import as_array, check_rotation
 from ..ssm.model import ShapeModel
-from ._compat import renamed_options
+from ._compat import renamed_field, renamed_options
 from .gsft import (
     DEFAULT_DEPTH_REWARD,
     DEFAULT_EPS,
@@ -180,9 +180,9 @@ class UnknownPosesResult:
         Trace weight per observation (normalised units).
     scale : float
         Normalising length (model RMS radius), mm.
-    sdp_iterations, polish_iterations : int
-    polish_cost_before, polish_cost_after : float
-    polish_converged : bool
+    sdp_iterations, refine_iterations : int
+    refine_cost_before, refine_cost_after : float
+    refine_converged : bool
     timings : dict
         Seconds: ``build``, ``solve``, ``refine``, ``total``.
     """
@@ -211,11 +211,17 @@ class UnknownPosesResult:
     eps: float
     scale: float
     sdp_iterations: int
-    polish_iterations: int
-    polish_cost_before: float
-    polish_cost_after: float
-    polish_converged: bool
+    refine_iterations: int
+    refine_cost_before: float
+    refine_cost_after: float
+    refine_converged: bool
     timings: dict = field(default_factory=dict)
+
+    # old spellings (the refinement was called 'polish'), kept readable
+    polish_iterations = renamed_field("refine_iterations")
+    polish_cost_before = renamed_field("refine_cost_before")
+    polish_cost_after = renamed_field("refine_cost_after")
+    polish_converged = renamed_field("refine_converged")
 
 
 @dataclass(frozen=True)
@@ -245,8 +251,8 @@ class RefinedPosesResult:
         Ray distances (mm) after refinement, with the refined extrinsics.
     initial : GsftResult
         The known-pose solution the refinement started from.
-    polish_iterations : int
-    polish_converged : bool
+    refine_iterations : int
+    refine_converged : bool
     timings : dict
         Seconds: ``initial``, ``refine``, ``total``.
     """
@@ -264,9 +270,13 @@ class RefinedPosesResult:
     residuals_before: np.ndarray
     residuals: np.ndarray
     initial: object
-    polish_iterations: int
-    polish_converged: bool
+    refine_iterations: int
+    refine_converged: bool
     timings: dict = field(default_factory=dict)
+
+    # old spellings (the refinement was called 'polish'), kept readable
+    polish_iterations = renamed_field("refine_iterations")
+    polish_converged = renamed_field("refine_converged")
 
 
 # -- geometry helpers -----------------------------------------------------------------------------
@@ -767,10 +777,10 @@ def _unknown_result(
         eps=eps,
         scale=model.size,
         sdp_iterations=sdp_iters,
-        polish_iterations=fit.iterations,
-        polish_cost_before=float(fit.cost_before),
-        polish_cost_after=float(fit.cost_after),
-        polish_converged=fit.converged,
+        refine_iterations=fit.iterations,
+        refine_cost_before=float(fit.cost_before),
+        refine_cost_after=float(fit.cost_after),
+        refine_converged=fit.converged,
         timings={**timings, "total": time.perf_counter() - t_start},
     )
 
@@ -963,7 +973,7 @@ def _refined_result(
         residuals_before=init.residuals,
         residuals=res_after,
         initial=init,
-        polish_iterations=fit.iterations,
-        polish_converged=fit.converged,
+        refine_iterations=fit.iterations,
+        refine_converged=fit.converged,
         timings={**timings, "total": time.perf_counter() - t_start},
     )

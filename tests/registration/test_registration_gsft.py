@@ -81,7 +81,7 @@ def test_noise_free_recovery_is_exact(model, kind, seed):
     assert np.abs(res.weights - w).max() < 1e-5
     assert rotation_angle(res.rotation, R) < 1e-5
     assert np.abs(res.vertices - X).max() < 1e-6 * model.size
-    assert res.polish_cost_after <= res.polish_cost_before
+    assert res.refine_cost_after <= res.refine_cost_before
     assert res.certificate < 1e-6
 
 
@@ -117,7 +117,7 @@ def test_deprecated_option_spellings_still_work(model):
     with pytest.warns(DeprecationWarning, match="polish= is deprecated, use refine="):
         old = solve_gsft(*args, polish=False)
     _same_result(old, solve_gsft(*args, refine=False))
-    assert np.isnan(old.polish_cost_after) and old.polish_iterations == 0
+    assert np.isnan(old.refine_cost_after) and old.refine_iterations == 0
     with pytest.warns(DeprecationWarning, match="max_polish_iter= is deprecated"):
         old = solve_gsft(*args, max_polish_iter=3)
     _same_result(old, solve_gsft(*args, max_refine_iter=3))
@@ -198,7 +198,7 @@ def test_one_pixel_noise_gives_bounded_errors(model, seed):
     # 1 px is ~0.22 mm at the object; 40 observations of a 14-parameter model
     assert rms < 1.0
     assert np.rad2deg(rotation_angle(res.rotation, R)) < 2.0
-    assert res.polish_cost_after <= res.polish_cost_before
+    assert res.refine_cost_after <= res.refine_cost_before
     # the refinement must not end farther from the truth than the rounded SDP solution
     sdp_vertices = model.instance(res.sdp_weights) @ res.sdp_rotation.T + res.sdp_translation
     assert rms <= np.sqrt(np.mean(np.sum((sdp_vertices - X) ** 2, axis=1))) + 1e-9
@@ -212,9 +212,9 @@ def test_given_sigmas_are_used(model):
     sig = np.full(len(obs.vertex_ids), 0.25)
     res = solve_gsft(model, obs.vertex_ids, obs.origins, obs.directions, sigmas=sig)
     assert np.allclose(res.sigmas, 0.25)
-    assert res.polish_cost_after <= res.polish_cost_before
+    assert res.refine_cost_after <= res.refine_cost_before
     # chi-square per observation near 1 when sigma matches the noise (~0.22 mm)
-    assert 0.2 < 2 * res.polish_cost_after / (2 * len(sig)) < 5.0
+    assert 0.2 < 2 * res.refine_cost_after / (2 * len(sig)) < 5.0
 
 
 def test_timings_and_fields(model):
@@ -222,7 +222,7 @@ def test_timings_and_fields(model):
     views, ids = _scene("two perspective views", model, rng)
     obs = observe(views, X, ids)
     res = solve_gsft(model, obs.vertex_ids, obs.origins, obs.directions)
-    assert set(res.timings) == {"build", "solve", "polish", "total"}
+    assert set(res.timings) == {"build", "solve", "refine", "total"}
     assert res.timings["total"] >= res.timings["solve"] > 0
     assert res.vertices.shape == (model.n_vertices, 3)
     assert res.residuals.shape == (len(obs.vertex_ids),)
@@ -300,3 +300,13 @@ def test_solver_failure_is_an_exception_not_a_wrong_shape(model, good):
     # one interior-point iteration cannot converge: a clear SolverFailure, no result
     with pytest.raises(SolverFailure, match="did not converge"):
         solve_gsft(model, ids, o, d, backend="ipm", solver_settings={"max_iter": 1})
+
+
+def test_old_result_field_names_still_read_with_a_warning(model):
+    rng, w, R, t, X = _truth(model, 1)
+    views, ids = _scene("two perspective views", model, rng)
+    res = solve_gsft(model, observe(views, X, ids, noise_px=1.0, rng=rng))
+    with pytest.warns(DeprecationWarning, match=r"GsftResult\.polish_converged is deprecated"):
+        assert res.polish_converged == res.refine_converged
+    with pytest.warns(DeprecationWarning, match="polish_cost_after"):
+        assert res.polish_cost_after == res.refine_cost_after
