@@ -456,7 +456,7 @@ def solve_gsft(
         keywords of ``cvxpy.Problem.solve`` such as Clarabel settings).
     initial : (R, t, w), optional
         A second starting point for the local refinement (e.g. the previous iterate of
-        silhouette boosting): the refinement also runs from it and the lower-cost result is
+        outline boosting): the refinement also runs from it and the lower-cost result is
         kept, so a non-tight SDP cannot pull a good estimate into a worse basin.
     vertex_ids : (K,) int array, optional
         The array form's first array given by keyword (instead of ``rays``).

@@ -1,8 +1,8 @@
 """Final local refinement on the annotated outlines: each annotated point to the model's outline.
 
-The convex boosting iterations (:mod:`.outline_match`) pair model silhouette points with the
+The convex boosting iterations (:mod:`.outline_match`) pair model outline points with the
 annotated outline and re-solve with those pairs fixed; the pairs only change between solves,
-so the fit creeps towards the outline and stalls where the discrete silhouette vertex set
+so the fit creeps towards the outline and stalls where the discrete outline vertex set
 flips back and forth. This refinement instead minimises the registration's objective itself,
 re-matching at every evaluation::
 
@@ -11,7 +11,7 @@ re-matching at every evaluation::
                + 1/2 lambda |w|^2                                     (shape prior)
 
 ``P_c`` is the point of the model's projected outline nearest to annotated point ``c`` (a
-point on a silhouette edge, interpolated between its two vertices), ``o_c`` the origin of
+point on an outline edge, interpolated between its two vertices), ``o_c`` the origin of
 ``c``'s ray and ``n_c`` the normal of the plane through that ray and the outline's tangent, so
 the term is ``c``'s distance across the model outline (the model may slide along it). The
 outline is sampled at 1 px; ``s_c`` is the outline sigma times ``sqrt(spacing)``, so an outline
@@ -48,7 +48,7 @@ from .refine import (
 __all__ = ["OutlineTerm", "OutlineFitResult", "refine_on_outlines"]
 
 #: Rejected trial steps in a row after which the refinement stops: the matches switch between
-#: discrete silhouette edges, so the last digits of the objective cannot be won anyway.
+#: discrete outline edges, so the last digits of the objective cannot be won anyway.
 MAX_REJECTED = 6
 
 

@@ -54,7 +54,7 @@ class RegistrationResult:
         ``{view: {landmark: reprojection error in px}}``.
     contour_errors_px : dict
         ``{view: (P,) distances in px from each annotated contour point to the projected model
-        silhouette}``.
+        outline}``.
     silhouettes_px : dict
         ``{view: list of (Q, 2) polylines}``: the registered model's outline in each view.
     rejected : list of (view, landmark)
@@ -141,12 +141,12 @@ def register_views(
     Parameters
     ----------
     model : ShapeModel
-        The shape model; with faces the silhouette is the mesh's occluding contour, without
+        The shape model; with faces its outline is the mesh's occluding contour, without
         them the alpha-shape of its projected points.
     views : list of ViewObservations
         Calibrated views with their landmarks and contours.
     silhouettes : bool
-        Run silhouette boosting with the views' contours (when any exist).
+        Run outline (silhouette) boosting with the views' contours (when any exist).
     poses : {"known", "refine", "unknown"}
         How the view poses are treated: "known" uses the calibrations as they are; "refine"
         corrects every view's extrinsics except the first one's jointly with the shape from the

@@ -334,7 +334,7 @@ def boost(
             break
         s.k += 1
         problem.say(
-            f"silhouette iteration {s.k}: {s.n_matches} matches, cost {cost:.4g}, "
+            f"outline iteration {s.k}: {s.n_matches} matches, cost {cost:.4g}, "
             f"certificate {s.result.certificate:.1e}"
         )
     return BoostRun(records, iterates, s.best, s.rejected)
