@@ -21,24 +21,24 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 import time
 import warnings
-from pathlib import Path
+from functools import partial
 
 import numpy as np
 from _common import (
+    command,
     diagonal,
     fmt,
-    machine,
-    output_paths,
-    paper_pose,
-    paper_weights,
+    header,
+    paper_arguments,
+    paper_instance,
+    pyplot,
     rms,
     rms_rigid,
     save_figure,
     volumetric_models,
-    write_text,
+    write_results,
 )
 
 from biplanar_reg.registration import SolverFailure, solve_gsft
@@ -52,9 +52,7 @@ VIEW = look_at_view(np.array([0.0, 0.0, -1000.0]), sdd=1200.0, pixel=0.3)
 
 def scene(model, K, noise_mm, rng):
     """Truth (N, 3) world mm, observed ids (K,), noisy observed points (K, 3)."""
-    R = paper_pose(rng)
-    w = paper_weights(rng, model.n_modes)
-    X = (model.instance(w) - model.mean.mean(axis=0)) @ R.T
+    X = paper_instance(model, rng)
     ids = rng.choice(model.n_vertices, K, replace=False)
     Xn = X[ids] + rng.normal(scale=noise_mm, size=(K, 3))
     return X, ids, Xn
@@ -101,13 +99,13 @@ def select_lambda(models, repeats, seed):
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="CI-sized run (one model, few repeats)")
-    ap.add_argument("--repeats", type=int, default=20, help="trials per K (noise-free)")
-    ap.add_argument("--repeats-noise", type=int, default=50, help="trials per noise level")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out-dir", type=Path, default=None)
-    args = ap.parse_args()
+    args = paper_arguments(
+        __doc__,
+        "CI-sized run (one model, few repeats)",
+        20,
+        "trials per K (noise-free)",
+        more=[("--repeats-noise", {"type": int, "default": 50, "help": "trials per noise level"})],
+    )
     t_all = time.perf_counter()
     if args.quick:
         models = volumetric_models(["box"])
@@ -158,22 +156,19 @@ def main() -> None:
             curves[(name, K)] = ([100 * f for f in fracs], acc)
     total = time.perf_counter() - t_all
 
-    md, png = output_paths("known_poses_single_view", args.quick, args.out_dir)
-    cmd = "python benchmarks/known_poses_single_view.py" + (
-        " --quick"
-        if args.quick
-        else (f" --repeats {args.repeats} --repeats-noise {args.repeats_noise}")
+    cmd = command(
+        "known_poses_single_view",
+        args.quick,
+        f" --repeats {args.repeats} --repeats-noise {args.repeats_noise}",
     )
     sizes = ", ".join(
         f"{n} {diagonal(m):.1f} mm ({m.n_vertices} vertices)" for n, m in models.items()
     )
     text = "\n".join(
         [
-            "# Known poses, one view: G-SfT vs. Prox-ADMM",
-            "",
-            f"Command: `{cmd} --seed {args.seed}`  ",
-            f"Machine: {machine()}; total run time {total:.0f} s.",
-            "",
+            *header(
+                "Known poses, one view: G-SfT vs. Prox-ADMM", f"{cmd} --seed {args.seed}", total
+            ),
             f"Models (largest diagonal of the mean): {sizes}; 4-mode SSMs of 5-member harmonic "
             "populations. Weights U[0, 1] SD, Euler angles U[-90, 90] deg, K random vertices; 3-D "
             "Gaussian noise before projection (perspective X-ray view for G-SfT, orthographic for "
@@ -210,18 +205,11 @@ def main() -> None:
             "",
         ]
     )
-    write_text(md, text)
-    plot(curves, list(models), png)
-    print(f"wrote {md} and {png} ({total:.0f} s)")
+    write_results("known_poses_single_view", args, text, partial(plot, curves, list(models)), total)
 
 
 def plot(curves, names, png):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(len(names), 3, figsize=(12, 3.2 * len(names)), squeeze=False)
+    fig, axes = pyplot().subplots(len(names), 3, figsize=(12, 3.2 * len(names)), squeeze=False)
     for r, name in enumerate(names):
         for c, key in enumerate(("K", 7, 12)):
             ax = axes[r, c]

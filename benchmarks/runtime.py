@@ -24,22 +24,22 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 import time
 import warnings
-from pathlib import Path
+from functools import partial
 
 import numpy as np
 from _common import (
+    command,
     machine,
-    output_paths,
-    paper_pose,
-    paper_weights,
+    paper_arguments,
+    pyplot,
+    ray_scene,
     save_figure,
+    stacked,
     volumetric_model,
-    write_text,
+    write_results,
 )
-from known_poses_multi_view import random_views
 from silhouette_iterations import scene as silhouette_scene
 from threadpoolctl import threadpool_limits
 
@@ -61,23 +61,11 @@ def split(total: int, parts: int) -> list[int]:
     return [total // parts + (i < total % parts) for i in range(parts)]
 
 
-def rays_scene(model, counts, rng):
-    """Truth and per-view (ids, origins, directions, camera) for random views."""
-    R = paper_pose(rng)
-    X = (model.instance(paper_weights(rng, model.n_modes)) - model.mean.mean(axis=0)) @ R.T
-    out = []
-    for cam, k in zip(random_views(len(counts), rng), counts, strict=True):
-        ids = rng.choice(model.n_vertices, k, replace=False)
-        o, d = cam.rays(cam.project(X[ids]) + rng.normal(size=(k, 2)))
-        out.append((ids, o, d, cam))
-    return X, out
-
-
 def time_known(model, counts, repeats, rng):
     solve, total = [], []
     for _ in range(repeats):
-        _, views = rays_scene(model, counts, rng)
-        ids, o, d = (np.concatenate([v[i] for v in views]) for i in range(3))
+        _, views = ray_scene(model, counts, 1.0, rng)
+        ids, o, d = stacked(views)
         res = solve_gsft(model, ids, o, d)
         solve.append(res.timings["solve"])
         total.append(res.timings["total"])
@@ -87,7 +75,7 @@ def time_known(model, counts, repeats, rng):
 def time_unknown(model, counts, repeats, rng):
     solve, total = [], []
     for _ in range(repeats):
-        _, views = rays_scene(model, counts, rng)
+        _, views = ray_scene(model, counts, 1.0, rng)
         rays = [(ids, d @ cam.R.T) for ids, _, d, cam in views]  # each camera's own frame
         res = solve_gsft_unknown_poses(model, rays)
         solve.append(res.timings["solve"])
@@ -112,12 +100,7 @@ def time_silhouettes(model, points, repeats, rng):
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="CI-sized run")
-    ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out-dir", type=Path, default=None)
-    args = ap.parse_args()
+    args = paper_arguments(__doc__, "CI-sized run", 5)
     t_all = time.perf_counter()
     model = volumetric_model("radius")
     q = args.quick
@@ -149,8 +132,7 @@ def main() -> None:
     b_k_total = fit_exponent(ks, [t for _, t in res["K"]])
     b_sil = fit_exponent([r[1] for r in res["sil"]], [r[0] for r in res["sil"]])
     b_sil_total = fit_exponent([r[1] for r in res["sil"]], [r[3] for r in res["sil"]])
-    md, png = output_paths("runtime", q, args.out_dir)
-    cmd = "python benchmarks/runtime.py" + (" --quick" if q else f" --repeats {reps}")
+    cmd = command("runtime", q, f" --repeats {reps}")
     text = "\n".join(
         [
             "# Runtime",
@@ -209,18 +191,11 @@ def main() -> None:
             "",
         ]
     )
-    write_text(md, text)
-    plot(view_counts, unknown_counts, ks, res, png)
-    print(f"wrote {md} and {png} ({total:.0f} s)")
+    write_results("runtime", args, text, partial(plot, view_counts, unknown_counts, ks, res), total)
 
 
 def plot(view_counts, unknown_counts, ks, res, png):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+    fig, axes = pyplot().subplots(1, 3, figsize=(13, 3.6))
     ax = axes[0]
     ax.loglog(view_counts, [1e3 * s for s, _ in res["known"]], "o-", label="known poses")
     ax.loglog(unknown_counts, [1e3 * s for s, _ in res["unknown"]], "s-", label="unknown poses")

@@ -1,6 +1,7 @@
 """``RegistrationOptions``: every field validated, documented (docstring and docs/cases.md) and
 accepted as a case file's ``[registration]`` key, and the pipeline options changing what they
-should (cheap: single stages on the seeded problems of ``tests/registration/registration_problems.py``)."""
+should (cheap: single stages on the seeded problems of
+``tests/registration/registration_problems.py``)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from registration_problems import bone_model, clean_views, problem_for, with_blunder
+from registration_problems import problem_for, with_blunder
 
 from biplanar_reg.cases import load_case, registration_options
 from biplanar_reg.registration import RegistrationOptions, register_views
@@ -168,16 +169,6 @@ def test_a_case_file_accepts_every_field(tmp_path):
 
 
 # -- behaviour -------------------------------------------------------------------------------
-
-
-@pytest.fixture(scope="module")
-def model():
-    return bone_model()
-
-
-@pytest.fixture(scope="module")
-def views(model):
-    return clean_views(model, 0)[0]
 
 
 @pytest.fixture(scope="module")
