@@ -98,6 +98,48 @@ def select_lambda(models, repeats, seed):
     return min(med, key=med.get), med
 
 
+def k_sweep(model, name, ks, repeats, lam, rng):
+    """Noise-free trials at each K: (table rows, one (repeats, 5) array per K, G-SfT seconds,
+    Prox-ADMM seconds)."""
+    rows, acc, t_g, t_p = [], [], [], []
+    for K in ks:
+        g = np.array(
+            [
+                [*run_gsft(model, *s), *run_prox(model, *s, lam)]
+                for s in (scene(model, K, 0.0, rng) for _ in range(repeats))
+            ]
+        )
+        t_g += list(g[:, 2])
+        t_p += list(g[:, 4])
+        acc.append(g)
+        rows.append(
+            f"| {name} | {K} | {fmt(g[:, 0])} | {np.nanmean(g[:, 0]):.2g} | {fmt(g[:, 1])} | "
+            f"{fmt(g[:, 3])} | {np.nanmean(g[:, 3]):.2g} | {int(np.isnan(g[:, 0]).sum())} / "
+            f"{int(np.isnan(g[:, 3]).sum())} |"
+        )
+        print(rows[-1], flush=True)
+    return rows, acc, t_g, t_p
+
+
+def noise_sweep(model, name, K, fracs, repeats, lam, rng):
+    """Trials at K observations per 3-D noise level (fractions of the diagonal): (table rows,
+    one (repeats, 5) array per level)."""
+    diag = diagonal(model)
+    rows, acc = [], []
+    for frac in fracs:
+        scenes = [scene(model, K, frac * diag, rng) for _ in range(repeats)]
+        g = np.array([[*run_gsft(model, *s), *run_prox(model, *s, lam)] for s in scenes])
+        mean_err = [rms_rigid(model.mean, s[0]) for s in scenes]
+        acc.append(g)
+        rows.append(
+            f"| {name} | {K} | {100 * frac:g} % = {frac * diag:.2f} | {fmt(g[:, 0])} | "
+            f"{np.nanmean(g[:, 0]):.2g} | {fmt(g[:, 1])} | {fmt(g[:, 3])} | "
+            f"{np.nanmean(g[:, 3]):.2g} | {np.nanmax(g[:, 3]):.2g} | {fmt(mean_err)} |"
+        )
+        print(rows[-1], flush=True)
+    return rows, acc
+
+
 def main() -> None:
     args = paper_arguments(
         __doc__,
@@ -121,41 +163,29 @@ def main() -> None:
     rows_k, rows_n, curves = [], [], {}
     t_g, t_p = [], []
     for name, model in models.items():
-        diag = diagonal(model)
-        acc = []
-        for K in ks:
-            g = np.array(
-                [
-                    [*run_gsft(model, *s), *run_prox(model, *s, lam)]
-                    for s in (scene(model, K, 0.0, rng) for _ in range(rep_k))
-                ]
-            )
-            t_g += list(g[:, 2])
-            t_p += list(g[:, 4])
-            acc.append(g)
-            rows_k.append(
-                f"| {name} | {K} | {fmt(g[:, 0])} | {np.nanmean(g[:, 0]):.2g} | {fmt(g[:, 1])} | "
-                f"{fmt(g[:, 3])} | {np.nanmean(g[:, 3]):.2g} | {int(np.isnan(g[:, 0]).sum())} / "
-                f"{int(np.isnan(g[:, 3]).sum())} |"
-            )
-            print(rows_k[-1], flush=True)
+        rows, acc, g_secs, p_secs = k_sweep(model, name, ks, rep_k, lam, rng)
+        rows_k += rows
+        t_g += g_secs
+        t_p += p_secs
         curves[(name, "K")] = (list(ks), acc)
         for K in (7, 12):
-            acc = []
-            for frac in fracs:
-                scenes = [scene(model, K, frac * diag, rng) for _ in range(rep_n)]
-                g = np.array([[*run_gsft(model, *s), *run_prox(model, *s, lam)] for s in scenes])
-                mean_err = [rms_rigid(model.mean, s[0]) for s in scenes]
-                acc.append(g)
-                rows_n.append(
-                    f"| {name} | {K} | {100 * frac:g} % = {frac * diag:.2f} | {fmt(g[:, 0])} | "
-                    f"{np.nanmean(g[:, 0]):.2g} | {fmt(g[:, 1])} | {fmt(g[:, 3])} | "
-                    f"{np.nanmean(g[:, 3]):.2g} | {np.nanmax(g[:, 3]):.2g} | {fmt(mean_err)} |"
-                )
-                print(rows_n[-1], flush=True)
+            rows, acc = noise_sweep(model, name, K, fracs, rep_n, lam, rng)
+            rows_n += rows
             curves[(name, K)] = ([100 * f for f in fracs], acc)
     total = time.perf_counter() - t_all
+    text = markdown(
+        args, models, (lam, lam_scores), (t_g, t_p), (rep_k, rep_n), rows_k, rows_n, total
+    )
+    write_results("known_poses_single_view", args, text, partial(plot, curves, list(models)), total)
 
+
+def markdown(args, models, lam_choice, times, repeats, rows_k, rows_n, total) -> str:
+    """The results file: set-up, the chosen ``lam`` with its scores, median solve times
+    ``(G-SfT, Prox-ADMM)`` seconds, and the tables of the K and noise sweeps (``repeats``
+    trials per row in each)."""
+    lam, lam_scores = lam_choice
+    t_g, t_p = times
+    rep_k, rep_n = repeats
     cmd = command(
         "known_poses_single_view",
         args.quick,
@@ -164,7 +194,7 @@ def main() -> None:
     sizes = ", ".join(
         f"{n} {diagonal(m):.1f} mm ({m.n_vertices} vertices)" for n, m in models.items()
     )
-    text = "\n".join(
+    return "\n".join(
         [
             *header(
                 "Known poses, one view: G-SfT vs. Prox-ADMM", f"{cmd} --seed {args.seed}", total
@@ -205,7 +235,6 @@ def main() -> None:
             "",
         ]
     )
-    write_results("known_poses_single_view", args, text, partial(plot, curves, list(models)), total)
 
 
 def plot(curves, names, png):

@@ -122,22 +122,31 @@ def main() -> None:
         res["sil"] = [time_silhouettes(model, p, reps, rng) for p in points]
         print("silhouettes", res["sil"], flush=True)
     total = time.perf_counter() - t_all
+    cmd = command("runtime", q, f" --repeats {reps}") + f" --seed {args.seed}"
+    text = markdown(cmd, reps, (view_counts, unknown_counts, ks, points), res, total)
+    write_results("runtime", args, text, partial(plot, view_counts, unknown_counts, ks, res), total)
 
-    def ms(x):
-        return f"{1e3 * x:.0f}"
 
+def ms(seconds: float) -> str:
+    """Seconds as whole milliseconds."""
+    return f"{1e3 * seconds:.0f}"
+
+
+def markdown(cmd: str, reps: int, grid: tuple, res: dict, total: float) -> str:
+    """The results file of the medians ``res`` measured over ``grid`` = (view counts (known),
+    view counts (unknown), correspondences, silhouette points), with the fitted exponents."""
+    view_counts, unknown_counts, ks, points = grid
     b_views = fit_exponent(view_counts, [s for s, _ in res["known"]])
     b_unknown = fit_exponent(unknown_counts, [s for s, _ in res["unknown"]])
     b_k = fit_exponent(ks, [s for s, _ in res["K"]])
     b_k_total = fit_exponent(ks, [t for _, t in res["K"]])
     b_sil = fit_exponent([r[1] for r in res["sil"]], [r[0] for r in res["sil"]])
     b_sil_total = fit_exponent([r[1] for r in res["sil"]], [r[3] for r in res["sil"]])
-    cmd = command("runtime", q, f" --repeats {reps}")
-    text = "\n".join(
+    return "\n".join(
         [
             "# Runtime",
             "",
-            f"Command: `{cmd} --seed {args.seed}`  ",
+            f"Command: `{cmd}`  ",
             f"Machine: {machine()}; one BLAS thread; total run time {total:.0f} s. Medians over "
             f"{reps} repeats. Model: radius SSM (1,002 vertices, 4 modes). Solver = the conic "
             "solve alone (`timings['solve']`, the paper's measure); call = the whole function "
@@ -191,7 +200,6 @@ def main() -> None:
             "",
         ]
     )
-    write_results("runtime", args, text, partial(plot, view_counts, unknown_counts, ks, res), total)
 
 
 def plot(view_counts, unknown_counts, ks, res, png):

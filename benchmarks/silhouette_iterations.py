@@ -46,8 +46,8 @@ from _common import (
 
 from biplanar_reg.annotation.annotations import Contour
 from biplanar_reg.outline import outline_polylines
-from biplanar_reg.registration import RegistrationOptions, ViewObservations, register_views
-from biplanar_reg.simulate import biplanar_views
+from biplanar_reg.registration import RegistrationOptions, register_views
+from biplanar_reg.simulate import biplanar_views, vertex_landmarks
 
 MAX_IT = 10
 #: Recorded iterations at most: the start, MAX_IT convex re-solves, the local refinement.
@@ -68,17 +68,7 @@ def scene(model, K, outline_px, rng):
             for p, c in zip(polys, closed, strict=True)
             if len(p) >= 3
         ]
-        obs.append(
-            ViewObservations(
-                name=f"cam{i + 1}",
-                view=view,
-                landmark_names=[f"v{j}" for j in ids],
-                landmark_ids=ids,
-                landmark_uv=view.project(X[ids]),
-                landmark_sigma_px=np.ones(k),
-                contours=contours,
-            )
-        )
+        obs.append(vertex_landmarks(f"cam{i + 1}", view, ids, view.project(X[ids]), contours))
     return X, obs
 
 

@@ -1,7 +1,7 @@
 """``RegistrationOptions``: every field validated, documented (docstring and docs/cases.md) and
 accepted as a case file's ``[registration]`` key, and the pipeline options changing what they
-should (cheap: single stages on the seeded problems of
-``tests/registration/registration_problems.py``)."""
+should (cheap: single stages on the seeded problems of ``registration_problems.py`` beside this
+file)."""
 
 from __future__ import annotations
 
