@@ -27,6 +27,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from _common import rms, write_optional
 from threadpoolctl import threadpool_limits
 
 from biplanar_reg.registration import RegistrationOptions, register_views
@@ -94,10 +95,6 @@ def expected_rms(model, views, truth, opts: RegistrationOptions) -> float:
     return float(np.sqrt((b @ b + np.trace(Jv @ cov @ Jv.T)) / model.n_vertices))
 
 
-def _rms(a, b):
-    return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=24)
@@ -125,7 +122,7 @@ def main() -> None:
             robust = register_views(model, blunder, options=opts)
             seconds = time.perf_counter() - t0
             drop = register_views(model, dropped, options=opts)
-            e = [_rms(r.vertices, X) for r in (clean, robust, drop)]
+            e = [rms(r.vertices, X) for r in (clean, robust, drop)]
             x = [expected_rms(model, v, truth, opts) for v in (views, dropped)]
             flagged = robust.rejected == [("cam1", views[0].landmark_names[0])]
             stats.append((*e, *x, flagged, seconds, len(clean.rejected)))
@@ -167,8 +164,7 @@ def main() -> None:
     ]
     text = "\n".join(lines) + "\n"
     print(text)
-    if args.out:
-        args.out.write_text(text)
+    write_optional(args.out, text)
 
 
 if __name__ == "__main__":

@@ -16,14 +16,11 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+from _common import rms, sdp_vertices, write_optional
 from threadpoolctl import threadpool_limits
 
 from biplanar_reg.registration import solve_gsft
 from biplanar_reg.simulate import biplanar_views, observe, random_pose, synthetic_bone_model
-
-
-def _rms(a, b):
-    return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
 
 
 def main() -> None:
@@ -62,12 +59,8 @@ def main() -> None:
                             model, obs.vertex_ids, obs.origins, obs.directions, eps=eps
                         )
                         certs.append(res.certificate)
-                        sdp_v = (
-                            model.instance(res.sdp_weights) @ res.sdp_rotation.T
-                            + res.sdp_translation
-                        )
-                        rms_sdp.append(_rms(sdp_v, X))
-                        rms_fin.append(_rms(res.vertices, X))
+                        rms_sdp.append(rms(sdp_vertices(model, res), X))
+                        rms_fin.append(rms(res.vertices, X))
                     row = (
                         f"| {noise:g} | {K} | {eps:g} | {np.median(certs):.1e} "
                         f"({np.max(certs):.1e}) | {np.median(rms_sdp):.3f} | "
@@ -75,9 +68,7 @@ def main() -> None:
                     )
                     print(row, flush=True)
                     lines.append(row)
-    text = "\n".join(lines) + "\n"
-    if args.out:
-        args.out.write_text(text)
+    write_optional(args.out, "\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":

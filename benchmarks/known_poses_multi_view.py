@@ -22,56 +22,39 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 import time
 import warnings
-from pathlib import Path
+from functools import partial
 
 import numpy as np
 from _common import (
-    diagonal,
+    command,
     fmt,
-    machine,
-    output_paths,
-    paper_pose,
-    paper_weights,
+    header,
+    model_sizes,
+    paper_arguments,
+    pyplot,
+    ray_scene,
     rms,
     rms_rigid,
     save_figure,
+    stacked,
     volumetric_models,
-    write_text,
+    write_results,
 )
 from baselines import repeated_single_view
 
 from biplanar_reg.registration import SolverFailure, solve_gsft
-from biplanar_reg.simulate import look_at_view
 
 CONFIGS = {2: [50, 50], 3: [33, 33, 34], 4: [25] * 4, 10: [10] * 10, 100: [1] * 100}
 
 
-def random_views(n: int, rng: np.random.Generator):
-    """``n`` perspective views looking at the origin from random directions."""
-    views = []
-    for _ in range(n):
-        d = rng.normal(size=3)
-        d /= np.linalg.norm(d)
-        up = (0.0, 0.0, 1.0) if abs(d[2]) < 0.9 else (1.0, 0.0, 0.0)
-        views.append(look_at_view(1000.0 * rng.uniform(0.8, 1.2) * d, sdd=1200.0, up=up))
-    return views
-
-
 def trial(model, counts, noise_px, rng):
     """{method: (posed, aligned, per_view, seconds)} for one random scene."""
-    R = paper_pose(rng)
-    X = (model.instance(paper_weights(rng, model.n_modes)) - model.mean.mean(axis=0)) @ R.T
-    per_view = []
-    for cam, k in zip(random_views(len(counts), rng), counts, strict=True):
-        ids = rng.choice(model.n_vertices, k, replace=False)
-        uv = cam.project(X[ids]) + rng.normal(scale=noise_px, size=(k, 2))
-        o, d = cam.rays(uv)
-        per_view.append((ids, o, d))
+    X, views = ray_scene(model, counts, noise_px, rng)
+    per_view = [(ids, o, d) for ids, o, d, _ in views]
     out = {}
-    ids, o, d = (np.concatenate([v[i] for v in per_view]) for i in range(3))
+    ids, o, d = stacked(views)
     t0 = time.perf_counter()
     try:
         res = solve_gsft(model, ids, o, d)
@@ -91,13 +74,12 @@ def trial(model, counts, noise_px, rng):
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="CI-sized run (one model, 3 repeats)")
-    ap.add_argument("--repeats", type=int, default=30)
-    ap.add_argument("--noise-px", type=float, default=1.0)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out-dir", type=Path, default=None)
-    args = ap.parse_args()
+    args = paper_arguments(
+        __doc__,
+        "CI-sized run (one model, 3 repeats)",
+        30,
+        more=[("--noise-px", {"type": float, "default": 1.0})],
+    )
     t_all = time.perf_counter()
     models = volumetric_models(["box"] if args.quick else None)
     repeats = 3 if args.quick else args.repeats
@@ -123,18 +105,15 @@ def main() -> None:
                     )
                     print(rows[-1], flush=True)
     total = time.perf_counter() - t_all
-    md, png = output_paths("known_poses_multi_view", args.quick, args.out_dir)
-    cmd = "python benchmarks/known_poses_multi_view.py" + (
-        " --quick" if args.quick else f" --repeats {repeats}"
-    )
-    sizes = ", ".join(f"{n} {diagonal(m):.1f} mm" for n, m in models.items())
+    cmd = command("known_poses_multi_view", args.quick, f" --repeats {repeats}")
+    sizes = model_sizes(models)
     text = "\n".join(
         [
-            "# Known poses, many views: G-SfT vs. repeated single-view G-SfT + combination",
-            "",
-            f"Command: `{cmd} --noise-px {args.noise_px} --seed {args.seed}`  ",
-            f"Machine: {machine()}; total run time {total:.0f} s.",
-            "",
+            *header(
+                "Known poses, many views: G-SfT vs. repeated single-view G-SfT + combination",
+                f"{cmd} --noise-px {args.noise_px} --seed {args.seed}",
+                total,
+            ),
             f"Models (largest diagonal): {sizes}. 100 correspondences split over P perspective "
             f"views at random directions (1000 mm +- 20 %), {args.noise_px:g} px pixel noise, "
             f"{repeats} trials per row. Vertex RMS (mm), median [IQR]: posed = world frame, "
@@ -150,18 +129,11 @@ def main() -> None:
             "",
         ]
     )
-    write_text(md, text)
-    plot(curves, list(models), png)
-    print(f"wrote {md} and {png} ({total:.0f} s)")
+    write_results("known_poses_multi_view", args, text, partial(plot, curves, list(models)), total)
 
 
 def plot(curves, names, png):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.6), squeeze=False)
+    fig, axes = pyplot().subplots(1, len(names), figsize=(4.2 * len(names), 3.6), squeeze=False)
     xs = list(CONFIGS)
     for c, name in enumerate(names):
         ax = axes[0, c]

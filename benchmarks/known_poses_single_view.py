@@ -21,24 +21,24 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 import time
 import warnings
-from pathlib import Path
+from functools import partial
 
 import numpy as np
 from _common import (
+    command,
     diagonal,
     fmt,
-    machine,
-    output_paths,
-    paper_pose,
-    paper_weights,
+    header,
+    paper_arguments,
+    paper_instance,
+    pyplot,
     rms,
     rms_rigid,
     save_figure,
     volumetric_models,
-    write_text,
+    write_results,
 )
 from baselines import prox_admm
 
@@ -52,9 +52,7 @@ VIEW = look_at_view(np.array([0.0, 0.0, -1000.0]), sdd=1200.0, pixel=0.3)
 
 def scene(model, K, noise_mm, rng):
     """Truth (N, 3) world mm, observed ids (K,), noisy observed points (K, 3)."""
-    R = paper_pose(rng)
-    w = paper_weights(rng, model.n_modes)
-    X = (model.instance(w) - model.mean.mean(axis=0)) @ R.T
+    X = paper_instance(model, rng)
     ids = rng.choice(model.n_vertices, K, replace=False)
     Xn = X[ids] + rng.normal(scale=noise_mm, size=(K, 3))
     return X, ids, Xn
@@ -100,14 +98,56 @@ def select_lambda(models, repeats, seed):
     return min(med, key=med.get), med
 
 
+def k_sweep(model, name, ks, repeats, lam, rng):
+    """Noise-free trials at each K: (table rows, one (repeats, 5) array per K, G-SfT seconds,
+    Prox-ADMM seconds)."""
+    rows, acc, t_g, t_p = [], [], [], []
+    for K in ks:
+        g = np.array(
+            [
+                [*run_gsft(model, *s), *run_prox(model, *s, lam)]
+                for s in (scene(model, K, 0.0, rng) for _ in range(repeats))
+            ]
+        )
+        t_g += list(g[:, 2])
+        t_p += list(g[:, 4])
+        acc.append(g)
+        rows.append(
+            f"| {name} | {K} | {fmt(g[:, 0])} | {np.nanmean(g[:, 0]):.2g} | {fmt(g[:, 1])} | "
+            f"{fmt(g[:, 3])} | {np.nanmean(g[:, 3]):.2g} | {int(np.isnan(g[:, 0]).sum())} / "
+            f"{int(np.isnan(g[:, 3]).sum())} |"
+        )
+        print(rows[-1], flush=True)
+    return rows, acc, t_g, t_p
+
+
+def noise_sweep(model, name, K, fracs, repeats, lam, rng):
+    """Trials at K observations per 3-D noise level (fractions of the diagonal): (table rows,
+    one (repeats, 5) array per level)."""
+    diag = diagonal(model)
+    rows, acc = [], []
+    for frac in fracs:
+        scenes = [scene(model, K, frac * diag, rng) for _ in range(repeats)]
+        g = np.array([[*run_gsft(model, *s), *run_prox(model, *s, lam)] for s in scenes])
+        mean_err = [rms_rigid(model.mean, s[0]) for s in scenes]
+        acc.append(g)
+        rows.append(
+            f"| {name} | {K} | {100 * frac:g} % = {frac * diag:.2f} | {fmt(g[:, 0])} | "
+            f"{np.nanmean(g[:, 0]):.2g} | {fmt(g[:, 1])} | {fmt(g[:, 3])} | "
+            f"{np.nanmean(g[:, 3]):.2g} | {np.nanmax(g[:, 3]):.2g} | {fmt(mean_err)} |"
+        )
+        print(rows[-1], flush=True)
+    return rows, acc
+
+
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="CI-sized run (one model, few repeats)")
-    ap.add_argument("--repeats", type=int, default=20, help="trials per K (noise-free)")
-    ap.add_argument("--repeats-noise", type=int, default=50, help="trials per noise level")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out-dir", type=Path, default=None)
-    args = ap.parse_args()
+    args = paper_arguments(
+        __doc__,
+        "CI-sized run (one model, few repeats)",
+        20,
+        "trials per K (noise-free)",
+        more=[("--repeats-noise", {"type": int, "default": 50, "help": "trials per noise level"})],
+    )
     t_all = time.perf_counter()
     if args.quick:
         models = volumetric_models(["box"])
@@ -123,57 +163,42 @@ def main() -> None:
     rows_k, rows_n, curves = [], [], {}
     t_g, t_p = [], []
     for name, model in models.items():
-        diag = diagonal(model)
-        acc = []
-        for K in ks:
-            g = np.array(
-                [
-                    [*run_gsft(model, *s), *run_prox(model, *s, lam)]
-                    for s in (scene(model, K, 0.0, rng) for _ in range(rep_k))
-                ]
-            )
-            t_g += list(g[:, 2])
-            t_p += list(g[:, 4])
-            acc.append(g)
-            rows_k.append(
-                f"| {name} | {K} | {fmt(g[:, 0])} | {np.nanmean(g[:, 0]):.2g} | {fmt(g[:, 1])} | "
-                f"{fmt(g[:, 3])} | {np.nanmean(g[:, 3]):.2g} | {int(np.isnan(g[:, 0]).sum())} / "
-                f"{int(np.isnan(g[:, 3]).sum())} |"
-            )
-            print(rows_k[-1], flush=True)
+        rows, acc, g_secs, p_secs = k_sweep(model, name, ks, rep_k, lam, rng)
+        rows_k += rows
+        t_g += g_secs
+        t_p += p_secs
         curves[(name, "K")] = (list(ks), acc)
         for K in (7, 12):
-            acc = []
-            for frac in fracs:
-                scenes = [scene(model, K, frac * diag, rng) for _ in range(rep_n)]
-                g = np.array([[*run_gsft(model, *s), *run_prox(model, *s, lam)] for s in scenes])
-                mean_err = [rms_rigid(model.mean, s[0]) for s in scenes]
-                acc.append(g)
-                rows_n.append(
-                    f"| {name} | {K} | {100 * frac:g} % = {frac * diag:.2f} | {fmt(g[:, 0])} | "
-                    f"{np.nanmean(g[:, 0]):.2g} | {fmt(g[:, 1])} | {fmt(g[:, 3])} | "
-                    f"{np.nanmean(g[:, 3]):.2g} | {np.nanmax(g[:, 3]):.2g} | {fmt(mean_err)} |"
-                )
-                print(rows_n[-1], flush=True)
+            rows, acc = noise_sweep(model, name, K, fracs, rep_n, lam, rng)
+            rows_n += rows
             curves[(name, K)] = ([100 * f for f in fracs], acc)
     total = time.perf_counter() - t_all
+    text = markdown(
+        args, models, (lam, lam_scores), (t_g, t_p), (rep_k, rep_n), rows_k, rows_n, total
+    )
+    write_results("known_poses_single_view", args, text, partial(plot, curves, list(models)), total)
 
-    md, png = output_paths("known_poses_single_view", args.quick, args.out_dir)
-    cmd = "python benchmarks/known_poses_single_view.py" + (
-        " --quick"
-        if args.quick
-        else (f" --repeats {args.repeats} --repeats-noise {args.repeats_noise}")
+
+def markdown(args, models, lam_choice, times, repeats, rows_k, rows_n, total) -> str:
+    """The results file: set-up, the chosen ``lam`` with its scores, median solve times
+    ``(G-SfT, Prox-ADMM)`` seconds, and the tables of the K and noise sweeps (``repeats``
+    trials per row in each)."""
+    lam, lam_scores = lam_choice
+    t_g, t_p = times
+    rep_k, rep_n = repeats
+    cmd = command(
+        "known_poses_single_view",
+        args.quick,
+        f" --repeats {args.repeats} --repeats-noise {args.repeats_noise}",
     )
     sizes = ", ".join(
         f"{n} {diagonal(m):.1f} mm ({m.n_vertices} vertices)" for n, m in models.items()
     )
-    text = "\n".join(
+    return "\n".join(
         [
-            "# Known poses, one view: G-SfT vs. Prox-ADMM",
-            "",
-            f"Command: `{cmd} --seed {args.seed}`  ",
-            f"Machine: {machine()}; total run time {total:.0f} s.",
-            "",
+            *header(
+                "Known poses, one view: G-SfT vs. Prox-ADMM", f"{cmd} --seed {args.seed}", total
+            ),
             f"Models (largest diagonal of the mean): {sizes}; 4-mode SSMs of 5-member harmonic "
             "populations. Weights U[0, 1] SD, Euler angles U[-90, 90] deg, K random vertices; 3-D "
             "Gaussian noise before projection (perspective X-ray view for G-SfT, orthographic for "
@@ -210,18 +235,10 @@ def main() -> None:
             "",
         ]
     )
-    write_text(md, text)
-    plot(curves, list(models), png)
-    print(f"wrote {md} and {png} ({total:.0f} s)")
 
 
 def plot(curves, names, png):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(len(names), 3, figsize=(12, 3.2 * len(names)), squeeze=False)
+    fig, axes = pyplot().subplots(len(names), 3, figsize=(12, 3.2 * len(names)), squeeze=False)
     for r, name in enumerate(names):
         for c, key in enumerate(("K", 7, 12)):
             ax = axes[r, c]

@@ -24,22 +24,22 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 import time
 import warnings
-from pathlib import Path
+from functools import partial
 
 import numpy as np
 from _common import (
+    command,
     machine,
-    output_paths,
-    paper_pose,
-    paper_weights,
+    paper_arguments,
+    pyplot,
+    ray_scene,
     save_figure,
+    stacked,
     volumetric_model,
-    write_text,
+    write_results,
 )
-from known_poses_multi_view import random_views
 from silhouette_iterations import scene as silhouette_scene
 from threadpoolctl import threadpool_limits
 
@@ -61,23 +61,11 @@ def split(total: int, parts: int) -> list[int]:
     return [total // parts + (i < total % parts) for i in range(parts)]
 
 
-def rays_scene(model, counts, rng):
-    """Truth and per-view (ids, origins, directions, camera) for random views."""
-    R = paper_pose(rng)
-    X = (model.instance(paper_weights(rng, model.n_modes)) - model.mean.mean(axis=0)) @ R.T
-    out = []
-    for cam, k in zip(random_views(len(counts), rng), counts, strict=True):
-        ids = rng.choice(model.n_vertices, k, replace=False)
-        o, d = cam.rays(cam.project(X[ids]) + rng.normal(size=(k, 2)))
-        out.append((ids, o, d, cam))
-    return X, out
-
-
 def time_known(model, counts, repeats, rng):
     solve, total = [], []
     for _ in range(repeats):
-        _, views = rays_scene(model, counts, rng)
-        ids, o, d = (np.concatenate([v[i] for v in views]) for i in range(3))
+        _, views = ray_scene(model, counts, 1.0, rng)
+        ids, o, d = stacked(views)
         res = solve_gsft(model, ids, o, d)
         solve.append(res.timings["solve"])
         total.append(res.timings["total"])
@@ -87,7 +75,7 @@ def time_known(model, counts, repeats, rng):
 def time_unknown(model, counts, repeats, rng):
     solve, total = [], []
     for _ in range(repeats):
-        _, views = rays_scene(model, counts, rng)
+        _, views = ray_scene(model, counts, 1.0, rng)
         rays = [(ids, d @ cam.R.T) for ids, _, d, cam in views]  # each camera's own frame
         res = solve_gsft_unknown_poses(model, rays)
         solve.append(res.timings["solve"])
@@ -112,12 +100,7 @@ def time_silhouettes(model, points, repeats, rng):
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="CI-sized run")
-    ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out-dir", type=Path, default=None)
-    args = ap.parse_args()
+    args = paper_arguments(__doc__, "CI-sized run", 5)
     t_all = time.perf_counter()
     model = volumetric_model("radius")
     q = args.quick
@@ -139,23 +122,31 @@ def main() -> None:
         res["sil"] = [time_silhouettes(model, p, reps, rng) for p in points]
         print("silhouettes", res["sil"], flush=True)
     total = time.perf_counter() - t_all
+    cmd = command("runtime", q, f" --repeats {reps}") + f" --seed {args.seed}"
+    text = markdown(cmd, reps, (view_counts, unknown_counts, ks, points), res, total)
+    write_results("runtime", args, text, partial(plot, view_counts, unknown_counts, ks, res), total)
 
-    def ms(x):
-        return f"{1e3 * x:.0f}"
 
+def ms(seconds: float) -> str:
+    """Seconds as whole milliseconds."""
+    return f"{1e3 * seconds:.0f}"
+
+
+def markdown(cmd: str, reps: int, grid: tuple, res: dict, total: float) -> str:
+    """The results file of the medians ``res`` measured over ``grid`` = (view counts (known),
+    view counts (unknown), correspondences, silhouette points), with the fitted exponents."""
+    view_counts, unknown_counts, ks, points = grid
     b_views = fit_exponent(view_counts, [s for s, _ in res["known"]])
     b_unknown = fit_exponent(unknown_counts, [s for s, _ in res["unknown"]])
     b_k = fit_exponent(ks, [s for s, _ in res["K"]])
     b_k_total = fit_exponent(ks, [t for _, t in res["K"]])
     b_sil = fit_exponent([r[1] for r in res["sil"]], [r[0] for r in res["sil"]])
     b_sil_total = fit_exponent([r[1] for r in res["sil"]], [r[3] for r in res["sil"]])
-    md, png = output_paths("runtime", q, args.out_dir)
-    cmd = "python benchmarks/runtime.py" + (" --quick" if q else f" --repeats {reps}")
-    text = "\n".join(
+    return "\n".join(
         [
             "# Runtime",
             "",
-            f"Command: `{cmd} --seed {args.seed}`  ",
+            f"Command: `{cmd}`  ",
             f"Machine: {machine()}; one BLAS thread; total run time {total:.0f} s. Medians over "
             f"{reps} repeats. Model: radius SSM (1,002 vertices, 4 modes). Solver = the conic "
             "solve alone (`timings['solve']`, the paper's measure); call = the whole function "
@@ -209,18 +200,10 @@ def main() -> None:
             "",
         ]
     )
-    write_text(md, text)
-    plot(view_counts, unknown_counts, ks, res, png)
-    print(f"wrote {md} and {png} ({total:.0f} s)")
 
 
 def plot(view_counts, unknown_counts, ks, res, png):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+    fig, axes = pyplot().subplots(1, 3, figsize=(13, 3.6))
     ax = axes[0]
     ax.loglog(view_counts, [1e3 * s for s, _ in res["known"]], "o-", label="known poses")
     ax.loglog(unknown_counts, [1e3 * s for s, _ in res["unknown"]], "s-", label="unknown poses")

@@ -23,23 +23,20 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _common import reference, rms, write_optional
 from threadpoolctl import threadpool_limits
 
-from biplanar_reg.io import read_volume
 from biplanar_reg.outline import alpha_outline, mesh_outline
 from biplanar_reg.registration import RegistrationOptions, register_views
 from biplanar_reg.simulate import biplanar_views, boosting_case, random_pose
-from biplanar_reg.ssm import ShapeModel, bone_surface, build_ssm, synthesise_population
-
-CT = Path(__file__).resolve().parents[1] / "sample_cases/wrist_radius/data/radius_ct.tif"
-VOXEL = (0.39625, 0.39625, 0.625)
+from biplanar_reg.ssm import ShapeModel
 
 
 def radius_model(target_vertices: int) -> tuple[ShapeModel, float]:
+    """The sample cases' radius SSM (``sample_cases/reference.py``) of a ``target_vertices``
+    template, and the seconds it took to build."""
     t0 = time.perf_counter()
-    surf = bone_surface(read_volume(CT, voxel_size=VOXEL), target_vertices=target_vertices)
-    pop = synthesise_population(surf.vertices, 9, seed=0)
-    model = build_ssm(pop.shapes, faces=surf.faces, variance=0.98)
+    model = reference.radius_model(*reference.radius_template(target_vertices))
     return model, time.perf_counter() - t0
 
 
@@ -58,16 +55,12 @@ def trial(model, n_landmarks, noise_px, outline_noise_px, seed, opts):
     elapsed = time.perf_counter() - t0
     base = register_views(model, views, silhouettes=False, options=opts)
     return (
-        _rms(base.vertices, X),
-        _rms(res.vertices, X),
+        rms(base.vertices, X),
+        rms(res.vertices, X),
         len(res.iterations) - 1,
         elapsed,
         float(np.mean([r.seconds for r in res.iterations[1:]])) if len(res.iterations) > 1 else 0,
     )
-
-
-def _rms(a, b):
-    return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
 
 
 def compare_outline_methods(model: ShapeModel) -> list[str]:
@@ -178,9 +171,7 @@ def main() -> None:
         for row in compare_outline_methods(model):
             print(row, flush=True)
             lines.append(row)
-    text = "\n".join(lines) + "\n"
-    if args.out:
-        args.out.write_text(text)
+    write_optional(args.out, "\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":

@@ -25,29 +25,29 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 import time
 import warnings
-from pathlib import Path
+from functools import partial
 
 import numpy as np
 from _common import (
-    diagonal,
+    command,
     fmt,
-    machine,
-    output_paths,
-    paper_pose,
-    paper_weights,
+    header,
+    model_sizes,
+    paper_arguments,
+    paper_instance,
+    pyplot,
     rms,
     save_figure,
     volumetric_models,
-    write_text,
+    write_results,
 )
 
 from biplanar_reg.annotation.annotations import Contour
 from biplanar_reg.outline import outline_polylines
-from biplanar_reg.registration import RegistrationOptions, ViewObservations, register_views
-from biplanar_reg.simulate import biplanar_views
+from biplanar_reg.registration import RegistrationOptions, register_views
+from biplanar_reg.simulate import biplanar_views, vertex_landmarks
 
 MAX_IT = 10
 #: Recorded iterations at most: the start, MAX_IT convex re-solves, the local refinement.
@@ -57,8 +57,7 @@ VIEWS = biplanar_views(75.0)
 
 def scene(model, K, outline_px, rng):
     """Truth (N, 3) and the two ViewObservations."""
-    R = paper_pose(rng)
-    X = (model.instance(paper_weights(rng, model.n_modes)) - model.mean.mean(axis=0)) @ R.T
+    X = paper_instance(model, rng)
     split = (1, K - 1) if K < 4 else (2, K - 2)
     obs = []
     for i, (view, k) in enumerate(zip(VIEWS, split, strict=True)):
@@ -69,17 +68,7 @@ def scene(model, K, outline_px, rng):
             for p, c in zip(polys, closed, strict=True)
             if len(p) >= 3
         ]
-        obs.append(
-            ViewObservations(
-                name=f"cam{i + 1}",
-                view=view,
-                landmark_names=[f"v{j}" for j in ids],
-                landmark_ids=ids,
-                landmark_uv=view.project(X[ids]),
-                landmark_sigma_px=np.ones(k),
-                contours=contours,
-            )
-        )
+        obs.append(vertex_landmarks(f"cam{i + 1}", view, ids, view.project(X[ids]), contours))
     return X, obs
 
 
@@ -116,12 +105,7 @@ def run(model, K, outline_px, repeats, rng):
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="CI-sized run")
-    ap.add_argument("--repeats", type=int, default=8)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out-dir", type=Path, default=None)
-    args = ap.parse_args()
+    args = paper_arguments(__doc__, "CI-sized run", 8)
     t_all = time.perf_counter()
     if args.quick:
         models, ks, repeats = volumetric_models(["box"]), (3, 5, 7), 2
@@ -159,18 +143,15 @@ def main() -> None:
                 )
                 print(rows_noise[-1], flush=True)
     total = time.perf_counter() - t_all
-    md, png = output_paths("silhouette_iterations", args.quick, args.out_dir)
-    cmd = "python benchmarks/silhouette_iterations.py" + (
-        " --quick" if args.quick else f" --repeats {repeats}"
-    )
-    sizes = ", ".join(f"{n} {diagonal(m):.1f} mm" for n, m in models.items())
+    cmd = command("silhouette_iterations", args.quick, f" --repeats {repeats}")
+    sizes = model_sizes(models)
     text = "\n".join(
         [
-            "# Silhouette boosting: error per iteration and outline noise",
-            "",
-            f"Command: `{cmd} --seed {args.seed}`  ",
-            f"Machine: {machine()}; total run time {total:.0f} s.",
-            "",
+            *header(
+                "Silhouette boosting: error per iteration and outline noise",
+                f"{cmd} --seed {args.seed}",
+                total,
+            ),
             f"Models (largest diagonal): {sizes}. Two views 75 deg apart, K exact landmarks "
             "(2 in view 1, K - 2 in view 2), outlines from the true mesh. `register_views` "
             f"defaults except max_iterations = {MAX_IT}, robust = False. Vertex RMS in the world "
@@ -193,18 +174,12 @@ def main() -> None:
             "",
         ]
     )
-    write_text(md, text)
-    plot(curves, list(models), ks, noise_ks, noises, png)
-    print(f"wrote {md} and {png} ({total:.0f} s)")
+    draw = partial(plot, curves, list(models), ks, noise_ks, noises)
+    write_results("silhouette_iterations", args, text, draw, total)
 
 
 def plot(curves, names, ks, noise_ks, noises, png):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, len(names) + 1, figsize=(4.2 * (len(names) + 1), 3.6))
+    fig, axes = pyplot().subplots(1, len(names) + 1, figsize=(4.2 * (len(names) + 1), 3.6))
     its = np.arange(N_REC)
     for c, name in enumerate(names):
         ax = axes[c]

@@ -26,6 +26,7 @@ from pathlib import Path
 import cvxpy as cp
 import numpy as np
 import scipy.sparse as sp
+from _common import rms, sdp_vertices, write_optional
 from threadpoolctl import threadpool_limits
 
 from biplanar_reg.registration import solve_gsft
@@ -136,13 +137,8 @@ def main() -> None:
                 certs.append(ev[-2] / ev[-1])
                 res = solve_gsft(model, obs.vertex_ids, obs.origins, obs.directions)
                 t_full.append(res.timings["total"])
-                rms_sdp.append(
-                    _rms(
-                        model.instance(res.sdp_weights) @ res.sdp_rotation.T + res.sdp_translation,
-                        X,
-                    )
-                )
-                rms_fin.append(_rms(res.vertices, X))
+                rms_sdp.append(rms(sdp_vertices(model, res), X))
+                rms_fin.append(rms(res.vertices, X))
                 rot_fin.append(np.rad2deg(rotation_angle(res.rotation, R_true)))
             ours, ref = np.median(t_ours), np.median(t_ref)
             rows.append(
@@ -167,13 +163,7 @@ def main() -> None:
             )
     table = _table(rows, args)
     print(table)
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(table)
-
-
-def _rms(A, B):
-    return float(np.sqrt(np.mean(np.sum((A - B) ** 2, axis=1))))
+    write_optional(args.out, table)
 
 
 def _table(rows, args) -> str:

@@ -36,16 +36,12 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from _common import random_view, rms, rms_rigid, write_text
 
-from biplanar_reg.io.atomic import atomic_write_text
 from biplanar_reg.registration import solve_gsft
 from biplanar_reg.registration.rotations import rotation_angle
-from biplanar_reg.registration.unknown_poses import (
-    relative_pose,
-    similarity_fit,
-    solve_gsft_unknown_poses,
-)
-from biplanar_reg.simulate import look_at_view, random_pose
+from biplanar_reg.registration.unknown_poses import relative_pose, solve_gsft_unknown_poses
+from biplanar_reg.simulate import random_pose
 from biplanar_reg.ssm.model import ShapeModel
 
 CONFIGS = [(2, [50, 50]), (3, [33, 33, 34]), (4, [25] * 4), (10, [10] * 10), (20, [5] * 20)]
@@ -194,16 +190,6 @@ def pca_model(shapes: np.ndarray, n_modes: int) -> ShapeModel:
 
 
 # -- one trial ------------------------------------------------------------------------------------
-def _rms(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
-
-
-def _rms_rigid(a: np.ndarray, b: np.ndarray) -> float:
-    """RMS after the best rigid alignment of ``a`` onto ``b`` (shape error without pose)."""
-    _, R, _ = similarity_fit(a, b)
-    return _rms((a - a.mean(axis=0)) @ R.T + b.mean(axis=0), b)
-
-
 def trial(poses, test, counts, n_modes, noise_px, rng):
     """Run both methods on one scene; return {method: (shape_rms, rot_deg, centre_mm, secs)}."""
     model = pca_model(np.delete(poses, test, axis=0), n_modes)
@@ -211,10 +197,7 @@ def trial(poses, test, counts, n_modes, noise_px, rng):
     X = poses[test] @ R.T + t
     cams, views, truth = [], [], []
     for k in counts:
-        d = rng.normal(size=3)
-        d /= np.linalg.norm(d)
-        up = np.array([0.0, 0.0, 1.0]) if abs(d[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-        cam = look_at_view(t + 4000.0 * rng.uniform(0.8, 1.2) * d, t, sdd=1200.0, pixel=0.3, up=up)
+        cam = random_view(rng, 4000.0, target=t)
         ids = rng.choice(model.n_vertices, size=k, replace=False)
         uv = cam.project(X[ids]) + rng.normal(scale=noise_px, size=(k, 2))
         _, dw = cam.rays(uv)
@@ -226,8 +209,8 @@ def trial(poses, test, counts, n_modes, noise_px, rng):
 
     def score(Rs, ts, ws):
         est = [model.instance(ws[x]) @ Rs[x].T + ts[x] for x in range(P)]
-        shape = np.mean([_rms(est[x], truth[x]) for x in range(P)])
-        aligned = np.mean([_rms_rigid(est[x], truth[x]) for x in range(P)])
+        shape = np.mean([rms(est[x], truth[x]) for x in range(P)])
+        aligned = np.mean([rms_rigid(est[x], truth[x]) for x in range(P)])
         rot, cen = [], []
         for x in range(1, P):
             Rr, tr = relative_pose(Rs[0], ts[0], Rs[x], ts[x])
@@ -262,7 +245,7 @@ def model_floor(poses: np.ndarray, test: int, n_modes: int) -> float:
     model = pca_model(np.delete(poses, test, axis=0), n_modes)
     A = model.modes.reshape(model.n_modes, -1).T
     w = np.linalg.lstsq(A, (poses[test] - model.mean).ravel(), rcond=None)[0]
-    return _rms(model.instance(w), poses[test])
+    return rms(model.instance(w), poses[test])
 
 
 def _fmt(v: np.ndarray, digits: int = 1) -> str:
@@ -329,7 +312,7 @@ def main() -> None:
             "",
         ]
     )
-    atomic_write_text(args.out, text)
+    write_text(args.out, text)
     print(f"wrote {args.out} ({total:.0f} s)")
 
 

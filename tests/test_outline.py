@@ -21,21 +21,7 @@ from biplanar_reg.outline import (
     outline_edges,
     outline_polylines,
 )
-from biplanar_reg.simulate import biplanar_views, random_pose, synthetic_bone_model
-from biplanar_reg.ssm import ShapeModel
-
-
-@pytest.fixture(scope="module")
-def model() -> ShapeModel:
-    return synthetic_bone_model(8, seed=0, resolution=(40, 32))
-
-
-@pytest.fixture(scope="module")
-def posed(model):
-    rng = np.random.default_rng(0)
-    w = rng.normal(size=8)
-    R, t = random_pose(rng)
-    return rng, w, model.instance(w) @ R.T + t
+from biplanar_reg.simulate import biplanar_views
 
 
 def _view(kind: str):

@@ -317,18 +317,14 @@ def _report_views(
     views = []
     for o in obs:
         cv = case.view(o.name)
-        lm_px = {}
-        if len(o.landmark_ids):
-            uv = o.view.project(res.vertices[o.landmark_ids])
-            lm_px = dict(zip(o.landmark_names, uv, strict=True))
         views.append(
-            ReportView(
-                name=o.name,
+            ReportView.from_observations(
+                o,
+                res.vertices,
                 image_size=cv.image_size,
                 display=None if cv.image is None else cv.image.display,
                 annotations=case.annotations.views.get(o.name),
                 outlines=outlines.get(o.name, []),
-                landmarks_px=lm_px,
             )
         )
     return views

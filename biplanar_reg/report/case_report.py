@@ -21,7 +21,7 @@ import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,6 +29,9 @@ from ..annotation import ViewAnnotations
 from .figures import convergence_figure, histogram_figure, overlay_figure
 from .html import write_page
 from .render3d import render_error_mesh
+
+if TYPE_CHECKING:
+    from ..registration import ViewObservations
 
 __all__ = ["ReportView", "write_case_report", "metric_rows", "safe_name"]
 
@@ -95,6 +98,27 @@ class ReportView:
     outlines: Sequence[np.ndarray] = ()
     landmarks_px: Mapping[str, np.ndarray] = field(default_factory=dict)
 
+    @classmethod
+    def from_observations(
+        cls,
+        observations: ViewObservations,
+        vertices: np.ndarray,
+        *,
+        image_size: tuple[int, int] | None = None,
+        display: np.ndarray | None = None,
+        annotations: ViewAnnotations | None = None,
+        outlines: Sequence[np.ndarray] = (),
+    ) -> ReportView:
+        """The report view of one registered view: its name from ``observations``, and the
+        registered ``vertices`` (N, 3, world frame, mm) of its landmarks projected by its view
+        (``landmarks_px``, pixels); the other fields as given."""
+        o = observations
+        landmarks_px = {}
+        if len(o.landmark_ids):
+            uv = o.view.project(np.asarray(vertices)[o.landmark_ids])
+            landmarks_px = dict(zip(o.landmark_names, uv, strict=True))
+        return cls(o.name, image_size, display, annotations, outlines, landmarks_px)
+
 
 def _overlay_figures(folder: Path, views: Sequence[ReportView]) -> list[dict[str, str]]:
     """One ``overlay_<view>.png`` per view; their figure entries, in view order."""
@@ -107,7 +131,7 @@ def _overlay_figures(folder: Path, views: Sequence[ReportView]) -> list[dict[str
             display=v.display,
             image_size=v.image_size,
             annotations=v.annotations,
-            silhouettes=list(v.outlines),
+            outlines=list(v.outlines),
             landmarks_px=dict(v.landmarks_px),
         )
         figures.append(
@@ -269,18 +293,16 @@ def _from_case(case: Any, obs: Any, res: Any, doc: Any, outlines: Any, vertex_er
     views = []
     for o in obs:
         cv = case.view(o.name)
-        lm_px = {}
-        if len(o.landmark_ids):
-            uv = o.view.project(res.vertices[o.landmark_ids])
-            lm_px = dict(zip(o.landmark_names, uv, strict=True))
+        display = None if cv.image is None else cv.image.display
+        ann = case.annotations.views.get(o.name)
         views.append(
-            ReportView(
-                o.name,
-                cv.image_size,
-                None if cv.image is None else cv.image.display,
-                case.annotations.views.get(o.name),
-                outlines.get(o.name, []),
-                lm_px,
+            ReportView.from_observations(
+                o,
+                res.vertices,
+                image_size=cv.image_size,
+                display=display,
+                annotations=ann,
+                outlines=outlines.get(o.name, []),
             )
         )
     return doc, views, res.vertices, case.model.faces, vertex_error

@@ -11,10 +11,11 @@ import os
 from collections.abc import Mapping, Sequence
 
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from ..annotation import ViewAnnotations
+from ..annotation import Contour, Landmark, ViewAnnotations
 
 __all__ = ["save_figure", "overlay_figure", "histogram_figure", "convergence_figure"]
 
@@ -34,8 +35,9 @@ def overlay_figure(
     display: np.ndarray | None,
     image_size: tuple[int, int] | None,
     annotations: ViewAnnotations | None,
-    silhouettes: Sequence[np.ndarray],
+    outlines: Sequence[np.ndarray] | None = None,
     landmarks_px: Mapping[str, np.ndarray],
+    silhouettes: Sequence[np.ndarray] | None = None,
 ) -> None:
     """One view: the registered model's projected outline and landmarks against the annotations.
 
@@ -50,78 +52,31 @@ def overlay_figure(
         Canvas size when there is no image; ``None`` fits the canvas to the drawn data.
     annotations : ViewAnnotations or None
         Annotated contours (red; open ends amber) and landmarks (green +).
-    silhouettes : sequence of (Q, 2) arrays
-        Projected outline of the registered model, pixels (cyan).
+    outlines : sequence of (Q, 2) arrays
+        Projected outline of the registered model, pixels (cyan); default none.
     landmarks_px : mapping name -> (2,) array
         Projected registered landmarks (blue x), joined to their annotation by a line.
+    silhouettes : sequence of (Q, 2) arrays, optional
+        The former name of ``outlines`` (still accepted; give one of the two).
     """
+    if silhouettes is not None:
+        if outlines is not None:
+            raise TypeError("overlay_figure: give outlines or silhouettes (its old name), not both")
+        outlines = silhouettes
+    outlines = [] if outlines is None else list(outlines)
+    contours = [] if annotations is None else list(annotations.contours)
+    annotated = {} if annotations is None else annotations.landmarks
     fig = Figure(figsize=(6.4, 6.4))
     ax = fig.add_subplot(1, 1, 1)
-    if display is not None:
-        h, w = display.shape
-        ax.imshow(display, cmap="gray", vmin=0, vmax=1, extent=(-0.5, w - 0.5, h - 0.5, -0.5))
-    elif image_size is not None:
-        w, h = image_size
-        ax.set_facecolor("#202020")
-    else:
-        w = h = None
-    for k, line in enumerate(silhouettes):
-        ax.plot(
-            line[:, 0],
-            line[:, 1],
-            "-",
-            color="cyan",
-            lw=1.0,
-            label="registered outline" if k == 0 else None,
-        )
-    lm_ann = {} if annotations is None else annotations.landmarks
-    for k, c in enumerate([] if annotations is None else annotations.contours):
-        uv = np.vstack([c.uv, c.uv[:1]]) if c.closed else c.uv
-        ax.plot(
-            uv[:, 0],
-            uv[:, 1],
-            "-",
-            color="red",
-            lw=1.0,
-            label="annotated contour" if k == 0 else None,
-        )
-        if not c.closed:
-            ax.plot(c.uv[[0, -1], 0], c.uv[[0, -1], 1], "o", color="orange", ms=4, mfc="none")
-    for k, (name, lm) in enumerate(lm_ann.items()):
-        ax.plot(
-            *lm.uv, "+", color="lime", ms=9, mew=1.5, label="annotated landmark" if k == 0 else None
-        )
-        ax.annotate(
-            name, lm.uv, xytext=(4, -4), textcoords="offset points", color="lime", fontsize=7
-        )
-        if name in landmarks_px:
-            p = landmarks_px[name]
-            ax.plot([lm.uv[0], p[0]], [lm.uv[1], p[1]], "-", color="yellow", lw=0.8)
-    for k, p in enumerate(landmarks_px.values()):
-        ax.plot(
-            *p,
-            "x",
-            color="deepskyblue",
-            ms=7,
-            mew=1.5,
-            label="registered landmark" if k == 0 else None,
-        )
+    size = _draw_background(ax, display, image_size)
+    for k, line in enumerate(outlines):
+        _polyline(ax, line, "cyan", "registered outline" if k == 0 else None)
+    _draw_contours(ax, contours)
+    _draw_landmarks(ax, annotated, landmarks_px)
     # zoom on what is drawn (a bone covers a small part of a radiograph), within the image
-    drawn = [*silhouettes, *(c.uv for c in ([] if annotations is None else annotations.contours))]
-    drawn += [lm.uv[None] for lm in lm_ann.values()] + [p[None] for p in landmarks_px.values()]
-    if drawn:
-        pts = np.vstack(drawn)
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        c, r = (lo + hi) / 2, 0.6 * float((hi - lo).max()) + 10.0
-        x0, x1, y0, y1 = c[0] - r, c[0] + r, c[1] - r, c[1] + r
-        if w is not None:
-            x0, x1 = max(x0, -0.5), min(x1, w - 0.5)
-            y0, y1 = max(y0, -0.5), min(y1, h - 0.5)
-        ax.set_xlim(x0, x1)
-        ax.set_ylim(y1, y0)
-    elif w is not None:
-        ax.set_xlim(-0.5, w - 0.5)
-        ax.set_ylim(h - 0.5, -0.5)
+    drawn = [*outlines, *(c.uv for c in contours)]
+    drawn += [lm.uv[None] for lm in annotated.values()] + [p[None] for p in landmarks_px.values()]
+    _zoom(ax, drawn, size)
     ax.set_aspect("equal")
     ax.set_xlabel("u (px)")
     ax.set_ylabel("v (px)")
@@ -130,6 +85,76 @@ def overlay_figure(
         ax.legend(loc="lower right", fontsize=7, framealpha=0.7)
     fig.tight_layout()
     save_figure(fig, path)
+
+
+def _draw_background(
+    ax: Axes, display: np.ndarray | None, image_size: tuple[int, int] | None
+) -> tuple[int, int] | None:
+    """The radiograph (pixel centres at integer ``(u, v)``) or a dark canvas; the image size
+    ``(W, H)`` in pixels, or ``None`` when neither is known."""
+    if display is not None:
+        h, w = display.shape
+        ax.imshow(display, cmap="gray", vmin=0, vmax=1, extent=(-0.5, w - 0.5, h - 0.5, -0.5))
+        return w, h
+    if image_size is not None:
+        ax.set_facecolor("#202020")
+        w, h = image_size
+        return w, h
+    return None
+
+
+def _polyline(ax: Axes, uv: np.ndarray, color: str, label: str | None) -> None:
+    """One (Q, 2) pixel polyline, 1 pt wide (outlines and contours look alike but for colour)."""
+    ax.plot(uv[:, 0], uv[:, 1], "-", color=color, lw=1.0, label=label)
+
+
+def _draw_contours(ax: Axes, contours: Sequence[Contour]) -> None:
+    """Annotated contours in red (closed ones joined up), the ends of open ones as amber rings."""
+    for k, c in enumerate(contours):
+        uv = np.vstack([c.uv, c.uv[:1]]) if c.closed else c.uv
+        _polyline(ax, uv, "red", "annotated contour" if k == 0 else None)
+        if not c.closed:
+            ax.plot(c.uv[[0, -1], 0], c.uv[[0, -1], 1], "o", color="orange", ms=4, mfc="none")
+
+
+def _draw_landmarks(
+    ax: Axes, annotated: Mapping[str, Landmark], registered: Mapping[str, np.ndarray]
+) -> None:
+    """Annotated landmarks (green +, named), each joined by a yellow line to the registered
+    model's landmark of the same name; then the registered landmarks (blue x), pixels."""
+    for k, (name, lm) in enumerate(annotated.items()):
+        label = "annotated landmark" if k == 0 else None
+        ax.plot(*lm.uv, "+", color="lime", ms=9, mew=1.5, label=label)
+        ax.annotate(
+            name, lm.uv, xytext=(4, -4), textcoords="offset points", color="lime", fontsize=7
+        )
+        if name in registered:
+            p = registered[name]
+            ax.plot([lm.uv[0], p[0]], [lm.uv[1], p[1]], "-", color="yellow", lw=0.8)
+    for k, p in enumerate(registered.values()):
+        label = "registered landmark" if k == 0 else None
+        ax.plot(*p, "x", color="deepskyblue", ms=7, mew=1.5, label=label)
+
+
+def _zoom(ax: Axes, drawn: Sequence[np.ndarray], size: tuple[int, int] | None) -> None:
+    """Square limits around the drawn (Q, 2) pixel arrays (60 % of their extent + 10 px each
+    side), clipped to the image of ``size`` ``(W, H)``; the whole image when nothing is drawn.
+    Rows grow downwards (v axis inverted)."""
+    if drawn:
+        pts = np.vstack(drawn)
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        c, r = (lo + hi) / 2, 0.6 * float((hi - lo).max()) + 10.0
+        x0, x1, y0, y1 = c[0] - r, c[0] + r, c[1] - r, c[1] + r
+        if size is not None:
+            w, h = size
+            x0, x1 = max(x0, -0.5), min(x1, w - 0.5)
+            y0, y1 = max(y0, -0.5), min(y1, h - 0.5)
+        ax.set_xlim(x0, x1)
+        ax.set_ylim(y1, y0)
+    elif size is not None:
+        w, h = size
+        ax.set_xlim(-0.5, w - 0.5)
+        ax.set_ylim(h - 0.5, -0.5)
 
 
 def histogram_figure(

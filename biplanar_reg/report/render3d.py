@@ -21,6 +21,12 @@ __all__ = ["render_error_mesh", "render_pyvista", "render_matplotlib"]
 log = logging.getLogger(__name__)
 
 
+def _error_max(error_mm: np.ndarray) -> float:
+    """Top of the colour scale, mm: the largest error, at least 1e-6 mm so that an exact fit
+    (all errors 0) still has a non-empty colour range."""
+    return max(float(np.max(error_mm)), 1e-6)
+
+
 def render_pyvista(
     path: str | os.PathLike,
     vertices: np.ndarray,
@@ -47,7 +53,7 @@ def render_pyvista(
                 mesh,
                 scalars="error (mm)",
                 cmap="viridis",
-                clim=(0.0, max(float(np.max(error_mm)), 1e-6)),
+                clim=(0.0, _error_max(error_mm)),
                 smooth_shading=True,
                 scalar_bar_args={"title": "error (mm)", "color": "black", "vertical": True},
             )
@@ -81,7 +87,7 @@ def render_matplotlib(
     poly = Poly3DCollection(V[F], linewidths=0.1, edgecolors=(0, 0, 0, 0.15))
     if error_mm is not None:
         face_err = np.asarray(error_mm, float)[F].mean(axis=1)
-        norm = colors.Normalize(0.0, max(float(np.max(error_mm)), 1e-6))
+        norm = colors.Normalize(0.0, _error_max(error_mm))
         poly.set_facecolor(cm.viridis(norm(face_err)))
         sm = cm.ScalarMappable(norm=norm, cmap="viridis")
         fig.colorbar(sm, ax=ax, shrink=0.7, label="error (mm)")

@@ -8,7 +8,8 @@ See ``docs/sample_cases.md``.
 * :mod:`.scenes`: :func:`synthetic_bone_model`, :func:`look_at_view`, :func:`biplanar_views`,
   :func:`random_pose`, :func:`noisy_pixels` and :func:`observe` (landmark pixels and their
   :class:`~biplanar_reg.registration.rays.RayObservations`), :func:`outline_stretch`,
-  :func:`boosting_case` (a two-view landmarks-plus-outline problem);
+  :func:`vertex_landmarks` (a view's observations of model vertices), :func:`boosting_case`
+  (a two-view landmarks-plus-outline problem);
 * :mod:`.case_folder`: :func:`write_synthetic_case` (a case folder with ``gt/``) and
   :func:`synthetic_landmarks`.
 """
@@ -23,6 +24,7 @@ from .scenes import (
     outline_stretch,
     random_pose,
     synthetic_bone_model,
+    vertex_landmarks,
 )
 
 __all__ = [
@@ -35,5 +37,6 @@ __all__ = [
     "random_pose",
     "synthetic_bone_model",
     "synthetic_landmarks",
+    "vertex_landmarks",
     "write_synthetic_case",
 ]

@@ -28,6 +28,7 @@ __all__ = [
     "noisy_pixels",
     "observe",
     "outline_stretch",
+    "vertex_landmarks",
     "boosting_case",
 ]
 
@@ -316,6 +317,42 @@ def outline_stretch(
     return outline[start : start + keep]
 
 
+def vertex_landmarks(
+    name: str,
+    view: View,
+    ids: np.ndarray,
+    uv: np.ndarray,
+    contours: Sequence[Contour] = (),
+    sigma_px: float = 1.0,
+) -> ViewObservations:
+    """A view's observations whose landmarks are model vertices, for ``register_views``.
+
+    Parameters
+    ----------
+    name : str
+        The view's name.
+    view : View
+        Its calibration (world frame, mm).
+    ids : (K,) int array
+        The observed model vertices; landmark ``j`` is named ``v<ids[j]>``.
+    uv : (K, 2) array
+        Their pixels ``(u, v)`` (projected, with any noise already added).
+    contours : sequence of Contour
+        Annotated outline pieces, pixels (default none).
+    sigma_px : float
+        Every landmark's standard deviation, pixels.
+    """
+    return ViewObservations(
+        name=name,
+        view=view,
+        landmark_names=[f"v{i}" for i in ids],
+        landmark_ids=ids,
+        landmark_uv=uv,
+        landmark_sigma_px=np.full(len(ids), float(sigma_px)),
+        contours=list(contours),
+    )
+
+
 def boosting_case(
     model: ShapeModel,
     seed: int,
@@ -339,7 +376,8 @@ def boosting_case(
     Returns
     -------
     views : list of ViewObservations
-        Named ``cam1``, ``cam2``; landmarks named ``v<vertex id>`` with 1 px sigmas.
+        Named ``cam1``, ``cam2``; landmarks named ``v<vertex id>`` with 1 px sigmas
+        (:func:`vertex_landmarks`).
     truth : (w, R, t, X)
         Weights, object-to-world rotation and translation (mm) and the posed vertices (N, 3).
     """
@@ -360,15 +398,6 @@ def boosting_case(
         outline = outline + sigma_outline * rng.normal(size=outline.shape)
         if not random_stretch:
             outline = outline[: int(fraction * len(outline))]
-        views.append(
-            ViewObservations(
-                name=name,
-                view=view,
-                landmark_names=[f"v{i}" for i in ids],
-                landmark_ids=ids,
-                landmark_uv=uv,
-                landmark_sigma_px=np.ones(n),
-                contours=[Contour(uv=outline, closed=fraction >= 1.0)],
-            )
-        )
+        contours = [Contour(uv=outline, closed=fraction >= 1.0)]
+        views.append(vertex_landmarks(name, view, ids, uv, contours))
     return views, (w, R, t, X)

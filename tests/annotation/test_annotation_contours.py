@@ -72,6 +72,18 @@ def capsule_radiograph():
     return r
 
 
+@pytest.fixture(scope="module")
+def box_radiograph():
+    """A 30 x 20 x 10 mm box turned 0.35 rad about z, seen orthographically (4 px/mm, 256 x 256):
+    its vertices (mm), the view and the rendered radiograph (1 px blur, 5000 photons, seed 0)."""
+    box = trimesh.creation.box(extents=[30, 20, 10])
+    V = box.vertices @ trimesh.transformations.rotation_matrix(0.35, [0, 0, 1])[:3, :3].T
+    K = np.array([[4.0, 0, 128.3], [0, 4.0, 127.8], [0, 0, 1]])
+    view = OrthographicView(R=np.eye(3), t=np.zeros(3), K=K, image_size=(256, 256))
+    r = render_radiograph(V, box.faces, view, blur_sigma_px=1.0, photons=5000, supersample=5)
+    return V, view, r
+
+
 # -- renderer -------------------------------------------------------------------------------
 
 
@@ -175,13 +187,9 @@ def test_livewire_bright_bone_polarity(capsule_radiograph):
         livewire(r.image, anchors, bone="white")
 
 
-def test_livewire_step_edge_of_a_box():
+def test_livewire_step_edge_of_a_box(box_radiograph):
     # a box's side faces run along the rays: its outline is a blurred step, not a sqrt onset
-    box = trimesh.creation.box(extents=[30, 20, 10])
-    V = box.vertices @ trimesh.transformations.rotation_matrix(0.35, [0, 0, 1])[:3, :3].T
-    K = np.array([[4.0, 0, 128.3], [0, 4.0, 127.8], [0, 0, 1]])
-    view = OrthographicView(R=np.eye(3), t=np.zeros(3), K=K, image_size=(256, 256))
-    r = render_radiograph(V, box.faces, view, blur_sigma_px=1.0, photons=5000, supersample=5)
+    _, _, r = box_radiograph
     gtr = resample_polyline(r.outlines[0], 1.0, True)
     anchors = gtr[np.linspace(0, len(gtr), 8, endpoint=False).astype(int)]
     lw = livewire(r.image, anchors, closed=True)
@@ -219,12 +227,8 @@ def test_grabcut_from_loose_box(capsule_radiograph):
         grabcut_outline(r.image)
 
 
-def test_snap_moves_perturbed_corner_back():
-    box = trimesh.creation.box(extents=[30, 20, 10])
-    V = box.vertices @ trimesh.transformations.rotation_matrix(0.35, [0, 0, 1])[:3, :3].T
-    K = np.array([[4.0, 0, 128.3], [0, 4.0, 127.8], [0, 0, 1]])
-    view = OrthographicView(R=np.eye(3), t=np.zeros(3), K=K, image_size=(256, 256))
-    r = render_radiograph(V, box.faces, view, blur_sigma_px=1.0, photons=5000, supersample=5)
+def test_snap_moves_perturbed_corner_back(box_radiograph):
+    V, view, r = box_radiograph
     corners = np.unique(np.round(view.project(V), 9), axis=0)
     assert len(corners) == 4
     rng = np.random.default_rng(0)

@@ -72,6 +72,16 @@ def test_bad_seeds(phantom) -> None:
         calibrate_phantom(image, xyz, np.arange(4), uv[:4] + 40.0)
 
 
+def _from_phantom(folder: Path, out: str, *extra: str) -> int:
+    """``biplanar-reg calibration from-phantom`` on the image, bead table and seeds written in
+    ``folder``, calibration into ``folder / out``; the exit code."""
+    image, beads, seeds = (str(folder / n) for n in ("phantom.tif", "beads.csv", "seeds.json"))
+    return main(
+        ["calibration", "from-phantom", image, beads, "--seed", seeds, "-o", str(folder / out)]
+        + list(extra)
+    )
+
+
 def test_cli_from_phantom(tmp_path: Path, phantom, capsys) -> None:
     truth, xyz, uv, image = phantom
     tifffile.imwrite(tmp_path / "phantom.tif", image.astype(np.float32))
@@ -81,20 +91,7 @@ def test_cli_from_phantom(tmp_path: Path, phantom, capsys) -> None:
     (tmp_path / "seeds.json").write_text(json.dumps({"seeds": seeds}))
     labels, _ = read_beads_csv(tmp_path / "beads.csv")
     assert labels[:2] == ["B0", "B1"]
-    rc = main(
-        [
-            "calibration",
-            "from-phantom",
-            str(tmp_path / "phantom.tif"),
-            str(tmp_path / "beads.csv"),
-            "--seed",
-            str(tmp_path / "seeds.json"),
-            "-o",
-            str(tmp_path / "cam.txt"),
-            "--report",
-            str(tmp_path / "report.json"),
-        ]
-    )
+    rc = _from_phantom(tmp_path, "cam.txt", "--report", str(tmp_path / "report.json"))
     assert rc == 0
     view = load_calibration(tmp_path / "cam.txt")
     assert np.abs(view.project(xyz) - uv).max() < 0.05
@@ -103,17 +100,6 @@ def test_cli_from_phantom(tmp_path: Path, phantom, capsys) -> None:
     assert "reprojection RMS" in capsys.readouterr().out
     # a seed naming an unknown bead is bad input (exit 2)
     (tmp_path / "seeds.json").write_text(json.dumps({"Z9": [1, 2], **seeds}))
-    rc = main(
-        [
-            "calibration",
-            "from-phantom",
-            str(tmp_path / "phantom.tif"),
-            str(tmp_path / "beads.csv"),
-            "--seed",
-            str(tmp_path / "seeds.json"),
-            "-o",
-            str(tmp_path / "cam2.txt"),
-        ]
-    )
+    rc = _from_phantom(tmp_path, "cam2.txt")
     assert rc == 2 and "'Z9'" in capsys.readouterr().err
     assert not (tmp_path / "cam2.txt").exists()

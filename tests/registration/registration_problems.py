@@ -3,7 +3,8 @@
 
 The set-up is that of ``tests/registration/test_boosting.py`` and ``benchmarks/blunder.py``: the
 synthetic bone (1,282 vertices, 8 modes, truth in the span), two views 75 deg apart, 3
-landmarks per view with 0.5 px noise, 80 % of each outline (open).
+landmarks per view with 0.5 px noise, 80 % of each outline (open). The model is the ``model``
+fixture of ``tests/conftest.py``; ``views`` (seed 0) is in ``tests/registration/conftest.py``.
 """
 
 from __future__ import annotations
@@ -15,17 +16,12 @@ import numpy as np
 
 from biplanar_reg.registration import RegistrationOptions, ViewObservations
 from biplanar_reg.registration.problem import Problem, make_problem
-from biplanar_reg.simulate import boosting_case, synthetic_bone_model
+from biplanar_reg.simulate import boosting_case
 
-__all__ = ["bone_model", "clean_views", "with_blunder", "problem_for", "BLUNDER_PX"]
+__all__ = ["clean_views", "with_blunder", "problem_for", "BLUNDER_PX"]
 
 #: The benchmark's blunder: 40 px, along (0.6, 0.8).
 BLUNDER_PX = 40.0 * np.array([0.6, 0.8])
-
-
-def bone_model():
-    """The synthetic bone model of the silhouette tests."""
-    return synthetic_bone_model(8, seed=0, resolution=(40, 32))
 
 
 def clean_views(

@@ -19,23 +19,7 @@ from biplanar_reg.registration.outline_match import (
 from biplanar_reg.simulate import (
     biplanar_views,
     boosting_case,
-    random_pose,
-    synthetic_bone_model,
 )
-from biplanar_reg.ssm import ShapeModel
-
-
-@pytest.fixture(scope="module")
-def model() -> ShapeModel:
-    return synthetic_bone_model(8, seed=0, resolution=(40, 32))
-
-
-@pytest.fixture(scope="module")
-def posed(model):
-    rng = np.random.default_rng(0)
-    w = rng.normal(size=8)
-    R, t = random_pose(rng)
-    return rng, w, model.instance(w) @ R.T + t
 
 
 def test_matching_respects_gate_ends_and_direction(model, posed):

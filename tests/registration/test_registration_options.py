@@ -12,7 +12,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from registration_problems import bone_model, clean_views, problem_for, with_blunder
+from registration_problems import problem_for, with_blunder
 
 from biplanar_reg.cases import load_case, registration_options
 from biplanar_reg.registration import RegistrationOptions, register_views
@@ -169,16 +169,6 @@ def test_a_case_file_accepts_every_field(tmp_path):
 
 
 # -- behaviour -------------------------------------------------------------------------------
-
-
-@pytest.fixture(scope="module")
-def model():
-    return bone_model()
-
-
-@pytest.fixture(scope="module")
-def views(model):
-    return clean_views(model, 0)[0]
 
 
 @pytest.fixture(scope="module")

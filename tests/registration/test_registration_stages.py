@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from registration_problems import bone_model, clean_views, problem_for, with_blunder
+from registration_problems import clean_views, problem_for, with_blunder
 
 from biplanar_reg.registration import RegistrationOptions, register_views
 from biplanar_reg.registration.blunders import find_blunder, max_rejections
@@ -29,16 +29,6 @@ from biplanar_reg.registration.stages import (
 from biplanar_reg.registration.view_poses import estimate_view_poses
 
 NONE: frozenset[int] = frozenset()
-
-
-@pytest.fixture(scope="module")
-def model():
-    return bone_model()
-
-
-@pytest.fixture(scope="module")
-def views(model):
-    return clean_views(model, 0)[0]
 
 
 @pytest.fixture(scope="module")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 
 import numpy as np
+import pytest
 
 from biplanar_reg.annotation import Contour, Landmark, ViewAnnotations
 from biplanar_reg.report import overlay_figure, render_template
@@ -33,16 +34,18 @@ def test_overlay_on_blank_canvas(tmp_path):
         {"a": Landmark(np.array([50.0, 60.0]))},
         [Contour(np.array([[10.0, 10], [40, 12], [70, 30]]), False)],
     )
-    overlay_figure(
-        tmp_path / "o.png",
-        "v",
-        display=None,
-        image_size=(128, 96),
-        annotations=ann,
-        silhouettes=[np.array([[12.0, 11], [41, 13], [69, 31]])],
-        landmarks_px={"a": np.array([51.0, 61.0])},
-    )
+    kw = {"display": None, "image_size": (128, 96), "annotations": ann}
+    kw["landmarks_px"] = {"a": np.array([51.0, 61.0])}
+    outline = [np.array([[12.0, 11], [41, 13], [69, 31]])]
+    overlay_figure(tmp_path / "o.png", "v", outlines=outline, **kw)
     assert (tmp_path / "o.png").stat().st_size > 1000
+    # the former keyword ``silhouettes`` draws the same figure; both at once is an error
+    overlay_figure(tmp_path / "s.png", "v", silhouettes=outline, **kw)
+    assert (tmp_path / "s.png").read_bytes() == (tmp_path / "o.png").read_bytes()
+    overlay_figure(tmp_path / "n.png", "v", **kw)
+    assert (tmp_path / "n.png").read_bytes() != (tmp_path / "o.png").read_bytes()
+    with pytest.raises(TypeError, match="not both"):
+        overlay_figure(tmp_path / "x.png", "v", outlines=outline, silhouettes=outline, **kw)
 
 
 def test_summary_template_escapes_and_links_relatively():

@@ -11,7 +11,7 @@ import pytest
 
 import biplanar_reg
 import biplanar_reg.simulate as simulate
-from biplanar_reg.annotation import load_annotations
+from biplanar_reg.annotation import Contour, load_annotations
 from biplanar_reg.calibration import load_calibration
 from biplanar_reg.io import read_mesh
 from biplanar_reg.registration.rays import RayObservations
@@ -25,6 +25,7 @@ from biplanar_reg.simulate import (
     random_pose,
     synthetic_bone_model,
     synthetic_landmarks,
+    vertex_landmarks,
     write_synthetic_case,
 )
 from biplanar_reg.ssm import ShapeModel
@@ -56,6 +57,7 @@ def test_public_names_are_exported():
             "random_pose",
             "synthetic_bone_model",
             "synthetic_landmarks",
+            "vertex_landmarks",
             "write_synthetic_case",
         ]
     )
@@ -161,6 +163,21 @@ def test_boosting_case_is_seeded_and_consistent_with_its_truth(model):
         assert len(v.contours) == 1 and not v.contours[0].closed
     again, _ = boosting_case(model, 3, fraction=0.6, landmarks_per_view=(2, 4))
     np.testing.assert_array_equal(again[1].contours[0].uv, views[1].contours[0].uv)
+
+
+def test_vertex_landmarks_names_the_vertices_and_keeps_the_pixels():
+    view = biplanar_views(75.0)[1]
+    ids, uv = np.array([5, 2]), np.array([[10.0, 20.0], [30.0, 40.0]])
+    outline = Contour(uv=np.array([[0.0, 0], [5, 5], [9, 0]]), closed=False)
+    v = vertex_landmarks("side", view, ids, uv, [outline], sigma_px=0.5)
+    assert v.name == "side" and v.view is view and v.landmark_names == ["v5", "v2"]
+    np.testing.assert_array_equal(v.landmark_ids, ids)
+    np.testing.assert_array_equal(v.landmark_uv, uv)
+    np.testing.assert_array_equal(v.landmark_sigma_px, [0.5, 0.5])
+    assert len(v.contours) == 1 and not v.contours[0].closed
+    np.testing.assert_array_equal(v.contours[0].uv, outline.uv)
+    bare = vertex_landmarks("cam1", view, ids[:1], uv[:1])
+    assert bare.contours == [] and list(bare.landmark_sigma_px) == [1.0]
 
 
 def test_synthetic_landmarks_are_eight_distinct_extremes(model):

@@ -1,0 +1,31 @@
+"""Fixtures shared by the test modules (a module that defines a fixture of the same name uses its
+own).
+
+``model`` and ``posed`` are the set-up of the outline and silhouette-boosting tests
+(``tests/test_outline.py``, ``tests/registration/``): the synthetic bone with 8 modes
+(1,282 vertices) and one seeded random instance of it in a random pose.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from biplanar_reg.simulate import random_pose, synthetic_bone_model
+from biplanar_reg.ssm import ShapeModel
+
+
+@pytest.fixture(scope="module")
+def model() -> ShapeModel:
+    """The synthetic bone of the outline and boosting tests (8 modes, 1,282 vertices, mm)."""
+    return synthetic_bone_model(8, seed=0, resolution=(40, 32))
+
+
+@pytest.fixture(scope="module")
+def posed(model: ShapeModel) -> tuple[np.random.Generator, np.ndarray, np.ndarray]:
+    """``(rng, w, X)``: weights ``w ~ N(0, 1)`` and the instance posed by :func:`random_pose`
+    (world frame, mm), drawn from ``default_rng(0)``; ``rng`` is left for the module's draws."""
+    rng = np.random.default_rng(0)
+    w = rng.normal(size=8)
+    R, t = random_pose(rng)
+    return rng, w, model.instance(w) @ R.T + t
