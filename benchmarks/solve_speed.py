@@ -38,8 +38,9 @@ from biplanar_reg.registration.lifting import (
     svec_index,
     svec_size,
 )
+from biplanar_reg.registration.rays import RayObservations
 from biplanar_reg.registration.rotations import rotation_angle, skew
-from biplanar_reg.registration.sdp import KnownPoseIPM
+from biplanar_reg.registration.sdp import KnownPoseData, KnownPoseIPM
 from biplanar_reg.simulate import biplanar_views, observe, random_pose, synthetic_bone_model
 
 
@@ -124,7 +125,8 @@ def main() -> None:
                 D, o_n, d = normalised(model, obs)
                 eps = 1e-3 * K
                 t0 = time.perf_counter()
-                prob = KnownPoseIPM(D, o_n, d, np.ones(K), eps, M)
+                rays_n = RayObservations(obs.vertex_ids, o_n, d)
+                prob = KnownPoseIPM(KnownPoseData(D, rays_n, np.ones(K), eps))
                 sol = solve_conic(prob)
                 t_ours.append(time.perf_counter() - t0)
                 gram = smat(sol.x[: svec_size(10 + M)], 10 + M)

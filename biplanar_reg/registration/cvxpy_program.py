@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import cvxpy as cp
 import numpy as np
 
-from .sdp import SdpSolution, SolverFailure
+from .sdp import KnownPoseData, SdpSolution, SolverFailure
 
 __all__ = ["KnownPoseProgram", "known_pose_program", "solve_known_pose_cvxpy"]
 
@@ -92,37 +92,18 @@ def _row_cross(X: cp.Expression, d: np.ndarray) -> cp.Expression:
     )
 
 
-def known_pose_program(
-    D: np.ndarray,
-    origins: np.ndarray,
-    directions: np.ndarray,
-    obs_weights: np.ndarray,
-    eps: float,
-    n_modes: int,
-    min_depth: float = 0.0,
-    t_cost: np.ndarray | None = None,
-) -> KnownPoseProgram:
+def known_pose_program(data: KnownPoseData) -> KnownPoseProgram:
     """State the known-pose G-SfT SDP in cvxpy (normalised units).
 
     Parameters
     ----------
-    D : (K, 3 + 3M) array
-        Per-observation model data (``lifting.point_map_values``): the observed point's mean
-        coordinates, then its displacement in each mode (object frame, centred and scaled).
-    origins, directions : (K, 3) arrays
-        The rays (normalised world frame; unit directions).
-    obs_weights : (K,) array
-        Weight ``a_j`` of each observation's L1 term.
-    eps : float
-        Trace weight (already multiplied by K, as ``gsft.solve_gsft`` does).
-    n_modes : int
-        M.
-    min_depth : float
-        Minimum distance of every observed point from its ray's origin along the ray.
-    t_cost : (3,) array, optional
-        Linear cost on ``t`` (the depth reward of a single central view, ``sdp.depth_reward``).
+    data : KnownPoseData
+        The program's data (``sdp.KnownPoseData``): model data ``D``, the normalised rays,
+        the L1 weights, the trace weight, the minimum depth and the optional depth reward.
     """
-    M = int(n_modes)
+    D, origins, directions = data.D, data.rays.origins, data.rays.directions
+    obs_weights, eps, min_depth, t_cost = data.obs_weights, data.eps, data.min_depth, data.t_cost
+    M = data.n_modes
     G = cp.Variable((10 + M, 10 + M), symmetric=True)
     t = cp.Variable(3)
     # V_j = sum_a (w_a R) P_aj + t: row g_a of G over the rotation columns holds w_a vec R
@@ -140,21 +121,10 @@ def known_pose_program(
     return KnownPoseProgram(cp.Problem(cp.Minimize(cost), constraints), G, t, V)
 
 
-def solve_known_pose_cvxpy(
-    D: np.ndarray,
-    origins: np.ndarray,
-    directions: np.ndarray,
-    obs_weights: np.ndarray,
-    eps: float,
-    n_modes: int,
-    min_depth: float = 0.0,
-    t_cost: np.ndarray | None = None,
-    settings: dict | None = None,
-) -> SdpSolution:
+def solve_known_pose_cvxpy(data: KnownPoseData, settings: dict | None = None) -> SdpSolution:
     """Solve :func:`known_pose_program` with Clarabel through cvxpy.
 
-    Parameters are those of :func:`known_pose_program`; ``settings`` are keywords of
-    ``cvxpy.Problem.solve`` (e.g. Clarabel's ``tol_gap_rel``).
+    ``settings`` are keywords of ``cvxpy.Problem.solve`` (e.g. Clarabel's ``tol_gap_rel``).
 
     Returns
     -------
@@ -167,7 +137,7 @@ def solve_known_pose_cvxpy(
     SolverFailure
         Any other status, or non-finite values.
     """
-    prog = known_pose_program(D, origins, directions, obs_weights, eps, n_modes, min_depth, t_cost)
+    prog = known_pose_program(data)
     t0 = time.perf_counter()
     try:
         with warnings.catch_warnings():  # "inaccurate" is reported as status "solved_reduced"

@@ -21,7 +21,7 @@ program stated readably in cvxpy (``cvxpy_program.py``, the reference statement)
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -39,7 +39,7 @@ from .refine import (
     tangent_bases,
 )
 from .rotations import project_to_so3
-from .sdp import KnownPoseIPM, KnownPoseSDP, SolverFailure, depth_reward
+from .sdp import KnownPoseData, KnownPoseIPM, KnownPoseSDP, SdpSolution, SolverFailure, depth_reward
 
 __all__ = [
     "GsftResult",
@@ -230,49 +230,49 @@ class _SdpSolution:
     status: str  # "solved" or "solved_reduced"
     iterations: int
     backend: str  # the backend that produced it
-    centre: np.ndarray  # (3,) world point (mm) the program was centred on
+    centre: np.ndarray | None = None  # (3,) world point (mm) the program was centred on
 
 
-def _solve_sdp(
-    prob: _Normalised,
-    rays_n: RayObservations,
-    n_modes: int,
-    backend: str,
-    settings: dict | None,
-) -> tuple[np.ndarray, np.ndarray, float, str, int, str]:
-    """One SDP solve on the normalised rays ``rays_n``; returns
-    ``(gram, t, objective, status, iterations, backend)``."""
-    args = (prob.D, rays_n.origins, rays_n.directions, prob.a, prob.eps)
-    if backend in ("auto", "ipm"):
-        ipm = KnownPoseIPM(*args, n_modes, prob.min_depth, prob.t_cost)
-        sol = solve_conic(ipm, **(settings or {}))
-        if sol.status != "failed":
-            gram = smat(sol.x[: ipm.nt], ipm.n)
-            t = sol.x[ipm.nt : ipm.nt + 3]
-            return gram, t, sol.primal_objective, sol.status, sol.iterations, "ipm"
-        if backend == "ipm":
+def _solve_ipm(data: KnownPoseData, settings: dict | None, strict: bool) -> _SdpSolution | None:
+    """The structured interior-point solve; None when it did not converge (a
+    :class:`SolverFailure` when ``strict``)."""
+    ipm = KnownPoseIPM(data)
+    sol = solve_conic(ipm, **(settings or {}))
+    if sol.status == "failed":
+        if strict:
             raise SolverFailure(
                 f"SDP interior-point solver did not converge (residual {sol.residual:.2e}, "
                 f"gap {sol.gap:.2e} after {sol.iterations} iterations)"
             )
+        return None
+    gram, t = smat(sol.x[: ipm.nt], ipm.n), sol.x[ipm.nt : ipm.nt + 3]
+    return _SdpSolution(gram, t, sol.primal_objective, sol.status, sol.iterations, "ipm")
+
+
+def _solved(sol: SdpSolution, backend: str, status: str) -> _SdpSolution:
+    return _SdpSolution(sol.gram, sol.translation, sol.objective, status, sol.iterations, backend)
+
+
+def _solve_sdp(data: KnownPoseData, backend: str, settings: dict | None) -> _SdpSolution:
+    """One SDP solve of ``data`` with ``backend`` (``"auto"``: the IPM, Clarabel if the IPM
+    does not converge)."""
+    if backend in ("auto", "ipm"):
+        sol = _solve_ipm(data, settings, strict=backend == "ipm")
+        if sol is not None:
+            return sol
     if backend == "cvxpy":
         from .cvxpy_program import solve_known_pose_cvxpy  # cvxpy is slow to import
 
-        sol = solve_known_pose_cvxpy(*args, n_modes, prob.min_depth, prob.t_cost, settings)
-        return sol.gram, sol.translation, sol.objective, sol.status, sol.iterations, "cvxpy"
+        sol = solve_known_pose_cvxpy(data, settings)
+        return _solved(sol, "cvxpy", sol.status)
     # the IPM's settings are not Clarabel's: a fallback from "auto" uses Clarabel's defaults
-    sdp = KnownPoseSDP(len(prob.D), n_modes, settings=settings if backend == "clarabel" else None)
-    sol = sdp.solve(*args, prob.min_depth, prob.t_cost)
-    status = "solved" if sol.status == "Solved" else "solved_reduced"
-    return sol.gram, sol.translation, sol.objective, status, sol.iterations, "clarabel"
+    sdp = KnownPoseSDP(len(data), data.n_modes, settings if backend == "clarabel" else None)
+    sol = sdp.solve(data)
+    return _solved(sol, "clarabel", "solved" if sol.status == "Solved" else "solved_reduced")
 
 
 def _solve_recentred(
-    prob: _Normalised,
-    rays: RayObservations,
-    n_modes: int,
-    backend: str,
-    settings: dict | None,
+    prob: _Normalised, rays: RayObservations, backend: str, settings: dict | None
 ) -> _SdpSolution:
     """The SDP centred at the point nearest to all rays, solved once more centred on the object
     if it lands farther than ``RECENTRE_DISTANCE`` from that guess (e.g. one perspective view,
@@ -281,14 +281,22 @@ def _solve_recentred(
     limits = threadpool_limits(1) if threadpool_limits is not None else None
     try:
         for attempt in range(2):
-            out = _solve_sdp(prob, rays.normalised(centre, prob.scale), n_modes, backend, settings)
-            if attempt == 1 or np.linalg.norm(out[1]) <= RECENTRE_DISTANCE:
+            data = KnownPoseData(
+                prob.D,
+                rays.normalised(centre, prob.scale),
+                prob.a,
+                prob.eps,
+                prob.min_depth,
+                prob.t_cost,
+            )
+            out = _solve_sdp(data, backend, settings)
+            if attempt == 1 or np.linalg.norm(out.t_n) <= RECENTRE_DISTANCE:
                 break
-            centre = centre + prob.scale * out[1]
+            centre = centre + prob.scale * out.t_n
     finally:
         if limits is not None:
             limits.unregister()
-    return _SdpSolution(*out, centre=centre)
+    return replace(out, centre=centre)
 
 
 def _round(prob: _Normalised, sol: _SdpSolution) -> tuple[float, PoseShape]:
@@ -486,7 +494,7 @@ def solve_gsft(
     t_build = time.perf_counter() - t_start
 
     t0 = time.perf_counter()
-    sol = _solve_recentred(prob, rays, model.n_modes, backend, solver_settings)
+    sol = _solve_recentred(prob, rays, backend, solver_settings)
     t_solve = time.perf_counter() - t0
     certificate, sdp_state = _round(prob, sol)
 

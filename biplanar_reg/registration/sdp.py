@@ -40,9 +40,56 @@ from .lifting import (
     svec_size,
     svec_to_matrix,
 )
+from .rays import RayObservations
 from .rotations import skew
 
-__all__ = ["KnownPoseSDP", "KnownPoseIPM", "SdpSolution", "SolverFailure", "depth_reward"]
+__all__ = [
+    "KnownPoseData",
+    "KnownPoseSDP",
+    "KnownPoseIPM",
+    "SdpSolution",
+    "SolverFailure",
+    "depth_reward",
+]
+
+
+@dataclass(frozen=True)
+class KnownPoseData:
+    """The data of one known-pose SDP, in normalised units (centred on the object, scaled to
+    unit model size): what every backend (:class:`KnownPoseIPM`, :class:`KnownPoseSDP`,
+    ``cvxpy_program.known_pose_program``) and every G-SfT-P view block solves.
+
+    Attributes
+    ----------
+    D : (K, 3 + 3M) array
+        Per-observation model data (``lifting.point_map_values``): the observed point's mean
+        coordinates, then its displacement in each mode (object frame, centred and scaled).
+    rays : RayObservations
+        The rays in the normalised frame (``RayObservations.normalised``; unit directions).
+    obs_weights : (K,) array
+        Weight ``a_j`` of each observation's L1 term.
+    eps : float
+        Trace weight (already multiplied by K, as ``gsft.solve_gsft`` does).
+    min_depth : float
+        Minimum distance of every observed point from its ray's origin along the ray.
+    t_cost : (3,) array, optional
+        Linear cost on ``t`` (the depth reward of a central view, :func:`depth_reward`).
+    """
+
+    D: np.ndarray
+    rays: RayObservations
+    obs_weights: np.ndarray
+    eps: float
+    min_depth: float = 0.0
+    t_cost: np.ndarray | None = None
+
+    @property
+    def n_modes(self) -> int:
+        """Number of shape modes M (from the width of ``D``)."""
+        return (self.D.shape[1] - 3) // 3
+
+    def __len__(self) -> int:
+        return len(self.D)
 
 
 @dataclass(frozen=True)
@@ -162,11 +209,11 @@ class KnownPoseSDP:
         self._P = sp.csc_matrix((self.n_var, self.n_var))
 
     # ------------------------------------------------------------------------------------------
-    def _values(
-        self, D: np.ndarray, origins: np.ndarray, directions: np.ndarray, min_depth: float
-    ) -> tuple[np.ndarray, np.ndarray]:
+    def _values(self, data: KnownPoseData) -> tuple[np.ndarray, np.ndarray]:
         """Data-dependent values of A (in CSC order) and b."""
         K = self.n_obs
+        D, min_depth = data.D, data.min_depth
+        origins, directions = data.rays.origins, data.rays.directions
         cols, didx, sign = _cross_rows()
         vd = -(self._cpat[self._r_of] * D[self._j_of]).ravel()  # (3K*S,)
         d = directions
@@ -194,14 +241,12 @@ class KnownPoseSDP:
         b = np.concatenate([self._b_rot, np.zeros(3 * K), cxd, -cxd, depth, np.zeros(self.nt)])
         return vals[self._perm], b
 
-    def _objective(
-        self, obs_weights: np.ndarray, eps: float, t_cost: np.ndarray | None = None
-    ) -> np.ndarray:
+    def _objective(self, data: KnownPoseData) -> np.ndarray:
         q = np.zeros(self.n_var)
-        q[self._diag_k] = eps
-        q[self.o_e :] = np.repeat(obs_weights, 3)
-        if t_cost is not None:
-            q[self.o_t : self.o_t + 3] = t_cost
+        q[self._diag_k] = data.eps
+        q[self.o_e :] = np.repeat(data.obs_weights, 3)
+        if data.t_cost is not None:
+            q[self.o_t : self.o_t + 3] = data.t_cost
         return q
 
     def _make_settings(self) -> clarabel.DefaultSettings:
@@ -215,31 +260,10 @@ class KnownPoseSDP:
             setattr(s, key, val)
         return s
 
-    def solve(
-        self,
-        D: np.ndarray,
-        origins: np.ndarray,
-        directions: np.ndarray,
-        obs_weights: np.ndarray,
-        eps: float,
-        min_depth: float = 0.0,
-        t_cost: np.ndarray | None = None,
-    ) -> SdpSolution:
-        """Solve for new data (same K and M as at construction).
-
-        Parameters
-        ----------
-        D : (K, 3 + 3M) array
-            Per-observation model data (``lifting.point_map_values``), scaled units.
-        origins, directions : (K, 3) arrays
-            Rays in scaled world units; directions of unit length.
-        obs_weights : (K,) array
-            Weight ``a_j`` of each observation's L1 term.
-        eps : float
-            Trace weight.
-        """
-        A_data, b = self._values(D, origins, directions, min_depth)
-        q = self._objective(obs_weights, eps, t_cost)
+    def solve(self, data: KnownPoseData) -> SdpSolution:
+        """Solve for new ``data`` (same K and M as at construction)."""
+        A_data, b = self._values(data)
+        q = self._objective(data)
         t0 = time.perf_counter()
         if self._solver is None:
             A = sp.csc_matrix((A_data, self._A.indices, self._A.indptr), shape=self._A.shape)
@@ -312,17 +336,10 @@ class KnownPoseIPM:
     products of the ``(K, 4 + 3M)`` data matrix, then factors that small dense system.
     """
 
-    def __init__(
-        self,
-        D: np.ndarray,
-        origins: np.ndarray,
-        directions: np.ndarray,
-        obs_weights: np.ndarray,
-        eps: float,
-        n_modes: int,
-        min_depth: float = 0.0,
-        t_cost: np.ndarray | None = None,
-    ) -> None:
+    def __init__(self, data: KnownPoseData) -> None:
+        D, n_modes, min_depth, t_cost = data.D, data.n_modes, data.min_depth, data.t_cost
+        origins, directions = data.rays.origins, data.rays.directions
+        obs_weights, eps = data.obs_weights, data.eps
         K = self.K = len(D)
         self.n = n = gram_size(n_modes)
         self.nt = nt = svec_size(n)

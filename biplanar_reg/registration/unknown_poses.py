@@ -68,7 +68,7 @@ from .lifting import point_map_values
 from .rays import RayObservations, as_rays, check_rays
 from .refine import DEFAULT_MAX_REFINE_ITER, ray_distances
 from .rotations import project_to_so3, rotation_angle
-from .sdp import SolverFailure, depth_reward
+from .sdp import KnownPoseData, SolverFailure, depth_reward
 from .unknown_sdp import MultiViewSdpSolution, SdpViewBlock, solve_multiview_sdp
 
 __all__ = [
@@ -427,13 +427,8 @@ def _sdp_blocks(
     scale = model.size
     return [
         SdpViewBlock(
-            D=D,
-            rays=r.normalised(c, scale),
-            obs_weights=a,
-            eps=eps * len(r),
-            point_depth=0.0,
+            KnownPoseData(D, r.normalised(c, scale), a, eps * len(r), 0.0, tc),
             min_tz=(f - c[2]) / scale,
-            t_cost=tc,
         )
         for (D, a, tc), r, c, f in zip(data, rays, centres, f_mm, strict=True)
     ]

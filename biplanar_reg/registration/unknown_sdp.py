@@ -29,8 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .lifting import svec_index, svec_to_matrix
-from .rays import RayObservations
-from .sdp import KnownPoseSDP, SolverFailure
+from .sdp import KnownPoseData, KnownPoseSDP, SolverFailure
 
 __all__ = ["SdpViewBlock", "MultiViewSdpSolution", "solve_multiview_sdp"]
 
@@ -38,34 +37,21 @@ __all__ = ["SdpViewBlock", "MultiViewSdpSolution", "solve_multiview_sdp"]
 @dataclass(frozen=True)
 class SdpViewBlock:
     """One view's block of the G-SfT-P SDP (:func:`solve_multiview_sdp`), in normalised units:
-    the program data of one Gram matrix, not observations in the user's units.
+    the known-pose program of that view's Gram matrix and a bound on its depth.
 
     Attributes
     ----------
-    D : (K, 3 + 3M) array
-        Per-observation model data (``lifting.point_map_values``) of the centred, scaled model.
-    rays : RayObservations
-        The view's rays in its shifted, scaled frame (``RayObservations.normalised``).
-    obs_weights : (K,) array
-        Weight ``a_xj`` of each observation's L1 term.
-    eps : float
-        Trace weight of this view's Gram matrix.
-    point_depth : float
-        Minimum distance of each observed point from its ray origin along the ray.
+    data : KnownPoseData
+        The view's known-pose program (``sdp.KnownPoseData``: model data, the view's rays in
+        its shifted, scaled frame, L1 weights, trace weight, minimum point depth, and the
+        depth reward ``t_cost``, a negative multiple of the viewing direction; see
+        ``unknown_poses.py``).
     min_tz : float
         Lower bound on the third coordinate of ``t_x`` (the model centroid's depth).
-    t_cost : (3,) array
-        Linear cost on ``t_x`` (a negative multiple of the viewing direction rewards depth;
-        see ``unknown_poses.py``).
     """
 
-    D: np.ndarray
-    rays: RayObservations
-    obs_weights: np.ndarray
-    eps: float
-    point_depth: float
+    data: KnownPoseData
     min_tz: float
-    t_cost: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -114,13 +100,12 @@ def solve_multiview_sdp(
     sdps = []
     off = 0
     for blk in blocks:
-        sdp = KnownPoseSDP(len(blk.D), n_modes)
+        sdp = KnownPoseSDP(len(blk.data), n_modes)
         # the known-pose block's own constraint values and objective (its fixed pattern)
-        vals, b = sdp._values(blk.D, blk.rays.origins, blk.rays.directions, blk.point_depth)
+        vals, b = sdp._values(blk.data)
         A_blocks.append(sp.csc_matrix((vals, sdp._A.indices, sdp._A.indptr), shape=sdp._A.shape))
         b_parts.append(b)
-        q = sdp._objective(blk.obs_weights, blk.eps)
-        q[sdp.o_t : sdp.o_t + 3] = blk.t_cost
+        q = sdp._objective(blk.data)
         q_parts.append(q)
         cones += list(sdp._cones)
         offsets.append(off)
