@@ -7,7 +7,7 @@ import pytest
 
 from biplanar_reg.annotation.annotations import Contour
 from biplanar_reg.outline import half_edges, outline_polylines
-from biplanar_reg.registration import RegistrationOptions, ViewObservations, register_views
+from biplanar_reg.registration import RegistrationOptions, register_views
 from biplanar_reg.registration.outline_fit import OutlineTerm, refine_on_outlines
 from biplanar_reg.registration.outline_match import prepare_outline
 from biplanar_reg.registration.rays import RayObservations
@@ -17,6 +17,7 @@ from biplanar_reg.simulate import (
     boosting_case,
     random_pose,
     synthetic_bone_model,
+    vertex_landmarks,
 )
 
 
@@ -133,17 +134,8 @@ def test_boosting_with_other_camera_kinds(model, kind):
     for name, view in (("persp", v1), (kind, other)):
         ids = rng.choice(model.n_vertices, 3, replace=False)
         outline = outline_polylines(X, view, model.faces)[0][0]
-        views.append(
-            ViewObservations(
-                name=name,
-                view=view,
-                landmark_names=[f"v{i}" for i in ids],
-                landmark_ids=ids,
-                landmark_uv=view.project(X[ids]),
-                landmark_sigma_px=np.ones(3),
-                contours=[Contour(uv=outline[: int(0.8 * len(outline))], closed=False)],
-            )
-        )
+        contours = [Contour(uv=outline[: int(0.8 * len(outline))], closed=False)]
+        views.append(vertex_landmarks(name, view, ids, view.project(X[ids]), contours))
     base = register_views(model, views, silhouettes=False)
     res = register_views(model, views)
     assert res.iterations[-1].kind == "local"

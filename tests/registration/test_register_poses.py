@@ -9,9 +9,14 @@ import pytest
 
 from biplanar_reg.annotation.annotations import Contour
 from biplanar_reg.outline import outline_polylines
-from biplanar_reg.registration import ViewObservations, register_views
+from biplanar_reg.registration import register_views
 from biplanar_reg.registration.rotations import rotation_angle, so3_exp
-from biplanar_reg.simulate import biplanar_views, random_pose, synthetic_bone_model
+from biplanar_reg.simulate import (
+    biplanar_views,
+    random_pose,
+    synthetic_bone_model,
+    vertex_landmarks,
+)
 
 
 @pytest.fixture(scope="module")
@@ -25,17 +30,8 @@ def scene():
     for name, view in zip(("cam1", "cam2"), biplanar_views(75.0), strict=True):
         ids = rng.choice(model.n_vertices, 15, replace=False)
         outline = outline_polylines(X, view, model.faces)[0][0]
-        views.append(
-            ViewObservations(
-                name=name,
-                view=view,
-                landmark_names=[f"v{i}" for i in ids],
-                landmark_ids=ids,
-                landmark_uv=view.project(X[ids]),
-                landmark_sigma_px=np.ones(15),
-                contours=[Contour(uv=outline, closed=True)],
-            )
-        )
+        contours = [Contour(uv=outline, closed=True)]
+        views.append(vertex_landmarks(name, view, ids, view.project(X[ids]), contours))
     return model, views, X
 
 
