@@ -191,7 +191,7 @@ def convergence_figure(
     """Convergence of a registration, one panel per stage.
 
     Left: the convex iterations (``kind`` ``"sdp"``): match-independent cost (log) with the
-    number of silhouette matches, and the certificate (right axis, log). Right, when there are
+    number of outline matches, and the certificate (right axis, log). Right, when there are
     ``"local"`` records: the final refinement's objective per accepted step (log) with the
     annotated outline samples within its gate. The two costs are on different scales. The
     returned iteration (``best``) is starred.
@@ -242,6 +242,6 @@ def convergence_figure(
     ax.legend(h1 + h2, l1 + l2, fontsize=7, loc="best")
     if local.any():
         axl.legend(fontsize=7, loc="best")
-    ax.set_title("convex iterations (numbers: silhouette matches)", fontsize=9)
+    ax.set_title("convex iterations (numbers: outline matches)", fontsize=9)
     fig.tight_layout()
     save_figure(fig, path)
