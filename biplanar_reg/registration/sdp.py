@@ -42,7 +42,7 @@ from .lifting import (
 )
 from .rotations import skew
 
-__all__ = ["KnownPoseSDP", "KnownPoseIPM", "SdpSolution", "SolverFailure", "depth_reward"]
+__all__ = ["KnownPoseSDP", "KnownPoseIPM"]
 
 
 @dataclass(frozen=True)

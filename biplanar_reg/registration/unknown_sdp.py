@@ -32,7 +32,7 @@ from .lifting import svec_index, svec_to_matrix
 from .rays import RayObservations
 from .sdp import KnownPoseSDP, SolverFailure
 
-__all__ = ["SdpViewBlock", "MultiViewSdpSolution", "solve_multiview_sdp"]
+__all__: list[str] = []
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,7 @@ from .figures import convergence_figure, histogram_figure, overlay_figure
 from .html import write_page
 from .render3d import render_error_mesh
 
-__all__ = ["ReportView", "write_case_report", "metric_rows", "safe_name"]
+__all__ = ["ReportView", "write_case_report"]
 
 #: (key in result["metrics"], label, unit) in table order.
 _METRICS = (
