@@ -15,14 +15,14 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:  # the type only; importing cases here would load the whole library
     from .cases.run import RunOutcome
 
-__all__ = ["DEMO_CASE", "find_demo_case", "run_demo"]
+__all__: list[str] = []
 
 _CASE = Path("sample_cases") / "wrist_radius"
 #: The bundled sample case in the source tree (a source checkout or an editable install).
 DEMO_CASE = Path(__file__).resolve().parents[1] / _CASE
 
 
-def find_demo_case() -> Path:
+def _find_demo_case() -> Path:
     """The sample case: in the source tree beside the package, else under the current folder
     (a regular ``pip install .`` copies only the package, so the demo is run from the clone)."""
     for candidate in (DEMO_CASE, Path.cwd() / _CASE):
@@ -49,7 +49,7 @@ def run_demo(out: str | Path, case_dir: str | Path | None = None) -> RunOutcome:
     """
     from .cases.run import run_case_dir
 
-    case_dir = find_demo_case() if case_dir is None else Path(case_dir)
+    case_dir = _find_demo_case() if case_dir is None else Path(case_dir)
     if not (case_dir / "case.toml").is_file():
         raise ValueError(f"{case_dir}: no case.toml (not a case folder)")
     return run_case_dir(case_dir, out)

@@ -16,8 +16,9 @@ exception                  base             raised when                         
 
 .. [1] Inside ``register``/``batch`` it is re-raised as a ``CaseFailure`` naming the case.
 
-Each type stays importable from the module that documents it (e.g.
-``biplanar_reg.registration.SolverFailure``, ``biplanar_reg.cases.CaseError``).
+Each type is also exported by the package that raises it (``biplanar_reg.calibration``,
+``biplanar_reg.annotation``, ``biplanar_reg.registration``, ``biplanar_reg.cases``; see
+``docs/api.md``) and stays importable from the modules that raised it before.
 """
 
 from __future__ import annotations

@@ -42,14 +42,11 @@ __all__ = [
     "mesh_outline",
     "alpha_outline",
     "chain_edges",
-    "HalfEdges",
     "half_edges",
+    "HalfEdges",
     "coverage_mask",
-    "contour_generator_edges",
-    "outer_edges",
     "outline_tangents",
     "subsample_evenly",
-    "ALPHA_FACTOR",
 ]
 
 #: Default alpha for :func:`alpha_outline`, in units of the 99th percentile of the projected
@@ -57,7 +54,7 @@ __all__ = [
 #: exact outline on a 1,922-vertex bone; see benchmarks/silhouette.py).
 ALPHA_FACTOR = 3.0
 
-#: Distance (px) from an edge's midpoint at which :func:`outer_edges` looks for uncovered pixels.
+#: Distance (px) from an edge's midpoint at which :func:`_outer_edges` looks for uncovered pixels.
 OUTER_PROBE_PX = 1.5
 
 
@@ -136,7 +133,7 @@ def coverage_mask(uv: np.ndarray, faces: np.ndarray, pad: int = 3) -> tuple[np.n
     each scanline; where projected triangles overlap (the front and back of a closed surface)
     it leaves some interior pixels empty (measured on the synthetic radius reference case: 13 %
     fewer covered pixels than the exact pixel-centre coverage, in holes of a few pixels), and an
-    inner contour edge next to such a hole passes :func:`outer_edges`. Kept as it is because the
+    inner contour edge next to such a hole passes :func:`_outer_edges`. Kept as it is because the
     registration's results (and the sample cases' ``expected.json``) are computed with it;
     filling triangle by triangle removes the holes at the same cost but moves the results.
     """
@@ -164,7 +161,7 @@ def _facing(vertices: np.ndarray, faces: np.ndarray, view: View) -> np.ndarray:
     return np.einsum("ij,ij->i", n, d) < 0
 
 
-def contour_generator_edges(
+def _contour_generator_edges(
     vertices: np.ndarray, he: HalfEdges, faces: np.ndarray, view: View
 ) -> np.ndarray:
     """Directed edges (C, 2) of front faces whose twin is back-facing (or missing).
@@ -190,7 +187,7 @@ def contour_generator_edges(
     return he.edges[front[he.face] & ~twin_front]
 
 
-def outer_edges(
+def _outer_edges(
     uv: np.ndarray, edges: np.ndarray, mask: np.ndarray, offset: np.ndarray
 ) -> np.ndarray:
     """Keep the projected edges with uncovered pixels on at least one side (the outer border).
@@ -265,12 +262,12 @@ def mesh_outline(
     """
     he = topology or half_edges(faces, len(vertices))
     uv = view.project(vertices)
-    edges = contour_generator_edges(vertices, he, faces, view)
+    edges = _contour_generator_edges(vertices, he, faces, view)
     if mask is None:
         mask, offset = coverage_mask(uv, faces)
     else:
         offset = np.zeros(2)
-    return outer_edges(uv, edges, mask, offset), uv
+    return _outer_edges(uv, edges, mask, offset), uv
 
 
 def alpha_outline(

@@ -27,17 +27,13 @@ from ..io.atomic import atomic_write_json
 from ..io.jsonfile import is_finite_number, read_json
 
 __all__ = [
-    "FORMAT",
     "Landmark",
     "Contour",
     "ViewAnnotations",
     "Annotations",
-    "AnnotationError",
-    "parse_annotations",
     "load_annotations",
     "save_annotations",
     "merge_annotations",
-    "validate_annotations",
 ]
 
 FORMAT = "biplanar-reg/annotations@1"

@@ -13,17 +13,10 @@ from matplotlib.path import Path as MplPath
 
 from .._validate import as_array, check_positive
 
-__all__ = [
-    "as_polyline",
-    "resample_polyline",
-    "remove_self_intersections",
-    "cut_polyline",
-    "clean_contour",
-    "distance_to_polyline",
-]
+__all__ = ["resample_polyline", "remove_self_intersections", "cut_polyline", "clean_contour"]
 
 
-def as_polyline(uv: object, name: str = "uv", min_points: int = 2) -> np.ndarray:
+def _as_polyline(uv: object, name: str = "uv", min_points: int = 2) -> np.ndarray:
     """Validate a polyline: (K, 2) finite floats with K >= ``min_points``."""
     arr = as_array(name, uv, (None, 2))
     if len(arr) < min_points:
@@ -60,7 +53,7 @@ def resample_polyline(uv: object, spacing_px: float = 1.0, closed: bool = False)
     (M, 2) array
     """
     spacing = check_positive("spacing_px", spacing_px)
-    pts = _dedupe(as_polyline(uv), closed)
+    pts = _dedupe(_as_polyline(uv), closed)
     if len(pts) < 2:
         return pts.copy()
     path = np.vstack([pts, pts[:1]]) if closed else pts
@@ -157,7 +150,7 @@ def remove_self_intersections(
     -------
     (M, 2) array without proper self-crossings.
     """
-    pts = _remove_spurs(_dedupe(as_polyline(uv), closed), closed)
+    pts = _remove_spurs(_dedupe(_as_polyline(uv), closed), closed)
     for _ in range(max_loops):
         if len(pts) < 4:
             break
@@ -232,7 +225,7 @@ def cut_polyline(
     closed : list of bool
         True only for a loop that was not cut at all.
     """
-    pts = as_polyline(uv, min_points=1)
+    pts = _as_polyline(uv, min_points=1)
     keep = np.ones(len(pts), bool)
     if image_size is not None:
         w, h = (float(s) for s in image_size)
@@ -240,7 +233,7 @@ def cut_polyline(
         keep &= (pts[:, 0] >= b) & (pts[:, 0] <= w - 1 - b)
         keep &= (pts[:, 1] >= b) & (pts[:, 1] <= h - 1 - b)
     for k, zone in enumerate(exclusion_zones):
-        poly = as_polyline(zone, f"exclusion_zones[{k}]", min_points=3)
+        poly = _as_polyline(zone, f"exclusion_zones[{k}]", min_points=3)
         keep &= ~MplPath(poly).contains_points(pts)
     if not keep.any():
         return [], []
@@ -283,7 +276,7 @@ def clean_contour(
 def distance_to_polyline(points: object, uv: object, closed: bool = False) -> np.ndarray:
     """Euclidean distance (pixels) from each point (K, 2) to a polyline (M, 2)."""
     p = as_array("points", points, (None, 2))
-    line = as_polyline(uv, min_points=1)
+    line = _as_polyline(uv, min_points=1)
     if len(line) == 1:
         return np.linalg.norm(p - line[0], axis=1)
     path = np.vstack([line, line[:1]]) if closed else line

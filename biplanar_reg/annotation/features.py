@@ -7,7 +7,7 @@ from scipy import ndimage
 
 from .._validate import check_positive
 
-__all__ = ["gradient_magnitude", "edge_cost", "edge_onset_offsets", "ONSET_POWERS"]
+__all__: list[str] = []
 
 # onset powers of the outline models, in this order: 0 = step (a face along the rays),
 # 0.5 = square-root onset (the occluding contour of a smooth surface)

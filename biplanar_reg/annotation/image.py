@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["XrayImage", "load_image", "as_display"]
+__all__ = ["XrayImage", "load_image"]
 
 log = logging.getLogger(__name__)
 

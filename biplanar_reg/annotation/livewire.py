@@ -19,7 +19,7 @@ from .._validate import as_array
 from .features import edge_cost, edge_onset_offsets, gradient_magnitude
 from .image import XrayImage, as_display
 
-__all__ = ["livewire", "snap_to_edge_max", "refine_subpixel", "refine_to_outline"]
+__all__ = ["livewire", "refine_to_outline"]
 
 BONE_POLARITIES = ("dark", "bright")
 
@@ -29,7 +29,7 @@ def _check_bone(bone: str) -> None:
         raise ValueError(f"bone: expected one of {BONE_POLARITIES}, got {bone!r}")
 
 
-def snap_to_edge_max(grad: np.ndarray, uv: np.ndarray, radius_px: float) -> np.ndarray:
+def _snap_to_edge_max(grad: np.ndarray, uv: np.ndarray, radius_px: float) -> np.ndarray:
     """Move each integer pixel (K, 2) to the gradient-magnitude maximum within ``radius_px``."""
     h, w = grad.shape
     out = uv.copy()
@@ -282,7 +282,7 @@ def livewire(
         raise ValueError(f"cost: shape {cost.shape} differs from the image's {disp.shape}")
     ipts = np.clip(np.round(pts), 0, [w - 1, h - 1])
     if anchor_snap_px > 0:
-        ipts = snap_to_edge_max(gradient_magnitude(disp, sigma_px), ipts, anchor_snap_px)
+        ipts = _snap_to_edge_max(gradient_magnitude(disp, sigma_px), ipts, anchor_snap_px)
     order = list(range(len(ipts))) + ([0] if closed else [])
     pieces = []
     for a, b in zip(order[:-1], order[1:], strict=True):

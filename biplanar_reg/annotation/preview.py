@@ -18,14 +18,14 @@ from ..io.atomic import atomic_write_bytes
 from .annotations import Annotations, ViewAnnotations, load_annotations
 from .image import XrayImage, load_image
 
-__all__ = ["draw_overlay", "compose_panels", "preview_annotations"]
+__all__ = ["preview_annotations"]
 
 _CONTOUR_BGR = (40, 40, 230)  # red
 _OPEN_END_BGR = (0, 200, 255)  # amber: ends of open contours
 _LANDMARK_BGR = (60, 200, 60)  # green
 
 
-def draw_overlay(image: XrayImage, ann: ViewAnnotations, *, scale: float = 1.0) -> np.ndarray:
+def _draw_overlay(image: XrayImage, ann: ViewAnnotations, *, scale: float = 1.0) -> np.ndarray:
     """Draw one view's annotations over its display image.
 
     Parameters
@@ -69,7 +69,7 @@ def draw_overlay(image: XrayImage, ann: ViewAnnotations, *, scale: float = 1.0) 
     return out
 
 
-def compose_panels(panels: list[np.ndarray], titles: list[str]) -> np.ndarray:
+def _compose_panels(panels: list[np.ndarray], titles: list[str]) -> np.ndarray:
     """Place BGR panels side by side (bottom-padded to the tallest) with a title on each."""
     h = max(p.shape[0] for p in panels)
     cols = []
@@ -125,9 +125,9 @@ def preview_annotations(
     for name, im in images.items():
         va = ann.views.get(name, ViewAnnotations())
         scale = min(1.0, max_height / im.size[1])
-        panels.append(draw_overlay(im, va, scale=scale))
+        panels.append(_draw_overlay(im, va, scale=scale))
         titles.append(f"{name}: {len(va.landmarks)} landmark(s), {len(va.contours)} contour(s)")
-    ok, buf = cv2.imencode(".png", compose_panels(panels, titles))
+    ok, buf = cv2.imencode(".png", _compose_panels(panels, titles))
     if not ok:  # pragma: no cover - encoding a uint8 BGR image does not fail
         raise RuntimeError("PNG encoding failed")
     return atomic_write_bytes(out_png, buf.tobytes())

@@ -32,15 +32,7 @@ from .image import XrayImage, load_image
 from .livewire import livewire
 from .region import grabcut_outline
 
-__all__ = [
-    "RECIPE_FORMAT",
-    "METHODS",
-    "ContourRecipe",
-    "parse_recipe",
-    "load_recipe",
-    "save_recipe",
-    "run_recipe",
-]
+__all__ = ["ContourRecipe", "load_recipe", "run_recipe"]
 
 RECIPE_FORMAT = "biplanar-reg/contour-recipe@1"
 METHODS = ("livewire", "grabcut")

@@ -24,7 +24,7 @@ from .._validate import as_array, check_positive
 from ..calibration.views import View
 from ..outline import outline_polylines
 
-__all__ = ["Radiograph", "render_radiograph", "path_lengths"]
+__all__ = ["Radiograph", "render_radiograph"]
 
 
 @dataclass(frozen=True, eq=False)

@@ -13,7 +13,7 @@ from .features import gradient_magnitude
 from .image import XrayImage, as_display
 from .livewire import refine_subpixel
 
-__all__ = ["SnapResult", "snap_landmark", "SNAP_MODES"]
+__all__ = ["SnapResult", "snap_landmark"]
 
 SNAP_MODES = ("corner", "edge")
 

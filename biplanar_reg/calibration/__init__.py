@@ -1,8 +1,14 @@
-"""Camera models of X-ray views (pixels <-> world rays) and calibration I/O."""
+"""Camera models of X-ray views (pixels <-> world rays) and calibration I/O.
 
-from .geometry import describe_view, principal_rays_distance, view_angle_deg
+See ``docs/calibration.md``; the package exports the names listed in ``docs/api.md``. The
+format readers and writers (``mayacam``, ``dlt``, ``native_json``, ``dicom_geometry``), the
+pinhole maths and phantom calibration (``phantom.calibrate_phantom``) live in their modules.
+"""
+
+from ..errors import CalibrationFormatError
+from .geometry import principal_rays_distance, view_angle_deg
 from .io import FORMATS, WRITABLE_FORMATS, detect_format, load_calibration, save_calibration
-from .projection_matrix import compose_projection, decompose_projection, dlt_projection
+from .projection_matrix import compose_projection, decompose_projection
 from .views import OrthographicView, PerspectiveView, SlotScanningView, View
 
 __all__ = [
@@ -10,15 +16,14 @@ __all__ = [
     "PerspectiveView",
     "OrthographicView",
     "SlotScanningView",
+    "CalibrationFormatError",
     "FORMATS",
     "WRITABLE_FORMATS",
     "detect_format",
     "load_calibration",
     "save_calibration",
-    "describe_view",
     "view_angle_deg",
     "principal_rays_distance",
     "compose_projection",
     "decompose_projection",
-    "dlt_projection",
 ]

@@ -11,12 +11,7 @@ import numpy as np
 
 from ..errors import CalibrationFormatError
 
-__all__ = [
-    "read_lines",
-    "parse_numbers",
-    "is_numeric_line",
-    "fmt",
-]
+__all__: list[str] = []
 
 _SPLIT = re.compile(r"[,;\s]+")
 

@@ -56,14 +56,7 @@ from .views import PerspectiveView, View
 if TYPE_CHECKING:
     from pydicom.dataset import Dataset
 
-__all__ = [
-    "beam_direction",
-    "geometry_from_view",
-    "read_dicom_geometry",
-    "view_from_dicom",
-    "view_from_geometry",
-    "write_dicom_geometry",
-]
+__all__ = ["write_dicom_geometry"]
 
 log = logging.getLogger(__name__)
 
@@ -117,7 +110,7 @@ def _orientation_vector(letters: str, path: Path) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def read_dicom_geometry(path: Path | str) -> dict[str, object]:
+def _read_dicom_geometry(path: Path | str) -> dict[str, object]:
     """The geometry tags of a DICOM file (no pixel data, no patient identifiers)."""
     import pydicom
     from pydicom.errors import InvalidDicomError
@@ -173,7 +166,7 @@ def read_dicom_geometry(path: Path | str) -> dict[str, object]:
 def view_from_dicom(path: Path | str, name: str = "") -> PerspectiveView:
     """The nominal pinhole view of a DICOM X-ray image (convention in the module docstring)."""
     path = Path(path)
-    return view_from_geometry(read_dicom_geometry(path), name, where=str(path))
+    return _view_from_geometry(_read_dicom_geometry(path), name, where=str(path))
 
 
 def _carm_axes(primary_deg: float, secondary_deg: float) -> tuple[np.ndarray, np.ndarray]:
@@ -186,10 +179,10 @@ def _carm_axes(primary_deg: float, secondary_deg: float) -> tuple[np.ndarray, np
     return u_dir, v_dir
 
 
-def view_from_geometry(
+def _view_from_geometry(
     geo: dict[str, object], name: str = "", *, where: str = "DICOM geometry"
 ) -> PerspectiveView:
-    """The nominal pinhole view of geometry tags as returned by :func:`read_dicom_geometry`.
+    """The nominal pinhole view of geometry tags as returned by :func:`_read_dicom_geometry`.
 
     Parameters
     ----------
@@ -363,7 +356,7 @@ def _axes_turn_problems(view: PerspectiveView, a: float, b: float, tol_px: float
     ]
 
 
-def geometry_from_view(
+def _geometry_from_view(
     view: View,
     *,
     source_detector_distance: float | None = None,
@@ -371,7 +364,7 @@ def geometry_from_view(
 ) -> dict[str, object]:
     """The DICOM geometry tags of a view, when the reader's convention can represent it.
 
-    The inverse of :func:`view_from_geometry`. A pinhole view is representable when its beam
+    The inverse of :func:`_view_from_geometry`. A pinhole view is representable when its beam
     and detector axes follow a C-arm (positioner angles, up to a mirror of either image axis,
     written as ``PatientOrientation``), the world origin (the isocentre) lies on its central
     ray, the principal point is the image centre, and it has no skew and no distortion.
@@ -392,7 +385,7 @@ def geometry_from_view(
     Returns
     -------
     dict
-        The keys of :func:`read_dicom_geometry`, values rounded as DICOM decimal strings store
+        The keys of :func:`_read_dicom_geometry`, values rounded as DICOM decimal strings store
         them; ``PatientOrientation`` is always set.
 
     Raises
@@ -499,14 +492,14 @@ def write_dicom_geometry(
 ) -> None:
     """Write a view as a minimal DICOM XA file (convention in the module docstring), atomically.
 
-    The geometry comes from :func:`geometry_from_view` (which raises ``ValueError`` before
+    The geometry comes from :func:`_geometry_from_view` (which raises ``ValueError`` before
     anything is written when the view is not representable); the file is written to a
     temporary sibling, read back with :func:`view_from_dicom` and moved onto ``path`` only if
     the re-read view projects a grid of image points at 0.5, 1 and 1.5 times the isocentre
     depth to within ``tol_px`` pixels of ``view``.
     """
     try:
-        geo = geometry_from_view(
+        geo = _geometry_from_view(
             view, source_detector_distance=source_detector_distance, tol_px=tol_px
         )
     except ValueError as exc:

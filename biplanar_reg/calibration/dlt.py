@@ -29,7 +29,7 @@ from ._textio import fmt, is_numeric_line, parse_numbers, read_lines
 from .projection_matrix import decompose_projection
 from .views import PerspectiveView, View
 
-__all__ = ["dlt_from_view", "view_from_dlt", "read_dlt_csv", "format_dlt_csv"]
+__all__: list[str] = []
 
 
 def _flip(H: float) -> np.ndarray:

@@ -6,7 +6,7 @@ import numpy as np
 
 from .views import OrthographicView, PerspectiveView, SlotScanningView, View
 
-__all__ = ["describe_view", "view_angle_deg", "principal_rays_distance"]
+__all__ = ["view_angle_deg", "principal_rays_distance"]
 
 
 def _principal_line(view: View) -> tuple[np.ndarray, np.ndarray]:

@@ -40,7 +40,7 @@ from ..errors import CalibrationFormatError
 from ._textio import fmt, is_numeric_line, parse_numbers, read_lines
 from .views import PerspectiveView, View
 
-__all__ = ["read_mayacam2", "format_mayacam2", "read_mayacam1", "format_mayacam1"]
+__all__: list[str] = []
 
 log = logging.getLogger(__name__)
 

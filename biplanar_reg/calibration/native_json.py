@@ -15,7 +15,7 @@ from pathlib import Path
 
 from .views import OrthographicView, PerspectiveView, SlotScanningView, View
 
-__all__ = ["read_native_json", "format_native_json"]
+__all__: list[str] = []
 
 log = logging.getLogger(__name__)
 

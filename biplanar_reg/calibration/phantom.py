@@ -42,15 +42,7 @@ from .pinhole import project_camera_points
 from .projection_matrix import decompose_projection, dlt_projection
 from .views import PerspectiveView
 
-__all__ = [
-    "PhantomCalibration",
-    "read_beads_csv",
-    "read_seeds_json",
-    "detect_beads",
-    "render_bead_image",
-    "calibrate_from_beads",
-    "calibrate_phantom",
-]
+__all__ = ["PhantomCalibration", "calibrate_phantom"]
 
 log = logging.getLogger(__name__)
 

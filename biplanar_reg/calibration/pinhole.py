@@ -25,13 +25,7 @@ import numpy as np
 
 from .._validate import as_array
 
-__all__ = [
-    "as_distortion",
-    "distort_normalized",
-    "undistort_normalized",
-    "project_camera_points",
-    "pixels_to_normalized",
-]
+__all__: list[str] = []
 
 N_DISTORTION = 8
 

@@ -11,7 +11,7 @@ import scipy.linalg
 
 from .._validate import as_array
 
-__all__ = ["compose_projection", "decompose_projection", "dlt_projection"]
+__all__ = ["compose_projection", "decompose_projection"]
 
 
 def compose_projection(K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:

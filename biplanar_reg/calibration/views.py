@@ -19,14 +19,7 @@ import numpy as np
 from .._validate import as_array, check_positive, check_rotation
 from .pinhole import as_distortion, pixels_to_normalized, project_camera_points
 
-__all__ = [
-    "View",
-    "PerspectiveView",
-    "OrthographicView",
-    "SlotScanningView",
-    "as_uv",
-    "as_points",
-]
+__all__ = ["View", "PerspectiveView", "OrthographicView", "SlotScanningView"]
 
 
 def _as_rows(values: object, name: str, width: int) -> np.ndarray:
@@ -37,12 +30,12 @@ def _as_rows(values: object, name: str, width: int) -> np.ndarray:
     return as_array(name, arr, (None, width))
 
 
-def as_uv(uv: object, name: str = "uv") -> np.ndarray:
+def _as_uv(uv: object, name: str = "uv") -> np.ndarray:
     """Validate pixel coordinates: (K, 2) or (2,) finite floats; returns (K, 2)."""
     return _as_rows(uv, name, 2)
 
 
-def as_points(X: object, name: str = "X") -> np.ndarray:
+def _as_points(X: object, name: str = "X") -> np.ndarray:
     """Validate 3D points: (K, 3) or (3,) finite floats; returns (K, 3)."""
     return _as_rows(X, name, 3)
 
@@ -94,7 +87,7 @@ class View:
     # -- frames ---------------------------------------------------------------------------------
     def to_camera(self, X: object) -> np.ndarray:
         """World points (K, 3) mm -> camera coordinates (K, 3) mm."""
-        return as_points(X) @ self.R.T + self.t
+        return _as_points(X) @ self.R.T + self.t
 
     def to_world(self, Xc: np.ndarray) -> np.ndarray:
         """Camera coordinates (K, 3) -> world points (K, 3)."""
@@ -132,7 +125,7 @@ class View:
         directions : (K, 3) array
             Unit ray directions in the world frame, pointing from the source into the scene.
         """
-        uv = as_uv(uv)
+        uv = _as_uv(uv)
         oc, dc = self._rays_camera(uv)
         dc = dc / np.linalg.norm(dc, axis=1, keepdims=True)
         return self.to_world(oc), dc @ self.R

@@ -1,27 +1,29 @@
-"""Cases: the case-folder format, single-case registration with reports, batch processing."""
+"""Cases: the case-folder format, single-case registration with reports, batch processing.
 
-from .case import (
-    CASE_FILE,
-    CASE_FORMAT,
-    Case,
-    CaseError,
-    CaseView,
-    GroundTruth,
-    load_case,
-    read_case_views,
-    registration_options,
-    to_view_observations,
-)
+See ``docs/cases.md``; the package exports the names listed in ``docs/api.md``:
+:func:`load_case` (the format), :func:`register_case` / :func:`run_case_dir` (one case, as
+``biplanar-reg register``) and :func:`run_batch` (many, as ``biplanar-reg batch``), which are
+also importable from their modules ``biplanar_reg.cases.run`` and ``biplanar_reg.cases.batch``.
+Importing them here costs little: the report (its templates, VTK) and Dask are
+imported only when a case is written or a cluster is used.
+"""
+
+from ..errors import CaseError, CaseFailure
+from .batch import BatchSummary, run_batch
+from .case import Case, load_case, read_case_views, registration_options, to_view_observations
+from .run import RunOutcome, register_case, run_case_dir
 
 __all__ = [
-    "CASE_FILE",
-    "CASE_FORMAT",
     "Case",
     "CaseError",
-    "CaseView",
-    "GroundTruth",
+    "CaseFailure",
     "load_case",
     "read_case_views",
     "registration_options",
     "to_view_observations",
+    "register_case",
+    "run_case_dir",
+    "RunOutcome",
+    "run_batch",
+    "BatchSummary",
 ]

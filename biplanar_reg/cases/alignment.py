@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["RigidAlignment", "kabsch", "align_rigid"]
+__all__ = ["RigidAlignment", "align_rigid"]
 
 #: Ground-truth points moved by the ICP, and target points they are matched to.
 ICP_SAMPLES = 5000
@@ -44,7 +44,7 @@ class RigidAlignment:
         return np.asarray(points, float) @ self.R.T + self.t
 
 
-def kabsch(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _kabsch(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Proper rotation ``R`` and translation ``t`` minimising ``|source @ R.T + t - target|``.
 
     Parameters
@@ -110,7 +110,7 @@ def align_rigid(
     V = np.asarray(vertices, float)
     T = np.asarray(target_vertices, float)
     if len(V) == len(T):
-        R, t = kabsch(V, T)
+        R, t = _kabsch(V, T)
         init = "vertex correspondence"
     else:
         R, t = _principal_axes_init(V, T, np.asarray(target_faces))
@@ -125,5 +125,5 @@ def align_rigid(
             cost = min(cost, new_cost)
             break
         cost = new_cost
-        R, t = kabsch(pts, tree.data[idx])
+        R, t = _kabsch(pts, tree.data[idx])
     return RigidAlignment(R, t, init, cost)

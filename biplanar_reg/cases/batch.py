@@ -35,14 +35,7 @@ import numpy as np
 from ..io.atomic import atomic_write_text
 from .outputs import clean_stale, is_complete
 
-__all__ = [
-    "SUMMARY_COLUMNS",
-    "BatchSummary",
-    "Progress",
-    "process_case",
-    "run_batch",
-    "read_record",
-]
+__all__ = ["BatchSummary", "run_batch"]
 
 log = logging.getLogger(__name__)
 

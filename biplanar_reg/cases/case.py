@@ -34,21 +34,7 @@ from ..registration import RegistrationOptions, ViewObservations
 from ..ssm import ShapeModel, build_ssm, synthesise_population
 from ..ssm.population import FAMILIES
 
-__all__ = [
-    "CASE_FORMAT",
-    "CASE_FILE",
-    "UNIT_SCALE",
-    "MODEL_DEFAULTS",
-    "CaseError",
-    "CaseView",
-    "GroundTruth",
-    "Case",
-    "load_case",
-    "read_case_views",
-    "to_view_observations",
-    "registration_options",
-    "scale_view",
-]
+__all__ = ["Case", "load_case", "read_case_views", "registration_options", "to_view_observations"]
 
 log = logging.getLogger(__name__)
 
@@ -251,7 +237,7 @@ class _Ctx:
         return kind(value)
 
 
-def scale_view(view: View, scale: float) -> View:
+def _scale_view(view: View, scale: float) -> View:
     """The same view with world lengths multiplied by ``scale`` (e.g. 1000 for m -> mm).
 
     Perspective: only ``t`` scales (``K`` is in pixels). Orthographic: ``t`` scales and ``K``'s
@@ -478,7 +464,7 @@ def _load_views(ctx: _Ctx, doc: dict, scale: float) -> list[CaseView]:
         view = dataclasses.replace(view, name=name)
         if used_fmt != "dicom":  # DICOM geometry is mm by the standard
             try:
-                view = scale_view(view, scale)
+                view = _scale_view(view, scale)
             except ValueError as exc:
                 raise ctx.error(f"{where} calibration", _one_line(exc)) from None
         views.append(CaseView(name, view, calib, used_fmt, image_path, image))

@@ -26,17 +26,7 @@ from typing import Any
 from ..io.atomic import atomic_write_json
 from ..io.jsonfile import read_json
 
-__all__ = [
-    "EXPECTED_FILE",
-    "EXPECTED_FORMAT",
-    "TOLERANCES",
-    "run_case",
-    "expected_from_result",
-    "compare_expected",
-    "write_expected",
-    "check_case",
-    "main",
-]
+__all__ = ["TOLERANCES"]
 
 EXPECTED_FILE = "expected.json"
 EXPECTED_FORMAT = "biplanar-reg/expected@1"

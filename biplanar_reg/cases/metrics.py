@@ -16,15 +16,7 @@ from ..io.meshes import to_polydata
 from ..outline import outline_polylines
 from ..registration import ViewObservations
 
-__all__ = [
-    "SURFACE_SAMPLES",
-    "point_to_surface",
-    "sample_surface",
-    "surface_metrics",
-    "contour_errors",
-    "model_outlines",
-    "summary_stats",
-]
+__all__ = ["model_outlines"]
 
 #: Points sampled on each surface for the surface-distance statistics.
 SURFACE_SAMPLES = 20000

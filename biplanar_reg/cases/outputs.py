@@ -22,13 +22,7 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = [
-    "REQUIRED_OUTPUTS",
-    "atomic_output_dir",
-    "clean_stale",
-    "is_complete",
-    "check_output_target",
-]
+__all__: list[str] = []
 
 #: Files whose presence marks a complete case output folder.
 REQUIRED_OUTPUTS = ("registered.ply", "result.json", "report.html")
@@ -39,7 +33,7 @@ def is_complete(out: Path) -> bool:
     return out.is_dir() and all((out / f).is_file() for f in REQUIRED_OUTPUTS)
 
 
-def check_output_target(out: Path) -> None:
+def _check_output_target(out: Path) -> None:
     """Refuse to replace a folder that is not ours (non-empty and without ``result.json``)."""
     if out.exists():
         if not out.is_dir():
@@ -71,7 +65,7 @@ def atomic_output_dir(out: str | os.PathLike) -> Iterator[Path]:
     """
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    check_output_target(out)
+    _check_output_target(out)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
     try:
         yield tmp

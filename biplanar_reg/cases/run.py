@@ -31,16 +31,7 @@ from .outputs import atomic_output_dir, clean_stale
 if TYPE_CHECKING:  # the report (matplotlib, VTK) is imported when a case is written
     from ..report.case_report import ReportView
 
-__all__ = [
-    "RESULT_FORMAT",
-    "SURFACE_METHOD",
-    "CaseFailure",
-    "RunOutcome",
-    "register_case",
-    "run_case_dir",
-    "result_document",
-    "dicom_identifiers",
-]
+__all__ = ["CaseFailure", "RunOutcome", "register_case", "run_case_dir", "result_document"]
 
 log = logging.getLogger(__name__)
 

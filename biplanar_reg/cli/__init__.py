@@ -28,7 +28,7 @@ from collections.abc import Sequence
 from .. import __version__
 from ..errors import CommandError, SolverFailure
 
-__all__ = ["COMMAND_MODULES", "CommandError", "build_parser", "main"]
+__all__ = ["main"]
 
 #: Modules that contribute sub-commands, in the order they appear in ``--help``.
 COMMAND_MODULES: tuple[str, ...] = (

@@ -16,7 +16,7 @@ import argparse
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["Builder", "Wanted", "add_command", "wanted_words"]
+__all__: list[str] = []
 
 #: The words of the command line that may name a (sub)command; ``None``: build every parser.
 Wanted = frozenset[str] | None

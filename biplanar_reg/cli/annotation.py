@@ -13,7 +13,7 @@ from ._parsing import Wanted, add_command
 if TYPE_CHECKING:
     import numpy as np
 
-__all__ = ["register", "recipe_path_for"]
+__all__ = ["register"]
 
 
 def recipe_path_for(out: str | os.PathLike[str]) -> Path:

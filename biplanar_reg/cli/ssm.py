@@ -15,7 +15,7 @@ from ._parsing import Builder, Wanted, add_command
 if TYPE_CHECKING:
     from ..ssm.model import ShapeModel
 
-__all__ = ["AFFINE_WARNING", "register"]
+__all__ = ["register"]
 
 log = logging.getLogger(__name__)
 

@@ -1,18 +1,20 @@
-"""File input/output: meshes and point clouds, CT volumes, atomic writes, strict JSON."""
+"""File input/output: meshes and point clouds, CT volumes, atomic writes, strict JSON.
+
+See ``docs/ssm.md`` (meshes, volumes) and ``README.md``; the package exports the names listed
+in ``docs/api.md``.
+"""
 
 from .atomic import atomic_path, atomic_write_bytes, atomic_write_json, atomic_write_text
 from .jsonfile import read_json
-from .meshes import MESH_SUFFIXES, check_manifold, read_mesh, write_mesh
+from .meshes import read_mesh, write_mesh
 from .volumes import Volume, read_dicom_series, read_volume
 
 __all__ = [
-    "MESH_SUFFIXES",
     "Volume",
     "atomic_path",
     "atomic_write_bytes",
     "atomic_write_json",
     "atomic_write_text",
-    "check_manifold",
     "read_dicom_series",
     "read_json",
     "read_mesh",

@@ -24,14 +24,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-__all__ = [
-    "atomic_path",
-    "atomic_write_bytes",
-    "atomic_write_json",
-    "atomic_write_text",
-    "current_umask",
-    "new_file_mode",
-]
+__all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text", "atomic_write_json"]
 
 #: Compression suffixes kept together with the one before them (``.csv.gz``), so a library that
 #: picks its format from the file name still sees it in the temporary name.

@@ -11,7 +11,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-__all__ = ["is_finite_number", "read_json"]
+__all__ = ["read_json"]
 
 
 def _reject_constant(token: str) -> float:

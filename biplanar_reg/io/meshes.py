@@ -22,7 +22,7 @@ import numpy as np
 from .._validate import as_array
 from .atomic import atomic_path
 
-__all__ = ["MESH_SUFFIXES", "check_manifold", "read_mesh", "to_polydata", "write_mesh"]
+__all__ = ["read_mesh", "write_mesh"]
 
 #: Suffixes understood by :func:`read_mesh` / :func:`write_mesh` (lower case).
 MESH_SUFFIXES: tuple[str, ...] = (".stl", ".ply", ".obj", ".vtk", ".vtp", ".csv", ".npy")

@@ -1,9 +1,16 @@
-"""Registration solvers: G-SfT (known view poses) and its building blocks."""
+"""Registration: the G-SfT solvers (known, unknown and refined view poses) and the pipeline.
 
-from .gsft import DEFAULT_EPS, GsftResult, SolverFailure, solve_gsft
-from .observations import Contour, ViewObservations
+See ``docs/registration.md``, ``docs/solver.md`` and ``docs/unknown_poses.md``; the package
+exports the names listed in ``docs/api.md``. The modules hold the stages and building blocks
+(``stages``, ``problem``, ``refine``, ``sdp``, ``ipm``, ...), documented where the docs name them.
+"""
+
+from ..errors import SolverFailure
+from .gsft import DEFAULT_EPS, GsftResult, solve_gsft
+from .observations import ViewObservations
+from .options import IterationRecord, RegistrationOptions
 from .rays import RayObservations
-from .register import IterationRecord, RegistrationOptions, RegistrationResult, register_views
+from .register import RegistrationResult, register_views
 from .unknown_poses import (
     RefinedPosesResult,
     UnknownPosesResult,
@@ -20,7 +27,6 @@ __all__ = [
     "SolverFailure",
     "DEFAULT_EPS",
     "ViewObservations",
-    "Contour",
     "register_views",
     "RegistrationOptions",
     "RegistrationResult",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import warnings
 
-__all__ = ["RENAMED_OPTIONS", "renamed_options", "renamed_field"]
+__all__: list[str] = []
 
 #: Old keyword -> its one spelling now (``docs/solver.md``, ``docs/unknown_poses.md``).
 RENAMED_OPTIONS = {

@@ -16,7 +16,7 @@ from .problem import Problem
 from .rays import RayObservations
 from .refine import refine_pose_shape
 
-__all__ = ["find_blunder", "max_rejections"]
+__all__: list[str] = []
 
 
 def max_rejections(n_landmarks: int, fraction: float) -> int:

@@ -34,7 +34,7 @@ import numpy as np
 
 from .sdp import KnownPoseData, SdpSolution, SolverFailure
 
-__all__ = ["KnownPoseProgram", "known_pose_program", "solve_known_pose_cvxpy"]
+__all__ = ["known_pose_program"]
 
 
 def _r(row: int, col: int) -> int:

@@ -46,14 +46,8 @@ __all__ = [
     "solve_gsft",
     "DEFAULT_EPS",
     "DEFAULT_DEPTH_REWARD",
-    "DEFAULT_MAX_REFINE_ITER",
     "MIN_DEPTH_SIZES",
-    "BACKENDS",
-    "SolverFailure",
-    "check_model",
-    "check_options",
-    "nearest_point_to_rays",
-    "common_sigma",
+    "RECENTRE_DISTANCE",
 ]
 
 #: Default trace weight per unit of observation weight (normalised units); see docs/solver.md.

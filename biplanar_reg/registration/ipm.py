@@ -29,15 +29,7 @@ from typing import Protocol
 import numpy as np
 import scipy.linalg as sla
 
-__all__ = [
-    "ConicProblem",
-    "ConicSolution",
-    "solve_conic",
-    "dense_kkt_factor",
-    "svec",
-    "smat",
-    "skron",
-]
+__all__: list[str] = []
 
 
 # -- svec algebra ---------------------------------------------------------------------------------

@@ -34,7 +34,7 @@ from .refine import (
 )
 from .rotations import so3_exp
 
-__all__ = ["JointRefineResult", "ViewPoses", "joint_cost", "refine_views"]
+__all__: list[str] = []
 
 #: Object poses in P view frames and one shape: rotations (P, 3, 3), translations (P, 3) mm,
 #: weights (M,).

@@ -21,15 +21,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = [
-    "gram_size",
-    "svec_size",
-    "svec_index",
-    "svec_to_matrix",
-    "rotation_constraints",
-    "point_map_pattern",
-    "point_map_values",
-]
+__all__: list[str] = []
 
 _SQRT2 = np.sqrt(2.0)
 

@@ -17,7 +17,7 @@ from ..annotation.annotations import Contour
 from ..calibration.views import View
 from .rays import RayObservations
 
-__all__ = ["ViewObservations", "Contour", "landmark_rays", "mm_per_pixel"]
+__all__ = ["ViewObservations", "landmark_rays", "mm_per_pixel"]
 
 
 @dataclass(frozen=True)

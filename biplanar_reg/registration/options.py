@@ -13,7 +13,7 @@ import numpy as np
 
 from .gsft import DEFAULT_EPS
 
-__all__ = ["RegistrationOptions", "IterationRecord", "CERTIFICATE_FLAG", "REPROJECTION_FLAG_PX"]
+__all__ = ["RegistrationOptions", "IterationRecord"]
 
 #: Default certificate above which a result is flagged "relaxation not tight".
 CERTIFICATE_FLAG = 1e-2

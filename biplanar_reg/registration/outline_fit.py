@@ -45,7 +45,7 @@ from .refine import (
     tangent_bases,
 )
 
-__all__ = ["OutlineTerm", "OutlineFitResult", "refine_on_outlines"]
+__all__: list[str] = []
 
 #: Rejected trial steps in a row after which the refinement stops: the matches switch between
 #: discrete outline edges, so the last digits of the objective cannot be won anyway.

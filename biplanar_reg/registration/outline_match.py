@@ -31,19 +31,7 @@ from ..calibration.views import View
 from ..outline import HalfEdges, half_edges, outline_edges, outline_tangents, subsample_evenly
 from ..ssm.model import ShapeModel
 
-__all__ = [
-    "OutlineTarget",
-    "prepare_outline",
-    "ModelOutline",
-    "model_outline",
-    "match_outline",
-    "outline_distances",
-    "END_MARGIN_PX",
-    "MAX_TANGENT_ANGLE_DEG",
-    "Segments",
-    "adaptive_gate",
-    "mesh_topology",
-]
+__all__ = ["model_outline"]
 
 #: Matches within this many pixels of an open contour's ends are dropped.
 END_MARGIN_PX = 3.0

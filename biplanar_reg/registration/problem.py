@@ -30,7 +30,7 @@ from .outline_match import (
 )
 from .rays import RayObservations
 
-__all__ = ["Landmarks", "Problem", "make_problem", "solve"]
+__all__ = ["Problem"]
 
 #: A rejected landmark's sigma is multiplied by this: it no longer pulls the fit, and the
 #: problem keeps its size (one structure for every solve).

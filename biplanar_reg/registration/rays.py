@@ -18,7 +18,7 @@ import numpy as np
 from .._validate import as_array, unit_directions
 from ..ssm.model import ShapeModel
 
-__all__ = ["RayObservations", "as_rays", "check_rays"]
+__all__ = ["RayObservations", "check_rays"]
 
 #: Relative spread of the origins below which all rays count as coming from one source.
 CENTRAL_TOL = 1e-9

@@ -28,18 +28,7 @@ from ..ssm.model import ShapeModel
 from .rays import RayObservations
 from .rotations import skew, so3_exp
 
-__all__ = [
-    "DEFAULT_MAX_REFINE_ITER",
-    "RefineResult",
-    "tangent_bases",
-    "ray_offsets",
-    "ray_distances",
-    "pose_shape_jacobian",
-    "refine_pose_shape",
-    "refine_cost",
-    "levenberg_marquardt",
-    "retract_pose_shape",
-]
+__all__ = ["DEFAULT_MAX_REFINE_ITER", "refine_pose_shape", "levenberg_marquardt"]
 
 #: Default iteration limit of every least-squares refinement (``max_refine_iter``). Measured:
 #: the joint multi-view refinement never needed more than 30 (tests, unknown-poses benchmark),

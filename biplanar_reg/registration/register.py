@@ -20,21 +20,13 @@ from ..outline import chain_edges
 from ..ssm.model import ShapeModel
 from .gsft import GsftResult
 from .observations import ViewObservations
-from .options import CERTIFICATE_FLAG, REPROJECTION_FLAG_PX, IterationRecord, RegistrationOptions
+from .options import IterationRecord, RegistrationOptions
 from .outline_match import outline_distances
 from .problem import Problem, make_problem
 from .stages import boost, landmark_consensus, landmark_start, refine_final
 from .view_poses import estimate_view_poses
 
-__all__ = [
-    "RegistrationOptions",
-    "IterationRecord",
-    "RegistrationResult",
-    "register_views",
-    "landmark_errors",
-    "CERTIFICATE_FLAG",
-    "REPROJECTION_FLAG_PX",
-]
+__all__ = ["RegistrationResult", "register_views"]
 
 
 @dataclass(frozen=True)

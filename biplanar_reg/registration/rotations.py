@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["project_to_so3", "so3_exp", "rotation_angle", "skew"]
+__all__: list[str] = []
 
 
 def project_to_so3(M: np.ndarray) -> np.ndarray:

@@ -43,14 +43,7 @@ from .lifting import (
 from .rays import RayObservations
 from .rotations import skew
 
-__all__ = [
-    "KnownPoseData",
-    "KnownPoseSDP",
-    "KnownPoseIPM",
-    "SdpSolution",
-    "SolverFailure",
-    "depth_reward",
-]
+__all__ = ["KnownPoseData", "KnownPoseSDP", "KnownPoseIPM"]
 
 
 @dataclass(frozen=True)

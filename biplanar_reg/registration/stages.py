@@ -31,7 +31,6 @@ from .problem import Problem, solve, with_pose
 from .rays import RayObservations
 
 __all__ = [
-    "Iterate",
     "Start",
     "BoostRun",
     "Refined",

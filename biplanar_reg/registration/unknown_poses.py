@@ -78,8 +78,6 @@ __all__ = [
     "RefinedPosesResult",
     "solve_gsft_unknown_poses",
     "refine_view_poses",
-    "similarity_fit",
-    "relative_pose",
 ]
 
 

@@ -31,7 +31,7 @@ import scipy.sparse as sp
 from .lifting import svec_index, svec_to_matrix
 from .sdp import KnownPoseData, KnownPoseSDP, SolverFailure
 
-__all__ = ["SdpViewBlock", "MultiViewSdpSolution", "solve_multiview_sdp"]
+__all__: list[str] = []
 
 
 @dataclass(frozen=True)

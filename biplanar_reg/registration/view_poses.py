@@ -20,7 +20,7 @@ from .problem import stack_landmarks
 from .rays import RayObservations
 from .unknown_poses import UnknownPoseView, refine_view_poses, solve_gsft_unknown_poses
 
-__all__ = ["PosedViews", "estimate_view_poses"]
+__all__: list[str] = []
 
 
 @dataclass(frozen=True)

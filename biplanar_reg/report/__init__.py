@@ -1,6 +1,6 @@
 """Error reports: figures (matplotlib, off-screen PyVista) and HTML pages (Jinja2)."""
 
-from .case_report import ReportView, metric_rows, write_case_report
+from .case_report import ReportView, write_case_report
 from .figures import convergence_figure, histogram_figure, overlay_figure
 from .html import render_template, write_page
 from .render3d import render_error_mesh
@@ -9,7 +9,6 @@ __all__ = [
     "ReportView",
     "convergence_figure",
     "histogram_figure",
-    "metric_rows",
     "overlay_figure",
     "render_error_mesh",
     "render_template",

@@ -33,7 +33,7 @@ from .render3d import render_error_mesh
 if TYPE_CHECKING:
     from ..registration import ViewObservations
 
-__all__ = ["ReportView", "write_case_report", "metric_rows", "safe_name"]
+__all__ = ["ReportView", "write_case_report"]
 
 #: (key in result["metrics"], label, unit) in table order.
 _METRICS = (

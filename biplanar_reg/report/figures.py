@@ -17,7 +17,7 @@ from matplotlib.figure import Figure
 
 from ..annotation import Contour, Landmark, ViewAnnotations
 
-__all__ = ["save_figure", "overlay_figure", "histogram_figure", "convergence_figure"]
+__all__ = ["overlay_figure", "histogram_figure", "convergence_figure"]
 
 _DPI = 100
 

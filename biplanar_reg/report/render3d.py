@@ -16,7 +16,7 @@ import os
 
 import numpy as np
 
-__all__ = ["render_error_mesh", "render_pyvista", "render_matplotlib"]
+__all__ = ["render_error_mesh"]
 
 log = logging.getLogger(__name__)
 

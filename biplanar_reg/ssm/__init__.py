@@ -1,11 +1,14 @@
-"""Shape models: the SSM itself, templates, populations and model building."""
+"""Shape models: the SSM itself, templates, populations and model building.
+
+See ``docs/ssm.md``; the package exports the names listed in ``docs/api.md``.
+"""
 
 from .build import affine_fractions, build_ssm, explained_fractions, procrustes_align
 from .dense import densify
 from .harmonic import BoxCage, box_cage, harmonic_coordinates
 from .model import ShapeModel
 from .population import FAMILIES, Population, synthesise_population
-from .template import BoneSurface, bone_surface, segment_bone
+from .template import BoneSurface, bone_surface
 
 __all__ = [
     "FAMILIES",
@@ -21,6 +24,5 @@ __all__ = [
     "explained_fractions",
     "harmonic_coordinates",
     "procrustes_align",
-    "segment_bone",
     "synthesise_population",
 ]

@@ -22,7 +22,7 @@ import numpy as np
 from .._validate import as_array
 from .model import ShapeModel
 
-__all__ = ["affine_fractions", "build_ssm", "procrustes_align"]
+__all__ = ["procrustes_align", "build_ssm", "explained_fractions", "affine_fractions"]
 
 ALIGNMENTS = ("rigid", "similarity", "none")
 

@@ -23,7 +23,7 @@ from ..io.meshes import to_polydata
 from .model import ShapeModel
 from .surface import is_closed_manifold
 
-__all__ = ["densify", "inside_closed_surface"]
+__all__ = ["densify"]
 
 
 def inside_closed_surface(

@@ -27,7 +27,7 @@ from scipy.sparse.linalg import splu
 
 from .._validate import as_array, check_positive
 
-__all__ = ["BoxCage", "box_cage", "harmonic_coordinates", "principal_frame"]
+__all__ = ["BoxCage", "box_cage", "harmonic_coordinates"]
 
 # Fill-reducing ordering for the symmetric grid Laplacian: minimum degree on A^T + A is several
 # times faster than SuperLU's default COLAMD here (measured 0.2 s vs 0.7 s at resolution 32).
@@ -77,7 +77,7 @@ class BoxCage:
         return np.asarray(local, dtype=float) @ self.axes + self.centre
 
 
-def principal_frame(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _principal_frame(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Centroid (3,) and right-handed principal axes (3, 3) as rows, by decreasing variance.
 
     Each axis's sign is fixed so that the points' third moment along it is non-negative, which
@@ -109,7 +109,7 @@ def box_cage(
         Clearance on every side, as a fraction of the longest extent (> 0 so that no point
         lies on the cage, where the coordinates stop being smooth).
     axes : (3, 3) array, optional
-        Box axes as rows (orthonormal, right-handed); default :func:`principal_frame`.
+        Box axes as rows (orthonormal, right-handed); default :func:`_principal_frame`.
     """
     pts = as_array("points", points, (None, 3))
     if len(pts) < 4:
@@ -118,7 +118,7 @@ def box_cage(
         raise ValueError(f"max_divisions: must be >= 1, got {max_divisions}")
     check_positive("margin", margin)
     if axes is None:
-        _, ax = principal_frame(pts)
+        _, ax = _principal_frame(pts)
     else:
         ax = as_array("axes", axes, (3, 3))
         if np.linalg.norm(ax @ ax.T - np.eye(3)) > 1e-6 or np.linalg.det(ax) < 0:

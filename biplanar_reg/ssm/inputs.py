@@ -11,10 +11,10 @@ import numpy as np
 
 from ..io.meshes import MESH_SUFFIXES, check_manifold, read_mesh
 
-__all__ = ["expand_inputs", "read_landmarks", "read_shapes"]
+__all__: list[str] = []
 
 
-def expand_inputs(paths: Sequence[str | os.PathLike]) -> list[Path]:
+def _expand_inputs(paths: Sequence[str | os.PathLike]) -> list[Path]:
     """Files from ``paths``; a folder contributes its mesh/point files, sorted by name."""
     files: list[Path] = []
     for p in map(Path, paths):
@@ -40,7 +40,7 @@ def read_shapes(
     Parameters
     ----------
     paths : sequence of path-like
-        Mesh/point files or folders of them (see :func:`expand_inputs`).
+        Mesh/point files or folders of them (see :func:`_expand_inputs`).
 
     Returns
     -------
@@ -56,7 +56,7 @@ def read_shapes(
         Fewer than 2 shapes, a differing vertex count or faces, a non-manifold mesh, mixed
         meshes and point sets; the message names the offending file.
     """
-    files = expand_inputs(paths)
+    files = _expand_inputs(paths)
     if len(files) < 2:
         raise ValueError(
             f"need at least 2 shapes in correspondence to build a model, got {len(files)}"

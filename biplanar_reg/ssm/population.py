@@ -31,7 +31,7 @@ import numpy as np
 from .._validate import as_array, check_positive
 from .harmonic import BoxCage, box_cage, harmonic_coordinates
 
-__all__ = ["FAMILIES", "Population", "deform_cage", "synthesise_population"]
+__all__ = ["FAMILIES", "Population", "synthesise_population"]
 
 #: Deformation families, applied in this order.
 FAMILIES: tuple[str, ...] = ("scale", "shear", "torsion", "local")
@@ -69,7 +69,7 @@ def _check_families(families: Sequence[str]) -> tuple[str, ...]:
     return tuple(f for f in FAMILIES if f in chosen)
 
 
-def deform_cage(
+def _deform_cage(
     cage: BoxCage,
     template_local: np.ndarray,
     rng: np.random.Generator,
@@ -174,7 +174,7 @@ def synthesise_population(
     rng = np.random.default_rng(seed)
     shapes, params = [], []
     for _ in range(int(size)):
-        c_local, p = deform_cage(cage, local, rng, fams, strength)
+        c_local, p = _deform_cage(cage, local, rng, fams, strength)
         shapes.append(coords @ cage.to_world(c_local))
         params.append(p)
     return Population(np.stack(shapes), params, cage, coords)

@@ -33,7 +33,7 @@ from ..io.meshes import to_polydata
 from ..io.volumes import Volume
 from .surface import count_components, is_closed_manifold, signed_volume
 
-__all__ = ["BoneSurface", "bone_surface", "default_threshold", "segment_bone"]
+__all__ = ["BoneSurface", "bone_surface"]
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +69,7 @@ class BoneSurface:
     decimated: bool
 
 
-def default_threshold(volume: Volume) -> float:
+def _default_threshold(volume: Volume) -> float:
     """The documented default: 300 HU for HU volumes, else Otsu's threshold of all voxels."""
     if volume.units == "HU":
         return HU_BONE_THRESHOLD
@@ -88,7 +88,7 @@ def segment_bone(
     volume : Volume
         The CT volume.
     threshold : float, optional
-        In the volume's units; default :func:`default_threshold`.
+        In the volume's units; default :func:`_default_threshold`.
     fill_slices : bool
         Also fill holes slice by slice (along the volume's slice axis).
 
@@ -103,7 +103,7 @@ def segment_bone(
         Nothing is above the threshold (an empty segmentation), naming the volume.
     """
     data = np.asarray(volume.data)
-    thr = default_threshold(volume) if threshold is None else float(threshold)
+    thr = _default_threshold(volume) if threshold is None else float(threshold)
     if not np.isfinite(thr):
         raise ValueError(f"threshold: must be finite, got {threshold!r}")
     mask = data > thr
@@ -170,7 +170,7 @@ def bone_surface(
     volume : Volume
         The CT volume (its affine maps voxels to mm).
     threshold : float, optional
-        Segmentation threshold in the volume's units; default :func:`default_threshold`.
+        Segmentation threshold in the volume's units; default :func:`_default_threshold`.
     target_vertices : int or None
         Decimate to about this many vertices (``None``: keep the marching-cubes resolution).
     smooth_iterations : int
