@@ -30,6 +30,13 @@ _COUNTS = {
 }
 # fields that must be fractions in (0, 1]
 _FRACTIONS = ("landmark_weight", "max_rejected_fraction", "consensus_margin")
+# fields that may be 0
+_NON_NEGATIVE = ("prior_weight", "end_margin_px")
+# fields with a range of their own: (low, high, low inclusive) with high inclusive
+_RANGES = {
+    "max_tangent_angle_deg": (0.0, 180.0, False),
+    "rejected_sigma_factor": (1.0, np.inf, True),
+}
 
 
 @dataclass(frozen=True)
@@ -99,6 +106,21 @@ class RegistrationOptions:
         rigid mean-shape start is tried too) and a result is flagged.
     reprojection_flag_px : float
         Landmark reprojection RMS (px) above which a result is flagged.
+    end_margin_px : float
+        Outline matches (and, in the boosting cost, annotated points) within this many pixels
+        of an open contour's ends are not used: the annotation says nothing beyond its ends,
+        so a model point there is most likely outside the annotated part (>= 0).
+    max_tangent_angle_deg : float
+        An outline match is dropped when the model outline's direction and the annotated
+        contour's differ by more than this (degrees, in (0, 180]), so the model's unannotated
+        parts are not pulled onto a nearby annotated stretch running the other way.
+    wide_gate_factor : float
+        On the first matching from a landmark-only start the gate is widened to this multiple
+        of the landmark reprojection RMS (when that exceeds ``gate_px``): a start still far off
+        must not drop every match.
+    rejected_sigma_factor : float
+        A rejected landmark's sigma is multiplied by this (>= 1): it no longer pulls the fit,
+        and the problem keeps its size (one structure for every solve).
     """
 
     landmark_weight: float = 0.5
@@ -124,6 +146,10 @@ class RegistrationOptions:
     readmit_sigmas: float = 3.0
     certificate_flag: float = CERTIFICATE_FLAG
     reprojection_flag_px: float = REPROJECTION_FLAG_PX
+    end_margin_px: float = 3.0
+    max_tangent_angle_deg: float = 45.0
+    wide_gate_factor: float = 2.0
+    rejected_sigma_factor: float = 1e3
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -147,9 +173,15 @@ def _check_field(key: str, value: object, default: object) -> None:
     elif key in _FRACTIONS:
         if not 0.0 < v <= 1.0:
             raise ValueError(f"{key}: must be in (0, 1], got {value}")
-    elif key == "prior_weight":
+    elif key in _NON_NEGATIVE:
         if not np.isfinite(v) or v < 0:
             raise ValueError(f"{key}: must be >= 0, got {value!r}")
+    elif key in _RANGES:
+        low, high, low_ok = _RANGES[key]
+        if not (v >= low if low_ok else v > low) or not v <= high or not np.isfinite(v):
+            raise ValueError(
+                f"{key}: must be in {'[' if low_ok else '('}{low:g}, {high:g}], got {value!r}"
+            )
     elif not np.isfinite(v) or v <= 0:
         raise ValueError(f"{key}: must be a positive number, got {value!r}")
 

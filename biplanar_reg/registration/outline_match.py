@@ -79,18 +79,23 @@ class OutlineTarget:
     length: np.ndarray  # (S,) total length of the segment's polyline, px
     open_: np.ndarray  # (S,) whether the segment's polyline is open
     points: np.ndarray  # (P, 2) the resampled points (for distances)
-    usable: np.ndarray  # (P,) False within END_MARGIN_PX of an open polyline's ends
+    usable: np.ndarray  # (P,) False within end_margin_px of an open polyline's ends
+    end_margin_px: float = END_MARGIN_PX
 
     def usable_foot(self, seg: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Whether foot points (segment, position) lie away from the ends of open contours."""
         ln = np.linalg.norm(self.segments.b[seg] - self.segments.a[seg], axis=1)
         s = self.arc[seg] + t * ln
-        inner = (s >= END_MARGIN_PX) & (s <= self.length[seg] - END_MARGIN_PX)
+        m = self.end_margin_px
+        inner = (s >= m) & (s <= self.length[seg] - m)
         return inner | ~self.open_[seg]
 
 
-def prepare_outline(contours, spacing_px: float = 1.0) -> OutlineTarget | None:
-    """Resample a view's contours (``Contour(uv, closed)``) for matching; None if there are none."""
+def prepare_outline(
+    contours, spacing_px: float = 1.0, end_margin_px: float = END_MARGIN_PX
+) -> OutlineTarget | None:
+    """Resample a view's contours (``Contour(uv, closed)``) for matching; None if there are none.
+    Points within ``end_margin_px`` of an open contour's ends are marked unusable."""
     A, B, arc, length, open_, pts, usable = [], [], [], [], [], [], []
     for c in contours:
         p = resample_polyline(c.uv, spacing_px, closed=c.closed)
@@ -107,7 +112,7 @@ def prepare_outline(contours, spacing_px: float = 1.0) -> OutlineTarget | None:
         ok = (
             np.ones(len(p), bool)
             if c.closed
-            else ((pa >= END_MARGIN_PX) & (pa <= pa[-1] - END_MARGIN_PX))
+            else ((pa >= end_margin_px) & (pa <= pa[-1] - end_margin_px))
         )
         pts.append(p)
         usable.append(ok)
@@ -120,6 +125,7 @@ def prepare_outline(contours, spacing_px: float = 1.0) -> OutlineTarget | None:
         np.concatenate(open_),
         np.vstack(pts),
         np.concatenate(usable),
+        float(end_margin_px),
     )
 
 
@@ -182,13 +188,17 @@ MAX_TANGENT_ANGLE_DEG = 45.0
 
 
 def match_outline(
-    outline: ModelOutline, target: OutlineTarget, gate_px: float, mutual: bool = False
+    outline: ModelOutline,
+    target: OutlineTarget,
+    gate_px: float,
+    mutual: bool = False,
+    max_angle_deg: float = MAX_TANGENT_ANGLE_DEG,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Match model outline points to the nearest points of the annotated outline.
 
     A match is kept when it is within ``gate_px``, its foot point is not within
-    ``END_MARGIN_PX`` of an open contour's end, and the model outline's direction there agrees
-    with the contour's within ``MAX_TANGENT_ANGLE_DEG`` (so the model's unannotated parts are
+    the target's ``end_margin_px`` of an open contour's end, and the model outline's direction
+    there agrees with the contour's within ``max_angle_deg`` (so the model's unannotated parts are
     not pulled onto a nearby annotated stretch running the other way).
 
     Returns
@@ -210,7 +220,7 @@ def match_outline(
     st = target.segments.b[seg] - target.segments.a[seg]
     st /= np.maximum(np.linalg.norm(st, axis=1, keepdims=True), 1e-12)
     cos = np.abs(np.einsum("pc,pc->p", st, outline.tangent[outline.ids]))
-    keep &= cos >= np.cos(np.deg2rad(MAX_TANGENT_ANGLE_DEG))
+    keep &= cos >= np.cos(np.deg2rad(max_angle_deg))
     if mutual and np.any(keep):
         # the foot point's nearest model outline point must be the same model point
         _, back = cKDTree(p).query(foot)

@@ -32,10 +32,6 @@ from .rays import RayObservations
 
 __all__ = ["Problem"]
 
-#: A rejected landmark's sigma is multiplied by this: it no longer pulls the fit, and the
-#: problem keeps its size (one structure for every solve).
-REJECTED_SIGMA_FACTOR = 1e3
-
 
 @dataclass(frozen=True)
 class Landmarks:
@@ -125,7 +121,7 @@ class Problem:
         landmark weight, and rejected landmarks down-weighted."""
         sig = self.landmarks.rays.sigmas / np.sqrt(2.0 * self.options.landmark_weight)
         for i in rejected:
-            sig[i] *= REJECTED_SIGMA_FACTOR
+            sig[i] *= self.options.rejected_sigma_factor
         return self.landmarks.rays.with_sigmas(sig)
 
     def landmark_px_errors(self, vertices: np.ndarray) -> np.ndarray:
@@ -204,7 +200,8 @@ def make_problem(
     (mm, world; default: :func:`rough_centre`)."""
     if centre is None:
         centre = rough_centre(model, views, options)
-    targets = {i: prepare_outline(v.contours) for i, v in enumerate(views)}
+    margin = options.end_margin_px
+    targets = {i: prepare_outline(v.contours, end_margin_px=margin) for i, v in enumerate(views)}
     targets = {i: t for i, t in targets.items() if t is not None}
     use_outlines = use_outlines and bool(targets)
     mmpp = {i: float(mm_per_pixel(views[i].view, centre)[0]) for i in targets}

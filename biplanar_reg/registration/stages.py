@@ -219,16 +219,18 @@ def match_outlines(
 ) -> Matches:
     """Match the model's outlines to the annotated ones and turn the matches into rays.
 
-    On the first matching from a landmark-only start (``wide``) the gate is widened to twice
-    the landmark RMS (a start still far off must not drop every match) and is the threshold;
+    On the first matching from a landmark-only start (``wide``) the gate is widened to
+    ``wide_gate_factor`` (2) times the landmark RMS (a start still far off must not drop every
+    match) and is the threshold;
     later the threshold adapts to the match distances (:func:`.outline_match.adaptive_gate`).
     """
     opts = problem.options
     lm_err = problem.landmark_px_errors(result.vertices)
     lm_rms = float(np.sqrt(np.mean(np.delete(lm_err, list(rejected)) ** 2)))
-    gate = max(opts.gate_px, 2.0 * lm_rms) if wide else opts.gate_px
+    gate = max(opts.gate_px, opts.wide_gate_factor * lm_rms) if wide else opts.gate_px
     found = {
-        i: match_outline(outlines[i], t, gate, opts.mutual) for i, t in problem.targets.items()
+        i: match_outline(outlines[i], t, gate, opts.mutual, opts.max_tangent_angle_deg)
+        for i, t in problem.targets.items()
     }
     all_d = np.concatenate([f[3] for f in found.values()])
     thr = gate if wide else adaptive_gate(all_d, opts.match_floor_px)

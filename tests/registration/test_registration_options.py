@@ -55,6 +55,10 @@ BAD = {
     "readmit_sigmas": [0.0, -3.0, math.nan],
     "certificate_flag": [0.0, -1e-2, math.inf],
     "reprojection_flag_px": [0.0, -5.0, math.nan],
+    "end_margin_px": [-1.0, math.inf, math.nan],
+    "max_tangent_angle_deg": [0.0, -10.0, 181.0, math.nan],
+    "wide_gate_factor": [0.0, -2.0, math.inf],
+    "rejected_sigma_factor": [0.5, 0.0, math.inf, math.nan],
 }
 
 
