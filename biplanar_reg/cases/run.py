@@ -302,12 +302,16 @@ def _report_views(
     res: RegistrationResult,
     outlines: dict[str, list[np.ndarray]],
 ) -> list[ReportView]:
-    """What the report draws per view (:class:`biplanar_reg.report.ReportView`), pixels."""
+    """What the report draws per view (:class:`biplanar_reg.report.ReportView`), pixels; each
+    with its view in the pose the registration used (``res.view_poses``: the calibration's, or
+    the estimated one for ``poses = "refine"``/``"unknown"``)."""
     from ..report.case_report import ReportView
 
     views = []
     for o in obs:
         cv = case.view(o.name)
+        pose = res.view_poses.get(o.name)
+        view = o.view if pose is None else dataclasses.replace(o.view, R=pose["R"], t=pose["t"])
         views.append(
             ReportView.from_observations(
                 o,
@@ -316,6 +320,7 @@ def _report_views(
                 display=None if cv.image is None else cv.image.display,
                 annotations=case.annotations.views.get(o.name),
                 outlines=outlines.get(o.name, []),
+                view=view,
             )
         )
     return views

@@ -1,20 +1,25 @@
-"""The error report of one registered case: figures beside ``report.html``.
+"""The error report of one registered case: ``report.html``, one self-contained page.
 
 The report is drawn from the result document (the content of ``result.json``) and the arrays it
 does not hold: per view a :class:`ReportView` (radiograph, annotations, projected outline and
-landmarks of the registered model, pixels) and the registered surface (mm). It knows nothing of
-case folders: :mod:`biplanar_reg.cases.run` gathers these and calls :func:`write_case_report`.
+landmarks of the registered model, pixels, and the view itself) and the registered surface (mm).
+It knows nothing of case folders: :mod:`biplanar_reg.cases.run` gathers these and calls
+:func:`write_case_report`.
 
-Figures (PNG, relative links): ``overlay_<view>.png`` per view (projected registered outline
-and landmarks against the annotations, on the radiograph or a blank canvas),
+Figures (PNG files beside the page, and embedded in it as ``data:`` URIs, so the page alone
+shows everything): ``overlay_<view>.png`` per view (the registered bone shaded, its projected
+outline and landmarks against the annotations, on the radiograph or a blank canvas),
 ``errors_hist.png`` (landmark and contour reprojection errors in px, surface distance in mm),
-``convergence.png`` (cost and certificate per iteration) and, with a ground truth,
-``error_3d.png`` (the registered surface coloured by its distance to the ground truth, colour
-bar in mm; PyVista off-screen, matplotlib fallback).
+``convergence.png`` (cost and certificate per iteration) and a 3D view of the registered
+surface: with a ground truth ``error_3d.png`` (coloured by its distance to the ground truth,
+colour bar in mm), without one ``registered_3d.png`` (one neutral colour); PyVista off-screen,
+matplotlib fallback.
 """
 
 from __future__ import annotations
 
+import base64
+import logging
 import os
 import re
 import warnings
@@ -26,14 +31,20 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..annotation import ViewAnnotations
+from .advice import flag_advice
 from .figures import convergence_figure, histogram_figure, overlay_figure
 from .html import write_page
 from .render3d import render_error_mesh
+from .residuals import ContourResidual, contour_residuals
+from .shading import shaded_faces
 
 if TYPE_CHECKING:
+    from ..calibration import View
     from ..registration import ViewObservations
 
 __all__ = ["ReportView", "write_case_report"]
+
+log = logging.getLogger(__name__)
 
 #: (key in result["metrics"], label, unit) in table order.
 _METRICS = (
@@ -89,6 +100,10 @@ class ReportView:
         The registered model's projected outline, pixels.
     landmarks_px : mapping name -> (2,) array
         The registered model's landmarks projected into the view, pixels.
+    view : View or None
+        The calibrated view with the pose the registration used (estimated ones for
+        ``poses = "refine"``/``"unknown"``); with the surface's faces, the overlay shows the
+        registered bone shaded. ``None``: no shading.
     """
 
     name: str
@@ -97,6 +112,7 @@ class ReportView:
     annotations: ViewAnnotations | None = None
     outlines: Sequence[np.ndarray] = ()
     landmarks_px: Mapping[str, np.ndarray] = field(default_factory=dict)
+    view: View | None = None
 
     @classmethod
     def from_observations(
@@ -108,41 +124,19 @@ class ReportView:
         display: np.ndarray | None = None,
         annotations: ViewAnnotations | None = None,
         outlines: Sequence[np.ndarray] = (),
+        view: View | None = None,
     ) -> ReportView:
         """The report view of one registered view: its name from ``observations``, and the
-        registered ``vertices`` (N, 3, world frame, mm) of its landmarks projected by its view
-        (``landmarks_px``, pixels); the other fields as given."""
+        registered ``vertices`` (N, 3, world frame, mm) of its landmarks projected by ``view``
+        (default: the observations' view; ``landmarks_px``, pixels), which is kept for the
+        shaded bone; the other fields as given."""
         o = observations
+        view = o.view if view is None else view
         landmarks_px = {}
         if len(o.landmark_ids):
-            uv = o.view.project(np.asarray(vertices)[o.landmark_ids])
+            uv = view.project(np.asarray(vertices)[o.landmark_ids])
             landmarks_px = dict(zip(o.landmark_names, uv, strict=True))
-        return cls(o.name, image_size, display, annotations, outlines, landmarks_px)
-
-
-def _overlay_figures(folder: Path, views: Sequence[ReportView]) -> list[dict[str, str]]:
-    """One ``overlay_<view>.png`` per view; their figure entries, in view order."""
-    figures = []
-    for v in views:
-        fname = f"overlay_{safe_name(v.name)}.png"
-        overlay_figure(
-            folder / fname,
-            f"{v.name}: registered (cyan/blue) vs annotated (red/green)",
-            display=v.display,
-            image_size=v.image_size,
-            annotations=v.annotations,
-            outlines=list(v.outlines),
-            landmarks_px=dict(v.landmarks_px),
-        )
-        figures.append(
-            {
-                "src": fname,
-                "caption": f"View {v.name}: projected registered outline "
-                "(cyan) and landmarks (blue x) against the annotated contours (red) and "
-                "landmarks (green +), pixels.",
-            }
-        )
-    return figures
+        return cls(o.name, image_size, display, annotations, outlines, landmarks_px, view)
 
 
 def _histogram_figure(
@@ -179,48 +173,147 @@ def _convergence_figure(folder: Path, doc: Mapping[str, Any]) -> dict[str, str]:
     }
 
 
-def _error_figure(
+#: Colour classes of a residual (px): ``(class, at least)`` from the worst; the thresholds
+#: are options of the registration (``reprojection_flag_px``, ``gate_px``).
+_LEVELS = (("bad", "gate_px"), ("warn", "reprojection_flag_px"))
+
+
+def _level(value: float, options: Mapping[str, Any]) -> str:
+    """CSS class of a residual in px: "bad" at or above ``gate_px`` (15 px by default: the
+    registration ignores outline matches that far), "warn" at or above
+    ``reprojection_flag_px`` (5 px), else ""."""
+    for cls, key in _LEVELS:
+        ok = value is not None and np.isfinite(value)
+        if ok and options.get(key) is not None and value >= float(options[key]):
+            return cls
+    return ""
+
+
+def _view_overlay(
+    folder: Path,
+    v: ReportView,
+    vertices: np.ndarray | None,
+    faces: np.ndarray | None,
+    residuals: Sequence[ContourResidual],
+) -> dict[str, str]:
+    """``overlay_<view>.png`` of one view (the bone shaded when the view, the vertices and the
+    faces are known; the worst stretch of each contour marked); its figure entry."""
+    fname = f"overlay_{safe_name(v.name)}.png"
+    shaded = None
+    if v.view is not None and vertices is not None and faces is not None:
+        try:
+            shaded = shaded_faces(v.view, vertices, faces)
+        except ValueError as exc:  # e.g. a vertex behind the source: the outline still shows
+            log.warning("%s: no shaded bone (%s)", v.name, exc)
+    overlay_figure(
+        folder / fname,
+        f"{v.name}: registered (cyan/blue) vs annotated (red/green)",
+        display=v.display,
+        image_size=v.image_size,
+        annotations=v.annotations,
+        outlines=list(v.outlines),
+        landmarks_px=dict(v.landmarks_px),
+        shaded=shaded,
+        marks=[(f"c{r.index + 1}", r.worst_uv) for r in residuals if np.isfinite(r.worst_mean_px)],
+    )
+    bone = "the registered bone (shaded, orange), " if shaded is not None else ""
+    return {
+        "src": fname,
+        "caption": f"View {v.name}: {bone}its projected outline (cyan) and landmarks "
+        "(blue x) against the annotated contours (red) and landmarks (green +), pixels; "
+        "magenta rings: the worst 20 px of each contour (c1, c2, ...: contour table).",
+    }
+
+
+def _px(value: float) -> str:
+    """A residual in px for a table cell ("-" when there is none)."""
+    return f"{value:.2f}" if np.isfinite(value) else "-"
+
+
+def _contour_rows(
+    view: str, residuals: Sequence[ContourResidual], options: Mapping[str, Any]
+) -> list[dict[str, Any]]:
+    """Rows of the contour residual table of one view."""
+    return [
+        {
+            "view": view,
+            "contour": f"c{r.index + 1}",
+            "kind": "closed" if r.closed else "open",
+            "length": f"{r.length_px:.0f}",
+            "n": len(r.distances_px),
+            "mean": _px(r.mean_px),
+            "max": _px(r.max_px),
+            "worst": _px(r.worst_mean_px),
+            "at": f"({r.worst_uv[0]:.0f}, {r.worst_uv[1]:.0f})" if len(r.distances_px) else "",
+            "level": _level(r.max_px, options),
+            "worst_level": _level(r.worst_mean_px, options),
+        }
+        for r in residuals
+    ]
+
+
+def _surface_figure(
     folder: Path,
     doc: Mapping[str, Any],
     vertices: np.ndarray,
     faces: np.ndarray,
     vertex_error: np.ndarray | None,
 ) -> tuple[dict[str, str], str]:
-    """``error_3d.png``: the registered surface coloured by its error; (entry, renderer)."""
-    renderer = render_error_mesh(
-        folder / "error_3d.png",
-        vertices,
-        faces,
-        vertex_error,
-        f"{doc['id']}: distance to ground truth (mm)",
-    )
-    entry = {
-        "src": "error_3d.png",
-        "caption": "Registered surface coloured by its "
-        f"distance to the ground truth, mm (rendered with {renderer}).",
-    }
-    return entry, renderer
+    """The 3D view of the registered surface; (entry, renderer). With a ground truth
+    ``error_3d.png`` (coloured by the distance to it), without one ``registered_3d.png``."""
+    if doc.get("ground_truth") is not None:
+        fname, title = "error_3d.png", f"{doc['id']}: distance to ground truth (mm)"
+        what = "Registered surface coloured by its distance to the ground truth, mm"
+    else:
+        fname, title = "registered_3d.png", f"{doc['id']}: registered surface (mm)"
+        what, vertex_error = "Registered surface (world frame, mm; no ground truth)", None
+    renderer = render_error_mesh(folder / fname, vertices, faces, vertex_error, title)
+    return {"src": fname, "caption": f"{what} (rendered with {renderer})."}, renderer
 
 
-def _write_html(folder: Path, doc: Mapping[str, Any], figures: list[dict[str, str]]) -> None:
-    """``report.html``: flags, metrics, figures and the tables of ``doc``."""
-    landmark_rows = [
-        (view, name, err, [view, name] in doc["rejected"])
+def _data_uri(path: Path) -> str:
+    """A PNG file as a ``data:image/png;base64,...`` URI."""
+    return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
+
+
+def _landmark_rows(doc: Mapping[str, Any]) -> list[tuple[str, str, float, bool, str]]:
+    """(view, landmark, error px, rejected, CSS class) of every landmark observation."""
+    options = doc["registration"].get("options") or {}
+    return [
+        (view, name, err, [view, name] in doc["rejected"], _level(err, options))
         for view, v in doc["views"].items()
         for name, err in v["landmark_errors_px"].items()
     ]
+
+
+def _write_html(
+    folder: Path,
+    doc: Mapping[str, Any],
+    figures: Mapping[str, list[dict[str, str]]],
+    contour_rows: list[dict[str, Any]],
+) -> None:
+    """``report.html``: flags with advice, metrics, the figures (embedded), the residual
+    tables and the tables of ``doc``."""
+    embedded = {
+        group: [{**f, "data": _data_uri(folder / f["src"])} for f in figs]
+        for group, figs in figures.items()
+    }
+    options = doc["registration"].get("options") or {}
     write_page(
         folder / "report.html",
         "report.html",
         case_id=doc["id"],
+        frame=doc.get("frame", "world frame of the calibrations"),
         poses=doc["registration"]["poses"],
         silhouettes=doc["registration"]["silhouettes"],
         phi=doc.get("phi") or {},
-        flags=doc["flags"],
+        flags=[(f, flag_advice(f)) for f in doc["flags"]],
         warnings=doc["warnings"],
         metrics=metric_rows(doc),
-        figures=figures,
-        landmark_rows=landmark_rows,
+        figures=embedded,
+        landmark_rows=_landmark_rows(doc),
+        contour_rows=contour_rows,
+        thresholds={k: options.get(k) for _, k in _LEVELS},
         iterations=doc["iterations"],
         best_iteration=doc["best_iteration"],
         view_poses=doc["views"],
@@ -248,18 +341,20 @@ def write_case_report(
     views : sequence of ReportView
         One per view, in the order of the overlays.
     vertices : (N, 3) array, optional
-        The registered surface, mm (needed for ``error_3d.png``).
+        The registered surface, mm (needed for the 3D view and the shaded bone).
     faces : (F, 3) int array, optional
-        Its triangles; ``error_3d.png`` is drawn when the document has a ground truth and
-        both ``vertices`` and ``faces`` are given.
+        Its triangles; with both ``vertices`` and ``faces`` the report draws ``error_3d.png``
+        when the document has a ground truth, ``registered_3d.png`` when it has none, and
+        the shaded bone in the overlay of every view that has its ``view``.
     vertex_error : (N,) array, optional
         Distance of each registered vertex to the ground truth, mm (histogram, 3D colours).
 
     Returns
     -------
     dict
-        ``html``, ``figures`` (file names) and ``renderer`` ("pyvista", "matplotlib" or
-        None), for ``result.json["report"]``.
+        ``html``, ``figures`` (file names: the 3D view first, then the overlays, the
+        histograms, the convergence) and ``renderer`` ("pyvista", "matplotlib" or None), for
+        ``result.json["report"]``.
 
     Notes
     -----
@@ -270,15 +365,23 @@ def write_case_report(
     if not isinstance(doc, Mapping):  # the former signature (folder, case, obs, res, doc, ...)
         doc, views, vertices, faces, vertex_error = _from_case(doc, views, *legacy)
     folder = Path(folder)
-    figures = _overlay_figures(folder, views)
-    figures.append(_histogram_figure(folder, doc, vertex_error))
-    figures.append(_convergence_figure(folder, doc))
+    options = doc["registration"].get("options") or {}
+    figures: dict[str, list[dict[str, str]]] = {"surface": [], "views": [], "plots": []}
+    contour_rows = []
+    for v in views:
+        contours = [] if v.annotations is None else v.annotations.contours
+        residuals = contour_residuals(contours, v.outlines)
+        contour_rows += _contour_rows(v.name, residuals, options)
+        figures["views"].append(_view_overlay(folder, v, vertices, faces, residuals))
+    figures["plots"].append(_histogram_figure(folder, doc, vertex_error))
+    figures["plots"].append(_convergence_figure(folder, doc))
     renderer = None
-    if doc.get("ground_truth") is not None and vertices is not None and faces is not None:
-        entry, renderer = _error_figure(folder, doc, vertices, faces, vertex_error)
-        figures.insert(0, entry)
-    _write_html(folder, doc, figures)
-    return {"html": "report.html", "figures": [f["src"] for f in figures], "renderer": renderer}
+    if vertices is not None and faces is not None:
+        entry, renderer = _surface_figure(folder, doc, vertices, faces, vertex_error)
+        figures["surface"].append(entry)
+    _write_html(folder, doc, figures, contour_rows)
+    names = [f["src"] for group in ("surface", "views", "plots") for f in figures[group]]
+    return {"html": "report.html", "figures": names, "renderer": renderer}
 
 
 def _from_case(case: Any, obs: Any, res: Any, doc: Any, outlines: Any, vertex_error: Any) -> tuple:

@@ -11,15 +11,23 @@ import os
 from collections.abc import Mapping, Sequence
 
 import numpy as np
+from matplotlib import patheffects
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
+from matplotlib.patches import Patch
 
 from ..annotation import Contour, Landmark, ViewAnnotations
 
 __all__ = ["overlay_figure", "histogram_figure", "convergence_figure"]
 
 _DPI = 100
+#: Colour (RGB) and opacity of the shaded registered bone over a radiograph.
+BONE_RGB = (1.0, 0.75, 0.4)
+BONE_ALPHA = 0.55
+#: A dark outline that keeps labels readable on bright and dark radiographs alike.
+_HALO = [patheffects.withStroke(linewidth=1.5, foreground="black", alpha=0.8)]
 
 
 def save_figure(fig: Figure, path: str | os.PathLike) -> None:
@@ -38,6 +46,8 @@ def overlay_figure(
     outlines: Sequence[np.ndarray] | None = None,
     landmarks_px: Mapping[str, np.ndarray],
     silhouettes: Sequence[np.ndarray] | None = None,
+    shaded: tuple[np.ndarray, np.ndarray] | None = None,
+    marks: Sequence[tuple[str, np.ndarray]] = (),
 ) -> None:
     """One view: the registered model's projected outline and landmarks against the annotations.
 
@@ -58,49 +68,146 @@ def overlay_figure(
         Projected registered landmarks (blue x), joined to their annotation by a line.
     silhouettes : sequence of (Q, 2) arrays, optional
         The former name of ``outlines`` (still accepted; give one of the two).
+    shaded : ((T, 3, 2) array, (T,) array), optional
+        The registered bone as projected triangles (pixels) in painter's order and their shade
+        in [0, 1] (:func:`shaded_faces`), drawn as a semi-transparent bone-coloured surface
+        under the lines; default none.
+    marks : sequence of (label, (2,) array)
+        Labelled points (magenta rings), e.g. the worst stretch of each contour; default none.
     """
     if silhouettes is not None:
         if outlines is not None:
             raise TypeError("overlay_figure: give outlines or silhouettes (its old name), not both")
         outlines = silhouettes
-    outlines = [] if outlines is None else list(outlines)
+    fig = draw_overlay(
+        title,
+        display=display,
+        image_size=image_size,
+        annotations=annotations,
+        outlines=[] if outlines is None else list(outlines),
+        landmarks_px=landmarks_px,
+        shaded=shaded,
+        marks=marks,
+    )[0]
+    save_figure(fig, path)
+
+
+def draw_overlay(
+    title: str,
+    *,
+    display: np.ndarray | None,
+    image_size: tuple[int, int] | None,
+    annotations: ViewAnnotations | None,
+    outlines: Sequence[np.ndarray],
+    landmarks_px: Mapping[str, np.ndarray],
+    shaded: tuple[np.ndarray, np.ndarray] | None = None,
+    marks: Sequence[tuple[str, np.ndarray]] = (),
+) -> tuple[Figure, Axes]:
+    """The figure of :func:`overlay_figure` (not saved) and its axes, in pixel coordinates."""
     contours = [] if annotations is None else list(annotations.contours)
     annotated = {} if annotations is None else annotations.landmarks
     fig = Figure(figsize=(6.4, 6.4))
     ax = fig.add_subplot(1, 1, 1)
-    size = _draw_background(ax, display, image_size)
+    # zoom on what is drawn (a bone covers a small part of a radiograph), within the image
+    drawn = [*outlines, *(c.uv for c in contours)]
+    drawn += [lm.uv[None] for lm in annotated.values()] + [p[None] for p in landmarks_px.values()]
+    if shaded is not None and len(shaded[0]):
+        drawn.append(np.asarray(shaded[0]).reshape(-1, 2))
+    size = (display.shape[1], display.shape[0]) if display is not None else image_size
+    limits = _limits(drawn, size)
+    _draw_background(ax, display, image_size, limits)
+    if shaded is not None and len(shaded[0]):
+        _draw_shaded(ax, *shaded)
     for k, line in enumerate(outlines):
         _polyline(ax, line, "cyan", "registered outline" if k == 0 else None)
     _draw_contours(ax, contours)
     _draw_landmarks(ax, annotated, landmarks_px)
-    # zoom on what is drawn (a bone covers a small part of a radiograph), within the image
-    drawn = [*outlines, *(c.uv for c in contours)]
-    drawn += [lm.uv[None] for lm in annotated.values()] + [p[None] for p in landmarks_px.values()]
-    _zoom(ax, drawn, size)
+    _draw_marks(ax, marks)
+    if limits is not None:
+        ax.set_xlim(limits[0], limits[1])
+        ax.set_ylim(limits[3], limits[2])  # rows grow downwards
     ax.set_aspect("equal")
     ax.set_xlabel("u (px)")
     ax.set_ylabel("v (px)")
-    ax.set_title(title)
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(loc="lower right", fontsize=7, framealpha=0.7)
+    ax.set_title(title, fontsize=10)
+    handles = ax.get_legend_handles_labels()[0]
+    if shaded is not None and len(shaded[0]):  # the bone's colour, not its first triangle's
+        label = "registered bone (shaded)"
+        handles.insert(0, Patch(facecolor=BONE_RGB, alpha=BONE_ALPHA, label=label))
+    if handles:
+        ax.legend(handles=handles, loc="lower right", fontsize=7, framealpha=0.7)
     fig.tight_layout()
-    save_figure(fig, path)
+    return fig, ax
+
+
+class _GroupAlpha:
+    """Agg filter: the artist, rendered opaquely on its own layer, composited with one alpha
+    (overlapping triangles do not add up)."""
+
+    def __init__(self, alpha: float) -> None:
+        self.alpha = alpha
+
+    def __call__(self, image: np.ndarray, dpi: float) -> tuple[np.ndarray, int, int]:
+        image = image.copy()
+        image[..., 3] *= self.alpha
+        return image, 0, 0
+
+
+def _draw_shaded(ax: Axes, triangles: np.ndarray, shade: np.ndarray) -> None:
+    """Projected triangles (T, 3, 2), pixels, drawn in order in bone colour times
+    ``0.15 + 0.85 * shade``; the whole surface semi-transparent (``BONE_ALPHA``)."""
+    rgb = np.clip(np.outer(0.15 + 0.85 * np.asarray(shade, float), BONE_RGB), 0.0, 1.0)
+    pc = PolyCollection(
+        np.asarray(triangles, float),
+        facecolors=rgb,
+        edgecolors=rgb,
+        linewidths=0.3,
+        antialiaseds=True,
+        zorder=1.5,
+    )
+    pc.set_agg_filter(_GroupAlpha(BONE_ALPHA))
+    pc.set_rasterized(True)
+    ax.add_collection(pc)
+
+
+def _draw_marks(ax: Axes, marks: Sequence[tuple[str, np.ndarray]]) -> None:
+    """Labelled points as magenta rings with their label."""
+    for label, p in marks:
+        ax.plot(*p, "o", color="magenta", ms=11, mfc="none", mew=1.2)
+        ax.annotate(
+            label,
+            p,
+            xytext=(7, 5),
+            textcoords="offset points",
+            color="magenta",
+            fontsize=8,
+            path_effects=_HALO,
+        )
 
 
 def _draw_background(
-    ax: Axes, display: np.ndarray | None, image_size: tuple[int, int] | None
-) -> tuple[int, int] | None:
-    """The radiograph (pixel centres at integer ``(u, v)``) or a dark canvas; the image size
-    ``(W, H)`` in pixels, or ``None`` when neither is known."""
+    ax: Axes,
+    display: np.ndarray | None,
+    image_size: tuple[int, int] | None,
+    limits: tuple[float, float, float, float] | None,
+) -> None:
+    """The radiograph (pixel centres at integer ``(u, v)``; only the part within ``limits``
+    ``(u0, u1, v0, v1)`` is drawn, which is what the axes show) or a dark canvas."""
     if display is not None:
         h, w = display.shape
-        ax.imshow(display, cmap="gray", vmin=0, vmax=1, extent=(-0.5, w - 0.5, h - 0.5, -0.5))
-        return w, h
-    if image_size is not None:
+        c0, r0, c1, r1 = 0, 0, w, h
+        if limits is not None:
+            c0, c1 = max(int(np.floor(limits[0] + 0.5)), 0), min(int(np.ceil(limits[1] + 0.5)), w)
+            r0, r1 = max(int(np.floor(limits[2] + 0.5)), 0), min(int(np.ceil(limits[3] + 0.5)), h)
+        ax.imshow(
+            display[r0:r1, c0:c1],
+            cmap="gray",
+            vmin=0,
+            vmax=1,
+            extent=(c0 - 0.5, c1 - 0.5, r1 - 0.5, r0 - 0.5),
+        )
+    elif image_size is not None:
         ax.set_facecolor("#202020")
-        w, h = image_size
-        return w, h
-    return None
 
 
 def _polyline(ax: Axes, uv: np.ndarray, color: str, label: str | None) -> None:
@@ -126,7 +233,13 @@ def _draw_landmarks(
         label = "annotated landmark" if k == 0 else None
         ax.plot(*lm.uv, "+", color="lime", ms=9, mew=1.5, label=label)
         ax.annotate(
-            name, lm.uv, xytext=(4, -4), textcoords="offset points", color="lime", fontsize=7
+            name,
+            lm.uv,
+            xytext=(4, -4),
+            textcoords="offset points",
+            color="lime",
+            fontsize=7,
+            path_effects=_HALO,
         )
         if name in registered:
             p = registered[name]
@@ -136,10 +249,12 @@ def _draw_landmarks(
         ax.plot(*p, "x", color="deepskyblue", ms=7, mew=1.5, label=label)
 
 
-def _zoom(ax: Axes, drawn: Sequence[np.ndarray], size: tuple[int, int] | None) -> None:
-    """Square limits around the drawn (Q, 2) pixel arrays (60 % of their extent + 10 px each
-    side), clipped to the image of ``size`` ``(W, H)``; the whole image when nothing is drawn.
-    Rows grow downwards (v axis inverted)."""
+def _limits(
+    drawn: Sequence[np.ndarray], size: tuple[int, int] | None
+) -> tuple[float, float, float, float] | None:
+    """Square limits ``(u0, u1, v0, v1)`` around the drawn (Q, 2) pixel arrays (60 % of their
+    extent + 10 px each side), clipped to the image of ``size`` ``(W, H)``; the whole image
+    when nothing is drawn; ``None`` when neither is known."""
     if drawn:
         pts = np.vstack(drawn)
         lo, hi = pts.min(axis=0), pts.max(axis=0)
@@ -149,12 +264,11 @@ def _zoom(ax: Axes, drawn: Sequence[np.ndarray], size: tuple[int, int] | None) -
             w, h = size
             x0, x1 = max(x0, -0.5), min(x1, w - 0.5)
             y0, y1 = max(y0, -0.5), min(y1, h - 0.5)
-        ax.set_xlim(x0, x1)
-        ax.set_ylim(y1, y0)
-    elif size is not None:
+        return float(x0), float(x1), float(y0), float(y1)
+    if size is not None:
         w, h = size
-        ax.set_xlim(-0.5, w - 0.5)
-        ax.set_ylim(h - 0.5, -0.5)
+        return -0.5, w - 0.5, -0.5, h - 0.5
+    return None
 
 
 def histogram_figure(

@@ -61,14 +61,17 @@ def test_result_json_contract(registered):
     assert "phi" not in doc
 
 
-def test_report_references_only_existing_files(registered):
+def test_report_is_self_contained_and_links_only_existing_files(registered):
     _, out, doc = registered
     html = (out / "report.html").read_text()
     refs = re.findall(r'(?:src|href)="([^"]+)"', html)
-    assert refs, "the report links its figures"
-    for ref in refs:
+    files = [r for r in refs if not r.startswith("data:")]
+    assert sorted(files) == ["registered.ply", "result.json"]  # the figures are embedded
+    for ref in files:
         assert "://" not in ref and not ref.startswith("/"), ref  # offline, relative
         assert (out / ref).is_file(), ref
+    embedded = [r for r in refs if r.startswith("data:image/png;base64,")]
+    assert len(embedded) == len(doc["report"]["figures"])
     for fig in (
         "error_3d.png",
         "overlay_cam1.png",
@@ -76,8 +79,9 @@ def test_report_references_only_existing_files(registered):
         "errors_hist.png",
         "convergence.png",
     ):
-        assert (out / fig).is_file() and (out / fig).stat().st_size > 1000
-        assert fig in refs
+        assert (out / fig).is_file() and (out / fig).stat().st_size > 1000  # still written
+        assert fig in doc["report"]["figures"]
+    assert "registered_3d.png" not in doc["report"]["figures"]  # a ground truth: error map
     assert doc["report"]["renderer"] in ("pyvista", "matplotlib")
     assert "<script" not in html.lower()
 
@@ -138,7 +142,8 @@ def test_report_from_document_and_former_signature_agree(registered, tmp_path):
     case = load_case(case_dir)
     obs = to_view_observations(case)
     V, F = read_mesh(out / "registered.ply")
-    res = SimpleNamespace(vertices=V)  # the former path reads only the registered vertices
+    # the former path reads only the registered vertices; the views are posed as calibrated
+    res = SimpleNamespace(vertices=V, view_poses={})
     outlines = {o.name: model_outlines(V, F, o.view) for o in obs}
     error = np.linspace(0.0, 1.0, len(V))
     views = _report_views(case, obs, res, outlines)
@@ -152,6 +157,12 @@ def test_report_from_document_and_former_signature_agree(registered, tmp_path):
         got_old = write_case_report(old, case, obs, res, doc, outlines, error)
     assert got == got_old and got["figures"][0] == "error_3d.png"
     assert sorted(p.name for p in new.iterdir()) == sorted(p.name for p in old.iterdir())
-    for p in new.iterdir():
-        if p.name != "error_3d.png":  # an off-screen GL render need not be bit-identical
+    for p in new.iterdir():  # an off-screen GL render need not be bit-identical
+        if p.name not in ("error_3d.png", "report.html"):
             assert p.read_bytes() == (old / p.name).read_bytes(), p.name
+    # the pages agree but for the embedded error map
+    pages = [
+        re.sub(r"data:image/png;base64,[^\"]+", "", (d / "report.html").read_text())
+        for d in (new, old)
+    ]
+    assert pages[0] == pages[1]

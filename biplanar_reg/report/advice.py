@@ -1,0 +1,73 @@
+"""What to do about each quality flag of a registration (one table for the report and the
+workbench).
+
+A flag is a line of text from :func:`biplanar_reg.registration.register_views` (its ``flags``,
+and ``result.json["flags"]``); its *kind* is the text before its details, e.g.
+``"relaxation not tight (certificate 0.038)"`` is of kind ``"relaxation not tight"``.
+:data:`FLAG_ADVICE` maps every kind the registration raises to a one-line advice;
+:func:`flag_advice` looks a flag up.
+"""
+
+from __future__ import annotations
+
+import re
+
+__all__ = ["FLAG_ADVICE", "flag_advice", "flag_kind"]
+
+#: Flag kind -> what to do about it (one line, plain text).
+FLAG_ADVICE: dict[str, str] = {
+    "relaxation not tight": (
+        "The landmarks do not pin down one pose and shape: add landmarks (spread over the "
+        "bone, each in both views if possible) and check that every landmark's name is the "
+        "model landmark it marks (the model's landmarks file)."
+    ),
+    "large landmark reprojection error": (
+        "Landmarks and registered bone disagree by more than reprojection_flag_px: check the "
+        "calibration of each view (file, format, image flips) and look in the landmark table "
+        "for a landmark with a large error in one view only (swapped or misnamed click)."
+    ),
+    "rejected observations": (
+        "These landmark clicks disagree with all the others and were down-weighted: check "
+        "each one's position and name in its view, then fix or delete it and register again."
+    ),
+    "local refinement did not converge": (
+        "Raise refine_iterations in [registration] of case.toml and register again; if it "
+        "persists, look for contour stretches far from the bone (contour table) and trim them."
+    ),
+}
+
+#: Advice for a flag of a kind not in :data:`FLAG_ADVICE`.
+GENERIC_ADVICE = "See docs/registration.md (quality flags) and review the figures below."
+
+
+def flag_kind(flag: str) -> str:
+    """A flag's kind: its text before the first ``(`` or ``:``, stripped.
+
+    Parameters
+    ----------
+    flag : str
+        A quality flag, e.g. ``"rejected observations: cam1/tip"``.
+
+    Returns
+    -------
+    str
+        E.g. ``"rejected observations"``.
+    """
+    return re.split(r"[(:]", flag, maxsplit=1)[0].strip()
+
+
+def flag_advice(flag: str) -> str:
+    """What to do about a quality flag (one line).
+
+    Parameters
+    ----------
+    flag : str
+        A quality flag of a registration result.
+
+    Returns
+    -------
+    str
+        The advice of its kind in :data:`FLAG_ADVICE`, or a pointer to the docs for a kind it
+        does not list.
+    """
+    return FLAG_ADVICE.get(flag_kind(flag), GENERIC_ADVICE)
