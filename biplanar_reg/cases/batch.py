@@ -1,31 +1,38 @@
-"""Batch registration: many cases, isolated, resumable, locally or on a Dask cluster.
+"""Batch registration: many cases, isolated, resumable, locally, sharded or on a Dask cluster.
 
 * Each case runs in :func:`process_case`, which never raises: a bad or failing case becomes a
   record with its reason, and the other cases go on.
 * Outputs go to ``OUT/<case folder name>/`` through :func:`.outputs.atomic_output_dir`, so a
   case's folder either is complete or does not exist. A rerun skips complete folders
   (``force`` redoes them) and removes the hidden temporary folders of killed runs.
-* Local runs use a process pool (``spawn``: each worker starts clean, no inherited locks).
-  When a worker process dies (SIGKILL, out of memory) the pool breaks; the cases that were
-  in flight are re-queued in a fresh pool once, and a case whose worker dies twice is recorded
-  as failed. With ``scheduler`` the cases are submitted to ``dask.distributed.Client(address)``
-  (Dask itself reschedules tasks of a lost worker).
+* One run per output folder (per shard) at a time: :mod:`._lock` (``OUT/.batch.lock``, with the
+  holder's PID and host; a stale lock is taken over, a live one is an error).
+* Local runs use :mod:`._pool`: ``spawn`` worker processes fed one case at a time. A worker
+  that dies (SIGKILL, out of memory) charges only the case it was running, which is retried
+  in a fresh worker once; a case whose worker dies twice is recorded as failed. Workers die
+  with the batch process (parent-death signal and a watchdog). With ``scheduler`` the cases
+  are submitted to ``dask.distributed.Client(address)`` (Dask itself reschedules tasks of a
+  lost worker); with ``cluster`` the Dask workers are SLURM/PBS/SGE jobs (:mod:`._cluster`,
+  dask-jobqueue).
+* ``shard=(I, N)`` runs every N-th case of the sorted case list and writes a shard summary;
+  :func:`merge_batch` builds the study summary from the shards' (:mod:`._shards`).
 * SIGTERM / Ctrl-C of the whole run stops the workers and writes the summary of the cases
   finished so far; nothing half-written remains, and a rerun completes the rest.
 """
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import csv
 import io
+import json
 import logging
-import multiprocessing
+import math
 import os
 import signal
+import socket
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,9 +40,11 @@ from typing import Any
 import numpy as np
 
 from ..io.atomic import atomic_write_text
+from ._lock import OutputLock, describe, probe
+from ._shards import SUMMARY_FORMAT, parse_shard, read_shard_summaries, shard_file, shard_names
 from .outputs import clean_stale, is_complete
 
-__all__ = ["BatchSummary", "run_batch"]
+__all__ = ["BatchSummary", "run_batch", "merge_batch"]
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +67,8 @@ SUMMARY_COLUMNS = (
 )
 _NUMERIC = SUMMARY_COLUMNS[3:13]
 _MAX_WORKER_DEATHS = 2
+#: Largest ``workers`` accepted.
+MAX_WORKERS = 1024
 
 
 class _Terminated(Exception):
@@ -154,12 +165,18 @@ def _clock(seconds: float) -> str:
 
 @dataclass
 class BatchSummary:
-    """Rows (one per case, input order) and aggregate statistics of a batch run."""
+    """Rows (one per case, input order) and aggregate statistics of a batch run.
+
+    ``shard`` is ``(I, N)`` for a run of shard ``I/N``; ``summary_file`` is the summary written
+    (``OUT/summary.html``, or a shard's ``OUT/summary.shard-I-of-N.json``).
+    """
 
     rows: list[dict]
     wall_seconds: float
     interrupted: bool = False
     stats: dict[str, dict[str, float]] = field(default_factory=dict)
+    shard: tuple[int, int] | None = None
+    summary_file: Path | None = None
 
     @property
     def counts(self) -> dict[str, int]:
@@ -200,8 +217,39 @@ def _fmt(x: Any) -> str:
     return str(x)
 
 
-def write_summary(out: Path, summary: BatchSummary) -> None:
-    """Write summary.csv (one row per case), summary_stats.csv and summary.html, atomically."""
+def _json_value(x: Any) -> Any:
+    return None if isinstance(x, float) and not math.isfinite(x) else x
+
+
+def summary_document(summary: BatchSummary, started: float, finished: float) -> dict[str, Any]:
+    """The content of summary.json (a shard's summary adds ``study_cases``)."""
+    keys = (*SUMMARY_COLUMNS, "report", "ran")
+    shard = summary.shard
+    return {
+        "format": SUMMARY_FORMAT,
+        "shard": None if shard is None else {"index": shard[0], "count": shard[1]},
+        "counts": summary.counts,
+        "wall_seconds": summary.wall_seconds,
+        "interrupted": summary.interrupted,
+        "started": started,
+        "finished": finished,
+        "host": socket.gethostname(),
+        "stats": {k: {n: _json_value(v) for n, v in s.items()} for k, s in summary.stats.items()},
+        "rows": [{k: _json_value(r[k]) for k in keys if k in r} for r in summary.rows],
+    }
+
+
+def _dump(doc: dict[str, Any]) -> str:
+    return json.dumps(doc, indent=1, allow_nan=False) + "\n"
+
+
+def write_summary(
+    out: Path, summary: BatchSummary, started: float | None = None, finished: float | None = None
+) -> None:
+    """Write summary.csv (one row per case), summary_stats.csv, summary.json and summary.html.
+
+    Each file is written atomically; ``started``/``finished`` (Unix times) go into summary.json.
+    """
     from ..report.html import write_page
 
     buf = io.StringIO()
@@ -217,6 +265,9 @@ def write_summary(out: Path, summary: BatchSummary) -> None:
     for key, s in summary.stats.items():
         w.writerow([key, *(_fmt(s[n]) for n in names)])
     atomic_write_text(out / "summary_stats.csv", buf.getvalue())
+    finished = time.time() if finished is None else finished
+    started = finished - summary.wall_seconds if started is None else started
+    atomic_write_text(out / "summary.json", _dump(summary_document(summary, started, finished)))
     rows = [
         {
             **{c: _fmt(r.get(c)) for c in SUMMARY_COLUMNS},
@@ -234,6 +285,36 @@ def write_summary(out: Path, summary: BatchSummary) -> None:
         columns=SUMMARY_COLUMNS,
         rows=rows,
     )
+    summary.summary_file = out / "summary.html"
+
+
+def write_shard_summary(
+    out: Path, summary: BatchSummary, study: Sequence[str], started: float
+) -> Path:
+    """Write ``OUT/summary.shard-I-of-N.json``: summary.json's document plus ``study_cases``."""
+    if summary.shard is None:
+        raise ValueError("write_shard_summary: the summary is not a shard's")
+    doc = summary_document(summary, started, time.time())
+    doc["study_cases"] = sorted(study)
+    path = shard_file(out, summary.shard)
+    atomic_write_text(path, _dump(doc))
+    summary.summary_file = path
+    return path
+
+
+def _exit_text(exitcode: int | None) -> str:
+    if exitcode is None:
+        return "exit status unknown"
+    if exitcode < 0:
+        try:
+            return f"killed by {signal.Signals(-exitcode).name}"
+        except ValueError:
+            return f"killed by signal {-exitcode}"
+    return f"exit code {exitcode}"
+
+
+def _failed(case_dir: str, reason: str) -> dict:
+    return {"case": Path(case_dir).name, "status": "failed", "seconds": None, "reason": reason}
 
 
 def _run_local(
@@ -242,56 +323,38 @@ def _run_local(
     allow_outside: bool,
     on_done: Callable[[dict], None],
 ) -> None:
-    """Run jobs in a spawn process pool; re-queue cases whose worker died (once)."""
-    deaths: dict[str, int] = {}
-    pending = list(jobs)
-    ctx = multiprocessing.get_context("spawn")
-    while pending:
-        ex = cf.ProcessPoolExecutor(max_workers=min(workers, len(pending)), mp_context=ctx)
-        futures = {ex.submit(process_case, c, o, allow_outside): (c, o) for c, o in pending}
-        pending = []
-        try:
-            for fut in cf.as_completed(futures):
-                c, o = futures[fut]
-                try:
-                    on_done(fut.result())
-                except cf.process.BrokenProcessPool:
-                    deaths[c] = deaths.get(c, 0) + 1
-                    if is_complete(Path(o)):  # it finished before the pool broke
-                        on_done(read_record(Path(c).name, Path(o), "done", None))
-                    elif deaths[c] >= _MAX_WORKER_DEATHS:
-                        on_done(
-                            {
-                                "case": Path(c).name,
-                                "status": "failed",
-                                "seconds": None,
-                                "reason": "the worker process died twice (killed or crashed)",
-                            }
-                        )
-                    else:
-                        log.warning("%s: worker process died; retrying the case", c)
-                        pending.append((c, o))
-        except BaseException:
-            _stop_pool(ex)
-            raise
-        ex.shutdown(wait=True)
+    """Run jobs in the local pool; a case whose worker died is retried once in a fresh worker.
 
+    Only the case a dead worker was running is charged the death (see :mod:`._pool`).
+    """
+    from ._pool import run_pool
 
-def _stop_pool(ex: cf.ProcessPoolExecutor) -> None:
-    """Cancel queued cases and terminate the workers (SIGTERM / Ctrl-C of the run)."""
-    ex.shutdown(wait=False, cancel_futures=True)
-    # Python < 3.14 has no public terminate_workers(); the running cases are abandoned and their
-    # temporary folders are removed by the next run.
-    for p in list(getattr(ex, "_processes", {}).values()):
-        p.terminate()
+    def on_result(job: int, kind: str, value: Any) -> None:
+        on_done(value if kind == "done" else _failed(jobs[job][0], value))
+
+    def on_death(job: int, deaths: int, exitcode: int | None) -> bool:
+        c, o = jobs[job]
+        how = _exit_text(exitcode)
+        if is_complete(Path(o)):  # it finished before its worker died
+            on_done(read_record(Path(c).name, Path(o), "done", None))
+        elif deaths >= _MAX_WORKER_DEATHS:
+            on_done(_failed(c, f"the worker process died twice (killed or crashed; {how})"))
+        else:
+            log.warning("%s: its worker process died (%s); retrying the case", c, how)
+            return True
+        return False
+
+    # process_case is looked up when the batch runs (tests replace it)
+    run_pool([(c, o, allow_outside) for c, o in jobs], workers, process_case, on_result, on_death)
 
 
 def _run_dask(
     jobs: list[tuple[str, str]],
-    address: str,
+    address: Any,
     allow_outside: bool,
     on_done: Callable[[dict], None],
 ) -> None:
+    """Run jobs on ``dask.distributed.Client(address)`` (an address or a cluster object)."""
     try:
         from dask.distributed import Client, as_completed
     except ImportError:
@@ -314,16 +377,109 @@ def _run_dask(
             try:
                 on_done(fut.result())
             except Exception as exc:  # noqa: BLE001 - a lost task (e.g. KilledWorker)
-                on_done(
-                    {
-                        "case": Path(c).name,
-                        "status": "failed",
-                        "seconds": None,
-                        "reason": f"{type(exc).__name__}: {exc}",
-                    }
-                )
+                on_done(_failed(c, f"{type(exc).__name__}: {exc}"))
     finally:
         client.close()
+
+
+def _run_jobqueue(
+    jobs: list[tuple[str, str]],
+    engine: dict[str, Any],
+    allow_outside: bool,
+    on_done: Callable[[dict], None],
+) -> None:
+    """Start a dask-jobqueue cluster, submit its worker jobs, run the cases on it, close it."""
+    from . import _cluster
+
+    cluster = _cluster.make_cluster(engine["cluster"], engine["options"])
+    try:
+        _cluster.submit(cluster, engine["cluster"], engine["jobs"])
+        _run_dask(jobs, cluster, allow_outside, on_done)
+    finally:
+        _cluster.close(cluster)
+
+
+class _Recorder:
+    """Collects the rows of finished cases and drives the progress bar."""
+
+    def __init__(self, total: int, stream: Any) -> None:
+        self.rows: dict[str, dict] = {}
+        self.progress = Progress(total, stream)
+
+    def skipped(self, row: dict) -> None:
+        self.rows[row["case"]] = {**row, "ran": False}
+        self.progress.update("skipped", row["case"])
+
+    def __call__(self, row: dict) -> None:
+        self.rows[row["case"]] = {**row, "ran": True}
+        self.progress.update(row["status"], row["case"])
+        if row["status"] == "failed":
+            log.warning("%s: failed: %s", row["case"], row["reason"])
+
+
+def _check_case_dirs(case_dirs: Sequence[str | os.PathLike]) -> list[Path]:
+    dirs = [Path(c).resolve() for c in case_dirs]
+    if not dirs:
+        raise ValueError("CASES: no case folders given")
+    seen: dict[str, Path] = {}
+    for d in dirs:
+        if d.name in seen:
+            raise ValueError(
+                f"CASES: two cases share the folder name {d.name!r} ({seen[d.name]} "
+                f"and {d}); outputs are named after it"
+            )
+        seen[d.name] = d
+    return dirs
+
+
+def _engine(
+    workers: int | None,
+    scheduler: str | None,
+    cluster: str | None,
+    jobs: int | None,
+    cluster_options: Sequence[str] | Mapping[str, Any] | None,
+) -> dict[str, Any]:
+    """Check the engine options before anything runs; the engine as a dict."""
+    if workers is not None and not 1 <= workers <= MAX_WORKERS:
+        raise ValueError(f"--workers: must be >= 1 and <= {MAX_WORKERS}, got {workers}")
+    if cluster is None:
+        if jobs is not None or cluster_options:
+            raise ValueError("--jobs and --cluster-option need --cluster slurm|pbs|sge")
+        return {"scheduler": scheduler, "workers": workers}
+    from . import _cluster
+
+    if scheduler:
+        raise ValueError("--scheduler and --cluster: give one (--cluster starts its scheduler)")
+    jobs = 1 if jobs is None else jobs
+    if not 1 <= jobs <= _cluster.MAX_JOBS:
+        raise ValueError(f"--jobs: must be >= 1 and <= {_cluster.MAX_JOBS}, got {jobs}")
+    return {
+        "cluster": cluster,
+        "jobs": jobs,
+        "options": _cluster.parse_options(cluster, cluster_options),
+    }
+
+
+def _execute(
+    jobs: list[tuple[str, str]], engine: dict[str, Any], allow_outside: bool, rec: _Recorder
+) -> bool:
+    """Run the jobs on the engine; True when interrupted by SIGTERM / Ctrl-C."""
+    previous = signal.signal(signal.SIGTERM, _raise_terminated) if threading_main() else None
+    try:
+        if engine.get("cluster"):
+            _run_jobqueue(jobs, engine, allow_outside, rec)
+        elif engine["scheduler"]:
+            _run_dask(jobs, engine["scheduler"], allow_outside, rec)
+        else:
+            n = engine["workers"] or min(os.cpu_count() or 1, len(jobs))
+            _run_local(jobs, n, allow_outside, rec)
+    except (KeyboardInterrupt, _Terminated):
+        log.warning("interrupted: %d of %d case(s) finished", len(rec.rows), rec.progress.total)
+        return True
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+    return False
 
 
 def run_batch(
@@ -332,6 +488,10 @@ def run_batch(
     *,
     workers: int | None = None,
     scheduler: str | None = None,
+    cluster: str | None = None,
+    jobs: int | None = None,
+    cluster_options: Sequence[str] | Mapping[str, Any] | None = None,
+    shard: str | tuple[int, int] | None = None,
     force: bool = False,
     allow_outside: bool = False,
     progress_stream=None,
@@ -348,6 +508,17 @@ def run_batch(
         Local worker processes (default: the CPU count, at most the number of cases).
     scheduler : str, optional
         Address of a Dask distributed scheduler; when given, cases run there.
+    cluster : str, optional
+        ``"slurm"``, ``"pbs"`` or ``"sge"``: run the cases on Dask workers submitted as batch
+        jobs by dask-jobqueue.
+    jobs : int, optional
+        With ``cluster``: the number of worker jobs (default 1).
+    cluster_options : sequence of str or mapping, optional
+        With ``cluster``: ``KEY=VALUE`` items (or a dict) for the dask-jobqueue cluster.
+    shard : str or (int, int), optional
+        ``"I/N"`` or ``(I, N)``: run only the cases at positions ``I-1, I-1+N, ...`` of the case
+        list sorted by folder name, and write ``out/summary.shard-I-of-N.json`` instead of the
+        study summary (:func:`merge_batch` builds it).
     force : bool
         Redo cases whose complete outputs exist.
     allow_outside : bool
@@ -358,66 +529,115 @@ def run_batch(
     Returns
     -------
     BatchSummary
+
+    Raises
+    ------
+    ValueError
+        Bad options or case list, or another live batch holds ``out`` (its lock file).
     """
-    t0 = time.perf_counter()
+    t0, started = time.perf_counter(), time.time()
+    shard_ = parse_shard(shard)
     out = Path(out).resolve()
-    dirs = [Path(c).resolve() for c in case_dirs]
-    if not dirs:
-        raise ValueError("CASES: no case folders given")
-    seen: dict[str, Path] = {}
-    for d in dirs:
-        if d.name in seen:
-            raise ValueError(
-                f"CASES: two cases share the folder name {d.name!r} ({seen[d.name]} "
-                f"and {d}); outputs are named after it"
-            )
-        seen[d.name] = d
+    dirs = _check_case_dirs(case_dirs)
+    engine = _engine(workers, scheduler, cluster, jobs, cluster_options)
+    study = [d.name for d in dirs]
+    if shard_ is not None:
+        by_name = {d.name: d for d in dirs}
+        dirs = [by_name[n] for n in shard_names(study, shard_)]
     out.mkdir(parents=True, exist_ok=True)
-    rows: dict[str, dict] = {}
-    progress = Progress(len(dirs), progress_stream)
-    jobs = []
-    for d in dirs:
-        target = out / d.name
-        clean_stale(target)
-        if not force and is_complete(target):
-            rows[d.name] = {**read_record(d.name, target, "done", None), "ran": False}
-            progress.update("skipped", d.name)
-        else:
-            jobs.append((str(d), str(target)))
-
-    def on_done(row: dict) -> None:
-        rows[row["case"]] = {**row, "ran": True}
-        progress.update(row["status"], row["case"])
-        if row["status"] == "failed":
-            log.warning("%s: failed: %s", row["case"], row["reason"])
-
-    interrupted = False
-    previous = None
-    if jobs:
-        n = workers or min(os.cpu_count() or 1, len(jobs))
-        if n < 1:
-            raise ValueError(f"--workers: must be >= 1, got {workers}")
-        if threading_main():
-            previous = signal.signal(signal.SIGTERM, _raise_terminated)
-        try:
-            if scheduler:
-                _run_dask(jobs, scheduler, allow_outside, on_done)
+    with OutputLock(out, shard_):
+        rec = _Recorder(len(dirs), progress_stream)
+        todo = []
+        for d in dirs:
+            target = out / d.name
+            clean_stale(target)
+            if not force and is_complete(target):
+                rec.skipped(read_record(d.name, target, "done", None))
             else:
-                _run_local(jobs, n, allow_outside, on_done)
-        except (KeyboardInterrupt, _Terminated):
-            interrupted = True
-            log.warning("interrupted: %d of %d case(s) finished", len(rows), len(dirs))
-        finally:
-            if previous is not None:
-                signal.signal(signal.SIGTERM, previous)
-    ordered = [
-        rows.get(d.name)
-        or {"case": d.name, "status": "not run", "reason": "interrupted", "seconds": None}
-        for d in dirs
+                todo.append((str(d), str(target)))
+        interrupted = _execute(todo, engine, allow_outside, rec) if todo else False
+        ordered = [
+            rec.rows.get(d.name)
+            or {"case": d.name, "status": "not run", "reason": "interrupted", "seconds": None}
+            for d in dirs
+        ]
+        summary = BatchSummary(ordered, time.perf_counter() - t0, interrupted, shard=shard_)
+        summary.stats = _aggregate(ordered)
+        if shard_ is None:
+            write_summary(out, summary, started)
+        else:
+            write_shard_summary(out, summary, study, started)
+    return summary
+
+
+def _merged_row(out: Path, name: str, row: dict | None, shard: str) -> dict:
+    """The study row of case ``name``: its output folder, else what its shard recorded."""
+    target = out / name
+    if is_complete(target):
+        seconds = row.get("seconds") if row else None
+        ran = bool(row.get("ran", True)) if row and row.get("status") == "done" else False
+        return {**read_record(name, target, "done", seconds), "ran": ran}
+    if row is not None and row.get("status") == "failed":
+        keep = {k: row[k] for k in (*SUMMARY_COLUMNS, "ran") if k in row}
+        return {**keep, "reason": str(row.get("reason") or "failed")}
+    if row is None:
+        reason = f"shard {shard} wrote no summary"
+    elif row.get("status") == "done":
+        reason = "its output folder is missing or incomplete"
+    else:
+        reason = str(row.get("reason") or "not run")
+    return {"case": name, "status": "not run", "reason": reason, "seconds": None}
+
+
+def merge_batch(out: str | os.PathLike) -> BatchSummary:
+    """Build the study summary of ``out`` from its shards' summaries; run nothing.
+
+    Reads every ``out/summary.shard-I-of-N.json``, takes each case's metrics from its output
+    folder (as a full run does) and writes summary.csv, summary_stats.csv, summary.json and
+    summary.html, one row per case of the study in sorted order. Cases of shards that wrote no
+    summary, or that did not finish, are rows with ``status = "not run"``.
+
+    Parameters
+    ----------
+    out : path
+        The batch output folder the shards wrote to.
+
+    Returns
+    -------
+    BatchSummary
+
+    Raises
+    ------
+    ValueError
+        ``out`` is no folder, holds no shard summaries, or shards of different splits or case
+        lists.
+    """
+    out = Path(out).resolve()
+    if not out.is_dir():
+        raise ValueError(f"--merge {out}: not a folder")
+    docs = read_shard_summaries(out)
+    for path in sorted(out.glob(".batch*.lock")):
+        alive, info = probe(path)
+        if alive is not False:
+            log.warning("%s: a batch may still be running (%s)", path, describe(info))
+    n = int(docs[0]["shard"]["count"])
+    study = [str(c) for c in docs[0]["study_cases"]]
+    by_case = {r["case"]: r for d in docs for r in d["rows"]}
+    present = {int(d["shard"]["index"]) for d in docs}
+    absent = [i for i in range(1, n + 1) if i not in present]
+    if absent:
+        listed = ", ".join(f"{i}/{n}" for i in absent[:10]) + (" ..." if len(absent) > 10 else "")
+        log.warning("merge: %d shard(s) wrote no summary: %s", len(absent), listed)
+    rows = [
+        _merged_row(out, name, by_case.get(name), f"{p % n + 1}/{n}")
+        for p, name in enumerate(study)
     ]
-    summary = BatchSummary(ordered, time.perf_counter() - t0, interrupted)
-    summary.stats = _aggregate(ordered)
-    write_summary(out, summary)
+    times = [(float(d["started"]), float(d["finished"])) for d in docs]
+    started, finished = min(t[0] for t in times), max(t[1] for t in times)
+    interrupted = any(bool(d.get("interrupted")) for d in docs)
+    summary = BatchSummary(rows, max(0.0, finished - started), interrupted)
+    summary.stats = _aggregate(rows)
+    write_summary(out, summary, started, finished)
     return summary
 
 
