@@ -65,7 +65,10 @@ def _onset_templates(
 
 @functools.lru_cache(maxsize=8)
 def _unit_templates(
-    half_width_px: float, max_shift_px: float, widths_px: tuple[float, ...], powers: tuple[float, ...]
+    half_width_px: float,
+    max_shift_px: float,
+    widths_px: tuple[float, ...],
+    powers: tuple[float, ...],
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sample positions ``s``, offsets ``s0`` and the centred unit-norm onset templates of
     :func:`edge_onset_offsets` (read-only; cached: they depend on the parameters only and
