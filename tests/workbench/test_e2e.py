@@ -183,6 +183,20 @@ def _wheel_zoom(page, view: str, uv) -> None:
     assert np.hypot(u - uv[0], v - uv[1]) < 0.05
 
 
+def _drag_to_middle(page, view: str, uv) -> None:
+    """Pan by dragging image point ``uv`` to the middle of the view's canvas."""
+    box = page.get_by_test_id(f"view-{view}").bounding_box()
+    mx, my = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    page.mouse.move(*_client(page, view, uv))
+    page.mouse.down()
+    page.mouse.move(mx, my, steps=8)
+    page.mouse.up()
+    u, v = page.evaluate(
+        "([view, x, y]) => window.workbench.clientToView(view, x, y)", [view, mx, my]
+    )
+    assert np.hypot(u - uv[0], v - uv[1]) < 0.05
+
+
 class _Screens:
     """Screenshots (1400 x 900) into tmp_path for debugging and, with BIPLANAR_WB_SCREENSHOTS
     set, into that folder (the docs' ``docs/img``); ``seconds`` is the time they took."""
@@ -287,7 +301,11 @@ def _redraw_outline(page, old: np.ndarray, shots: _Screens) -> None:
     """Outline mode: select the shipped contour ``old``, delete it, and trace it again with
     livewire anchors on its points, the preview following the mouse between anchors."""
     page.get_by_test_id("mode-outline").click()
-    _wheel_zoom(page, OUTLINE_VIEW, old.mean(axis=0))  # closer, to trace the edge
+    # Closer, to trace the edge: zoom, drag the contour to the middle of the view, zoom again.
+    centre = old.mean(axis=0)
+    _wheel_zoom(page, OUTLINE_VIEW, centre)
+    _drag_to_middle(page, OUTLINE_VIEW, centre)
+    _wheel_zoom(page, OUTLINE_VIEW, centre)
     page.mouse.click(*_client(page, OUTLINE_VIEW, old[len(old) // 2]))
     item = page.get_by_test_id(f"contour-{OUTLINE_VIEW}-{OUTLINE_INDEX}")
     assert "selected" in item.get_attribute("class")
@@ -304,9 +322,13 @@ def _redraw_outline(page, old: np.ndarray, shots: _Screens) -> None:
             page.mouse.move(*_client(page, OUTLINE_VIEW, mid), steps=4)
             page.wait_for_function(preview)
         if i == N_ANCHORS - 1:
-            page.mouse.move(*_client(page, OUTLINE_VIEW, anchor - (anchor - mid) * 0.2))
-            page.wait_for_timeout(50)  # a move resets nothing: wait for this position's preview
-            page.wait_for_function(preview)
+            # the screen of the docs: the preview all the way to the next anchor
+            page.mouse.move(*_client(page, OUTLINE_VIEW, anchor + (mid - anchor) * 0.03))
+            page.wait_for_function(
+                "(v) => { const t = window.workbench.state.tools.outline.trace;"
+                " return t.preview !== null && Math.abs(t.preview.at(-1)[1] - v) < 3; }",
+                arg=float(anchor[1]),
+            )
             shots.take("outline")
         page.mouse.click(*_client(page, OUTLINE_VIEW, anchor))
     page.keyboard.press("Enter")
@@ -354,6 +376,103 @@ def _check_same_result_as_cli(case_dir: Path, tmp_path: Path, page) -> None:
         if isinstance(value, float):
             assert workbench_doc["metrics"][key] == pytest.approx(value, rel=1e-6, abs=1e-9), key
             assert shown[key] == pytest.approx(value, rel=1e-6, abs=1e-9), key
+
+
+# ---- the smaller interactions -------------------------------------------------------------
+
+
+def _saved_landmarks(case_dir: Path, view: str) -> dict:
+    doc = json.loads((case_dir / "annotations.json").read_text())
+    return doc["views"].get(view, {}).get("landmarks", {})
+
+
+def test_view_and_edit_interactions(page, server, case_dir):
+    """Window/level, double-click fit (undoing its first click's landmark), drag to move, the
+    Delete key and the list's remove button, snap, and the outline's Backspace / Esc."""
+    requests: list[str] = []
+    page.on("request", lambda r: requests.append(r.url))
+    _open(page, server)
+    view = "cam02"
+    canvas = page.get_by_test_id(f"view-{view}")
+
+    # Window/level: new tiles are fetched with the slider's window.
+    page.get_by_test_id(f"window-lo-{view}").fill("100")
+    page.wait_for_function("(view) => window.workbench.viewState(view).window[0] === 100", arg=view)
+    _settle(page)
+    assert any(f"/api/views/{view}/tiles/" in u and "lo=100" in u for u in requests)
+
+    # Double-click fits, and leaves no landmark behind.
+    fit_zoom = _zoom(page, view)
+    uv = np.array([700.0, 1200.0])
+    _wheel_zoom(page, view, uv)
+    canvas.dblclick(position=_canvas_position(page, view, uv))
+    page.wait_for_function(
+        "([view, z]) => Math.abs(window.workbench.viewState(view).zoom / z - 1) < 1e-4",
+        arg=[view, fit_zoom],
+    )
+    _settle(page)
+    assert _saved_landmarks(case_dir, view) == {}
+
+    # Place, then drag it 30 screen px to the right: moved by 30 / zoom image px.
+    name = "listers_tubercle"
+    page.get_by_test_id(f"landmark-{name}").click()
+    page.mouse.click(*_client(page, view, uv))
+    _settle(page)
+    assert np.allclose(_saved_landmarks(case_dir, view)[name]["uv"], uv, atol=0.01)
+    x, y = _client(page, view, uv)
+    page.mouse.move(x, y)
+    page.mouse.down()
+    page.mouse.move(x + 30, y, steps=5)
+    page.mouse.up()
+    _settle(page)
+    moved = np.asarray(_saved_landmarks(case_dir, view)[name]["uv"])
+    assert np.allclose(moved, uv + [30 / fit_zoom, 0], atol=0.02)
+
+    # Delete key: the selected landmark, in the view under the mouse.
+    page.get_by_test_id(f"landmark-{name}").click()
+    page.mouse.move(x, y)
+    page.keyboard.press("Delete")
+    _settle(page)
+    assert name not in _saved_landmarks(case_dir, view)
+
+    # Snap on: the saved landmark is the snapped point, within the 5 px radius of the click.
+    page.get_by_test_id("snap").check()
+    page.get_by_test_id(f"landmark-{name}").click()
+    page.mouse.click(*_client(page, view, uv))
+    _settle(page)
+    snapped = np.asarray(_saved_landmarks(case_dir, view)[name]["uv"])
+    assert 0 < np.hypot(*(snapped - uv)) <= 5.0 + 1e-6
+    # ... and the list's remove button in the landmark's row.
+    page.get_by_test_id(f"remove-{name}-{view}").click()
+    _settle(page)
+    assert name not in _saved_landmarks(case_dir, view)
+
+    # Outline: Backspace drops the last anchor, Esc forgets the outline; nothing is saved.
+    n_contours = len(
+        json.loads((case_dir / "annotations.json").read_text())["views"][view]["contours"]
+    )
+    page.get_by_test_id("mode-outline").click()
+    anchors = "() => window.workbench.state.tools.outline.trace.anchors.length"
+    page.keyboard.down("Shift")  # Shift: an anchor even on an existing contour
+    for p in ([600.0, 1300.0], [605.0, 1400.0]):
+        page.mouse.click(*_client(page, view, p))
+    page.keyboard.up("Shift")
+    assert page.evaluate(anchors) == 2
+    page.keyboard.press("Backspace")
+    assert page.evaluate(anchors) == 1
+    page.keyboard.press("Escape")
+    assert page.evaluate(anchors) == 0
+    _settle(page)
+    saved = json.loads((case_dir / "annotations.json").read_text())
+    assert len(saved["views"][view]["contours"]) == n_contours
+    assert page.errors == []
+
+
+def _canvas_position(page, view: str, uv) -> dict:
+    """``uv`` as a position relative to the view's canvas (for locator clicks)."""
+    x, y = _client(page, view, uv)
+    box = page.get_by_test_id(f"view-{view}").bounding_box()
+    return {"x": x - box["x"], "y": y - box["y"]}
 
 
 # ---- no token ------------------------------------------------------------------------------

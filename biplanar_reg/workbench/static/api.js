@@ -1,11 +1,15 @@
 // api.js — the workbench's JSON API (WORKBENCH.md, "JSON API"), one function per endpoint.
 //
-// The per-launch token comes from the page's URL (?token=...). The server also sets an HttpOnly
-// cookie when it serves the page, but we send the token explicitly as a header too, so a blocked
-// or stale cookie does not break the page. URLs loaded by the browser itself (tiles as <img>,
+// The per-launch token comes from the page's URL (?token=...), else from the
+// <meta name="workbench-token"> the server writes into the page. The server also sets an
+// HttpOnly cookie when it serves the page, but we send the token explicitly as a header too, so
+// a blocked or stale cookie does not break the page. URLs loaded by the browser itself (tiles as <img>,
 // the EventSource) cannot carry headers, so they get the token as a query parameter.
 
-const TOKEN = new URLSearchParams(window.location.search).get("token");
+const TOKEN =
+  new URLSearchParams(window.location.search).get("token") ||
+  document.querySelector('meta[name="workbench-token"]')?.content ||
+  null;
 
 /** An API failure: `status` is the HTTP status (0 for a network error), `message` the server's
  * one-line `{"error": ...}` text. */
@@ -76,7 +80,11 @@ export const api = {
     request("POST", `api/views/${enc(view)}/livewire`, { anchors, closed }, { signal }),
   addContour: (view, uv, closed, anchors) =>
     request("POST", `api/views/${enc(view)}/contours`, { uv, closed, anchors }),
-  deleteContour: (view, index) => request("DELETE", `api/views/${enc(view)}/contours/${index}`),
+  /** Resolves to the view's annotations (the server answers {"index", "view"}). */
+  deleteContour: async (view, index) => {
+    const res = await request("DELETE", `api/views/${enc(view)}/contours/${index}`);
+    return res && res.view ? res.view : res;
+  },
 
   startRegister: () => request("POST", "api/register"),
   getRegister: () => request("GET", "api/register"),

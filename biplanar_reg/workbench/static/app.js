@@ -258,10 +258,12 @@ function wireWindowSliders(root, info, viewer) {
   const readout = root.querySelector(".window-readout");
   lo.dataset.testid = `window-lo-${info.name}`;
   hi.dataset.testid = `window-hi-${info.name}`;
+  // Whole steps for integer data (8/16-bit images), 1/1000 of the range otherwise.
+  const integer = Number.isInteger(min) && Number.isInteger(max) && max - min >= 50;
   for (const s of [lo, hi]) {
     s.min = String(min);
     s.max = String(max);
-    s.step = String((max - min) / 1000 || 1);
+    s.step = integer ? "1" : String((max - min) / 1000 || 1);
   }
   lo.value = String(info.window[0]);
   hi.value = String(info.window[1]);

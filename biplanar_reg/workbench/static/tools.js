@@ -18,10 +18,13 @@ function round2(uv) {
   return uv.map((x) => Math.round(x * 100) / 100);
 }
 
+const DOUBLE_CLICK_MS = 600; // a double-click this soon after a placement undoes it
+
 export class LandmarkTool {
   constructor(wb) {
     this.wb = wb;
-    this.dragging = null; // {view, name}
+    this.dragging = null; // {view, name, start, moved}
+    this.lastClick = null; // {view, name, before, time}: the last placement by a click
   }
 
   /** The placed landmark of `viewer` nearest to image point uv within HIT_PX, or null. */
@@ -60,7 +63,7 @@ export class LandmarkTool {
     this.wb.redraw();
   }
 
-  drop(viewer, uv, ev) {
+  drop(viewer, uv, ev, count) {
     const d = this.dragging;
     this.dragging = null;
     if (!d) return;
@@ -71,20 +74,42 @@ export class LandmarkTool {
     // A click on a placed landmark: place the selected landmark there if it is not yet in
     // this view (landmarks can be a few pixels apart), else select the one clicked.
     const sel = this.wb.selectedLandmark;
-    if (sel && !this.wb.viewAnnotations(viewer.name).landmarks[sel]) this.click(viewer, uv, ev);
+    if (sel && !this.wb.viewAnnotations(viewer.name).landmarks[sel]) {
+      this.click(viewer, uv, ev, count);
+    }
     else this.wb.selectLandmark(d.name);
   }
 
-  click(viewer, uv, ev) {
+  click(viewer, uv, ev, count) {
     // The second click of a double-click (which fits the view) must not place anything.
-    if (ev.detail > 1) return;
+    if (count > 1) return;
     const name = this.wb.selectedLandmark;
     if (!name) {
       this.wb.status("Select a landmark in the list first, then click in a view.");
       return;
     }
+    const before = this.wb.viewAnnotations(viewer.name).landmarks[name];
+    this.lastClick = { view: viewer.name, name, before: before && { ...before }, time: ev.timeStamp };
     this.place(viewer.name, name, uv);
     this.wb.selectNextLandmark(viewer.name, name);
+  }
+
+  /** A double-click fits the view; its first click placed a landmark, which is undone here
+   * (restored where it was, or removed), so double-clicking never leaves a stray landmark. */
+  doubleClick(viewer, uv, ev) {
+    const last = this.lastClick;
+    this.lastClick = null;
+    if (last && last.view === viewer.name && ev.timeStamp - last.time < DOUBLE_CLICK_MS) {
+      const { view, name, before } = last;
+      this.wb.edit(async () => {
+        const va = before
+          ? await api.putLandmark(view, name, before.uv, before.sigma_px)
+          : await api.deleteLandmark(view, name);
+        this.wb.setViewAnnotations(view, va);
+      });
+      this.wb.selectLandmark(name);
+    }
+    return false; // the viewer fits
   }
 
   /** PUT the landmark (snapped first if the snap toggle is on); keeps a placed one's sigma. */
@@ -133,9 +158,9 @@ export class OutlineTool {
     return this.trace.anchors.length > 0;
   }
 
-  click(viewer, uv, ev) {
+  click(viewer, uv, ev, count) {
     // The second click of a double-click finishes (doubleClick), it adds no anchor.
-    if (ev.detail > 1 || this.busy) return;
+    if (count > 1 || this.busy) return;
     const t = this.trace;
     if (t.view && t.view !== viewer.name) {
       this.wb.status(`Finish (Enter) or cancel (Esc) the outline in ${t.view} first.`);

@@ -14,6 +14,7 @@ const MAX_ZOOM = 40; // screen pixels per image pixel
 const MIN_ZOOM_OF_FIT = 0.25; // how far out one may zoom, relative to "fit"
 const CLICK_SLOP_PX = 4; // a press that moves less than this is a click, not a drag
 const WHEEL_RATE = 0.0015; // zoom factor per wheel delta pixel: exp(-delta * rate)
+const MULTI_CLICK_MS = 500; // clicks this close in time (and CLICK_SLOP_PX in space) count up
 
 export class Viewer {
   /**
@@ -37,6 +38,7 @@ export class Viewer {
     this.previousWindow = null; // tiles of the last window stand in while new ones load
     this.tiles = new TileCache(() => this.redraw());
     this.press = null; // the pointer press in progress: {x, y, mode: "click"|"pan"|"tool"}
+    this.lastClick = null; // {time, x, y, count}: pointer events carry no click count
     this.frame = 0;
     this.listen();
     new ResizeObserver(() => this.resize()).observe(canvas);
@@ -292,12 +294,29 @@ export class Viewer {
     const p = this.press;
     this.press = null;
     if (!p) return;
-    const uv = this.toView(...this.local(ev));
-    if (p.mode === "click") this.hooks.handler().click?.(this, uv, ev);
-    if (p.mode === "tool") this.hooks.handler().drop?.(this, uv, ev);
+    const [x, y] = this.local(ev);
+    const uv = this.toView(x, y);
+    // Only a press that stayed put is a click (a pan or a drag resets the count).
+    const still = Math.hypot(x - p.x, y - p.y) <= CLICK_SLOP_PX;
+    const count = still ? this.clickCount(ev.timeStamp, x, y) : 0;
+    if (!still) this.lastClick = null;
+    if (p.mode === "click") this.hooks.handler().click?.(this, uv, ev, count);
+    if (p.mode === "tool") this.hooks.handler().drop?.(this, uv, ev, count);
+  }
+
+  /** 1 for a single click, 2 for the second click of a double-click, ... (the `detail` of
+   * pointer events is always 0, so the tools get the count from here). */
+  clickCount(time, x, y) {
+    const last = this.lastClick;
+    const again =
+      last && time - last.time < MULTI_CLICK_MS && Math.hypot(x - last.x, y - last.y) < CLICK_SLOP_PX;
+    const count = again ? last.count + 1 : 1;
+    this.lastClick = { time, x, y, count };
+    return count;
   }
 
   onDoubleClick(ev) {
+    this.lastClick = null; // the next click starts a new count
     const uv = this.toView(...this.local(ev));
     if (!this.hooks.handler().doubleClick?.(this, uv, ev)) this.fit();
   }
