@@ -130,7 +130,10 @@ def test_edits_land_in_the_documented_files_and_the_case_still_loads(synthetic_c
 
     raw = json.loads(ann_file.read_text())
     assert raw["format"] == "biplanar-reg/annotations@1"
-    assert raw["views"]["cam1"]["landmarks"]["distal_tip"] == {"uv": [101.0, 201.0], "sigma_px": 2.5}
+    assert raw["views"]["cam1"]["landmarks"]["distal_tip"] == {
+        "uv": [101.0, 201.0],
+        "sigma_px": 2.5,
+    }
     assert "proximal_x_min" not in raw["views"]["cam2"]["landmarks"]
     assert raw["views"]["cam2"]["contours"][-1] == {"uv": pts[:3], "closed": True}
     assert len(raw["views"]["cam1"]["contours"]) == len(before.views["cam1"].contours) - 1
