@@ -9,7 +9,7 @@ from scipy import ndimage
 
 from .._validate import check_positive
 
-__all__: list[str] = []
+__all__ = ["edge_cost"]
 
 # onset powers of the outline models, in this order: 0 = step (a face along the rays),
 # 0.5 = square-root onset (the occluding contour of a smooth surface)

@@ -90,7 +90,10 @@ def _cmd_workbench(args: argparse.Namespace) -> int:
         print(url, flush=True)
         if not args.no_browser:
             webbrowser.open(url)
-        config = uvicorn.Config(app, log_level="warning", lifespan="off")
+        # an open event stream would otherwise hold a graceful shutdown until it ends
+        config = uvicorn.Config(
+            app, log_level="warning", lifespan="off", timeout_graceful_shutdown=3
+        )
         with _sigterm_as_interrupt():
             uvicorn.Server(config).run(sockets=[sock])
         return 0

@@ -139,6 +139,8 @@ def check_positive(value: object, field: str, default: float | None) -> float | 
 
 
 def _pid_alive(pid: int) -> bool:
+    if os.name == "nt":  # os.kill(pid, 0) would terminate it there: assume it is alive
+        return True
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -393,6 +395,9 @@ class Workbench:
                 p = v.pyramid()
                 p.level(p.levels - 1)
                 v.cost()
+                # a tiny trace fills the sub-pixel fit's template cache, so that the first
+                # preview is as fast as the next ones
+                livewire(v.image, [[0, 0], [4, 4]], sigma_px=LIVEWIRE_SIGMA_PX, cost=v.cost())
 
     # -- reading --------------------------------------------------------------------------------
 
@@ -413,7 +418,7 @@ class Workbench:
 
     def _read_state(self) -> dict[str, list[Any]]:
         """The contour anchors of ``.workbench.json`` (a bad file is ignored: only anchors)."""
-        if not self._state_path.is_file():
+        if not self._state_path.is_file() or not self._inside(self._state_path):
             return {}
         try:
             doc = read_json(self._state_path)
@@ -437,6 +442,10 @@ class Workbench:
                     ) from None
                 log.info("%s: changed on disk, re-read", self._ann_path)
             return self._ann
+
+    def _inside(self, path: Path) -> bool:
+        """Whether ``path`` (symlinks resolved) stays inside the case folder."""
+        return path.resolve().is_relative_to(self.case_dir)
 
     def _view(self, name: str) -> _View:
         v = self.views.get(name)
@@ -693,10 +702,10 @@ class Workbench:
 
     # -- registration ---------------------------------------------------------------------------
 
-    def _out_inside(self) -> None:
-        out = self.out_dir
-        if out.exists() and not out.resolve().is_relative_to(self.case_dir):
-            raise Conflict(f"{out}: points outside the case folder; remove it or make it a folder")
+    def _out_inside(self, *files: Path) -> None:
+        for path in (self.out_dir, *files):
+            if path.exists() and not self._inside(path):
+                raise Conflict(f"{path}: points outside the case folder; remove the link")
 
     def start_registration(self) -> dict[str, Any]:
         """Start ``biplanar-reg register CASE_DIR`` in the background; returns the job status.
@@ -714,8 +723,8 @@ class Workbench:
         result. Raises :class:`NotFound` before any registration."""
         from .jobs import review
 
-        self._out_inside()
         files = [self.out_dir / "result.json", self.out_dir / "registered.ply"]
+        self._out_inside(*files)
         key = (tuple(_stamp(f) for f in files), tuple(self.landmarks.items()))
         if None in key[0]:
             raise NotFound("result: no registration result yet (POST /api/register)")

@@ -138,7 +138,9 @@ def test_tiles_sizes_levels_and_window(wrist, wrist_case):
     # the default window is the view's
     v = client.get("/api/case").json()["views"][0]
     default = _png(client.get("/api/views/cam01/tiles/0/3/5.png"))
-    explicit = client.get(f"/api/views/cam01/tiles/0/3/5.png?lo={v['window'][0]}&hi={v['window'][1]}")
+    explicit = client.get(
+        f"/api/views/cam01/tiles/0/3/5.png?lo={v['window'][0]}&hi={v['window'][1]}"
+    )
     np.testing.assert_array_equal(default, _png(explicit))
     # the coarsest level is the area mean of the image
     top = _png(client.get("/api/views/cam01/tiles/3/0/0.png?lo=0&hi=255")).astype(float)
@@ -220,7 +222,10 @@ def test_landmark_and_contour_edits(synthetic):
 
     saved = json.loads(ann_file.read_text())
     assert saved["format"] == "biplanar-reg/annotations@1"
-    assert saved["views"]["cam1"]["landmarks"]["distal_tip"] == {"uv": [101.0, 201.0], "sigma_px": 3.0}
+    assert saved["views"]["cam1"]["landmarks"]["distal_tip"] == {
+        "uv": [101.0, 201.0],
+        "sigma_px": 3.0,
+    }
     assert saved["views"]["cam2"]["contours"][i - 1] == {"uv": pts[::-1], "closed": True}
     assert "anchors" not in json.dumps(saved)  # the anchors live in .workbench.json
     doc = client.get("/api/annotations").json()
@@ -280,10 +285,14 @@ BAD_REQUESTS = [
 
 
 @pytest.mark.parametrize("method, path, body, status, message", BAD_REQUESTS)
-def test_bad_requests_name_the_field_and_write_nothing(synthetic, method, path, body, status, message):
+def test_bad_requests_name_the_field_and_write_nothing(
+    synthetic, method, path, body, status, message
+):
     client, case_dir = synthetic
     before = _snapshot(case_dir)
-    kwargs = {"content": body} if isinstance(body, bytes) else {} if body is None else {"json": body}
+    kwargs = (
+        {"content": body} if isinstance(body, bytes) else {} if body is None else {"json": body}
+    )
     r = client.request(method, path, **kwargs)
     assert r.status_code == status, r.text
     assert r.json()["error"].startswith(message) or message in r.json()["error"], r.json()

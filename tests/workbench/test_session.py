@@ -130,7 +130,10 @@ def test_edits_land_in_the_documented_files_and_the_case_still_loads(synthetic_c
 
     raw = json.loads(ann_file.read_text())
     assert raw["format"] == "biplanar-reg/annotations@1"
-    assert raw["views"]["cam1"]["landmarks"]["distal_tip"] == {"uv": [101.0, 201.0], "sigma_px": 2.5}
+    assert raw["views"]["cam1"]["landmarks"]["distal_tip"] == {
+        "uv": [101.0, 201.0],
+        "sigma_px": 2.5,
+    }
     assert "proximal_x_min" not in raw["views"]["cam2"]["landmarks"]
     assert raw["views"]["cam2"]["contours"][-1] == {"uv": pts[:3], "closed": True}
     assert len(raw["views"]["cam1"]["contours"]) == len(before.views["cam1"].contours) - 1
@@ -219,3 +222,38 @@ def test_bad_edits_raise_naming_the_field_and_write_nothing(synthetic_case):
             with pytest.raises(exc, match=pattern):
                 call()
         assert _snapshot(synthetic_case) == snap
+
+
+# -- tiles ---------------------------------------------------------------------------------------
+
+
+def test_pyramid_of_an_odd_sized_monochrome1_dicom_like_image():
+    import cv2
+
+    from biplanar_reg.annotation import XrayImage
+    from biplanar_reg.workbench.tiles import Pyramid
+
+    rng = np.random.default_rng(0)
+    pixels = rng.uniform(0, 4000, (517, 300))
+    image = XrayImage(
+        pixels=pixels,
+        display=np.zeros(pixels.shape, np.float32),
+        source="x.dcm",
+        file_format="dicom",
+        photometric="MONOCHROME1",
+        window=(1000.0, 500.0),
+    )
+    p = Pyramid(image)
+    assert (p.width, p.height, p.levels) == (300, 517, 3)  # 517 -> 259 -> 130 px
+    assert [p.level_size(k) for k in range(3)] == [(300, 517), (150, 259), (75, 130)]
+    assert p.tiles(0) == (2, 3) and p.tiles(2) == (1, 1)
+    assert p.window == (750.0, 1250.0) and p.inverted  # the DICOM window, MONOCHROME1
+    tile = cv2.imdecode(np.frombuffer(p.tile(0, 1, 2), np.uint8), cv2.IMREAD_UNCHANGED)
+    assert tile.shape == (5, 44)
+    raw = pixels[512:, 256:]
+    want = 255 - np.round(np.clip((raw - 750.0) * 255.0 / 500.0, 0, 255))
+    assert np.abs(tile.astype(float) - want).max() <= 1  # high values dark
+    with pytest.raises(LookupError, match="level: 3 is not in 0..2"):
+        p.tile(3, 0, 0)
+    with pytest.raises(ValueError, match="hi: must be greater than lo"):
+        p.tile(0, 0, 0, 10.0, 10.0)
