@@ -255,7 +255,9 @@ def test_annotate_register_review(page, server, case_dir, shipped, tmp_path, rec
     _redraw_outline(page, old, shots)
     livewire_s = page.evaluate("() => window.workbench.state.timing.livewireSeconds")
 
-    # Register: progress streamed, then the result overlay, metrics and flags.
+    # Register (back in landmark mode, key L): progress streamed, then the result overlay,
+    # metrics, flags and per-landmark residuals.
+    page.keyboard.press("l")
     annotate_s = time.perf_counter() - t_load - shots.seconds
     page.get_by_test_id("register").click()
     page.wait_for_selector(
@@ -268,6 +270,10 @@ def test_annotate_register_review(page, server, case_dir, shipped, tmp_path, rec
     for view in views:
         assert max(len(line) for line in result_views[view]["outline_px"]) > 10
         assert set(result_views[view]["landmarks_px"]) >= set(shipped["views"][view]["landmarks"])
+    residual = page.get_by_test_id("landmark-radial_styloid_tip").locator(".residual")
+    assert residual.count() == len(views)
+    for view in views:  # "Bone": each view framed on the annotations and the result
+        page.get_by_test_id(f"view-{view}").locator("xpath=../..").locator(".fit-bone").click()
     shots.take("result")
     assert page.errors == []
 

@@ -3,8 +3,8 @@
 // The per-launch token comes from the page's URL (?token=...), else from the
 // <meta name="workbench-token"> the server writes into the page. The server also sets an
 // HttpOnly cookie when it serves the page, but we send the token explicitly as a header too, so
-// a blocked or stale cookie does not break the page. URLs loaded by the browser itself (tiles as <img>,
-// the EventSource) cannot carry headers, so they get the token as a query parameter.
+// a blocked or stale cookie does not break the page. URLs loaded by the browser itself (tiles
+// as <img>, the EventSource) cannot carry headers, so they get the token as a query parameter.
 
 const TOKEN =
   new URLSearchParams(window.location.search).get("token") ||

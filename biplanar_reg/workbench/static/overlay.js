@@ -108,9 +108,10 @@ export function labelPlace(ctx, text, x, y, boxes) {
  * each joined to the clicked landmark of the same name by its residual (a thin line). */
 export function drawResult(ctx, viewer, result, landmarks) {
   if (!result) return;
-  for (const line of result.outline_px || []) {
-    polyline(ctx, viewer, line, { color: COLORS.result, width: 1.5 });
-  }
+  (result.outline_px || []).forEach((line, i) => {
+    const closed = Boolean(result.outline_closed?.[i]);
+    polyline(ctx, viewer, line, { color: COLORS.result, width: 1.5, closed });
+  });
   for (const [name, uv] of Object.entries(result.landmarks_px || {})) {
     const [x, y] = viewer.toCanvas(...uv);
     const clicked = landmarks[name];
@@ -148,7 +149,8 @@ export function drawTrace(ctx, viewer, trace) {
       polyline(ctx, viewer, trace.preview, { color: COLORS.preview, width: 2, dash: [6, 3] });
     } else {
       // straight dashed line until the livewire preview arrives
-      polyline(ctx, viewer, [last, trace.cursor], { color: COLORS.preview, width: 1, dash: [2, 4] });
+      const straight = { color: COLORS.preview, width: 1, dash: [2, 4] };
+      polyline(ctx, viewer, [last, trace.cursor], straight);
     }
   }
   ctx.fillStyle = COLORS.anchor;

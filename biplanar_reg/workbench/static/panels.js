@@ -12,15 +12,38 @@ function el(tag, attrs = {}, ...children) {
   return node;
 }
 
+/** Residual classes: within the landmarks' typical sigma, near the 5 px flag, beyond. */
+function residualClass(px) {
+  if (px < 3) return "good";
+  if (px < 8) return "fair";
+  return "bad";
+}
+
 /** Landmark list: one item per name of the case's landmark_names; a chip per view shows where
- * it is placed (click the x to remove it there). */
+ * it is placed (click it to centre that view on it, the x to remove it there) and, after a
+ * registration, the residual in px. */
 export function renderLandmarkList(wb, list) {
   const views = wb.caseInfo.views.map((v) => v.name);
   const items = wb.caseInfo.landmark_names.map((name) => {
+    const placedIn = (view) => Boolean(wb.viewAnnotations(view).landmarks[name]);
     const chips = views.map((view) => {
-      const placed = Boolean(wb.viewAnnotations(view).landmarks[name]);
+      const lm = wb.viewAnnotations(view).landmarks[name];
+      const placed = Boolean(lm);
       const chip = el("span", { class: placed ? "chip placed" : "chip" }, view);
+      const residual = wb.result?.views?.[view]?.landmark_errors_px?.[name];
+      if (placed && typeof residual === "number") {
+        // The registration's residual here, colour-coded like its flag (5 px RMS).
+        const cls = `residual ${residualClass(residual)}`;
+        chip.append(el("span", { class: cls }, residual.toFixed(1)));
+        chip.title = `${name} in ${view}: ${residual.toFixed(2)} px from the registered landmark`;
+      }
       if (placed) {
+        chip.classList.add("jump");
+        chip.addEventListener("click", (ev) => {
+          ev.stopPropagation(); // jumping is not selecting
+          wb.selectLandmark(name);
+          wb.viewers.get(view)?.centreOn(...lm.uv);
+        });
         chip.append(
           el("button", {
             class: "remove",
@@ -43,7 +66,7 @@ export function renderLandmarkList(wb, list) {
         class: selected ? "landmark selected" : "landmark",
         "data-testid": `landmark-${name}`,
         "aria-selected": String(selected),
-        dataset: { name, placed: views.filter((v) => wb.viewAnnotations(v).landmarks[name]).join(" ") },
+        dataset: { name, placed: views.filter((v) => placedIn(v)).join(" ") },
         onclick: () => wb.selectLandmark(name),
       },
       el("span", { class: "name" }, name),

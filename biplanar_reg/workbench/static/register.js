@@ -6,10 +6,25 @@ import { api, ApiError } from "./api.js";
 
 /** What to do about each quality flag (the flags of registration/register.py), by prefix. */
 const ADVICE = [
-  ["relaxation not tight", "The convex relaxation's certificate is above 0.01: the pose may be a local optimum. Check the landmarks for a blunder, or add one (3 per view fix the pose)."],
-  ["local refinement did not converge", "The final refinement stopped at its iteration limit: check the outlines for stretches on the wrong edge."],
-  ["large landmark reprojection error", "Landmark reprojection RMS above 5 px: compare the magenta X (registered) with the green + (clicked) in each view and move the landmark that is off."],
-  ["rejected observations", "The solver ignored these landmarks as blunders: check or delete them."],
+  [
+    "relaxation not tight",
+    "The convex relaxation's certificate is above 0.01: the pose may be a local optimum. " +
+      "Check the landmarks for a blunder, or add one (3 per view fix the pose).",
+  ],
+  [
+    "local refinement did not converge",
+    "The final refinement stopped at its iteration limit: check the outlines for stretches " +
+      "on the wrong edge.",
+  ],
+  [
+    "large landmark reprojection error",
+    "Landmark reprojection RMS above 5 px: compare the magenta X (registered) with the " +
+      "green + (clicked) in each view and move the landmark that is off.",
+  ],
+  [
+    "rejected observations",
+    "The solver ignored these landmarks as blunders: check or delete them.",
+  ],
 ];
 
 function adviceFor(flag) {
@@ -122,7 +137,7 @@ export class RegisterPanel {
         await this.loadResult();
       }
       this.setState(status.state);
-      this.el.panel.scrollIntoView({ block: "start", behavior: "instant" }); // show the outcome
+      this.el.panel.scrollIntoView({ block: "nearest", behavior: "instant" }); // the outcome
     } catch (err) {
       this.wb.error(err);
       this.setState("failed");
@@ -137,25 +152,29 @@ export class RegisterPanel {
     } catch (err) {
       if (!(err instanceof ApiError && err.status === 404)) throw err;
     }
-    this.wb.setResult(result);
+    this.wb.setResult(result); // also re-renders the lists: the residuals appear in them
     this.showMetrics(result ? result.metrics : null);
     this.showFlags(result);
   }
 
   showMetrics(metrics) {
-    const rows = [];
+    const cells = [];
     for (const [key, value] of Object.entries(metrics || {})) {
       if (typeof value !== "number") continue; // method descriptions are in result.json
-      const tr = document.createElement("tr");
-      const th = document.createElement("th");
-      const td = document.createElement("td");
-      th.textContent = key;
-      td.textContent = formatNumber(value);
-      td.dataset.metric = key;
-      tr.append(th, td);
-      rows.push(tr);
+      const cell = document.createElement("div");
+      cell.className = "metric";
+      const k = document.createElement("span");
+      const v = document.createElement("span");
+      k.className = "key";
+      k.textContent = key;
+      v.className = "value";
+      v.textContent = formatNumber(value);
+      v.dataset.metric = key;
+      cell.append(k, v);
+      cell.title = `${key} = ${value}`;
+      cells.push(cell);
     }
-    this.el.metrics.replaceChildren(...rows);
+    this.el.metrics.replaceChildren(...cells);
   }
 
   showFlags(result) {

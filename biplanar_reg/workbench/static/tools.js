@@ -89,7 +89,8 @@ export class LandmarkTool {
       return;
     }
     const before = this.wb.viewAnnotations(viewer.name).landmarks[name];
-    this.lastClick = { view: viewer.name, name, before: before && { ...before }, time: ev.timeStamp };
+    const time = ev.timeStamp;
+    this.lastClick = { view: viewer.name, name, before: before && { ...before }, time };
     this.place(viewer.name, name, uv);
     this.wb.selectNextLandmark(viewer.name, name);
   }

@@ -83,6 +83,14 @@ export class Viewer {
     this.userMoved = false;
   }
 
+  /** Pan so that image point (u, v) is in the middle (the zoom stays). */
+  centreOn(u, v) {
+    this.offX = this.canvas.clientWidth / 2 - u * this.zoom;
+    this.offY = this.canvas.clientHeight / 2 - v * this.zoom;
+    this.userMoved = true;
+    this.changed();
+  }
+
   fitZoom() {
     const w = this.canvas.clientWidth || 1;
     const h = this.canvas.clientHeight || 1;
@@ -308,8 +316,8 @@ export class Viewer {
    * pointer events is always 0, so the tools get the count from here). */
   clickCount(time, x, y) {
     const last = this.lastClick;
-    const again =
-      last && time - last.time < MULTI_CLICK_MS && Math.hypot(x - last.x, y - last.y) < CLICK_SLOP_PX;
+    const near = last && Math.hypot(x - last.x, y - last.y) < CLICK_SLOP_PX;
+    const again = near && time - last.time < MULTI_CLICK_MS;
     const count = again ? last.count + 1 : 1;
     this.lastClick = { time, x, y, count };
     return count;
