@@ -401,6 +401,11 @@ def test_view_and_edit_interactions(page, server, case_dir):
     view = "cam02"
     canvas = page.get_by_test_id(f"view-{view}")
 
+    # A registration that fails (no landmarks yet) says why.
+    page.get_by_test_id("register").click()
+    page.wait_for_selector("[data-testid=register-panel][data-state='failed']", timeout=30_000)
+    assert "landmark" in page.get_by_test_id("register-error").inner_text()
+
     # Window/level: new tiles are fetched with the slider's window.
     page.get_by_test_id(f"window-lo-{view}").fill("100")
     page.wait_for_function("(view) => window.workbench.viewState(view).window[0] === 100", arg=view)

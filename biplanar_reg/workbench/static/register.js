@@ -62,8 +62,17 @@ export class RegisterPanel {
   async init() {
     await this.loadResult();
     const status = await api.getRegister();
-    if (status.state === "running") this.follow();
-    else this.setState(status.state);
+    if (status.state === "running") {
+      this.follow();
+      return;
+    }
+    for (const m of status.messages || []) this.addMessage(messageText(m));
+    if (status.state === "failed") this.showError(status.error);
+    this.setState(status.state);
+  }
+
+  showError(error) {
+    this.el.error.textContent = `Registration failed: ${error || "unknown error"}`;
   }
 
   setState(state) {
@@ -132,7 +141,7 @@ export class RegisterPanel {
       this.el.progress.replaceChildren();
       for (const m of status.messages || []) this.addMessage(messageText(m));
       if (status.state === "failed") {
-        this.el.error.textContent = `Registration failed: ${status.error || "unknown error"}`;
+        this.showError(status.error);
       } else {
         await this.loadResult();
       }
