@@ -41,6 +41,10 @@ function buildView(wb, info) {
 /** Window/level: two sliders over the raw range; tiles are re-requested after a short pause
  * so that dragging a slider does not fetch every intermediate window. */
 function wireWindowSliders(root, info, viewer) {
+  if (!info.has_image || !info.range || !info.window) {
+    root.querySelector(".window").hidden = true; // a view without an image: nothing to window
+    return;
+  }
   const [min, max] = info.range;
   const lo = root.querySelector(".window-lo");
   const hi = root.querySelector(".window-hi");
@@ -149,7 +153,7 @@ function exposeForTests(wb) {
       return { zoom: v.zoom, offX: v.offX, offY: v.offY, level: v.level(), window: v.window };
     },
     fitRect: (name, u0, v0, u1, v1) => viewer(name).fitRect(u0, v0, u1, v1),
-    /** Resolves when the edits sent so far are answered and no livewire call is pending. */
+    /** Resolves when the edits sent so far are answered (saved by the server). */
     idle: () => wb.queue.then(() => undefined),
     tilesPending: () => [...wb.viewers.values()].reduce((n, v) => n + v.tiles.pending(), 0),
   };

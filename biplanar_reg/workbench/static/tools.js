@@ -192,6 +192,7 @@ export class OutlineTool {
   }
 
   addAnchor(view, uv) {
+    this.dropPreview(); // a preview from the previous anchor must not arrive after this one
     const t = this.trace;
     t.view = view;
     t.anchors.push(round2(uv));
@@ -204,9 +205,11 @@ export class OutlineTool {
 
   /** The livewire path from anchor i to anchor i + 1, drawn until the outline is finished. */
   async traceSegment(t, i) {
+    const [a, b] = [t.anchors[i], t.anchors[i + 1]];
     try {
-      const res = await api.livewire(t.view, [t.anchors[i], t.anchors[i + 1]], false);
-      if (t === this.trace && t.anchors.length > i + 1) {
+      const res = await api.livewire(t.view, [a, b], false);
+      // still the same two anchors (not undone and placed again meanwhile)?
+      if (t === this.trace && t.anchors[i] === a && t.anchors[i + 1] === b) {
         t.segments[i] = res.uv;
         this.wb.redraw();
       }
@@ -222,6 +225,13 @@ export class OutlineTool {
     this.wb.redraw();
     clearTimeout(this.timer);
     this.timer = setTimeout(() => this.requestPreview(), PREVIEW_DELAY_MS);
+  }
+
+  /** Forget the pending / in-flight preview (its answer, if any, is ignored). */
+  dropPreview() {
+    clearTimeout(this.timer);
+    this.inflight?.abort();
+    this.seq += 1;
   }
 
   /** Livewire from the last anchor to the cursor; a newer request aborts an older one. */
@@ -259,8 +269,7 @@ export class OutlineTool {
       return;
     }
     this.busy = true;
-    this.inflight?.abort();
-    clearTimeout(this.timer);
+    this.dropPreview();
     const closed = this.wb.closedOutline;
     this.wb.edit(async () => {
       try {
@@ -280,6 +289,7 @@ export class OutlineTool {
   undo() {
     const t = this.trace;
     if (this.busy || !this.tracing()) return;
+    this.dropPreview();
     t.anchors.pop();
     t.segments.pop();
     // segments[i] runs from anchor i to i + 1: the new last anchor has none.
@@ -291,8 +301,7 @@ export class OutlineTool {
 
   /** Esc: forget the outline being traced. */
   cancel() {
-    this.inflight?.abort();
-    clearTimeout(this.timer);
+    this.dropPreview();
     this.reset();
     this.wb.redraw();
   }

@@ -26,7 +26,8 @@ export class Viewer {
   constructor(canvas, info, hooks) {
     this.canvas = canvas;
     this.ctx = canvas.getContext("2d");
-    this.info = info;
+    // A view without an image may not even know its size: a placeholder frame then.
+    this.info = { ...info, width: info.width || 1000, height: info.height || 1000 };
     this.name = info.name;
     this.hooks = hooks;
     this.zoom = 1;
@@ -34,7 +35,7 @@ export class Viewer {
     this.offY = 0;
     this.fitted = false;
     this.userMoved = false; // until the user zooms or pans, a resize re-fits the image
-    this.window = [...info.window];
+    this.window = info.window ? [...info.window] : [0, 1];
     this.previousWindow = null; // tiles of the last window stand in while new ones load
     this.tiles = new TileCache(() => this.redraw());
     this.press = null; // the pointer press in progress: {x, y, mode: "click"|"pan"|"tool"}
