@@ -38,6 +38,7 @@ LAYERS: dict[str, int] = {
     "report": 7,
     "cases": 8,
     "cli": 9,
+    "workbench": 9,  # the browser workbench: on top like the CLI (only the CLI imports it)
     "demo": 9,
 }
 

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from scipy import ndimage
 
 from .._validate import check_positive
 
-__all__: list[str] = []
+__all__ = ["edge_cost"]
 
 # onset powers of the outline models, in this order: 0 = step (a face along the rays),
 # 0.5 = square-root onset (the occluding contour of a smooth surface)
@@ -61,6 +63,26 @@ def _onset_templates(
     return np.concatenate(out, axis=0)
 
 
+@functools.lru_cache(maxsize=8)
+def _unit_templates(
+    half_width_px: float,
+    max_shift_px: float,
+    widths_px: tuple[float, ...],
+    powers: tuple[float, ...],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sample positions ``s``, offsets ``s0`` and the centred unit-norm onset templates of
+    :func:`edge_onset_offsets` (read-only; cached: they depend on the parameters only and
+    cost ~40 ms, most of a livewire call on a short stretch)."""
+    s = np.arange(-half_width_px, half_width_px + 1e-9, 0.5)
+    s0 = np.arange(-max_shift_px, max_shift_px + 1e-9, 0.05)
+    tmpl = _onset_templates(s, s0, np.asarray(widths_px, float), np.asarray(powers, float))
+    tmpl -= tmpl.mean(axis=1, keepdims=True)
+    tmpl /= np.sqrt(np.sum(tmpl**2, axis=1, keepdims=True))
+    for a in (s, s0, tmpl):
+        a.flags.writeable = False
+    return s, s0, tmpl
+
+
 def edge_onset_offsets(
     display: np.ndarray,
     uv: np.ndarray,
@@ -110,11 +132,12 @@ def edge_onset_offsets(
         Fraction of the profile's variance explained by that fit (0 when no onset with the
         bone attenuating fits).
     """
-    s = np.arange(-half_width_px, half_width_px + 1e-9, 0.5)
-    s0 = np.arange(-max_shift_px, max_shift_px + 1e-9, 0.05)
-    tmpl = _onset_templates(s, s0, np.asarray(widths_px, float), np.asarray(powers, float))
-    tmpl -= tmpl.mean(axis=1, keepdims=True)
-    tmpl /= np.sqrt(np.sum(tmpl**2, axis=1, keepdims=True))
+    s, s0, tmpl = _unit_templates(
+        float(half_width_px),
+        float(max_shift_px),
+        tuple(float(w) for w in widths_px),
+        tuple(float(p) for p in powers),
+    )
     tang = np.column_stack([-directions[:, 1], directions[:, 0]])
     prof = np.zeros((len(uv), len(s)))
     for t in (-1.0, 0.0, 1.0):

@@ -10,7 +10,15 @@ imported only when a case is written or a cluster is used.
 
 from ..errors import CaseError, CaseFailure
 from .batch import BatchSummary, run_batch
-from .case import Case, load_case, read_case_views, registration_options, to_view_observations
+from .case import (
+    Case,
+    CaseSetup,
+    load_case,
+    read_case_setup,
+    read_case_views,
+    registration_options,
+    to_view_observations,
+)
 from .run import RunOutcome, register_case, run_case_dir
 
 __all__ = [
@@ -18,6 +26,8 @@ __all__ = [
     "CaseError",
     "CaseFailure",
     "load_case",
+    "read_case_setup",
+    "CaseSetup",
     "read_case_views",
     "registration_options",
     "to_view_observations",

@@ -34,7 +34,15 @@ from ..registration import RegistrationOptions, ViewObservations
 from ..ssm import ShapeModel, build_ssm, synthesise_population
 from ..ssm.population import FAMILIES
 
-__all__ = ["Case", "load_case", "read_case_views", "registration_options", "to_view_observations"]
+__all__ = [
+    "Case",
+    "CaseSetup",
+    "load_case",
+    "read_case_setup",
+    "read_case_views",
+    "registration_options",
+    "to_view_observations",
+]
 
 log = logging.getLogger(__name__)
 
@@ -212,8 +220,11 @@ class _Ctx:
             raise self.error(f"{where} {key}", f"expected a non-empty string, got {value!r}")
         return value
 
-    def path(self, table: dict, key: str, where: str, required: bool = True) -> Path | None:
-        """A file path of the case: relative to the case folder, inside it, existing."""
+    def path(
+        self, table: dict, key: str, where: str, required: bool = True, exists: bool = True
+    ) -> Path | None:
+        """A file path of the case: relative to the case folder, inside it, existing (unless
+        ``exists`` is false: a file a case editor is about to create)."""
         value = self.string(table, key, where, required)
         if value is None:
             return None
@@ -223,8 +234,10 @@ class _Ctx:
                 f"{where} {key}",
                 f"{value!r} points outside the case folder (pass --allow-outside to permit it)",
             )
-        if not path.is_file():
+        if exists and not path.is_file():
             raise self.error(f"{where} {key}", f"{value}: file not found")
+        if not exists and path.exists() and not path.is_file():
+            raise self.error(f"{where} {key}", f"{value}: not a file")
         return path
 
     def number(self, table: dict, key: str, where: str, kind: type, default: Any) -> Any:
@@ -529,6 +542,31 @@ def _load_ground_truth(ctx: _Ctx, doc: dict, scale: float, model: ShapeModel) ->
     return GroundTruth(path, verts, faces, up_to_pose)
 
 
+def _header(ctx: _Ctx, doc: dict) -> tuple[str, str]:
+    """``(id, units)`` of a case file, its ``format`` checked."""
+    fmt = doc.get("format")
+    if fmt != CASE_FORMAT:
+        raise ctx.error("format", f"expected {CASE_FORMAT!r}, got {fmt!r}")
+    case_id = doc.get("id", ctx.dir.name)
+    if not isinstance(case_id, str) or not case_id.strip():
+        raise ctx.error("id", f"expected a non-empty string, got {case_id!r}")
+    units = doc.get("units", "mm")
+    if units not in UNIT_SCALE:
+        raise ctx.error("units", f"expected one of {list(UNIT_SCALE)}, got {units!r}")
+    return case_id, units
+
+
+def _registration_mode(ctx: _Ctx, reg: dict) -> tuple[str, bool]:
+    """``(poses, silhouettes)`` of the ``[registration]`` table."""
+    poses = reg.get("poses", "known")
+    if poses not in POSES:
+        raise ctx.error("[registration] poses", f"expected one of {list(POSES)}, got {poses!r}")
+    silhouettes = reg.get("silhouettes", True)
+    if not isinstance(silhouettes, bool):
+        raise ctx.error("[registration] silhouettes", f"expected true or false: {silhouettes!r}")
+    return poses, silhouettes
+
+
 def load_case(case_dir: str | os.PathLike, *, allow_outside: bool = False) -> Case:
     """Read and validate a case folder.
 
@@ -552,26 +590,13 @@ def load_case(case_dir: str | os.PathLike, *, allow_outside: bool = False) -> Ca
     ctx = _Ctx(Path(case_dir).resolve(), allow_outside)
     doc = _read_toml(ctx)
     ctx.unknown_keys(doc, "", "top level")
-    fmt = doc.get("format")
-    if fmt != CASE_FORMAT:
-        raise ctx.error("format", f"expected {CASE_FORMAT!r}, got {fmt!r}")
-    case_id = doc.get("id", ctx.dir.name)
-    if not isinstance(case_id, str) or not case_id.strip():
-        raise ctx.error("id", f"expected a non-empty string, got {case_id!r}")
-    units = doc.get("units", "mm")
-    if units not in UNIT_SCALE:
-        raise ctx.error("units", f"expected one of {list(UNIT_SCALE)}, got {units!r}")
+    case_id, units = _header(ctx, doc)
     scale = UNIT_SCALE[units]
     model, source, landmarks = _load_model(ctx, doc, scale)
     views = _load_views(ctx, doc, scale)
     ann, ann_path = _load_annotations(ctx, doc, views, landmarks)
     reg = ctx.table(doc, "registration", required=False)
-    poses = reg.get("poses", "known")
-    if poses not in POSES:
-        raise ctx.error("[registration] poses", f"expected one of {list(POSES)}, got {poses!r}")
-    silhouettes = reg.get("silhouettes", True)
-    if not isinstance(silhouettes, bool):
-        raise ctx.error("[registration] silhouettes", f"expected true or false: {silhouettes!r}")
+    poses, silhouettes = _registration_mode(ctx, reg)
     options = registration_options(reg, ctx)
     gt = _load_ground_truth(ctx, doc, scale, model)
     return Case(
@@ -630,6 +655,116 @@ def read_case_views(
         for where, name, table in _view_tables(ctx, doc)
     ]
     return views, _annotations_path(ctx, doc)
+
+
+@dataclass(frozen=True, eq=False)
+class CaseSetup:
+    """What a case editor needs from a case folder (:func:`read_case_setup`); lengths in mm.
+
+    Attributes
+    ----------
+    case_dir : Path
+        The case folder (resolved).
+    id, units : str
+        As in :class:`Case`.
+    views : list of CaseView
+        Every view with its calibration and, when given, its image.
+    annotations_path : Path
+        The ``[annotations] file`` (inside the case folder; it may not exist yet).
+    landmarks_path : Path or None
+        The ``[model] landmarks`` file (may not exist yet); None when the model file holds
+        the landmarks.
+    landmarks : dict
+        Landmark name -> model vertex index (empty while the landmark file does not exist).
+    model_path : Path
+        The ``[model] ssm`` or ``template`` file.
+    n_vertices : int
+        The model's vertex count.
+    poses : str
+    silhouettes : bool
+    warnings : list of str
+    """
+
+    case_dir: Path
+    id: str
+    units: str
+    views: list[CaseView]
+    annotations_path: Path
+    landmarks_path: Path | None
+    landmarks: dict[str, int]
+    model_path: Path
+    n_vertices: int
+    poses: str
+    silhouettes: bool
+    warnings: list[str] = field(default_factory=list)
+
+
+def _model_landmarks(ctx: _Ctx, doc: dict) -> tuple[Path, int, Path | None, dict[str, int]]:
+    """``(model file, vertex count, landmark file, landmarks)`` without building the model.
+
+    The template route reads only the mesh (no population is synthesised); a landmark file
+    that does not exist yet gives no landmarks.
+    """
+    table = ctx.table(doc, "model", required=True)
+    if ("ssm" in table) == ("template" in table):
+        raise ctx.error("[model]", "give exactly one of 'ssm' and 'template'")
+    key = "ssm" if "ssm" in table else "template"
+    path = ctx.path(table, key, "[model]")
+    stored: dict[str, int] = {}
+    try:
+        if key == "ssm":
+            model = ShapeModel.load(path)
+            n_vertices, stored = model.n_vertices, dict(model.landmarks)
+        else:
+            n_vertices = len(read_mesh(path)[0])
+    except (ValueError, OSError) as exc:
+        raise ctx.error(f"[model] {key}", _one_line(exc)) from None
+    lm_path = ctx.path(table, "landmarks", "[model]", required=False, exists=False)
+    if lm_path is None:
+        return path, n_vertices, None, stored
+    if not lm_path.is_file():
+        return path, n_vertices, lm_path, {}
+    return path, n_vertices, lm_path, _read_landmarks(ctx, lm_path, n_vertices)
+
+
+def read_case_setup(case_dir: str | os.PathLike, *, allow_outside: bool = False) -> CaseSetup:
+    """Read a case folder for editing it: the views, the annotation and landmark files.
+
+    The reading of a case being annotated (``biplanar-reg workbench``), with the rules and
+    messages of :func:`load_case`: ``format``, ``id``, ``units``, ``[[views]]`` (calibrations
+    and images, loaded), ``[model]`` (only its vertex count and landmarks: no population is
+    synthesised), ``[registration] poses``/``silhouettes``. Unlike :func:`load_case` the
+    annotation file and the ``[model] landmarks`` file may be missing (an editor creates them)
+    and the annotations are neither read nor counted; the paths must still be inside the case
+    folder unless ``allow_outside``.
+
+    Raises
+    ------
+    CaseError
+        (a ``ValueError``) naming the file and the key.
+    """
+    ctx = _Ctx(Path(case_dir).resolve(), allow_outside)
+    doc = _read_toml(ctx)
+    case_id, units = _header(ctx, doc)
+    model_path, n_vertices, lm_path, landmarks = _model_landmarks(ctx, doc)
+    views = _load_views(ctx, doc, UNIT_SCALE[units])
+    ann_table = ctx.table(doc, "annotations", required=True)
+    ann_path = ctx.path(ann_table, "file", "[annotations]", exists=False)
+    poses, silhouettes = _registration_mode(ctx, ctx.table(doc, "registration", required=False))
+    return CaseSetup(
+        case_dir=ctx.dir,
+        id=case_id,
+        units=units,
+        views=views,
+        annotations_path=ann_path,
+        landmarks_path=lm_path,
+        landmarks=landmarks,
+        model_path=model_path,
+        n_vertices=n_vertices,
+        poses=poses,
+        silhouettes=silhouettes,
+        warnings=ctx.warnings,
+    )
 
 
 def to_view_observations(case: Case) -> list[ViewObservations]:

@@ -15,6 +15,7 @@ import dataclasses
 import logging
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -245,8 +246,19 @@ def result_document(
     )
 
 
-def _register(case: Case, obs: list[ViewObservations]) -> RegistrationResult:
-    """Run the registration; its failures become :class:`CaseFailure`/:class:`CaseError`."""
+def _register(
+    case: Case, obs: list[ViewObservations], progress: Callable[[str], None] | None = None
+) -> RegistrationResult:
+    """Run the registration; its failures become :class:`CaseFailure`/:class:`CaseError`.
+
+    ``progress`` receives the registration's stage messages (they are logged as well).
+    """
+
+    def say(msg: str) -> None:
+        log.info("%s: %s", case.id, msg)
+        if progress is not None:
+            progress(msg)
+
     try:
         res = register_views(
             case.model,
@@ -254,7 +266,7 @@ def _register(case: Case, obs: list[ViewObservations]) -> RegistrationResult:
             silhouettes=case.silhouettes,
             poses=case.poses,
             options=case.options,
-            progress=lambda msg: log.info("%s: %s", case.id, msg),
+            progress=say,
         )
     except SolverFailure as exc:
         raise CaseFailure(f"{case.case_file}: registration failed: {exc}") from None
@@ -332,6 +344,7 @@ def register_case(
     *,
     include_phi: bool = False,
     load_seconds: float = 0.0,
+    progress: Callable[[str], None] | None = None,
 ) -> RunOutcome:
     """Register a loaded case and write all its outputs atomically into ``out``.
 
@@ -344,6 +357,9 @@ def register_case(
         Put DICOM patient identifiers into result.json and the report (default: never read).
     load_seconds : float
         Time spent loading the case (recorded in the timings).
+    progress : callable, optional
+        Called with a one-line message at each stage of the registration (the messages of
+        :func:`biplanar_reg.registration.register_views`) and before the outputs are written.
 
     Raises
     ------
@@ -361,7 +377,7 @@ def register_case(
     clean_stale(out_dir)
     obs = to_view_observations(case)
     t0 = time.perf_counter()
-    res = _register(case, obs)
+    res = _register(case, obs, progress)
     t_reg = time.perf_counter() - t0
 
     t1 = time.perf_counter()
@@ -380,6 +396,8 @@ def register_case(
     if include_phi:
         doc["phi"] = dicom_identifiers(case)
     views = _report_views(case, obs, res, outlines)
+    if progress is not None:
+        progress("writing registered.ply, result.json and the report")
     with atomic_output_dir(out_dir) as tmp:
         t2 = time.perf_counter()
         write_mesh(tmp / "registered.ply", res.vertices, case.model.faces)
@@ -404,8 +422,18 @@ def run_case_dir(
     *,
     allow_outside: bool = False,
     include_phi: bool = False,
+    progress: Callable[[str], None] | None = None,
 ) -> RunOutcome:
-    """Load, register and write one case folder (the ``register`` command)."""
+    """Load, register and write one case folder (the ``register`` command).
+
+    ``progress`` is passed to :func:`register_case` (stage messages, for a progress display).
+    """
     t0 = time.perf_counter()
     case = load_case(case_dir, allow_outside=allow_outside)
-    return register_case(case, out, include_phi=include_phi, load_seconds=time.perf_counter() - t0)
+    return register_case(
+        case,
+        out,
+        include_phi=include_phi,
+        load_seconds=time.perf_counter() - t0,
+        progress=progress,
+    )

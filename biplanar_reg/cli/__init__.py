@@ -1,9 +1,10 @@
 """The ``biplanar-reg`` command line, on top of the library.
 
 One module per command group (:mod:`.demo`, :mod:`.cases`, :mod:`.calibration`,
-:mod:`.annotation`, :mod:`.ssm`), each with ``register(subparsers, wanted)``. This module only
-assembles them, sets up logging and maps the exceptions of :mod:`biplanar_reg.errors` (and the
-standard input errors) to exit codes and a one-line ``error: ...`` message:
+:mod:`.annotation`, :mod:`.ssm`, :mod:`.workbench`), each with ``register(subparsers,
+wanted)``. This module only assembles them, sets up logging and maps the exceptions of
+:mod:`biplanar_reg.errors` (and the standard input errors) to exit codes and a one-line
+``error: ...`` message:
 
 * 0: success (quality flags in a result are not failures);
 * 1: the work failed (:class:`~biplanar_reg.errors.CommandError`, e.g. a failed case, or a
@@ -37,6 +38,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "biplanar_reg.cli.calibration",
     "biplanar_reg.cli.annotation",
     "biplanar_reg.cli.ssm",
+    "biplanar_reg.cli.workbench",
 )
 
 log = logging.getLogger("biplanar_reg")

@@ -1,0 +1,211 @@
+"""The registration of the open case in a background thread, and the review of its result.
+
+:class:`RegistrationJob` runs :func:`biplanar_reg.cases.run_case_dir` (what ``biplanar-reg
+register CASE_DIR`` does, the same outputs in ``CASE_DIR/out``) with a progress callback that
+records each stage message; :func:`review` turns ``out/result.json`` and
+``out/registered.ply`` into what the page draws: the registered model's outline and landmarks
+in each view, in pixels.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import threading
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..cases import run_case_dir
+from ..cases.case import CaseView
+from ..errors import CommandError
+from ..io import read_json, read_mesh
+from ..outline import outline_polylines
+
+__all__ = ["RegistrationJob", "review"]
+
+log = logging.getLogger(__name__)
+
+STATES = ("idle", "running", "done", "failed")
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+class RegistrationJob:
+    """One registration at a time of a case folder, in a daemon thread.
+
+    Parameters
+    ----------
+    case_dir, out_dir : Path
+        The case folder and the output folder (``run_case_dir(case_dir, out_dir)``).
+
+    Attributes
+    ----------
+    run : int
+        Number of registrations started (tells one run's messages from the next one's).
+    """
+
+    def __init__(self, case_dir: Path, out_dir: Path):
+        self.case_dir = Path(case_dir)
+        self.out_dir = Path(out_dir)
+        self.run = 0
+        self._state = "idle"
+        self._messages: list[str] = []
+        self._error: str | None = None
+        self._result: dict[str, Any] | None = None
+        self._t0 = 0.0
+        self._cond = threading.Condition()
+
+    def start(self) -> bool:
+        """Start a registration; False (nothing started) when one is running."""
+        with self._cond:
+            if self._state == "running":
+                return False
+            self.run += 1
+            self._state, self._messages, self._error, self._result = "running", [], None, None
+            self._t0 = time.perf_counter()
+        threading.Thread(target=self._work, name="biplanar-reg-register", daemon=True).start()
+        return True
+
+    def _say(self, message: str) -> None:
+        """The progress callback: one line per message."""
+        with self._cond:
+            self._messages.append(_one_line(message))
+            self._cond.notify_all()
+
+    def _finish(self, state: str, result: dict[str, Any] | None, error: str | None) -> None:
+        with self._cond:
+            self._state, self._result, self._error = state, result, error
+            self._cond.notify_all()
+
+    def _work(self) -> None:
+        self._say("loading the case")
+        try:
+            outcome = run_case_dir(self.case_dir, self.out_dir, progress=self._say)
+        except (ValueError, CommandError, FileNotFoundError) as exc:
+            # bad input (CaseError, ...) or a failed registration (CaseFailure): the one-line
+            # message names the file and key, as `biplanar-reg register` prints it
+            self._say(f"failed: {_one_line(str(exc))}")
+            self._finish("failed", None, _one_line(str(exc)))
+            return
+        except Exception as exc:  # noqa: BLE001 - a bug must not kill the server's thread
+            log.exception("registration of %s failed", self.case_dir)
+            msg = f"internal error: {type(exc).__name__}: {_one_line(str(exc))}"
+            self._say(f"failed: {msg}")
+            self._finish("failed", None, msg)
+            return
+        doc = outcome.document
+        seconds = time.perf_counter() - self._t0
+        self._say(f"done in {seconds:.1f} s")
+        result = {
+            "id": doc.get("id"),
+            "metrics": doc.get("metrics"),
+            "flags": doc.get("flags", []),
+            "rejected": doc.get("rejected", []),
+            "seconds": seconds,
+        }
+        self._finish("done", result, None)
+
+    def status(self) -> dict[str, Any]:
+        """``{"state", "messages", "error"?, "result"?, "run"}`` (``GET /api/register``)."""
+        with self._cond:
+            out: dict[str, Any] = {
+                "state": self._state,
+                "messages": list(self._messages),
+                "run": self.run,
+            }
+            if self._error is not None:
+                out["error"] = self._error
+            if self._result is not None:
+                out["result"] = self._result
+            return out
+
+    def since(self, run: int, index: int) -> tuple[int, list[str], str, dict[str, Any]]:
+        """For a stream of events: ``(run, new messages, state, status)``.
+
+        The messages of run ``run`` from ``index`` on; all of the current run's when another
+        run has started since.
+        """
+        with self._cond:
+            start = index if run == self.run else 0
+            return self.run, self._messages[start:], self._state, self.status()
+
+    def wait(self, timeout: float) -> None:
+        """Block until a message arrives or the state changes (or ``timeout`` seconds)."""
+        with self._cond:
+            self._cond.wait(timeout)
+
+
+def _posed_view(cv: CaseView, entry: Mapping[str, Any] | None) -> Any:
+    """The view with the pose the result used (estimated with ``poses = unknown/refine``)."""
+    if not entry or "R" not in entry or "t" not in entry:
+        return cv.view
+    return dataclasses.replace(
+        cv.view, R=np.asarray(entry["R"], float), t=np.asarray(entry["t"], float)
+    )
+
+
+def _view_review(
+    cv: CaseView,
+    entry: Mapping[str, Any] | None,
+    vertices: np.ndarray,
+    faces: np.ndarray | None,
+    landmarks: Mapping[str, int],
+) -> dict[str, Any]:
+    """One view's entry of :func:`review`."""
+    view = _posed_view(cv, entry)
+    lines, closed = outline_polylines(vertices, view, faces)
+    names = [n for n, i in landmarks.items() if 0 <= i < len(vertices)]
+    ids = np.array([landmarks[n] for n in names], dtype=np.int64)
+    uv = view.project(vertices[ids]) if len(ids) else np.zeros((0, 2))
+    entry = entry or {}
+    return {
+        "outline_px": [np.round(line, 2).tolist() for line in lines],
+        "outline_closed": [bool(c) for c in closed],
+        "landmarks_px": {n: np.round(p, 3).tolist() for n, p in zip(names, uv, strict=True)},
+        "landmark_errors_px": entry.get("landmark_errors_px", {}),
+        "landmark_rms_px": entry.get("landmark_rms_px"),
+        "contour_error_stats_px": entry.get("contour_error_stats_px"),
+    }
+
+
+def review(views: list[CaseView], landmarks: Mapping[str, int], out_dir: Path) -> dict[str, Any]:
+    """What the page draws of a registration result.
+
+    Parameters
+    ----------
+    views : list of CaseView
+        The case's views (calibrations); each is posed as ``result.json`` says.
+    landmarks : mapping of str to int
+        Model landmark name -> vertex index, projected from the registered mesh.
+    out_dir : Path
+        The output folder of ``biplanar-reg register`` (``result.json``, ``registered.ply``).
+
+    Returns
+    -------
+    dict
+        ``{"id", "views": {name: {"outline_px": [[[u, v], ...], ...], "outline_closed",
+        "landmarks_px": {name: [u, v]}, "landmark_errors_px", "landmark_rms_px",
+        "contour_error_stats_px"}}, "metrics", "flags", "rejected", "certificate", "timings"}``
+        (pixels; outlines by :func:`biplanar_reg.outline.outline_polylines`, longest first).
+    """
+    doc = read_json(out_dir / "result.json")
+    vertices, faces = read_mesh(out_dir / "registered.ply")
+    entries = doc.get("views", {}) if isinstance(doc, dict) else {}
+    return {
+        "id": doc.get("id"),
+        "views": {
+            cv.name: _view_review(cv, entries.get(cv.name), vertices, faces, landmarks)
+            for cv in views
+        },
+        "metrics": doc.get("metrics", {}),
+        "flags": doc.get("flags", []),
+        "rejected": doc.get("rejected", []),
+        "certificate": doc.get("certificate"),
+        "timings": doc.get("timings", {}),
+    }

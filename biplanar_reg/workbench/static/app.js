@@ -1,0 +1,197 @@
+// app.js — the workbench page's entry point: loads the case, builds one viewer per radiograph
+// and wires the controls to the shared state (workbench.js). Every edit goes straight to the
+// server (which saves it in the case folder), so nothing is lost on reload.
+//
+// For the browser tests, `window.workbench` exposes the view transforms and a few waits.
+
+import { api } from "./api.js";
+import { fatal } from "./fatal.js";
+import { RegisterPanel } from "./register.js";
+import { Viewer } from "./viewer.js";
+import { Workbench } from "./workbench.js";
+
+const $ = (id) => document.getElementById(id);
+
+// ---- page set-up -------------------------------------------------------------------------
+
+/** One view's DOM: a title bar with the window/level sliders and fit buttons, the canvas. */
+function buildView(wb, info) {
+  const template = $("view-template").content.firstElementChild.cloneNode(true);
+  template.dataset.view = info.name;
+  template.querySelector(".view-name").textContent = info.name;
+  template.querySelector(".view-size").textContent = `${info.width} × ${info.height}`;
+  const canvas = template.querySelector("canvas");
+  canvas.id = `view-${info.name}`;
+  canvas.dataset.testid = `view-${info.name}`;
+  canvas.setAttribute("aria-label", `radiograph ${info.name}`);
+  $("views").append(template);
+
+  const viewer = new Viewer(canvas, info, {
+    tileUrl: (level, tx, ty, lo, hi) => api.tileUrl(info.name, level, tx, ty, lo, hi),
+    handler: () => wb.tool(),
+    drawOverlay: (ctx, v) => wb.drawOverlay(ctx, v),
+    onCursor: (v, uv) => wb.cursor(v, uv),
+  });
+  wireWindowSliders(template, info, viewer);
+  template.querySelector(".fit").addEventListener("click", () => viewer.fit());
+  template.querySelector(".fit-bone").addEventListener("click", () => fitBone(wb, viewer));
+  return viewer;
+}
+
+/** Window/level: two sliders over the raw range; tiles are re-requested after a short pause
+ * so that dragging a slider does not fetch every intermediate window. */
+function wireWindowSliders(root, info, viewer) {
+  if (!info.has_image || !info.range || !info.window) {
+    root.querySelector(".window").hidden = true; // a view without an image: nothing to window
+    return;
+  }
+  const [min, max] = info.range;
+  const lo = root.querySelector(".window-lo");
+  const hi = root.querySelector(".window-hi");
+  const readout = root.querySelector(".window-readout");
+  lo.dataset.testid = `window-lo-${info.name}`;
+  hi.dataset.testid = `window-hi-${info.name}`;
+  // Whole steps for integer data (8/16-bit images), 1/1000 of the range otherwise.
+  const integer = Number.isInteger(min) && Number.isInteger(max) && max - min >= 50;
+  for (const s of [lo, hi]) {
+    s.min = String(min);
+    s.max = String(max);
+    s.step = integer ? "1" : String((max - min) / 1000 || 1);
+  }
+  lo.value = String(info.window[0]);
+  hi.value = String(info.window[1]);
+  let timer = 0;
+  const update = () => {
+    const a = Number(lo.value);
+    const b = Number(hi.value);
+    readout.textContent = `${fmt(a)}–${fmt(b)}`;
+    clearTimeout(timer);
+    timer = setTimeout(() => viewer.setWindow(Math.min(a, b), Math.max(a, b)), 120);
+  };
+  lo.addEventListener("input", update);
+  hi.addEventListener("input", update);
+  readout.textContent = `${fmt(info.window[0])}–${fmt(info.window[1])}`;
+}
+
+/** A window bound for display: whole numbers for 8/16-bit data, 3 digits otherwise. */
+function fmt(x) {
+  return Math.abs(x) >= 100 || Number.isInteger(x) ? x.toFixed(0) : x.toPrecision(3);
+}
+
+/** Fit to the bone: the box around the view's annotations and registered outline. */
+function fitBone(wb, viewer) {
+  const pts = [];
+  const va = wb.viewAnnotations(viewer.name);
+  for (const lm of Object.values(va.landmarks)) pts.push(lm.uv);
+  for (const c of va.contours) pts.push(...c.uv);
+  for (const line of wb.result?.views?.[viewer.name]?.outline_px ?? []) pts.push(...line);
+  if (!pts.length) {
+    viewer.fit();
+    wb.status(`${viewer.name}: nothing annotated yet, showing the whole image`);
+    return;
+  }
+  const us = pts.map((p) => p[0]);
+  const vs = pts.map((p) => p[1]);
+  const [u0, u1, v0, v1] = [Math.min(...us), Math.max(...us), Math.min(...vs), Math.max(...vs)];
+  const m = 0.15 * Math.max(u1 - u0, v1 - v0, 40);
+  viewer.fitRect(u0 - m, v0 - m, u1 + m, v1 + m);
+}
+
+function wireControls(wb) {
+  $("mode-landmark").addEventListener("click", () => wb.setMode("landmark"));
+  $("mode-outline").addEventListener("click", () => wb.setMode("outline"));
+  $("snap").addEventListener("change", (ev) => {
+    wb.snap = ev.target.checked;
+  });
+  $("closed").addEventListener("change", (ev) => {
+    wb.closedOutline = ev.target.checked;
+  });
+  $("sigma").addEventListener("change", (ev) => wb.setSigma(Number(ev.target.value)));
+  $("show-result").addEventListener("change", (ev) => {
+    wb.showResult = ev.target.checked;
+    wb.redraw();
+  });
+  $("outline-finish").addEventListener("click", () => wb.tools.outline.finish());
+  $("outline-cancel").addEventListener("click", () => wb.tools.outline.cancel());
+  $("delete-selected").addEventListener("click", () => wb.tools.outline.deleteSelected());
+  document.addEventListener("keydown", (ev) => onKey(wb, ev));
+}
+
+/** Keyboard: L / O modes, F fit, Enter finish, Esc cancel, Backspace undo an anchor, Delete
+ * removes the selected landmark (in the view under the mouse) or contour. */
+function onKey(wb, ev) {
+  if (ev.target instanceof HTMLInputElement || ev.ctrlKey || ev.metaKey || ev.altKey) return;
+  const outline = wb.tools.outline;
+  const key = ev.key;
+  if (key === "l" || key === "L") wb.setMode("landmark");
+  else if (key === "o" || key === "O") wb.setMode("outline");
+  else if (key === "f" || key === "F") wb.viewers.get(wb.activeView)?.fit();
+  else if (key === "Enter" && wb.mode === "outline") outline.finish();
+  else if (key === "Escape") wb.tool().cancel();
+  else if (key === "Backspace" && wb.mode === "outline" && outline.tracing()) outline.undo();
+  else if (key === "Delete" || key === "Backspace") wb.tool().deleteSelected();
+  else return;
+  ev.preventDefault();
+}
+
+/** Test hooks (tests/workbench/test_e2e.py): transforms and waits; not used by the page. */
+function exposeForTests(wb) {
+  const viewer = (name) => {
+    const v = wb.viewers.get(name);
+    if (!v) throw new Error(`no view ${name}`);
+    return v;
+  };
+  window.workbench = {
+    state: wb,
+    viewToClient: (name, u, v) => viewer(name).toClient(u, v),
+    clientToView: (name, x, y) => {
+      const rect = viewer(name).canvas.getBoundingClientRect();
+      return viewer(name).toView(x - rect.left, y - rect.top);
+    },
+    viewState: (name) => {
+      const v = viewer(name);
+      return { zoom: v.zoom, offX: v.offX, offY: v.offY, level: v.level(), window: v.window };
+    },
+    fitRect: (name, u0, v0, u1, v1) => viewer(name).fitRect(u0, v0, u1, v1),
+    /** Resolves when the edits sent so far are answered (saved by the server). */
+    idle: () => wb.queue.then(() => undefined),
+    tilesPending: () => [...wb.viewers.values()].reduce((n, v) => n + v.tiles.pending(), 0),
+  };
+}
+
+async function main() {
+  let caseInfo;
+  let annotations;
+  try {
+    [caseInfo, annotations] = await Promise.all([api.getCase(), api.getAnnotations()]);
+  } catch (err) {
+    fatal(err);
+    return;
+  }
+  const wb = new Workbench(caseInfo, annotations);
+  document.title = `${caseInfo.id} — biplanar-reg workbench`;
+  $("case-id").textContent = caseInfo.id;
+  $("case-info").textContent =
+    `poses: ${caseInfo.poses ?? "?"} · silhouettes: ${caseInfo.silhouettes ? "on" : "off"}`;
+  for (const info of caseInfo.views) wb.viewers.set(info.name, buildView(wb, info));
+  wireControls(wb);
+  document.body.dataset.mode = wb.mode;
+  wb.refresh();
+  exposeForTests(wb);
+  const panel = new RegisterPanel(wb, {
+    button: $("register"),
+    panel: $("register-panel"),
+    progress: $("progress"),
+    flags: $("flags"),
+    metrics: $("metrics"),
+    error: $("register-error"),
+  });
+  try {
+    await panel.init();
+  } catch (err) {
+    wb.error(err);
+  }
+  document.body.dataset.ready = "true";
+}
+
+main();

@@ -1,0 +1,110 @@
+// panels.js — the side panels' lists: landmarks (select, where placed, remove) and contours
+// (select, remove). They are re-rendered from the state after every change (tens of items).
+
+function el(tag, attrs = {}, ...children) {
+  const node = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (k === "dataset") Object.assign(node.dataset, v);
+    else if (k.startsWith("on")) node.addEventListener(k.slice(2), v);
+    else node.setAttribute(k, v);
+  }
+  node.append(...children);
+  return node;
+}
+
+/** Residual classes: within the landmarks' typical sigma, near the 5 px flag, beyond. */
+function residualClass(px) {
+  if (px < 3) return "good";
+  if (px < 8) return "fair";
+  return "bad";
+}
+
+/** Landmark list: one item per name of the case's landmark_names; a chip per view shows where
+ * it is placed (click it to centre that view on it, the x to remove it there) and, after a
+ * registration, the residual in px. */
+export function renderLandmarkList(wb, list) {
+  const views = wb.caseInfo.views.map((v) => v.name);
+  const items = wb.caseInfo.landmark_names.map((name) => {
+    const placedIn = (view) => Boolean(wb.viewAnnotations(view).landmarks[name]);
+    const chips = views.map((view) => {
+      const lm = wb.viewAnnotations(view).landmarks[name];
+      const placed = Boolean(lm);
+      const chip = el("span", { class: placed ? "chip placed" : "chip" }, view);
+      const residual = wb.result?.views?.[view]?.landmark_errors_px?.[name];
+      if (placed && typeof residual === "number") {
+        // The registration's residual here, colour-coded like its flag (5 px RMS).
+        const cls = `residual ${residualClass(residual)}`;
+        chip.append(el("span", { class: cls }, residual.toFixed(1)));
+        chip.title = `${name} in ${view}: ${residual.toFixed(2)} px from the registered landmark`;
+      }
+      if (placed) {
+        chip.classList.add("jump");
+        chip.addEventListener("click", (ev) => {
+          ev.stopPropagation(); // jumping is not selecting
+          wb.selectLandmark(name);
+          wb.viewers.get(view)?.centreOn(...lm.uv);
+        });
+        chip.append(
+          el("button", {
+            class: "remove",
+            title: `remove ${name} from ${view}`,
+            "aria-label": `remove ${name} from ${view}`,
+            "data-testid": `remove-${name}-${view}`,
+            onclick: (ev) => {
+              ev.stopPropagation(); // removing is not selecting
+              wb.removeLandmark(view, name);
+            },
+          }, "×"),
+        );
+      }
+      return chip;
+    });
+    const selected = name === wb.selectedLandmark;
+    return el(
+      "li",
+      {
+        class: selected ? "landmark selected" : "landmark",
+        "data-testid": `landmark-${name}`,
+        "aria-selected": String(selected),
+        dataset: { name, placed: views.filter((v) => placedIn(v)).join(" ") },
+        onclick: () => wb.selectLandmark(name),
+      },
+      el("span", { class: "name" }, name),
+      el("span", { class: "chips" }, ...chips),
+    );
+  });
+  list.replaceChildren(...items);
+}
+
+/** Contour list: per view, each contour with its point count; click selects, x removes. */
+export function renderContourList(wb, list) {
+  const items = [];
+  for (const { name: view } of wb.caseInfo.views) {
+    wb.viewAnnotations(view).contours.forEach((c, index) => {
+      const sel = wb.selectedContour;
+      const selected = Boolean(sel && sel.view === view && sel.index === index);
+      items.push(
+        el(
+          "li",
+          {
+            class: selected ? "contour selected" : "contour",
+            "data-testid": `contour-${view}-${index}`,
+            onclick: () => wb.selectContour({ view, index }),
+          },
+          el("span", { class: "name" }, `${view} #${index}`),
+          el("span", { class: "meta" }, `${c.uv.length} pts${c.closed ? ", closed" : ""}`),
+          el("button", {
+            class: "remove",
+            title: `remove contour #${index} of ${view}`,
+            onclick: (ev) => {
+              ev.stopPropagation();
+              wb.removeContour(view, index);
+            },
+          }, "×"),
+        ),
+      );
+    });
+  }
+  if (!items.length) items.push(el("li", { class: "empty" }, "no contours yet"));
+  list.replaceChildren(...items);
+}
