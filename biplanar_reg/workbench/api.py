@@ -16,6 +16,7 @@ import logging
 import re
 import secrets
 from collections.abc import AsyncIterator, Awaitable, Callable
+from html import escape
 from pathlib import Path
 from typing import Any
 
@@ -75,6 +76,16 @@ def _valid(candidate: str | None, token: str) -> bool:
     return secrets.compare_digest(candidate.encode("utf-8", "replace"), token.encode("ascii"))
 
 
+def _forbidden_page(message: str) -> HTMLResponse:
+    """The 403 answer to a browser: a short page that says what to do (escaped)."""
+    body = (
+        "<!doctype html><html><head><meta charset='utf-8'><title>biplanar-reg workbench: "
+        "access denied</title></head><body style='font-family:sans-serif;margin:3em'>"
+        f"<h1>Access denied (403)</h1><p>{escape(message)}</p></body></html>"
+    )
+    return HTMLResponse(body, status_code=403)
+
+
 class TokenGuard:
     """ASGI middleware: refuse (403) every HTTP request without the launch token."""
 
@@ -93,11 +104,15 @@ class TokenGuard:
             request.cookies.get(COOKIE),
         )
         if not any(_valid(t, self.token) for t in given):
-            response = _error(
-                403,
+            message = (
                 "token: missing or wrong workbench token (open the URL that biplanar-reg "
-                "workbench printed)",
+                "workbench printed)"
             )
+            # a person who opens the page without the token reads a page, not raw JSON
+            wants_page = not request.url.path.startswith("/api") and "text/html" in (
+                request.headers.get("accept", "")
+            )
+            response = _forbidden_page(message) if wants_page else _error(403, message)
             await response(scope, receive, send)
             return
 
@@ -167,7 +182,7 @@ def _query_float(request: Request, name: str) -> float | None:
 
 
 _TOKEN_SLOT = re.compile(r"([?&]token=)(?=[\"'&#])")
-_HEAD = re.compile(r"<head[^>]*>|<!doctype html>", re.I)
+_HEAD = re.compile(r"<head[^>]*>", re.I)
 
 
 def _page(token: str) -> str:

@@ -63,6 +63,12 @@ def test_every_request_needs_the_token(synthetic_case):
             assert r.status_code == 403 and "token" in r.json()["error"], path
         r = anonymous.put("/api/views/cam1/landmarks/distal_tip", json={"uv": [1, 1]})
         assert r.status_code == 403
+        # a browser asking for the page gets a page that says what to do, not raw JSON
+        r = anonymous.get("/", headers={"Accept": "text/html,*/*"})
+        assert r.status_code == 403 and r.headers["content-type"].startswith("text/html")
+        assert "Access denied" in r.text and "token" in r.text
+        r = anonymous.get("/api/case", headers={"Accept": "text/html"})
+        assert r.status_code == 403 and "token" in r.json()["error"]  # the API stays JSON
         assert anonymous.get("/api/case?token=wrong").status_code == 403
         assert anonymous.get("/api/case", headers={"X-Workbench-Token": "x"}).status_code == 403
         assert anonymous.get("/api/case?token=é").status_code == 403  # not ASCII: no crash
