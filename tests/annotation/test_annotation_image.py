@@ -192,5 +192,7 @@ def test_a_malformed_dicom_image_is_a_named_error(tmp_path):
     at = data.index(b"\x28\x00\x10\x00US")  # Rows
     data[at + 4 : at + 6] = b"ZZ"
     path.write_bytes(bytes(data))
-    with pytest.raises(ValueError, match=r"x\.dcm: malformed DICOM \(NotImplementedError"):
+    with pytest.raises(
+        ValueError, match=r"x\.dcm: unreadable DICOM: malformed DICOM \(NotImplementedError"
+    ):
         load_image(path)

@@ -381,3 +381,20 @@ def test_a_huge_count_option_is_a_case_error(case, capsys):
     _edit_toml(case, "[registration]", "[registration]\nsilhouette_points = 9223372036854775807")
     err = _one_line_error(case, capsys)
     assert "[registration]: silhouette_points: too large (9223372036854775807; at most" in err
+
+
+@pytest.mark.parametrize(
+    ("setting", "message"),
+    [
+        ("population_size = 100000", r"\[model\] population_size: must be in \[2, 1000\]"),
+        ("population_seed = -1", r"\[model\] population_seed: must be in \[0, 4294967295\]"),
+        ("ssm_variance = 1.5", r"\[model\] ssm_variance: must be in \(0, 1\], got 1\.5"),
+        ("population_strength = 1e9", r"\[model\] population_strength: must be in \(0, 10\]"),
+    ],
+)
+def test_the_template_numbers_are_bounded(case, setting, message):
+    """Issue 18: bounds on every numeric option; a template route asking for 100000 shapes is
+    refused before any work."""
+    _edit_toml(case, 'ssm = "model/bone_ssm.npz"', f'template = "gt/bone.ply"\n{setting}')
+    with pytest.raises(CaseError, match=message):
+        load_case(case)
