@@ -7,6 +7,9 @@ input.
 
 from __future__ import annotations
 
+import difflib
+from collections.abc import Iterable
+
 import numpy as np
 
 
@@ -94,3 +97,15 @@ def check_positive(name: str, value: float) -> float:
     if not np.isfinite(v) or v <= 0:
         raise ValueError(f"{name}: must be a positive finite number, got {value!r}")
     return v
+
+
+def did_you_mean(word: object, known: Iterable[str]) -> str:
+    """`` (did you mean 'x'?)`` for the closest of ``known`` to ``word``, else ``""``.
+
+    For the warnings and errors about unknown keys: ``difflib.get_close_matches`` with its
+    default similarity cutoff (0.6), so that only a likely typo gets a suggestion.
+    """
+    if not isinstance(word, str):
+        return ""
+    close = difflib.get_close_matches(word, sorted(known), n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""

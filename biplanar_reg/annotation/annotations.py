@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import os
+import reprlib
 from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from .._validate import did_you_mean
 from ..errors import AnnotationError
 from ..io.atomic import atomic_write_json
 from ..io.jsonfile import is_finite_number, read_json
@@ -38,6 +40,14 @@ __all__ = [
 
 FORMAT = "biplanar-reg/annotations@1"
 log = logging.getLogger(__name__)
+
+#: Short, bounded reprs of bad values for the messages (a value may be nested arbitrarily deep).
+_REPR = reprlib.Repr()
+_REPR.maxlevel, _REPR.maxlist, _REPR.maxdict, _REPR.maxstring, _REPR.maxother = 3, 4, 4, 40, 40
+
+
+def _brief(value: object) -> str:
+    return _REPR.repr(value)
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,10 +108,10 @@ def _check_uv(
 ) -> list[float] | None:
     """Validate one [u, v] pair; append problems; return it as floats when valid."""
     if not isinstance(value, (list, tuple)) or len(value) != 2:
-        problems.append(f"{where}: expected [u, v], got {value!r:.60}")
+        problems.append(f"{where}: expected [u, v], got {_brief(value)}")
         return None
     if not all(is_finite_number(x) for x in value):
-        problems.append(f"{where}: coordinates must be finite numbers, got {list(value)!r:.60}")
+        problems.append(f"{where}: coordinates must be finite numbers, got {_brief(list(value))}")
         return None
     u, v = float(value[0]), float(value[1])
     if size is not None:
@@ -117,7 +127,7 @@ def _check_keys(obj: Mapping[str, Any], allowed: set[str], where: str, warnings:
     """Append a warning for each key of ``obj`` outside ``allowed`` (unknown keys are ignored)."""
     for key in obj:
         if key not in allowed:
-            warnings.append(f"{where}: unknown key {key!r} ignored")
+            warnings.append(f"{where}: unknown key {key!r} ignored{did_you_mean(key, allowed)}")
 
 
 def _validate_landmark(
@@ -154,7 +164,7 @@ def _validate_landmark(
     uv = _check_uv(ldata["uv"], f"{lw}.uv", size, problems)
     sigma = ldata.get("sigma_px", 1.0)
     if not is_finite_number(sigma) or sigma <= 0:
-        problems.append(f"{lw}.sigma_px: must be a positive number, got {sigma!r}")
+        problems.append(f"{lw}.sigma_px: must be a positive number, got {_brief(sigma)}")
         return None
     if uv is None:
         return None
@@ -210,7 +220,7 @@ def _validate_contour(
     _check_keys(cdata, {"uv", "closed"}, cw, warnings)
     closed = cdata.get("closed", False)
     if not isinstance(closed, bool):
-        problems.append(f"{cw}.closed: expected true or false, got {closed!r}")
+        problems.append(f"{cw}.closed: expected true or false, got {_brief(closed)}")
         return None
     pts = cdata["uv"]
     if len(pts) < 3:
@@ -220,6 +230,13 @@ def _validate_contour(
     n_before = len(problems)
     good = [_check_uv(p, f"{cw}.uv[{j}]", size, problems) for j, p in enumerate(pts)]
     if len(problems) != n_before:
+        return None
+    if all(p == good[0] for p in good):  # no length: nothing to match an outline to
+        u, v = good[0]
+        problems.append(
+            f"{cw}: all {len(good)} points are ({u:g}, {v:g}); a contour needs at least 2 "
+            "different points"
+        )
         return None
     return good, closed
 
@@ -277,7 +294,7 @@ def _validate_document(
         return clean, [f"top level: expected a JSON object, got {type(doc).__name__}"], warnings
     fmt = doc.get("format")
     if fmt != FORMAT:
-        problems.append(f"format: expected {FORMAT!r}, got {fmt!r}")
+        problems.append(f"format: expected {FORMAT!r}, got {_brief(fmt)}")
     _check_keys(doc, {"format", "views"}, "top level", warnings)
     views = doc.get("views")
     if not isinstance(views, dict):
@@ -350,8 +367,12 @@ def load_annotations(
     known_landmarks: Collection[str] | None = None,
     image_sizes: Mapping[str, tuple[int, int]] | None = None,
 ) -> Annotations:
-    """Read and validate an annotation file (see :func:`parse_annotations` for the checks)."""
-    doc = read_json(path)
+    """Read and validate an annotation file (see :func:`parse_annotations` for the checks).
+
+    ``NaN``/``Infinity`` tokens are read as numbers so that the problem names their place
+    (view, landmark or contour point), like any other non-finite coordinate.
+    """
+    doc = read_json(path, constants=True)
     return parse_annotations(
         doc,
         source=str(path),

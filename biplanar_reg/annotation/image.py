@@ -13,14 +13,25 @@ stored or logged.
 from __future__ import annotations
 
 import logging
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ..io.dicomfile import DicomReadError, dicom_problem, quiet_pydicom, read_dicom
+
 __all__ = ["XrayImage", "load_image"]
 
 log = logging.getLogger(__name__)
+
+#: Largest image (one frame, W x H pixels) :func:`load_image` decodes; a larger one is refused
+#: from its header, before any decoding, with the memory it would take. 100 Mpx is more than
+#: any radiograph detector gives (a 43 cm plate at 50 um is 8600 x 8600 = 74 Mpx).
+MAX_IMAGE_PIXELS = 100_000_000
+#: Memory an :class:`XrayImage` holds per pixel: float64 ``pixels`` and float32 ``display``
+#: (the decoding and the display mapping need about as much again while they run).
+BYTES_PER_PIXEL = 12
 
 _TIFF_SUFFIXES = {".tif", ".tiff"}
 _RASTER_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp"}
@@ -111,6 +122,8 @@ def _window_display(pixels: np.ndarray, lo: float, hi: float) -> np.ndarray:
 
 def _grey_from_planes(arr: np.ndarray, path: Path) -> np.ndarray:
     """Reduce (H, W), (H, W, 3|4) arrays to (H, W); reject anything else."""
+    if arr.size == 0:
+        raise ValueError(f"{path}: the image has no pixels (array of shape {arr.shape})")
     if arr.ndim == 3 and arr.shape[2] in (3, 4):
         rgb = arr[..., :3].astype(np.float64)
         if np.array_equal(rgb[..., 0], rgb[..., 1]) and np.array_equal(rgb[..., 0], rgb[..., 2]):
@@ -136,6 +149,58 @@ def _check_frame(path: Path, frame: int, n_frames: int) -> None:
         raise ValueError(f"{path}: frame {frame} out of range (the file has {n_frames} frame(s))")
 
 
+def check_pixel_count(path: Path | str, width: int, height: int) -> None:
+    """Refuse an image of more than :data:`MAX_IMAGE_PIXELS`, saying what it would take.
+
+    Raises
+    ------
+    ValueError
+        ``<path>: <W>x<H> pixels (<n> Mpx) is above the limit of ... Mpx: loading it would
+        take about <m> GB of memory ...``.
+    """
+    n = int(width) * int(height)
+    if n > MAX_IMAGE_PIXELS:
+        gb = n * BYTES_PER_PIXEL / 1e9
+        raise ValueError(
+            f"{path}: {width}x{height} pixels ({n / 1e6:g} Mpx) is above the limit of "
+            f"{MAX_IMAGE_PIXELS / 1e6:g} Mpx: loading it would take about {gb:.3g} GB of memory "
+            f"({BYTES_PER_PIXEL} bytes per pixel; biplanar_reg.annotation.image.MAX_IMAGE_PIXELS)"
+        )
+
+
+def _raster_size(head: bytes) -> tuple[int, int] | None:
+    """``(W, H)`` from the header of a PNG, BMP or JPEG file, ``None`` if not recognised."""
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and len(head) >= 24 and head[12:16] == b"IHDR":
+        return struct.unpack(">II", head[16:24])
+    if head[:2] == b"BM" and len(head) >= 26:
+        if struct.unpack("<I", head[14:18])[0] == 12:  # OS/2 BITMAPCOREHEADER
+            return struct.unpack("<HH", head[18:22])
+        w, h = struct.unpack("<ii", head[18:26])
+        return abs(w), abs(h)
+    if head[:2] == b"\xff\xd8":
+        return _jpeg_size(head)
+    return None
+
+
+def _jpeg_size(data: bytes) -> tuple[int, int] | None:
+    """``(W, H)`` from the first start-of-frame segment of a JPEG stream."""
+    i = 2
+    while i + 9 <= len(data):
+        if data[i] != 0xFF:
+            return None
+        marker = data[i + 1]
+        if marker == 0xFF:  # fill byte
+            i += 1
+            continue
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            h, w = struct.unpack(">HH", data[i + 5 : i + 9])
+            return w, h
+        if marker == 0xDA:  # start of scan: no frame header before it
+            return None
+        i += 2 + struct.unpack(">H", data[i + 2 : i + 4])[0]
+    return None
+
+
 def _load_tiff(path: Path, frame: int) -> XrayImage:
     import tifffile
 
@@ -147,13 +212,15 @@ def _load_tiff(path: Path, frame: int) -> XrayImage:
             is_stack = len(shape) == 3 and shape[-1] not in (3, 4) or len(shape) == 4
             n_frames = int(shape[0]) if is_stack else 1
             _check_frame(path, frame, n_frames)
+            h, w = shape[1:3] if is_stack else shape[:2]
+            check_pixel_count(path, w, h)
             arr = series.asarray(key=frame) if is_stack else series.asarray()
     except ValueError as exc:
-        if "frame" in str(exc) and str(path) in str(exc):
+        if str(exc).startswith(str(path)):
             raise
         raise ValueError(f"{path}: unreadable TIFF ({exc})") from None
-    except (OSError, tifffile.TiffFileError, IndexError, KeyError) as exc:
-        raise ValueError(f"{path}: unreadable TIFF ({exc})") from None
+    except Exception as exc:  # noqa: BLE001 - tifffile/imagecodecs raise anything on bad bytes
+        raise ValueError(f"{path}: unreadable TIFF ({type(exc).__name__}: {exc})") from None
     pixels = _grey_from_planes(np.asarray(arr), path)
     lo, hi = _integer_range(np.asarray(arr).dtype, pixels)
     return XrayImage(
@@ -172,7 +239,14 @@ def _load_raster(path: Path, frame: int) -> XrayImage:
 
     _check_frame(path, frame, 1)
     data = np.fromfile(path, dtype=np.uint8)  # imdecode: no silent None on odd paths
-    arr = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    size = _raster_size(data[:65536].tobytes())
+    if size is not None:
+        check_pixel_count(path, *size)
+    try:
+        arr = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    except cv2.error as exc:  # e.g. OpenCV's own size limits, a header it cannot parse
+        msg = " ".join(str(exc).split())[-120:]
+        raise ValueError(f"{path}: unreadable image (OpenCV: {msg})") from None
     if arr is None:
         raise ValueError(f"{path}: unreadable image (not a valid PNG/JPEG/BMP file)")
     if arr.ndim == 3:  # OpenCV decodes colour as BGR(A)
@@ -203,23 +277,35 @@ def _first_float(value: object) -> float | None:
         return None
 
 
+def _pixel_spacing(value: object) -> tuple[float, float] | None:
+    """(row, column) spacing from a DICOM value, or None when it is not two positive numbers
+    (informational only: a bad tag is ignored, not an error)."""
+    try:
+        row, col = (float(x) for x in value)  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        return None
+    return (row, col) if np.isfinite([row, col]).all() and min(row, col) > 0 else None
+
+
 def _load_dicom(path: Path, frame: int) -> XrayImage:
-    import pydicom
-    from pydicom.errors import InvalidDicomError
     from pydicom.pixels import apply_modality_lut, apply_voi_lut
 
     try:
-        ds = pydicom.dcmread(path)
+        ds = read_dicom(path)
+    except DicomReadError as exc:  # "malformed DICOM (...)", "not a DICOM file (...)"
+        raise ValueError(f"{path}: unreadable DICOM: {exc.reason}") from None
+    try:
         n_frames = int(getattr(ds, "NumberOfFrames", 1) or 1)
         _check_frame(path, frame, n_frames)
-        arr = ds.pixel_array
+        check_pixel_count(path, int(ds.Columns), int(ds.Rows))
+        with quiet_pydicom():
+            arr = ds.pixel_array
     except ValueError as exc:
-        if "frame" in str(exc) and str(path) in str(exc):
+        if str(exc).startswith(str(path)):
             raise
         raise ValueError(f"{path}: unreadable DICOM pixel data ({type(exc).__name__})") from None
-    except (InvalidDicomError, OSError, AttributeError, KeyError, RuntimeError) as exc:
-        # the exception text of pydicom never contains element values, only tags/structure
-        raise ValueError(f"{path}: unreadable DICOM ({type(exc).__name__}: {exc})") from None
+    except Exception as exc:  # noqa: BLE001 - pydicom and its decoders raise anything
+        raise ValueError(f"{path}: unreadable DICOM ({dicom_problem(exc)})") from None
     photometric = str(getattr(ds, "PhotometricInterpretation", "MONOCHROME2")).strip()
     if photometric not in ("MONOCHROME1", "MONOCHROME2"):
         raise ValueError(
@@ -248,9 +334,7 @@ def _load_dicom(path: Path, frame: int) -> XrayImage:
     if photometric == "MONOCHROME1":  # high values are dark on screen
         display = (1.0 - display).astype(np.float32)
     spacing = getattr(ds, "ImagerPixelSpacing", None) or getattr(ds, "PixelSpacing", None)
-    pixel_spacing = None
-    if spacing is not None and len(spacing) == 2:
-        pixel_spacing = (float(spacing[0]), float(spacing[1]))
+    pixel_spacing = _pixel_spacing(spacing)
     return XrayImage(
         pixels=pixels,
         display=display,

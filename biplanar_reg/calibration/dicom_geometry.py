@@ -50,7 +50,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..errors import CalibrationFormatError
 from ..io.atomic import atomic_path
+from ..io.dicomfile import read_dicom
 from .views import PerspectiveView, View
 
 if TYPE_CHECKING:
@@ -112,14 +114,11 @@ def _orientation_vector(letters: str, path: Path) -> np.ndarray:
 
 def _read_dicom_geometry(path: Path | str) -> dict[str, object]:
     """The geometry tags of a DICOM file (no pixel data, no patient identifiers)."""
-    import pydicom
-    from pydicom.errors import InvalidDicomError
-
     path = Path(path)
     try:
-        ds = pydicom.dcmread(path, stop_before_pixels=True)
-    except InvalidDicomError as exc:
-        raise ValueError(f"{path}: not a DICOM file ({exc})") from None
+        ds = read_dicom(path, stop_before_pixels=True)
+    except ValueError as exc:
+        raise CalibrationFormatError(str(exc)) from None
     geo: dict[str, object] = {
         "Rows": int(_tag(ds, path, "Rows", "0028,0010", 1)[0]),
         "Columns": int(_tag(ds, path, "Columns", "0028,0011", 1)[0]),

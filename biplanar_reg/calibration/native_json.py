@@ -13,6 +13,7 @@ import json
 import logging
 from pathlib import Path
 
+from ..io.jsonfile import too_deep_message
 from .views import OrthographicView, PerspectiveView, SlotScanningView, View
 
 __all__: list[str] = []
@@ -45,6 +46,8 @@ def read_json(path: Path) -> object:
         return json.loads(path.read_text(encoding="utf-8-sig"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    except RecursionError:
+        raise ValueError(f"{path}: not valid JSON ({too_deep_message()})") from None
 
 
 def read_native_json(path: Path | str, name: str = "") -> View:
@@ -61,7 +64,7 @@ def read_native_json(path: Path | str, name: str = "") -> View:
         "orthographic": ("K", "R", "t"),
         "slot_scanning": ("R", "t", "fu", "cu", "cv", "row_pitch"),
     }
-    if kind not in needed:
+    if not isinstance(kind, str) or kind not in needed:
         raise ValueError(
             f"{path}: key 'projection': expected one of {sorted(needed)}, got {kind!r}"
         )

@@ -51,6 +51,26 @@ def _check_intrinsics(K: object, *, orthographic: bool) -> np.ndarray:
     return K
 
 
+def _check_image_size(value: object) -> tuple[int, int]:
+    """``(W, H)`` as two positive ints; ``ValueError`` for anything else (inf, 512.5, "x")."""
+    try:
+        items = list(value)  # type: ignore[call-overload]
+    except TypeError:
+        items = []
+    ok = len(items) == 2 and all(
+        isinstance(x, (int, float, np.integer, np.floating))
+        and not isinstance(x, (bool, np.bool_))
+        and np.isfinite(x)
+        and float(x).is_integer()
+        and x > 0
+        for x in items
+    )
+    if not ok:
+        shown = repr(items if len(items) == 2 else value)[:60]
+        raise ValueError(f"image_size: expected two positive whole numbers (W, H), got {shown}")
+    return (int(items[0]), int(items[1]))
+
+
 @dataclass(frozen=True, eq=False, kw_only=True)
 class View:
     """Base class: extrinsics shared by all view kinds.
@@ -79,10 +99,7 @@ class View:
         object.__setattr__(self, "R", check_rotation("R", self.R))
         object.__setattr__(self, "t", as_array("t", self.t, (3,)))
         if self.image_size is not None:
-            size = tuple(int(s) for s in self.image_size)
-            if len(size) != 2 or min(size) <= 0:
-                raise ValueError(f"image_size: expected (W, H) > 0, got {self.image_size!r}")
-            object.__setattr__(self, "image_size", size)
+            object.__setattr__(self, "image_size", _check_image_size(self.image_size))
 
     # -- frames ---------------------------------------------------------------------------------
     def to_camera(self, X: object) -> np.ndarray:

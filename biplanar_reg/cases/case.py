@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from .._validate import did_you_mean
 from ..annotation import AnnotationError, Annotations, XrayImage, load_annotations, load_image
 from ..calibration import FORMATS, load_calibration
 from ..calibration.views import OrthographicView, PerspectiveView, SlotScanningView, View
@@ -58,11 +59,22 @@ MODEL_DEFAULTS: dict[str, Any] = {
     "population_strength": 1.0,
     "ssm_variance": 0.98,
 }
+#: ``(low, high, low excluded)`` of each number of the template route of ``[model]``.
+MODEL_RANGES: dict[str, tuple[float, float, bool]] = {
+    "population_size": (2, 1000, False),
+    "population_seed": (0, 2**32 - 1, False),
+    "population_strength": (0.0, 10.0, True),
+    "ssm_variance": (0.0, 1.0, True),
+}
 #: A bone model whose extent (mm, after unit conversion) falls outside this range means the
 #: declared ``units`` contradict the files (e.g. ``units = "m"`` on data written in mm).
 PLAUSIBLE_EXTENT_MM = (1.0, 2000.0)
 #: Fewest landmark observations (over all views) the registration can start from.
 MIN_LANDMARK_OBSERVATIONS = 4
+#: Fewest views of a case, and fewest views with landmarks: the landmark-only start needs rays
+#: from two directions (from one view the depth along the rays is left to the shape prior:
+#: results off by centimetres, or points "behind the source").
+MIN_VIEWS = 2
 
 _KEYS = {
     "": {"format", "id", "units", "model", "views", "annotations", "registration", "ground_truth"},
@@ -178,6 +190,20 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split("\n")).replace("  ", " ").strip() or type(exc).__name__
 
 
+def _resolved(path: Path) -> Path:
+    """``path.resolve()``, with a symlink loop or an unresolvable name as ``ValueError``.
+
+    ``Path.resolve`` raises ``RuntimeError`` for a symlink loop (Python 3.11) and ``OSError``
+    or ``ValueError`` (an embedded NUL) for a name the system refuses; all are bad input.
+    """
+    try:
+        return path.resolve()
+    except RuntimeError:
+        raise ValueError("symlink loop (a link that points back to itself)") from None
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"cannot resolve the path ({_one_line(exc)})") from None
+
+
 class _Ctx:
     """Error context of one case file: builds messages ``<file>: <key>: <what>``."""
 
@@ -208,7 +234,8 @@ class _Ctx:
     def unknown_keys(self, table: dict, section: str, where: str) -> None:
         for key in table:
             if key not in _KEYS[section]:
-                self.warn(f"{where}: unknown key {key!r} ignored")
+                hint = did_you_mean(key, _KEYS[section])
+                self.warn(f"{where}: unknown key {key!r} ignored{hint}")
 
     def string(self, table: dict, key: str, where: str, required: bool = True) -> str | None:
         value = table.get(key)
@@ -228,13 +255,20 @@ class _Ctx:
         value = self.string(table, key, where, required)
         if value is None:
             return None
-        path = (self.dir / value).resolve()  # resolve(): symlinks cannot smuggle a path out
+        try:  # resolve(): symlinks cannot smuggle a path out
+            path = _resolved(self.dir / value)
+        except ValueError as exc:
+            raise self.error(f"{where} {key}", f"{value!r}: {exc}") from None
         if not self.allow_outside and not path.is_relative_to(self.dir):
             raise self.error(
                 f"{where} {key}",
                 f"{value!r} points outside the case folder (pass --allow-outside to permit it)",
             )
-        if exists and not path.is_file():
+        try:
+            is_file = path.is_file()
+        except OSError as exc:  # e.g. a name too long for the file system
+            raise self.error(f"{where} {key}", f"{value!r}: {_one_line(exc)}") from None
+        if exists and not is_file:
             raise self.error(f"{where} {key}", f"{value}: file not found")
         if not exists and path.exists() and not path.is_file():
             raise self.error(f"{where} {key}", f"{value}: not a file")
@@ -248,6 +282,18 @@ class _Ctx:
         if not ok or not math.isfinite(float(value)):
             raise self.error(f"{where} {key}", f"expected a finite {kind.__name__}, got {value!r}")
         return kind(value)
+
+    def bounded(self, table: dict, key: str, where: str, kind: type, default: Any) -> Any:
+        """:meth:`number`, also within its range in :data:`MODEL_RANGES`."""
+        value = self.number(table, key, where, kind, default)
+        low, high, low_open = MODEL_RANGES[key]
+        if (value <= low if low_open else value < low) or value > high:
+            bracket = "(" if low_open else "["
+            top = str(high) if isinstance(high, int) else f"{high:g}"
+            raise self.error(
+                f"{where} {key}", f"must be in {bracket}{low:g}, {top}], got {value!r}"
+            )
+        return value
 
 
 def _scale_view(view: View, scale: float) -> View:
@@ -284,7 +330,8 @@ def registration_options(table: dict, ctx: _Ctx | None = None) -> RegistrationOp
             continue
         fld = _OPTION_FIELDS.get(key)
         if fld is None:
-            ctx.warn(f"[registration]: unknown key {key!r} ignored")
+            hint = did_you_mean(key, [*_OPTION_FIELDS, "poses", "silhouettes"])
+            ctx.warn(f"[registration]: unknown key {key!r} ignored{hint}")
             continue
         default = fld.default
         where = f"[registration] {key}"
@@ -303,6 +350,14 @@ def registration_options(table: dict, ctx: _Ctx | None = None) -> RegistrationOp
 
 
 # -- sections ----------------------------------------------------------------------------------
+
+
+def _case_folder(case_dir: str | os.PathLike) -> Path:
+    """The case folder, resolved; a symlink loop or an unusable name is a ``CaseError``."""
+    try:
+        return _resolved(Path(case_dir))
+    except ValueError as exc:
+        raise CaseError(f"{case_dir}: {exc}") from None
 
 
 def _read_toml(ctx: _Ctx) -> dict:
@@ -371,11 +426,12 @@ def _load_model(ctx: _Ctx, doc: dict, scale: float) -> tuple[ShapeModel, dict, d
             raise ctx.error("[model] template", _one_line(exc)) from None
         if faces is None:
             raise ctx.error("[model] template", f"{path.name}: a template needs faces (a mesh)")
+        _check_template_faces(ctx, path, faces)
         settings = dict(MODEL_DEFAULTS)
         for key in ("population_size", "population_seed"):
-            settings[key] = ctx.number(table, key, "[model]", int, settings[key])
+            settings[key] = ctx.bounded(table, key, "[model]", int, settings[key])
         for key in ("population_strength", "ssm_variance"):
-            settings[key] = ctx.number(table, key, "[model]", float, settings[key])
+            settings[key] = ctx.bounded(table, key, "[model]", float, settings[key])
         fams = table.get("population_families", settings["population_families"])
         if not isinstance(fams, list) or not all(isinstance(f, str) for f in fams):
             raise ctx.error("[model] population_families", f"expected a list of names: {fams!r}")
@@ -414,6 +470,29 @@ def _load_model(ctx: _Ctx, doc: dict, scale: float) -> tuple[ShapeModel, dict, d
             f"should be {lo:g}-{hi:g} mm: the 'units' setting contradicts the files",
         )
     return model, source, landmarks
+
+
+def _check_template_faces(ctx: _Ctx, path: Path, faces: np.ndarray | None) -> None:
+    """Refuse a template with a face that repeats a vertex (a degenerate face).
+
+    Such a face has no normal and no area; in an STL it is also the sign that corners of
+    different vertices share one position (STL vertices are merged by position), so the
+    vertex count, and every landmark index after the merged vertex, differ from the mesh
+    the landmarks were written for.
+    """
+    if faces is None:
+        return
+    f = np.asarray(faces)
+    bad = np.flatnonzero((f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2]))
+    if bad.size:
+        i = int(bad[0])
+        merged = " (STL corners at one position are merged into one vertex)"
+        raise ctx.error(
+            "[model] template",
+            f"{path.name}: face {i} is degenerate (vertices {f[i].tolist()}; {bad.size} such "
+            f"face(s)){merged if path.suffix.lower() == '.stl' else ''}: a template needs "
+            "triangles of three different vertices",
+        )
 
 
 def _units_name(scale: float) -> str:
@@ -481,6 +560,13 @@ def _load_views(ctx: _Ctx, doc: dict, scale: float) -> list[CaseView]:
             except ValueError as exc:
                 raise ctx.error(f"{where} calibration", _one_line(exc)) from None
         views.append(CaseView(name, view, calib, used_fmt, image_path, image))
+    if len(views) < MIN_VIEWS:
+        names = ", ".join(v.name for v in views)
+        raise ctx.error(
+            "[[views]]",
+            f"{len(views)} view ({names}); a biplanar registration needs at least {MIN_VIEWS} "
+            "views (one view leaves the depth along its rays undetermined)",
+        )
     return views
 
 
@@ -513,6 +599,14 @@ def _load_annotations(
             "[annotations] file",
             f"{path.name}: {n_obs} landmark observation(s) over all views; the registration "
             f"needs at least {MIN_LANDMARK_OBSERVATIONS}",
+        )
+    seen = [name for name, va in ann.views.items() if va.landmarks]
+    if len(seen) < MIN_VIEWS:
+        raise ctx.error(
+            "[annotations] file",
+            f"{path.name}: landmarks in {len(seen)} view ({', '.join(seen)}); the registration "
+            f"needs landmarks in at least {MIN_VIEWS} views (its start is triangulated from "
+            "them: one view leaves the depth along its rays undetermined)",
         )
     return ann, path
 
@@ -587,7 +681,7 @@ def load_case(case_dir: str | os.PathLike, *, allow_outside: bool = False) -> Ca
     CaseError
         (a ``ValueError``) with a one-line message naming the file and key.
     """
-    ctx = _Ctx(Path(case_dir).resolve(), allow_outside)
+    ctx = _Ctx(_case_folder(case_dir), allow_outside)
     doc = _read_toml(ctx)
     ctx.unknown_keys(doc, "", "top level")
     case_id, units = _header(ctx, doc)
@@ -648,7 +742,7 @@ def read_case_views(
     CaseError
         (a ``ValueError``) naming the file and the key.
     """
-    ctx = _Ctx(Path(case_dir).resolve(), allow_outside)
+    ctx = _Ctx(_case_folder(case_dir), allow_outside)
     doc = _read_toml(ctx)
     views = [
         (name, ctx.path(table, "image", where, required=False))

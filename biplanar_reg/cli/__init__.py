@@ -11,7 +11,10 @@ wanted)``. This module only assembles them, sets up logging and maps the excepti
   :class:`~biplanar_reg.errors.SolverFailure`);
 * 2: bad input (a ``ValueError`` such as ``CaseError``, ``AnnotationError``,
   ``CalibrationFormatError``, or a ``FileNotFoundError``; the message says which file or key);
-* 130: interrupted.
+* 130: interrupted;
+* 1 also for any other exception, a bug: the last-resort handler prints one line,
+  ``biplanar-reg: internal error: <type>: <message> (run with -v for the traceback)``, and
+  with ``-v`` the traceback before it.
 
 The command modules are imported when the parser is built, never at import time, and they
 import the library only inside their handlers (and, through :mod:`._parsing`, only for the
@@ -24,6 +27,7 @@ import argparse
 import importlib
 import logging
 import sys
+import traceback
 from collections.abc import Sequence
 
 from .. import __version__
@@ -62,7 +66,12 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"biplanar-reg {__version__}")
     parser.add_argument(
-        "-v", "--verbose", action="count", default=0, help="more log output (-v info, -vv debug)"
+        "-v",
+        "--verbose",
+        action="count",
+        default=0,
+        help="more log output (-v info, -vv debug); -v also prints the traceback of an "
+        "internal error",
     )
     parser.add_argument(
         "--json", action="store_true", help="print a machine-readable JSON result on stdout"
@@ -77,6 +86,20 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
 def _fail(exc: BaseException, code: int) -> int:
     print(f"error: {exc}", file=sys.stderr)
     return code
+
+
+def _internal_error(exc: BaseException, verbose: int) -> int:
+    """The last resort: an exception no command expects is a bug; one line, exit 1.
+
+    With ``-v`` the traceback is printed first (the line stays the last one of stderr).
+    """
+    if verbose:
+        traceback.print_exception(exc, file=sys.stderr)
+    message = " ".join(str(exc).split())
+    hint = "" if verbose else " (run with -v for the traceback)"
+    what = f"{type(exc).__name__}: {message}" if message else type(exc).__name__
+    print(f"biplanar-reg: internal error: {what}{hint}", file=sys.stderr)
+    return 1
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -98,3 +121,5 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:  # noqa: BLE001 - the last resort: one line, not a traceback
+        return _internal_error(exc, args.verbose)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -18,11 +19,38 @@ def _reject_constant(token: str) -> float:
     raise ValueError(f"non-standard JSON number {token!r}")
 
 
-def read_json(path: str | os.PathLike[str]) -> Any:
+class JsonConstant(float):
+    """The value of a ``NaN``/``Infinity``/``-Infinity`` token, shown as the token itself.
+
+    Kept by ``read_json(..., constants=True)`` for a caller that checks every number and names
+    its place (``views.cam1.landmarks.tip.uv: ... got [NaN, 12.0]``); not finite, so
+    :func:`is_finite_number` refuses it.
+    """
+
+    token: str
+
+    def __new__(cls, token: str) -> JsonConstant:
+        self = super().__new__(cls, token)
+        self.token = token
+        return self
+
+    def __repr__(self) -> str:
+        return self.token
+
+
+def too_deep_message() -> str:
+    """What a JSON document nested beyond the parser's recursion limit is told."""
+    return f"nested too deeply (more than {sys.getrecursionlimit()} levels of arrays/objects)"
+
+
+def read_json(path: str | os.PathLike[str], *, constants: bool = False) -> Any:
     """Read a JSON file; a missing, unreadable or malformed file raises ``ValueError``.
 
     ``NaN``/``Infinity`` tokens (accepted by Python's json module, not by the JSON standard) are
-    rejected so that they cannot slip into coordinates.
+    rejected so that they cannot slip into coordinates; with ``constants=True`` they are kept as
+    non-finite numbers (:class:`JsonConstant`) for a caller that validates every number and
+    reports where the bad one is. A document nested deeper than the parser's recursion limit is
+    a ``ValueError`` too.
 
     Raises
     ------
@@ -37,11 +65,13 @@ def read_json(path: str | os.PathLike[str]) -> Any:
     except (OSError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: cannot be read ({exc})") from None
     try:
-        return json.loads(text, parse_constant=_reject_constant)
+        return json.loads(text, parse_constant=JsonConstant if constants else _reject_constant)
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: malformed JSON at line {exc.lineno} ({exc.msg})") from None
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
+    except RecursionError:
+        raise ValueError(f"{path}: {too_deep_message()}") from None
 
 
 def is_finite_number(x: object) -> bool:

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from .._validate import as_array, check_positive
+from .dicomfile import DicomReadError, dicom_problem, quiet_pydicom, read_dicom
 
 __all__ = ["Volume", "read_dicom_series", "read_volume"]
 
@@ -131,23 +132,21 @@ def read_volume(
 
 # -- DICOM ---------------------------------------------------------------------------------------
 def _read_dicom_file(path: Path):  # -> pydicom.Dataset
-    import pydicom
-    from pydicom.errors import InvalidDicomError
     from pydicom.uid import ExplicitVRBigEndian, ExplicitVRLittleEndian, ImplicitVRLittleEndian
 
     try:
-        ds = pydicom.dcmread(path)
-    except InvalidDicomError:
+        ds = read_dicom(path)
+    except DicomReadError as exc:
+        if not exc.reason.startswith("not a DICOM file"):
+            raise ValueError(f"{path}: cannot read as DICOM ({exc.reason})") from None
         # No preamble / 'DICM' prefix: maybe a raw dataset without meta header (documented
         # fallback); accept it only if it parses into an image with a position.
         try:
-            ds = pydicom.dcmread(path, force=True)
-        except Exception:
+            ds = read_dicom(path, force=True)
+        except DicomReadError:
             raise ValueError(f"{path}: not a DICOM file") from None
         if "PixelData" not in ds or "ImagePositionPatient" not in ds:
             raise ValueError(f"{path}: not a DICOM file (or not an image)") from None
-    except Exception as exc:
-        raise ValueError(f"{path}: cannot read as DICOM ({type(exc).__name__}: {exc})") from None
     if "TransferSyntaxUID" not in ds.file_meta:
         if ds.original_encoding[0]:  # implicit VR: only little endian exists
             ds.file_meta.TransferSyntaxUID = ImplicitVRLittleEndian
@@ -324,9 +323,10 @@ def _stack_slices(datasets: list[_Slice]) -> np.ndarray:
     slices = []
     for p, ds in datasets:
         try:
-            pixels = ds.pixel_array.astype(np.float32)
-        except Exception as exc:
-            raise ValueError(f"{p}: cannot decode the pixel data ({exc})") from None
+            with quiet_pydicom():
+                pixels = ds.pixel_array.astype(np.float32)
+        except Exception as exc:  # noqa: BLE001 - pydicom and its decoders raise anything
+            raise ValueError(f"{p}: cannot decode the pixel data ({dicom_problem(exc)})") from None
         slope = float(ds.get("RescaleSlope", 1.0) or 1.0)
         intercept = float(ds.get("RescaleIntercept", 0.0) or 0.0)
         slices.append(pixels * np.float32(slope) + np.float32(intercept))

@@ -65,6 +65,11 @@ class ViewObservations:
             uv = as_array(f"{self.name}: contours[{i}]", c.uv, (None, 2))
             if len(uv) < 3:
                 raise ValueError(f"{self.name}: contours[{i}] has {len(uv)} point(s); needs 3")
+            if np.all(uv == uv[0]):
+                raise ValueError(
+                    f"{self.name}: contours[{i}]: all {len(uv)} points are "
+                    f"({uv[0, 0]:g}, {uv[0, 1]:g}); a contour needs at least 2 different points"
+                )
             checked.append(Contour(uv=uv, closed=bool(c.closed)))
         object.__setattr__(self, "contours", checked)
 

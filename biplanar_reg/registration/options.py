@@ -20,13 +20,15 @@ CERTIFICATE_FLAG = 1e-2
 #: Default landmark reprojection error (px RMS) above which a result is flagged.
 REPROJECTION_FLAG_PX = 5.0
 
-# fields that must be whole numbers >= the given minimum
-_COUNTS = {
-    "max_iterations": 0,
-    "refine_iterations": 0,
-    "silhouette_points": 3,
-    "consensus_iterations": 1,
-    "blunder_refine_iterations": 1,
+#: Fields that must be whole numbers in ``[low, high]``. The upper bounds keep a typo (or
+#: ``9223372036854775807``) from asking for hours of solves or gigabytes of rays; each is far
+#: above any useful value.
+COUNT_RANGES: dict[str, tuple[int, int]] = {
+    "max_iterations": (0, 1000),
+    "refine_iterations": (0, 10_000),
+    "silhouette_points": (3, 100_000),
+    "consensus_iterations": (1, 1000),
+    "blunder_refine_iterations": (1, 10_000),
 }
 # fields that must be fractions in (0, 1]
 _FRACTIONS = ("landmark_weight", "max_rejected_fraction", "consensus_margin")
@@ -49,14 +51,14 @@ class RegistrationOptions:
         ``lambda`` in (0, 1]: landmarks weigh ``lambda``, outline matches ``1 - lambda``
         (per observation, relative to their counts; see :mod:`.outline_match`).
     max_iterations : int
-        Maximum outline-boosting iterations with a convex re-solve each.
+        Maximum outline-boosting iterations with a convex re-solve each (0 to 1000).
     refine_iterations : int
         Maximum Levenberg-Marquardt iterations of the final joint local refinement on all terms
         (:func:`.outline_fit.refine_on_outlines`: every annotated outline point to the model's
-        outline, re-matched at every step; no SDP).
+        outline, re-matched at every step; no SDP); 0 to 10000.
     silhouette_points : int
         Model outline points used per view and iteration (fixed count: each iteration is a
-        re-solve of a problem of the same size).
+        re-solve of a problem of the same size); 3 to 100000.
     gate_px : float
         Outline matches farther than this from the annotated outline are dropped, pixels.
     mutual : bool
@@ -88,13 +90,15 @@ class RegistrationOptions:
         A blunder's leave-one-out score must also exceed this multiple of the median score of
         the other landmarks (while the outline fit settles, every score is inflated alike).
     blunder_refine_iterations : int
-        Levenberg-Marquardt iterations of each leave-one-out refit in the blunder test.
+        Levenberg-Marquardt iterations of each leave-one-out refit in the blunder test
+        (1 to 10000).
     consensus_trigger : float
         The landmark-blunder consensus runs when some landmark's error at the landmark-only
         start exceeds this many sigmas (measured: 0.2-0.9 on clean 0.5 px data, 1.2-8.2 with
         one 40 px blunder of 6).
     consensus_iterations : int
-        Boosting iterations of each short fit in the consensus and in the start choice.
+        Boosting iterations of each short fit in the consensus and in the start choice
+        (1 to 1000).
     consensus_margin : float
         A leave-one-out hypothesis is accepted when its short fit's cost is below this
         fraction of the all-landmarks fit's cost.
@@ -165,11 +169,14 @@ def _check_field(key: str, value: object, default: object) -> None:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
         raise ValueError(f"{key}: expected a number, got {value!r}")
     v = float(value)
-    if key in _COUNTS:
+    if key in COUNT_RANGES:
         if not np.isfinite(v) or not v.is_integer():
             raise ValueError(f"{key}: expected a whole number, got {value!r}")
-        if v < _COUNTS[key]:
-            raise ValueError(f"{key}: too small ({value}; at least {_COUNTS[key]})")
+        low, high = COUNT_RANGES[key]
+        if value < low:
+            raise ValueError(f"{key}: too small ({value}; at least {low})")
+        if value > high:
+            raise ValueError(f"{key}: too large ({value}; at most {high})")
     elif key in _FRACTIONS:
         if not 0.0 < v <= 1.0:
             raise ValueError(f"{key}: must be in (0, 1], got {value}")

@@ -158,37 +158,66 @@ class ShapeModel:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> ShapeModel:
-        """Read a model written by :meth:`save`; errors name the file and the key."""
+        """Read a model written by :meth:`save`; errors name the file and the key.
+
+        Raises
+        ------
+        ValueError
+            The file is missing, is not a readable ``.npz`` (truncated, corrupt: whatever
+            ``zipfile``/``zlib``/numpy raise while reading it), holds pickles, or holds an
+            invalid model; one line naming the file (and the key).
+        """
         path = Path(path)
+        arrays = _read_npz(path)
+        keys = set(arrays)
+        for key in ("mean", "modes"):
+            if key not in keys:
+                raise ValueError(f"{path}: missing key {key!r} (keys: {sorted(keys)})")
+        fmt = str(arrays["format"]) if "format" in keys else _FORMAT
+        if fmt != _FORMAT:
+            raise ValueError(f"{path}: format {fmt!r:.80} is not {_FORMAT!r}")
         try:
-            data = np.load(path, allow_pickle=False)
-        except FileNotFoundError:
-            raise ValueError(f"{path}: file not found") from None
-        except (OSError, ValueError) as exc:
-            raise ValueError(f"{path}: not a readable .npz shape model ({exc})") from None
+            landmarks = (
+                json.loads(str(arrays["landmarks_json"])) if "landmarks_json" in keys else {}
+            )
+        except (json.JSONDecodeError, RecursionError) as exc:
+            raise ValueError(
+                f"{path}: key 'landmarks_json' is not valid JSON ({_one_line(exc)})"
+            ) from None
+        if not isinstance(landmarks, dict):
+            raise ValueError(f"{path}: key 'landmarks_json': expected a JSON object")
+        try:
+            return cls(
+                arrays["mean"],
+                arrays["modes"],
+                faces=arrays.get("faces"),
+                variances=arrays.get("variances"),
+                landmarks=landmarks,
+            )
+        except (ValueError, TypeError) as exc:
+            raise ValueError(f"{path}: {_one_line(exc)}") from None
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _read_npz(path: Path) -> dict[str, np.ndarray]:
+    """Every array of an ``.npz`` file (no pickles), or ``ValueError`` naming the file.
+
+    The archive is read in full here, so that a damaged member fails now, whatever the zip and
+    deflate readers raise for it (``BadZipFile``, ``zlib.error``, ``EOFError``, an
+    ``OSError [Errno 22]`` from a seek to a negative offset, ...).
+    """
+    try:
+        data = np.load(path, allow_pickle=False)
+        if isinstance(data, np.ndarray):
+            raise ValueError("a single .npy array, not an .npz archive")
         with data:
-            keys = set(data.files)
-            for key in ("mean", "modes"):
-                if key not in keys:
-                    raise ValueError(f"{path}: missing key {key!r} (keys: {sorted(keys)})")
-            fmt = str(data["format"]) if "format" in keys else _FORMAT
-            if fmt != _FORMAT:
-                raise ValueError(f"{path}: format {fmt!r} is not {_FORMAT!r}")
-            try:
-                landmarks = (
-                    json.loads(str(data["landmarks_json"])) if "landmarks_json" in keys else {}
-                )
-            except json.JSONDecodeError as exc:
-                raise ValueError(
-                    f"{path}: key 'landmarks_json' is not valid JSON ({exc})"
-                ) from None
-            try:
-                return cls(
-                    data["mean"],
-                    data["modes"],
-                    faces=data["faces"] if "faces" in keys else None,
-                    variances=data["variances"] if "variances" in keys else None,
-                    landmarks=landmarks,
-                )
-            except ValueError as exc:
-                raise ValueError(f"{path}: {exc}") from None
+            return {key: data[key] for key in data.files}
+    except FileNotFoundError:
+        raise ValueError(f"{path}: file not found") from None
+    except Exception as exc:  # noqa: BLE001 - parser libraries raise anything on bad bytes
+        raise ValueError(
+            f"{path}: not a readable .npz shape model ({type(exc).__name__}: {_one_line(exc)})"
+        ) from None

@@ -94,11 +94,27 @@ def test_validation_messages(tmp_path, mutate, message):
         load_annotations(_write(tmp_path, doc))
 
 
-def test_nan_token_is_rejected_with_file_name(tmp_path):
+@pytest.mark.parametrize(
+    ("old", "token", "where"),
+    [
+        ("812.3", "NaN", r"views\.cam1\.landmarks\.styloid\.uv"),
+        ("901.2", "Infinity", r"views\.cam1\.landmarks\.styloid\.uv"),
+        ("2.0", "-Infinity", r"views\.cam1\.landmarks\.styloid\.sigma_px"),
+        ("641.2", "NaN", r"views\.cam1\.contours\[0\]\.uv\[1\]"),
+    ],
+)
+def test_nan_and_infinity_name_the_view_and_landmark(tmp_path, old, token, where):
+    """Reproducer (issue 18): a ``NaN``/``Infinity`` token was refused while parsing, with a
+    message naming only the file ("non-standard JSON number 'NaN'"), not the view/landmark."""
     p = tmp_path / "nan.json"
-    p.write_text(json.dumps(_doc()).replace("812.3", "NaN"))
-    with pytest.raises(ValueError, match=r"nan\.json: non-standard JSON number 'NaN'"):
+    p.write_text(json.dumps(_doc()).replace(old, token, 1))
+    with pytest.raises(AnnotationError, match=rf"nan\.json: .*\n  {where}: .*{token}") as info:
         load_annotations(p)
+    assert len(info.value.problems) == 1
+
+
+def test_malformed_json_names_the_file_and_line(tmp_path):
+    p = tmp_path / "nan.json"
     p.write_text('{"format": ')
     with pytest.raises(ValueError, match=r"nan\.json: malformed JSON at line 1"):
         load_annotations(p)
@@ -168,3 +184,25 @@ def test_merge():
     )
     # the inputs are not modified
     assert list(a.views["cam1"].landmarks) == ["p"] and len(a.views["cam1"].contours) == 1
+
+
+def test_deeply_nested_json_is_a_named_error(tmp_path):
+    """Reproducer (issue 18): a deeply nested document raised ``RecursionError``."""
+    p = tmp_path / "deep.json"
+    p.write_text('{"views": ' + "[" * 100_000 + "]" * 100_000 + "}")
+    with pytest.raises(ValueError, match=r"deep\.json: nested too deeply \(more than \d+ levels"):
+        load_annotations(p)
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_a_contour_of_one_repeated_point_is_named(tmp_path, closed):
+    """Reproducer (issue 18): a contour whose points are all the same passed validation and
+    failed in the registration with "zero-size array to reduction operation maximum"."""
+    doc = _doc()
+    doc["views"]["cam1"]["contours"].append({"uv": [[640.0, 410.5]] * 4, "closed": closed})
+    with pytest.raises(
+        AnnotationError,
+        match=r"views\.cam1\.contours\[1\]: all 4 points are \(640, 410\.5\); a contour needs "
+        r"at least 2 different points",
+    ):
+        load_annotations(_write(tmp_path, doc))

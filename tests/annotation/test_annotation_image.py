@@ -133,3 +133,66 @@ def test_as_display_normalises_arrays():
     with pytest.raises(ValueError, match="NaN"):
         as_display(np.array([[np.nan, 1.0], [0.0, 1.0]]))
     assert pydicom  # the DICOM writer above needs pydicom itself
+
+
+def _png_header_only(width: int, height: int) -> bytes:
+    """A PNG whose header claims ``width`` x ``height`` grey pixels (and holds almost none)."""
+    import struct
+    import zlib
+
+    def chunk(tag: bytes, data: bytes) -> bytes:
+        crc = struct.pack(">I", zlib.crc32(tag + data))
+        return struct.pack(">I", len(data)) + tag + data + crc
+
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    idat = zlib.compress(b"\0" * 1000)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", idat) + chunk(b"IEND", b"")
+
+
+def test_an_image_above_the_pixel_limit_is_refused_before_decoding(tmp_path):
+    """Reproducer (issue 18): a PNG whose header claims 100000x100000 raised ``cv2.error``
+    (OpenCV's own limit) after reading the file: now refused from the header, with the memory
+    it would take."""
+    from biplanar_reg.annotation.image import MAX_IMAGE_PIXELS
+
+    path = tmp_path / "huge.png"
+    path.write_bytes(_png_header_only(100_000, 100_000))
+    with pytest.raises(
+        ValueError,
+        match=r"huge\.png: 100000x100000 pixels \(10000 Mpx\) is above the limit of "
+        rf"{MAX_IMAGE_PIXELS // 10**6} Mpx: loading it would take about 120 GB of memory",
+    ) as info:
+        load_image(path)
+    assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("suffix", [".tif", ".dcm", ".bmp", ".jpg"])
+def test_the_pixel_limit_reads_every_format_header(tmp_path, monkeypatch, suffix):
+    import biplanar_reg.annotation.image as image_module
+
+    path = tmp_path / f"a{suffix}"
+    img = np.zeros((30, 40), np.uint16 if suffix in (".tif", ".dcm") else np.uint8)
+    if suffix == ".tif":
+        tifffile.imwrite(path, img)
+    elif suffix == ".dcm":
+        _write_dicom(path, img, "MONOCHROME2")
+    else:
+        cv2.imwrite(str(path), img)
+    assert load_image(path).size == (40, 30)
+    monkeypatch.setattr(image_module, "MAX_IMAGE_PIXELS", 1000)
+    with pytest.raises(ValueError, match=rf"a\{suffix}: 40x30 pixels .* above the limit"):
+        load_image(path)
+
+
+def test_a_malformed_dicom_image_is_a_named_error(tmp_path):
+    """Reproducer (issue 18): an unknown VR in a DICOM image raised ``NotImplementedError``."""
+    path = tmp_path / "x.dcm"
+    _write_dicom(path, np.zeros((4, 5), np.uint16), "MONOCHROME2")
+    data = bytearray(path.read_bytes())
+    at = data.index(b"\x28\x00\x10\x00US")  # Rows
+    data[at + 4 : at + 6] = b"ZZ"
+    path.write_bytes(bytes(data))
+    with pytest.raises(
+        ValueError, match=r"x\.dcm: unreadable DICOM: malformed DICOM \(NotImplementedError"
+    ):
+        load_image(path)

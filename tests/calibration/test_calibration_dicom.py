@@ -294,3 +294,49 @@ def test_cli_convert_json_to_dicom(tmp_path: Path, capsys) -> None:
     assert main([*argv, "--to", "dicom"]) == 2
     assert "not representable in DICOM" in capsys.readouterr().err
     assert not bad_out.exists()
+
+
+def _element_at(data: bytes, group: int, elem: int, vr: bytes) -> int:
+    """Offset of an explicit-VR little-endian element header (tag, VR) in a file's bytes."""
+    return data.index(group.to_bytes(2, "little") + elem.to_bytes(2, "little") + vr)
+
+
+@pytest.mark.parametrize(
+    ("damage", "match"),
+    [
+        ("unknown VR", r"malformed DICOM \(NotImplementedError: .*tag \(0028,0010\)"),
+        ("odd length", r"malformed DICOM \(BytesLengthException, tag \(0028,0010\)\)"),
+    ],
+)
+def test_malformed_dicom_is_a_named_error(tmp_path: Path, damage: str, match: str, caplog) -> None:
+    """Reproducer (issue 18): pydicom's ``NotImplementedError`` ("Unknown Value Representation")
+    and ``BytesLengthException`` escaped ``load_calibration``: tracebacks. The message names
+    the file and the tag, never an element's value (pydicom's own message quotes raw bytes)."""
+    path = _write(tmp_path)
+    data = bytearray(path.read_bytes())
+    at = _element_at(data, 0x0028, 0x0010, b"US")  # Rows
+    if damage == "unknown VR":
+        data[at + 4 : at + 6] = b"ZZ"
+    else:  # a US value of 3 bytes: Rows swallows the first byte of the next element
+        data[at + 6 : at + 8] = (3).to_bytes(2, "little")
+    path.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match=match) as exc:
+        load_calibration(path, "dicom")
+    text = str(exc.value)
+    assert text.startswith(f"{path}: ") and "\n" not in text
+    assert "Secret" not in text and "12345" not in text and "received" not in text
+    assert "Secret" not in caplog.text and "12345" not in caplog.text
+
+
+def test_dicom_warnings_quoting_patient_data_are_not_shown(tmp_path: Path, caplog, recwarn):
+    """A damaged meta header makes pydicom warn with the raw bytes that follow it (the
+    patient's name among them): the reader keeps those warnings and log records to itself."""
+    path = _write(tmp_path)
+    data = bytearray(path.read_bytes())
+    at = _element_at(data, 0x0002, 0x0010, b"UI")  # TransferSyntaxUID: its length grows
+    data[at + 6 : at + 8] = (165).to_bytes(2, "little")
+    path.write_bytes(bytes(data))
+    with pytest.raises(ValueError):
+        load_calibration(path, "dicom")
+    assert "Secret" not in caplog.text
+    assert not any("Secret" in str(w.message) for w in recwarn)

@@ -254,3 +254,40 @@ def test_json_unknown_key_warns(tmp_path: Path, caplog) -> None:
     path.write_text(json.dumps(data))
     load_calibration(path)
     assert "unknown key 'colour'" in caplog.text
+
+
+@pytest.mark.parametrize(
+    ("size", "shown"),
+    [
+        ("[Infinity, 512]", r"\[inf, 512\]"),
+        ("[1e400, 512]", r"\[inf, 512\]"),
+        ("[NaN, 512]", r"\[nan, 512\]"),
+        ("[512.5, 512]", r"\[512\.5, 512\]"),
+        ('["wide", 512]', r"\['wide', 512\]"),
+    ],
+)
+def test_a_non_integer_image_size_in_json_is_a_named_error(
+    tmp_path: Path, size: str, shown: str
+) -> None:
+    """Reproducer (issue 18): ``"image_size": [Infinity, 512]`` raised ``OverflowError``
+    (``int(inf)``), a traceback; 512.5 was silently truncated to 512."""
+    path = tmp_path / "c.json"
+    save_calibration(_pinhole(12), path, "json")
+    text = path.read_text()
+    start = text.index('"image_size": [')
+    end = text.index("]", start) + 1
+    path.write_text(text[:start] + f'"image_size": {size}' + text[end:])
+    with pytest.raises(
+        ValueError,
+        match=rf"c\.json: image_size: expected two positive whole "
+        rf"numbers \(W, H\), got {shown}",
+    ) as exc:
+        load_calibration(path)
+    assert "\n" not in str(exc.value)
+
+
+def test_deeply_nested_json_calibration_is_a_named_error(tmp_path: Path) -> None:
+    path = tmp_path / "deep.json"
+    path.write_text('{"K": ' + "[" * 100_000 + "]" * 100_000 + "}")
+    with pytest.raises(ValueError, match=r"deep\.json: not valid JSON \(nested too deeply"):
+        load_calibration(path, "json")

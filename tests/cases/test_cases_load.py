@@ -162,7 +162,11 @@ CORPUS = [
         _unknown_landmark,
         "views.cam1.landmarks.bogus: unknown landmark",
     ),
-    ("NaN in annotations", _nan_annotation, "non-standard JSON number 'NaN'"),
+    (
+        "NaN in annotations",
+        _nan_annotation,
+        "views.cam1.landmarks.distal_tip.uv: coordinates must be finite numbers, got [NaN,",
+    ),
     ("empty annotations", _empty_annotations, "0 landmark observation(s)"),
     (
         "contradicting units",
@@ -286,3 +290,111 @@ def test_read_case_views_is_the_light_reading_of_the_same_format(case, tmp_path)
     _edit_toml(partial, 'name = "cam1"\n[annotations]', 'name = "cam2"\n[annotations]')
     with pytest.raises(CaseError, match=r"\[annotations\] file: a.json: file not found"):
         read_case_views(partial)
+
+
+# -- issue 18: input errors that gave a traceback or a vague message ---------------------------
+
+
+def _one_line_error(case: Path, capsys) -> str:
+    """Run ``register`` on ``case``; assert exit 2, one line, no output; return the line."""
+    rc = main(["register", str(case)])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2, err
+    assert len(err.splitlines()) == 1, err
+    assert err.startswith(f"error: {case.resolve() / 'case.toml'}: "), err
+    assert not (case / "out").exists() and not list(case.glob(".out.*"))
+    return err
+
+
+def test_a_symlink_loop_in_a_case_path_is_a_case_error(case, capsys):
+    """Reproducer: ``Path.resolve()`` raised ``RuntimeError: Symlink loop`` (a traceback)."""
+    (case / "calib/loop.txt").symlink_to("loop.txt")
+    _edit_toml(case, 'calibration = "calib/cam1.txt"', 'calibration = "calib/loop.txt"')
+    err = _one_line_error(case, capsys)
+    assert "[[views]][0] (cam1) calibration: 'calib/loop.txt': symlink loop" in err
+
+
+def test_a_symlink_loop_as_the_case_folder_is_a_case_error(tmp_path):
+    (tmp_path / "loop").symlink_to("loop")
+    with pytest.raises(CaseError, match=r"loop: symlink loop"):
+        load_case(tmp_path / "loop")
+
+
+def test_a_single_view_case_says_it_needs_two_views(case, capsys):
+    """Reproducer: a case with one view failed inside the solver ("point(s) [0] lie behind the
+    source") or gave a meaningless result; one view leaves the depth along its rays open."""
+    text = (case / "case.toml").read_text()
+    start, end = text.index('[[views]]\nname = "cam2"'), text.index("[annotations]")
+    (case / "case.toml").write_text(text[:start] + text[end:])
+    _edit_json(case / "annotations.json", lambda d: d["views"].pop("cam2"))
+    err = _one_line_error(case, capsys)
+    assert "[[views]]: 1 view (cam1); a biplanar registration needs at least 2 views" in err
+
+
+def test_landmarks_in_one_view_only_say_two_views_are_needed(case, capsys):
+    _edit_json(case / "annotations.json", lambda d: d["views"]["cam2"].update(landmarks={}))
+    err = _one_line_error(case, capsys)
+    assert "[annotations] file: annotations.json: landmarks in 1 view (cam1)" in err
+    assert "at least 2 views" in err
+
+
+def test_a_degenerate_template_face_is_named_not_a_landmark_range_error(case, capsys):
+    """Reproducer: an STL template with two corners at one position (merged into one vertex:
+    faces repeating a vertex, fewer vertices) was reported as "landmark ... expected a vertex
+    index in 0..480"."""
+    V, F = read_mesh(case / "gt/bone.ply")
+    V = V.copy()
+    V[F[0, 1]] = V[F[0, 0]]
+    write_mesh(case / "gt/template.stl", V, F)
+    _edit_toml(case, 'ssm = "model/bone_ssm.npz"', 'template = "gt/template.stl"')
+    err = _one_line_error(case, capsys)
+    assert "[model] template: template.stl: face 0 is degenerate" in err
+    assert "landmark" not in err
+
+
+def test_a_typo_in_a_key_warns_with_a_suggestion(case, caplog):
+    """Reproducer: typos in case.toml keys only warned "unknown key ... ignored"."""
+    _edit_toml(case, "[registration]", "[registration]\nsilhouete_points = 100")
+    _edit_toml(case, 'image = "xray/cam1.png"', 'image = "xray/cam1.png"\ncalibraton = "x"')
+    _edit_toml(case, "[model]", "[model]\nlandmark = 'x'")
+    with caplog.at_level(logging.WARNING):
+        c = load_case(case)
+    assert any(
+        "[registration]: unknown key 'silhouete_points' ignored (did you mean "
+        "'silhouette_points'?)" in w
+        for w in c.warnings
+    ), c.warnings
+    assert any("'calibraton' ignored (did you mean 'calibration'?)" in w for w in c.warnings)
+    assert any("'landmark' ignored (did you mean 'landmarks'?)" in w for w in c.warnings)
+    assert "did you mean 'silhouette_points'?" in caplog.text
+    assert c.options.silhouette_points == 150  # still a warning: the key is ignored
+
+
+def test_an_unrelated_unknown_key_has_no_suggestion(case):
+    _edit_toml(case, "[registration]", "[registration]\ncolour = 'red'")
+    (w,) = load_case(case).warnings
+    assert w.endswith("[registration]: unknown key 'colour' ignored")
+
+
+def test_a_huge_count_option_is_a_case_error(case, capsys):
+    """Reproducer: ``silhouette_points = 9223372036854775807`` was accepted."""
+    _edit_toml(case, "[registration]", "[registration]\nsilhouette_points = 9223372036854775807")
+    err = _one_line_error(case, capsys)
+    assert "[registration]: silhouette_points: too large (9223372036854775807; at most" in err
+
+
+@pytest.mark.parametrize(
+    ("setting", "message"),
+    [
+        ("population_size = 100000", r"\[model\] population_size: must be in \[2, 1000\]"),
+        ("population_seed = -1", r"\[model\] population_seed: must be in \[0, 4294967295\]"),
+        ("ssm_variance = 1.5", r"\[model\] ssm_variance: must be in \(0, 1\], got 1\.5"),
+        ("population_strength = 1e9", r"\[model\] population_strength: must be in \(0, 10\]"),
+    ],
+)
+def test_the_template_numbers_are_bounded(case, setting, message):
+    """Issue 18: bounds on every numeric option; a template route asking for 100000 shapes is
+    refused before any work."""
+    _edit_toml(case, 'ssm = "model/bone_ssm.npz"', f'template = "gt/bone.ply"\n{setting}')
+    with pytest.raises(CaseError, match=message):
+        load_case(case)

@@ -126,3 +126,19 @@ def test_tiff_and_npy_need_voxel_size(tmp_path):
     np.save(tmp_path / "flat.npy", np.zeros((4, 5)))
     with pytest.raises(ValueError, match=r"flat\.npy: expected a 3-D volume"):
         read_volume(tmp_path / "flat.npy", voxel_size=(1, 1, 1))
+
+
+def test_a_malformed_slice_is_a_named_error(tmp_path):
+    """Issue 18: pydicom parses values lazily, so a damaged element (here an unknown VR in
+    ``Rows``) failed later with ``NotImplementedError`` wherever the value was first used; the
+    reader now converts every element at once and names the file and tag."""
+    files = _write_series(tmp_path / "s", n=3)
+    data = bytearray(files[1].read_bytes())
+    at = data.index(b"\x28\x00\x10\x00US")  # Rows, explicit VR little endian
+    data[at + 4 : at + 6] = b"ZZ"
+    files[1].write_bytes(bytes(data))
+    with pytest.raises(
+        ValueError,
+        match=rf"{files[1].name}: cannot read as DICOM \(malformed DICOM \(NotImplementedError",
+    ):
+        read_dicom_series(tmp_path / "s")

@@ -82,3 +82,12 @@ def test_too_few_landmarks_for_pose_estimation_is_a_clear_error(scene):
         register_views(model, few, poses="refine")
     with pytest.raises(ValueError, match="poses: expected"):
         register_views(model, views, poses="guess")
+
+
+def test_a_contour_of_one_repeated_point_is_a_clear_error(scene):
+    """Issue 18: a zero-length contour failed deep in the matching ("zero-size array to
+    reduction operation maximum"); the observations refuse it, naming the view and contour."""
+    model, views, X = scene
+    flat = Contour(uv=np.full((5, 2), 100.0), closed=False)
+    with pytest.raises(ValueError, match=r"cam2: contours\[1\]: all 5 points are \(100, 100\)"):
+        replace(views[1], contours=[*views[1].contours, flat])

@@ -35,9 +35,9 @@ NONE: frozenset[int] = frozenset()
 #: field without an entry fails ``test_every_field_has_bad_values``).
 BAD = {
     "landmark_weight": [0.0, -0.5, 1.5, math.nan],
-    "max_iterations": [-1],
-    "refine_iterations": [-1],
-    "silhouette_points": [2, 0],
+    "max_iterations": [-1, 1001],
+    "refine_iterations": [-1, 10_001],
+    "silhouette_points": [2, 0, 100_001, 9223372036854775807],
     "gate_px": [0.0, -1.0, math.inf, math.nan],
     "blunder_threshold": [0.0, -3.0, math.inf],
     "eps": [0.0, -1e-3, math.nan],
@@ -48,9 +48,9 @@ BAD = {
     "match_floor_px": [0.0, -3.0, math.inf],
     "max_rejected_fraction": [0.0, 1.5, -0.1, math.nan],
     "blunder_contrast": [0.0, -3.0, math.nan],
-    "blunder_refine_iterations": [0, -1],
+    "blunder_refine_iterations": [0, -1, 10_001],
     "consensus_trigger": [0.0, -1.0, math.inf],
-    "consensus_iterations": [0, -1],
+    "consensus_iterations": [0, -1, 1001],
     "consensus_margin": [0.0, 1.01, math.nan],
     "readmit_sigmas": [0.0, -3.0, math.nan],
     "certificate_flag": [0.0, -1e-2, math.inf],
@@ -87,6 +87,32 @@ def test_boundary_values_are_accepted():
         consensus_iterations=1,
         blunder_refine_iterations=1,
     )
+
+
+#: The documented range of every count (docstring and docs/cases.md).
+COUNT_RANGES = {
+    "max_iterations": (0, 1000),
+    "refine_iterations": (0, 10_000),
+    "silhouette_points": (3, 100_000),
+    "blunder_refine_iterations": (1, 10_000),
+    "consensus_iterations": (1, 1000),
+}
+
+
+def test_every_count_has_a_documented_range():
+    """Reproducer (issue 18): ``silhouette_points = 9223372036854775807`` was accepted: every
+    count now has an upper bound, stated with its default."""
+    assert set(COUNT_RANGES) == {k for k, f in FIELDS.items() if type(f.default) is int}
+    RegistrationOptions(**{k: hi for k, (lo, hi) in COUNT_RANGES.items()})
+    RegistrationOptions(**{k: lo for k, (lo, hi) in COUNT_RANGES.items()})
+    attrs = RegistrationOptions.__doc__[RegistrationOptions.__doc__.index("Attributes") :]
+    row = _registration_row()
+    for key, (lo, hi) in COUNT_RANGES.items():
+        with pytest.raises(ValueError, match=rf"^{key}: too large \({hi + 1}; at most {hi}\)"):
+            RegistrationOptions(**{key: hi + 1})
+        block = re.search(rf"^    {key} : int\n((?:        .*\n)+)", attrs, re.MULTILINE)
+        assert f"{lo} to {hi}" in " ".join(block.group(1).split()), key
+        assert re.search(rf"`{key}` \S+ \({lo}-{hi}\)", row), key
 
 
 @pytest.mark.parametrize("key", ["max_iterations", "silhouette_points", "consensus_iterations"])

@@ -83,3 +83,52 @@ def test_load_rejects_pickles_and_bad_files(tmp_path):
     junk.write_bytes(b"not a zip")
     with pytest.raises(ValueError, match="junk.npz: not a readable"):
         ShapeModel.load(junk)
+
+
+def _damaged(model: ShapeModel, path, damage: str) -> bytes:
+    """The bytes of ``model`` saved as .npz, damaged as named (a truncated download, a flipped
+    byte in a member's compressed data, a zip that is only its first bytes)."""
+    import zipfile
+
+    model.save(path)
+    data = bytearray(path.read_bytes())
+    if damage == "truncated":
+        return bytes(data[: len(data) // 2])
+    if damage == "header only":
+        return bytes(data[:10])
+    if damage == "bad offset":  # the end record's central-directory offset 100 bytes too far:
+        end = data.rindex(b"PK\x05\x06") + 16  # the first member then starts at byte -100
+        data[end : end + 4] = (int.from_bytes(data[end : end + 4], "little") + 100).to_bytes(
+            4, "little"
+        )
+        return bytes(data)
+    with zipfile.ZipFile(path) as zf:
+        info = zf.getinfo("mean.npy")
+    at = info.header_offset  # the local header's own name and extra field lengths
+    start = at + 30 + int.from_bytes(data[at + 26 : at + 28], "little")
+    start += int.from_bytes(data[at + 28 : at + 30], "little")
+    if damage == "flipped byte":  # inside the compressed stream of 'mean.npy'
+        data[start + info.compress_size // 2] ^= 0xFF
+    else:  # "bad deflate": the compressed stream itself is garbage
+        data[start : start + 8] = b"\xff" * 8
+    return bytes(data)
+
+
+@pytest.mark.parametrize("damage", ["truncated", "header only", "flipped byte", "bad deflate"])
+def test_a_truncated_or_corrupt_npz_is_a_named_error(model, tmp_path, damage):
+    """Reproducer (issue 18): ``zipfile.BadZipFile`` and ``zlib.error`` escaped
+    ``ShapeModel.load`` (it caught only OSError/ValueError): a traceback at the command line."""
+    path = tmp_path / "m.npz"
+    path.write_bytes(_damaged(model, path, damage))
+    with pytest.raises(ValueError, match=r"m\.npz: not a readable \.npz shape model") as info:
+        ShapeModel.load(path)
+    assert "\n" not in str(info.value)
+
+
+def test_an_npz_member_at_a_negative_offset_is_a_named_error(model, tmp_path):
+    """Reproducer (issue 18): the ``OSError [Errno 22] Invalid argument`` variant, a seek to
+    a negative offset while reading a member, escaped ``ShapeModel.load``."""
+    path = tmp_path / "m.npz"
+    path.write_bytes(_damaged(model, path, "bad offset"))
+    with pytest.raises(ValueError, match=r"m\.npz: not a readable \.npz shape model"):
+        ShapeModel.load(path)

@@ -1,0 +1,58 @@
+"""The command line's last-resort handler: an unexpected exception is one line on stderr and
+exit 1, with the traceback only under ``-v``; input errors stay exit 2 (issue 18)."""
+
+from __future__ import annotations
+
+import pytest
+
+import biplanar_reg.cli.calibration as calibration_cli
+from biplanar_reg.cli import main
+
+#: The one line of an internal error, for an exception ``KeyError('boom')``.
+LINE = "biplanar-reg: internal error: KeyError: 'boom' (run with -v for the traceback)"
+
+
+@pytest.fixture()
+def broken_show(monkeypatch):
+    """``calibration show`` raising an exception no handler expects (a bug, not bad input)."""
+
+    def explode(args):
+        raise KeyError("boom")
+
+    monkeypatch.setattr(calibration_cli, "_cmd_show", explode)
+
+
+def test_an_unexpected_exception_is_one_line_and_exit_1(broken_show, capsys, tmp_path):
+    rc = main(["calibration", "show", str(tmp_path / "c.txt")])
+    out, err = capsys.readouterr()
+    assert rc == 1
+    assert err.strip() == LINE
+    assert "Traceback" not in err and out == ""
+
+
+@pytest.mark.parametrize("flag", ["-v", "--verbose", "-vv"])
+def test_verbose_prints_the_traceback(broken_show, capsys, tmp_path, flag):
+    rc = main([flag, "calibration", "show", str(tmp_path / "c.txt")])
+    err = capsys.readouterr().err
+    assert rc == 1
+    assert "Traceback (most recent call last)" in err and "in explode" in err
+    assert err.strip().splitlines()[-1] == LINE.replace(" (run with -v for the traceback)", "")
+
+
+def test_a_multi_line_message_stays_on_one_line(monkeypatch, capsys, tmp_path):
+    def explode(args):
+        raise RuntimeError("first\nsecond")
+
+    monkeypatch.setattr(calibration_cli, "_cmd_show", explode)
+    assert main(["calibration", "show", str(tmp_path / "c.txt")]) == 1
+    err = capsys.readouterr().err
+    assert err == (
+        "biplanar-reg: internal error: RuntimeError: first second (run with -v for the traceback)\n"
+    )
+
+
+def test_input_errors_keep_exit_2(capsys, tmp_path):
+    (tmp_path / "c.txt").write_text("image size\n1,x\n")
+    assert main(["calibration", "show", str(tmp_path / "c.txt")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "internal error" not in err
