@@ -95,9 +95,11 @@ def test_rerun_replaces_outputs_and_crash_keeps_previous(registered, monkeypatch
         raise RuntimeError("disk on fire")
 
     monkeypatch.setattr(case_report, "write_case_report", crash)
-    with pytest.raises(RuntimeError):
-        main(["register", str(case), "--out", str(out)])
-    assert (out / "result.json").read_bytes() == before  # the previous complete outputs
+    # an unexpected error is one line and exit 1 (the CLI's last-resort handler) ...
+    assert main(["register", str(case), "--out", str(out)]) == 1
+    assert "internal error: RuntimeError: disk on fire" in capsys.readouterr().err
+    # ... and the previous complete outputs stay
+    assert (out / "result.json").read_bytes() == before
     assert not list(out.parent.glob(".out1.*"))  # no temporary folder left behind
 
 
