@@ -16,6 +16,12 @@ exception                  base             raised when                         
 
 .. [1] Inside ``register``/``batch`` it is re-raised as a ``CaseFailure`` naming the case.
 
+Readers turn whatever their parser libraries raise on a damaged file (``zipfile.BadZipFile``,
+``zlib.error``, pydicom's exceptions, ``RecursionError`` of a deeply nested JSON document, ...)
+into one of the ``ValueError`` types above, naming the file and the key. Any other exception
+reaching the command line is a bug: ``biplanar-reg: internal error: <type>: <message> (run with
+-v for the traceback)`` on one line, exit 1.
+
 Each type is also exported by the package that raises it (``biplanar_reg.calibration``,
 ``biplanar_reg.annotation``, ``biplanar_reg.registration``, ``biplanar_reg.cases``; see
 ``docs/api.md``) and stays importable from the modules that raised it before.

@@ -14,11 +14,14 @@ from __future__ import annotations
 
 import logging
 import struct
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ..calibration.views import MAX_IMAGE_PIXELS as _VIEW_MAX_IMAGE_PIXELS
 from ..io.dicomfile import DicomReadError, dicom_problem, quiet_pydicom, read_dicom
 
 __all__ = ["XrayImage", "load_image"]
@@ -27,8 +30,9 @@ log = logging.getLogger(__name__)
 
 #: Largest image (one frame, W x H pixels) :func:`load_image` decodes; a larger one is refused
 #: from its header, before any decoding, with the memory it would take. 100 Mpx is more than
-#: any radiograph detector gives (a 43 cm plate at 50 um is 8600 x 8600 = 74 Mpx).
-MAX_IMAGE_PIXELS = 100_000_000
+#: any radiograph detector gives (a 43 cm plate at 50 um is 8600 x 8600 = 74 Mpx). The same
+#: limit as the image size a calibration may declare (:mod:`biplanar_reg.calibration.views`).
+MAX_IMAGE_PIXELS = _VIEW_MAX_IMAGE_PIXELS
 #: Memory an :class:`XrayImage` holds per pixel: float64 ``pixels`` and float32 ``display``
 #: (the decoding and the display mapping need about as much again while they run).
 BYTES_PER_PIXEL = 12
@@ -201,20 +205,32 @@ def _jpeg_size(data: bytes) -> tuple[int, int] | None:
     return None
 
 
+@contextmanager
+def _quiet(name: str) -> Iterator[None]:
+    """Mute the logger ``name`` (tifffile logs every damaged tag; the error says it all)."""
+    logger = logging.getLogger(name)
+    disabled, logger.disabled = logger.disabled, True
+    try:
+        yield
+    finally:
+        logger.disabled = disabled
+
+
 def _load_tiff(path: Path, frame: int) -> XrayImage:
     import tifffile
 
     try:
-        with tifffile.TiffFile(path) as tif:
-            series = tif.series[0]
-            shape = series.shape
-            # a multi-page grey stack is (pages, H, W); an RGB page is (H, W, 3)
-            is_stack = len(shape) == 3 and shape[-1] not in (3, 4) or len(shape) == 4
-            n_frames = int(shape[0]) if is_stack else 1
+        with _quiet("tifffile"), tifffile.TiffFile(path) as tif:
+            # page by page, not through tifffile's series: a damaged header can make the
+            # series analysis run for minutes; a multi-page stack is one frame per page
+            n_frames = len(tif.pages)
             _check_frame(path, frame, n_frames)
-            h, w = shape[1:3] if is_stack else shape[:2]
-            check_pixel_count(path, w, h)
-            arr = series.asarray(key=frame) if is_stack else series.asarray()
+            page = tif.pages[frame]
+            shape = tuple(page.shape)
+            if not (len(shape) == 2 or len(shape) == 3 and shape[-1] in (3, 4)):
+                raise ValueError(f"{path}: expected a 2D grey image, got a page of shape {shape}")
+            check_pixel_count(path, shape[1], shape[0])
+            arr = page.asarray()
     except ValueError as exc:
         if str(exc).startswith(str(path)):
             raise
@@ -238,7 +254,10 @@ def _load_raster(path: Path, frame: int) -> XrayImage:
     import cv2
 
     _check_frame(path, frame, 1)
-    data = np.fromfile(path, dtype=np.uint8)  # imdecode: no silent None on odd paths
+    try:
+        data = np.fromfile(path, dtype=np.uint8)  # imdecode: no silent None on odd paths
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     size = _raster_size(data[:65536].tobytes())
     if size is not None:
         check_pixel_count(path, *size)

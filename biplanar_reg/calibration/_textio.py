@@ -22,6 +22,8 @@ def read_lines(path: Path) -> list[tuple[int, str]]:
         text = Path(path).read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as exc:
         raise CalibrationFormatError(f"{path}: not a text file ({exc.reason})") from None
+    except (IsADirectoryError, PermissionError) as exc:  # unreadable input, not a bug
+        raise CalibrationFormatError(f"{path}: cannot be read ({exc.strerror})") from None
     return [(i + 1, ln.strip()) for i, ln in enumerate(text.splitlines()) if ln.strip()]
 
 

@@ -56,8 +56,11 @@ def detect_format(path: Path | str) -> str:
     lines (after an optional header line).
     """
     path = Path(path)
-    with open(path, "rb") as fh:
-        head = fh.read(132)
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(132)
+    except (IsADirectoryError, PermissionError) as exc:  # unreadable input, not a bug
+        raise CalibrationFormatError(f"{path}: cannot be read ({exc.strerror})") from None
     if len(head) == 132 and head[128:132] == b"DICM":
         return "dicom"
     lines = read_lines(path)

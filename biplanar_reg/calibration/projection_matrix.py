@@ -43,10 +43,12 @@ def decompose_projection(P: object, name: str = "P") -> tuple[np.ndarray, np.nda
         World-to-camera translation, mm.
     """
     P = as_array(name, P, (3, 4))
+    scale = float(np.abs(P[:, :3]).max())
+    if scale > 0:
+        P = P / scale  # the same camera (any scale), and no overflow below for huge entries
     M = P[:, :3]
     det = float(np.linalg.det(M))
-    scale = float(np.abs(M).max())
-    if scale == 0 or abs(det) < 1e-12 * scale**3:
+    if scale == 0 or not abs(det) >= 1e-12:
         raise ValueError(f"{name}: the left 3x3 block is singular; not a finite projective camera")
     if det < 0:  # P and -P project alike; pick the sign that gives det(R) = +1
         P = -P

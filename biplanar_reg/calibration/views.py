@@ -12,6 +12,7 @@ inverses of each other (a point projected and back-projected lies on its ray).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,6 +21,11 @@ from .._validate import as_array, check_positive, check_rotation
 from .pinhole import as_distortion, pixels_to_normalized, project_camera_points
 
 __all__ = ["View", "PerspectiveView", "OrthographicView", "SlotScanningView"]
+
+#: Largest image, in pixels (W x H), a view may declare; also the largest image
+#: :func:`biplanar_reg.annotation.load_image` decodes. Beyond it a view's image would not fit
+#: in memory (outlines are rasterised at the image size).
+MAX_IMAGE_PIXELS = 100_000_000
 
 
 def _as_rows(values: object, name: str, width: int) -> np.ndarray:
@@ -51,24 +57,33 @@ def _check_intrinsics(K: object, *, orthographic: bool) -> np.ndarray:
     return K
 
 
+def _whole_positive(x: object) -> bool:
+    """True for a positive whole number (int, or float with an integer value), not a bool."""
+    if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, float, np.integer, np.floating)):
+        return False
+    try:
+        f = float(x)
+    except OverflowError:  # an int beyond the float range
+        return False
+    return math.isfinite(f) and f.is_integer() and f > 0
+
+
 def _check_image_size(value: object) -> tuple[int, int]:
-    """``(W, H)`` as two positive ints; ``ValueError`` for anything else (inf, 512.5, "x")."""
+    """``(W, H)`` as two positive ints of at most :data:`MAX_IMAGE_PIXELS` pixels in all;
+    ``ValueError`` for anything else (inf, 512.5, "x", 10**40)."""
     try:
         items = list(value)  # type: ignore[call-overload]
     except TypeError:
         items = []
-    ok = len(items) == 2 and all(
-        isinstance(x, (int, float, np.integer, np.floating))
-        and not isinstance(x, (bool, np.bool_))
-        and np.isfinite(x)
-        and float(x).is_integer()
-        and x > 0
-        for x in items
-    )
-    if not ok:
+    if len(items) != 2 or not all(_whole_positive(x) for x in items):
         shown = repr(items if len(items) == 2 else value)[:60]
         raise ValueError(f"image_size: expected two positive whole numbers (W, H), got {shown}")
-    return (int(items[0]), int(items[1]))
+    w, h = int(items[0]), int(items[1])
+    if w * h > MAX_IMAGE_PIXELS:
+        raise ValueError(
+            f"image_size: {w}x{h} pixels is above the limit of {MAX_IMAGE_PIXELS:,} pixels"
+        )
+    return (w, h)
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)

@@ -645,7 +645,7 @@ def _header(ctx: _Ctx, doc: dict) -> tuple[str, str]:
     if not isinstance(case_id, str) or not case_id.strip():
         raise ctx.error("id", f"expected a non-empty string, got {case_id!r}")
     units = doc.get("units", "mm")
-    if units not in UNIT_SCALE:
+    if not isinstance(units, str) or units not in UNIT_SCALE:
         raise ctx.error("units", f"expected one of {list(UNIT_SCALE)}, got {units!r}")
     return case_id, units
 

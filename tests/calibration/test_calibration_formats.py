@@ -291,3 +291,16 @@ def test_deeply_nested_json_calibration_is_a_named_error(tmp_path: Path) -> None
     path.write_text('{"K": ' + "[" * 100_000 + "]" * 100_000 + "}")
     with pytest.raises(ValueError, match=r"deep\.json: not valid JSON \(nested too deeply"):
         load_calibration(path, "json")
+
+
+def test_an_image_size_above_the_pixel_limit_is_a_named_error(tmp_path: Path) -> None:
+    """Found by tests/test_fuzz_parsers.py: a MayaCam 1.0 width of 1e40 raised ``TypeError``;
+    an image size is now at most ``MAX_IMAGE_PIXELS`` (its outlines are rasterised)."""
+    path = tmp_path / "c.txt"
+    save_calibration(_pinhole(13, fy_equal=True), path, "mayacam1")
+    lines = path.read_text().splitlines()
+    for size, shown in (("1e40,768", "1" + "0" * 16), ("100000,100000", "100000x100000")):
+        lines[4] = f"0.1,{size}"
+        path.write_text("\n".join(lines) + "\n")
+        with pytest.raises(ValueError, match=rf"c\.txt: image_size: {shown}.* is above the limit"):
+            load_calibration(path)
