@@ -24,7 +24,7 @@ import numpy as np
 from ..calibration.views import MAX_IMAGE_PIXELS as _VIEW_MAX_IMAGE_PIXELS
 from ..io.dicomfile import DicomReadError, dicom_problem, quiet_pydicom, read_dicom
 
-__all__ = ["XrayImage", "load_image"]
+__all__ = ["XrayImage", "load_image", "read_image_size"]
 
 log = logging.getLogger(__name__)
 
@@ -33,9 +33,9 @@ log = logging.getLogger(__name__)
 #: any radiograph detector gives (a 43 cm plate at 50 um is 8600 x 8600 = 74 Mpx). The same
 #: limit as the image size a calibration may declare (:mod:`biplanar_reg.calibration.views`).
 MAX_IMAGE_PIXELS = _VIEW_MAX_IMAGE_PIXELS
-#: Memory an :class:`XrayImage` holds per pixel: float64 ``pixels`` and float32 ``display``
-#: (the decoding and the display mapping need about as much again while they run).
-BYTES_PER_PIXEL = 12
+#: Memory an :class:`XrayImage` holds per pixel: float32 ``pixels`` and float32 ``display``
+#: (the decoding needs the file's own samples, e.g. 2 bytes for 16-bit, while it runs).
+BYTES_PER_PIXEL = 8
 
 _TIFF_SUFFIXES = {".tif", ".tiff"}
 _RASTER_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp"}
@@ -48,9 +48,11 @@ class XrayImage:
 
     Attributes
     ----------
-    pixels : (H, W) float64 array
+    pixels : (H, W) float32 array
         Stored values after the DICOM modality LUT (rescale slope/intercept); the raw grey levels
-        for TIFF/PNG/JPEG. Pixel ``(u, v)`` (column, row) is ``pixels[v, u]``.
+        for TIFF/PNG/JPEG (exact for integer samples of up to 24 bits; float32 rather than
+        float64 halves the memory of a large radiograph). Pixel ``(u, v)`` (column, row) is
+        ``pixels[v, u]``.
     display : (H, W) float32 array
         Display values in [0, 1], 0 = black: window / VOI LUT applied, MONOCHROME1 inverted.
     source : str
@@ -119,9 +121,12 @@ def as_display(image: XrayImage | np.ndarray, name: str = "image") -> np.ndarray
 
 
 def _window_display(pixels: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """``(pixels - lo) / (hi - lo)`` clipped to [0, 1], float32, with one temporary array."""
     if hi <= lo:
         return np.zeros(pixels.shape, np.float32)
-    return np.clip((pixels - lo) / (hi - lo), 0.0, 1.0).astype(np.float32)
+    out = np.subtract(pixels, np.float32(lo), dtype=np.float32)
+    out *= np.float32(1.0 / (hi - lo))
+    return np.clip(out, 0.0, 1.0, out=out)
 
 
 def _grey_from_planes(arr: np.ndarray, path: Path) -> np.ndarray:
@@ -129,14 +134,16 @@ def _grey_from_planes(arr: np.ndarray, path: Path) -> np.ndarray:
     if arr.size == 0:
         raise ValueError(f"{path}: the image has no pixels (array of shape {arr.shape})")
     if arr.ndim == 3 and arr.shape[2] in (3, 4):
-        rgb = arr[..., :3].astype(np.float64)
+        rgb = arr[..., :3]
         if np.array_equal(rgb[..., 0], rgb[..., 1]) and np.array_equal(rgb[..., 0], rgb[..., 2]):
-            return rgb[..., 0]
+            return rgb[..., 0].astype(np.float32)
         log.info("%s: colour image converted to grey (luma)", path.name)
-        return rgb @ np.array([0.299, 0.587, 0.114])
+        return (rgb.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)).astype(
+            np.float32
+        )
     if arr.ndim != 2:
         raise ValueError(f"{path}: expected a 2D grey image, got array of shape {arr.shape}")
-    return arr.astype(np.float64)
+    return arr.astype(np.float32)
 
 
 def _integer_range(dtype: np.dtype, data: np.ndarray) -> tuple[float, float]:
@@ -335,7 +342,7 @@ def _load_dicom(path: Path, frame: int) -> XrayImage:
         arr = arr[frame]
     if arr.ndim != 2:
         raise ValueError(f"{path}: expected 2D frames, got pixel array of shape {arr.shape}")
-    pixels = np.asarray(apply_modality_lut(arr, ds), dtype=np.float64)
+    pixels = np.asarray(apply_modality_lut(arr, ds), dtype=np.float32)
     window: tuple[float, float] | None = None
     center = _first_float(getattr(ds, "WindowCenter", None))
     width = _first_float(getattr(ds, "WindowWidth", None))
@@ -417,3 +424,68 @@ def load_image(path: str | Path, frame: int = 0) -> XrayImage:
     if kind == "dicom":
         return _load_dicom(path, int(frame))
     return _load_raster(path, int(frame))
+
+
+def _tiff_size(path: Path, frame: int) -> tuple[int, int]:
+    import tifffile
+
+    try:
+        with _quiet("tifffile"), tifffile.TiffFile(path) as tif:
+            _check_frame(path, frame, len(tif.pages))
+            shape = tuple(tif.pages[frame].shape)
+    except ValueError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: unreadable TIFF ({exc})") from None
+    except Exception as exc:  # noqa: BLE001 - tifffile raises anything on bad bytes
+        raise ValueError(f"{path}: unreadable TIFF ({type(exc).__name__}: {exc})") from None
+    if len(shape) < 2:
+        raise ValueError(f"{path}: expected a 2D grey image, got a page of shape {shape}")
+    return int(shape[1]), int(shape[0])
+
+
+def _dicom_size(path: Path, frame: int) -> tuple[int, int]:
+    try:
+        ds = read_dicom(path, stop_before_pixels=True)
+        n_frames = int(getattr(ds, "NumberOfFrames", 1) or 1)
+        size = (int(ds.Columns), int(ds.Rows))
+    except DicomReadError as exc:
+        raise ValueError(f"{path}: unreadable DICOM: {exc.reason}") from None
+    except (AttributeError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: unreadable DICOM (no usable Rows/Columns: {exc})") from None
+    _check_frame(path, frame, n_frames)
+    return size
+
+
+def read_image_size(path: str | Path, frame: int = 0) -> tuple[int, int]:
+    """The size ``(W, H)`` in pixels of one frame of an image file, from its header only.
+
+    What a case needs before any pixel is decoded (the calibration's and the annotations'
+    bounds); :func:`load_image` decodes the pixels when something needs them (the report, the
+    workbench, a contour recipe), so a case registered without them never holds the image.
+
+    Raises
+    ------
+    ValueError
+        The file is missing, its header is unreadable, the frame does not exist, or the image
+        is above :data:`MAX_IMAGE_PIXELS`.
+    """
+    path = Path(path)
+    if isinstance(frame, bool) or not isinstance(frame, (int, np.integer)):
+        raise ValueError(f"frame: expected an integer, got {frame!r}")
+    if not path.is_file():
+        raise ValueError(f"{path}: image file not found")
+    kind = _sniff(path)
+    if kind == "tiff":
+        size = _tiff_size(path, int(frame))
+    elif kind == "dicom":
+        size = _dicom_size(path, int(frame))
+    else:
+        _check_frame(path, int(frame), 1)
+        with path.open("rb") as fh:
+            found = _raster_size(fh.read(65536))
+        if found is None:  # a format whose header we do not parse: decode it once
+            return load_image(path, int(frame)).size
+        size = (int(found[0]), int(found[1]))
+    check_pixel_count(path, *size)
+    return size

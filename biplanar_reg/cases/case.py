@@ -19,6 +19,7 @@ import os
 import tomllib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +27,7 @@ import numpy as np
 
 from .._validate import did_you_mean
 from ..annotation import AnnotationError, Annotations, XrayImage, load_annotations, load_image
+from ..annotation.image import read_image_size
 from ..calibration import FORMATS, load_calibration
 from ..calibration.views import OrthographicView, PerspectiveView, SlotScanningView, View
 from ..errors import CaseError
@@ -96,14 +98,38 @@ class CaseView:
     calibration: Path
     calibration_format: str
     image_path: Path | None = None
-    image: XrayImage | None = None
+    image_frame: int = 0
+    #: ``(W, H)`` of the image file, read from its header when the case was loaded
+    image_file_size: tuple[int, int] | None = None
+    #: where the image is named, for errors: ``"<case.toml>: [[views]][i] (<name>) image"``
+    image_key: str = ""
+
+    @cached_property
+    def image(self) -> XrayImage | None:
+        """The radiograph, decoded on first use and then kept (``None`` without an image).
+
+        The case loader reads only the image's header (its size); the pixels are decoded once,
+        when something needs them (the report's overlays, the workbench, a contour recipe), so
+        ``register`` of a case with large radiographs holds them only while it draws them.
+
+        Raises
+        ------
+        CaseError
+            The pixel data cannot be decoded (names case.toml and the view's key).
+        """
+        if self.image_path is None:
+            return None
+        try:
+            return load_image(self.image_path, frame=self.image_frame)
+        except (ValueError, OSError) as exc:
+            raise CaseError(f"{self.image_key or self.image_path}: {_one_line(exc)}") from None
 
     @property
     def image_size(self) -> tuple[int, int] | None:
-        """``(W, H)`` in pixels from the calibration, else from the image."""
+        """``(W, H)`` in pixels from the calibration, else from the image file's header."""
         if self.view.image_size is not None:
             return self.view.image_size
-        return None if self.image is None else self.image.size
+        return self.image_file_size
 
 
 @dataclass(frozen=True, eq=False)
@@ -534,11 +560,11 @@ def _load_views(ctx: _Ctx, doc: dict, scale: float) -> list[CaseView]:
         if "dlt_column" in table:
             dlt_column = ctx.number(table, "dlt_column", where, int, None)
         image_path = ctx.path(table, "image", where, required=False)
-        image = None
-        if image_path is not None:
+        frame, size = 0, None
+        if image_path is not None:  # the header only: pixels are decoded when needed
             frame = ctx.number(table, "image_frame", where, int, 0)
             try:
-                image = load_image(image_path, frame=frame)
+                size = read_image_size(image_path, frame=frame)
             except (ValueError, OSError) as exc:
                 raise ctx.error(f"{where} image", _one_line(exc)) from None
         calib = ctx.path(table, "calibration", where)
@@ -547,7 +573,7 @@ def _load_views(ctx: _Ctx, doc: dict, scale: float) -> list[CaseView]:
                 calib,
                 fmt,
                 dlt_column=dlt_column,
-                image_size=None if image is None else image.size,
+                image_size=size,
                 name=name,
             )
         except (ValueError, OSError) as exc:
@@ -559,7 +585,8 @@ def _load_views(ctx: _Ctx, doc: dict, scale: float) -> list[CaseView]:
                 view = _scale_view(view, scale)
             except ValueError as exc:
                 raise ctx.error(f"{where} calibration", _one_line(exc)) from None
-        views.append(CaseView(name, view, calib, used_fmt, image_path, image))
+        key = f"{ctx.file}: {where} image"
+        views.append(CaseView(name, view, calib, used_fmt, image_path, frame, size, key))
     if len(views) < MIN_VIEWS:
         names = ", ".join(v.name for v in views)
         raise ctx.error(

@@ -57,9 +57,9 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
         The command line about to be parsed: only the commands named in it get their arguments
         (see :mod:`._parsing`). ``None`` builds every parser in full.
     """
-    from ._parsing import wanted_words
+    from ._parsing import SuggestingParser, wanted_words
 
-    parser = argparse.ArgumentParser(
+    parser = SuggestingParser(
         prog="biplanar-reg",
         description="Register statistical bone models to calibrated biplanar X-rays "
         "(silhouette-boosted Generalised Shape-from-Template).",

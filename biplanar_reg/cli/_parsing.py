@@ -13,8 +13,12 @@ builds one parser more, never one less, so parsing is the same as with the full 
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable, Sequence
-from typing import Any
+import difflib
+import re
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any, NoReturn
+
+from .._validate import did_you_mean
 
 __all__: list[str] = []
 
@@ -63,3 +67,36 @@ def add_command(
     if wanted is None or name in wanted:
         build(parser, wanted)
     return parser
+
+
+def _parsers(parser: argparse.ArgumentParser) -> Iterator[argparse.ArgumentParser]:
+    """``parser`` and every (sub)command parser built under it."""
+    yield parser
+    for action in parser._actions:  # noqa: SLF001 - argparse keeps its parsers only here
+        if isinstance(action, argparse._SubParsersAction):  # noqa: SLF001
+            for child in action.choices.values():
+                yield from _parsers(child)
+
+
+class SuggestingParser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose "unrecognized argument" and "invalid choice" errors say
+    ``(did you mean '--workers'?)`` for a likely typo (the same rule as the case keys,
+    :func:`biplanar_reg._validate.did_you_mean`); sub-command parsers inherit the class."""
+
+    def error(self, message: str) -> NoReturn:
+        super().error(message + self._suggestion(message))
+
+    def _suggestion(self, message: str) -> str:
+        if message.startswith("unrecognized arguments:"):
+            options = {o for p in _parsers(self) for a in p._actions for o in a.option_strings}
+            bare = {o.lstrip("-"): o for o in options}  # compared without the shared dashes
+            for word in message.split(":", 1)[1].split():
+                close = difflib.get_close_matches(word.split("=")[0].lstrip("-"), sorted(bare), 1)
+                if word.startswith("-") and close:
+                    return f" (did you mean {bare[close[0]]!r}?)"
+            return ""
+        found = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", message)
+        if found:
+            choices = re.findall(r"'([^']*)'", found.group(2))
+            return did_you_mean(found.group(1), choices)
+        return ""

@@ -398,3 +398,30 @@ def test_the_template_numbers_are_bounded(case, setting, message):
     _edit_toml(case, 'ssm = "model/bone_ssm.npz"', f'template = "gt/bone.ply"\n{setting}')
     with pytest.raises(CaseError, match=message):
         load_case(case)
+
+
+def test_the_loader_reads_image_headers_only_and_decodes_once(case, monkeypatch):
+    import biplanar_reg.cases.case as case_module
+
+    calls = []
+    real = case_module.load_image
+    monkeypatch.setattr(case_module, "load_image", lambda *a, **k: calls.append(a) or real(*a, **k))
+    c = load_case(case)
+    assert calls == []  # loading the case decoded no pixel
+    assert [v.image_size for v in c.views] == [(256, 256), (256, 256)]
+    first = c.views[0].image
+    assert c.views[0].image is first and len(calls) == 1  # decoded once, then kept
+    assert first.size == (256, 256) and first.pixels.dtype == np.float32
+
+
+def test_pixel_data_that_cannot_be_decoded_is_a_one_line_case_error(case, capsys):
+    png = case / "xray" / "cam1.png"
+    data = png.read_bytes()
+    png.write_bytes(data[:64])  # a valid header (size read at loading), no pixel data
+    load_case(case)  # the header is enough to load the case
+    out = case.parent / "out"
+    assert main(["register", str(case), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "case.toml: [[views]][0] (cam1) image" in err[0], err
+    assert "cam1.png" in err[0]
+    assert not out.exists() and not list(case.parent.glob(".out.*"))  # nothing half-written

@@ -56,3 +56,25 @@ def test_input_errors_keep_exit_2(capsys, tmp_path):
     assert main(["calibration", "show", str(tmp_path / "c.txt")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and "internal error" not in err
+
+
+@pytest.mark.parametrize(
+    ("argv", "hint"),
+    [
+        (["batch", "c", "--out", "o", "--workerz", "2"], "(did you mean '--workers'?)"),
+        (["register", "c", "--outt=x"], "(did you mean '--out'?)"),
+        (["regster", "c"], "(did you mean 'register'?)"),
+        (["calibration", "conver", "a"], "(did you mean 'convert'?)"),
+    ],
+)
+def test_a_mistyped_option_or_command_gets_a_suggestion(argv, hint, capsys):
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1].endswith(hint)
+
+
+def test_an_unrelated_unknown_option_gets_no_suggestion(capsys):
+    with pytest.raises(SystemExit):
+        main(["register", "c", "--silhouets", "3"])
+    assert "did you mean" not in capsys.readouterr().err
