@@ -16,7 +16,7 @@ from .annotations import (
     save_annotations,
 )
 from .clean import clean_contour, cut_polyline, remove_self_intersections, resample_polyline
-from .image import XrayImage, load_image
+from .image import XrayImage, load_image, read_image_size
 from .livewire import livewire
 from .recipe import ContourRecipe, load_recipe, run_recipe
 from .region import grabcut_outline
@@ -41,6 +41,7 @@ __all__ = [
     "load_image",
     "load_recipe",
     "merge_annotations",
+    "read_image_size",
     "remove_self_intersections",
     "render_radiograph",
     "resample_polyline",

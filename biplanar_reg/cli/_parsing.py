@@ -14,11 +14,10 @@ from __future__ import annotations
 
 import argparse
 import difflib
+import math
 import re
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any, NoReturn
-
-from .._validate import did_you_mean
 
 __all__: list[str] = []
 
@@ -80,8 +79,9 @@ def _parsers(parser: argparse.ArgumentParser) -> Iterator[argparse.ArgumentParse
 
 class SuggestingParser(argparse.ArgumentParser):
     """An ``ArgumentParser`` whose "unrecognized argument" and "invalid choice" errors say
-    ``(did you mean '--workers'?)`` for a likely typo (the same rule as the case keys,
-    :func:`biplanar_reg._validate.did_you_mean`); sub-command parsers inherit the class."""
+    ``(did you mean '--workers'?)`` for a likely typo (``difflib``'s default cutoff, as for the
+    case keys); sub-command parsers inherit the class. No library import: ``--help`` stays
+    instant."""
 
     def error(self, message: str) -> NoReturn:
         super().error(message + self._suggestion(message))
@@ -97,6 +97,39 @@ class SuggestingParser(argparse.ArgumentParser):
             return ""
         found = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", message)
         if found:
-            choices = re.findall(r"'([^']*)'", found.group(2))
-            return did_you_mean(found.group(1), choices)
+            close = difflib.get_close_matches(
+                found.group(1), re.findall(r"'([^']*)'", found.group(2)), 1
+            )
+            return f" (did you mean {close[0]!r}?)" if close else ""
         return ""
+
+
+def number(
+    kind: type[int] | type[float],
+    lo: float | None = None,
+    hi: float | None = None,
+    *,
+    above: bool = False,
+) -> Callable[[str], Any]:
+    """An argparse ``type``: an ``int``/finite ``float`` within ``[lo, hi]`` (``(lo, hi]`` with
+    ``above``); otherwise argparse's one-line usage error naming the option, exit 2."""
+
+    def parse(text: str) -> Any:
+        try:
+            value = kind(text)
+        except ValueError:
+            what = "an integer" if kind is int else "a number"
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+        if kind is float and not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+        low_ok = lo is None or (value > lo if above else value >= lo)
+        if not low_ok or (hi is not None and value > hi):
+            show = (lambda x: f"{x:g}") if kind is float else (lambda x: str(int(x)))
+            lower = "" if lo is None else f"> {show(lo)}" if above else f">= {show(lo)}"
+            upper = "" if hi is None else f"<= {show(hi)}"
+            rule = " and ".join(r for r in (lower, upper) if r)
+            raise argparse.ArgumentTypeError(f"must be {rule}, got {text}")
+        return value
+
+    parse.__name__ = kind.__name__  # argparse names the type in "invalid int value" messages
+    return parse

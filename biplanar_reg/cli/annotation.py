@@ -8,7 +8,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ._parsing import Wanted, add_command
+from ._parsing import Wanted, add_command, number
 
 if TYPE_CHECKING:
     import numpy as np
@@ -218,17 +218,34 @@ def _build_contour(c: argparse.ArgumentParser, wanted: Wanted) -> None:
     c.add_argument("--method", choices=("livewire", "grabcut"), default="livewire")
     c.add_argument(
         "--box",
-        type=float,
+        type=number(float),
         nargs=4,
         metavar=("U0", "V0", "U1", "V1"),
         help="grabcut: box around the bone, pixels",
     )
     c.add_argument("--closed", action="store_true", help="livewire: close the outline")
     c.add_argument("--view", help="view name in the output (default: the image's file stem)")
-    c.add_argument("--frame", type=int, default=0, help="frame of a multi-frame image")
-    c.add_argument("--sigma", type=float, default=1.5, help="livewire edge scale, px (1.5)")
-    c.add_argument("--spacing", type=float, default=1.0, help="output point spacing, px (1.0)")
-    c.add_argument("--border", type=float, default=1.0, help="cut this close to the border, px")
+    c.add_argument(
+        "--frame", type=number(int, 0, 100_000), default=0, help="frame of a multi-frame image"
+    )
+    c.add_argument(
+        "--sigma",
+        type=number(float, 0, 100, above=True),
+        default=1.5,
+        help="livewire edge scale, px (1.5)",
+    )
+    c.add_argument(
+        "--spacing",
+        type=number(float, 0, 1000, above=True),
+        default=1.0,
+        help="output point spacing, px (1.0)",
+    )
+    c.add_argument(
+        "--border",
+        type=number(float, 0, 10_000),
+        default=1.0,
+        help="cut this close to the border, px",
+    )
     c.add_argument(
         "-o",
         "--output",
@@ -249,10 +266,15 @@ def _build_snap(s: argparse.ArgumentParser, wanted: Wanted) -> None:
 
     s.add_argument("image")
     s.add_argument("--points", required=True, help='JSON {"name": [u, v], ...}')
-    s.add_argument("--radius", type=float, default=5.0, help="search radius, px (5)")
+    s.add_argument(
+        "--radius",
+        type=number(float, 0, 1000, above=True),
+        default=5.0,
+        help="search radius, px (5)",
+    )
     s.add_argument("--mode", choices=SNAP_MODES, default="corner")
     s.add_argument("--view", help="view name in the output (default: the image's file stem)")
-    s.add_argument("--frame", type=int, default=0)
+    s.add_argument("--frame", type=number(int, 0, 100_000), default=0)
     s.add_argument("-o", "--output", required=True, help="output annotations JSON")
     s.set_defaults(func=_cmd_snap)
 
@@ -271,7 +293,9 @@ def _build_merge(m: argparse.ArgumentParser, wanted: Wanted) -> None:
 def _build_preview(v: argparse.ArgumentParser, wanted: Wanted) -> None:
     v.add_argument("case_dir")
     v.add_argument("-o", "--output", required=True, help="output PNG")
-    v.add_argument("--max-height", type=int, default=900, help="panel height, px (900)")
+    v.add_argument(
+        "--max-height", type=number(int, 16, 20_000), default=900, help="panel height, px (900)"
+    )
     v.set_defaults(func=_cmd_preview)
 
 

@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ._parsing import Wanted, add_command
+from ._parsing import Wanted, add_command, number
 
 if TYPE_CHECKING:
     import numpy as np
@@ -28,13 +28,13 @@ def _add_read_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--dlt-column",
-        type=int,
+        type=number(int, 1, 10_000),
         default=None,
         help="camera column (1-based) of a merged XROMM DLT csv",
     )
     p.add_argument(
         "--image-size",
-        type=int,
+        type=number(int, 1, 100_000),
         nargs=2,
         metavar=("W", "H"),
         default=None,
@@ -221,7 +221,12 @@ def _build_from_phantom(p: argparse.ArgumentParser, wanted: Wanted) -> None:
         help="output format (default: json for .json, else mayacam2)",
     )
     p.add_argument("--bright", action="store_true", help="beads are brighter than background")
-    p.add_argument("--max-radius", type=float, default=15.0, help="largest bead radius, px")
+    p.add_argument(
+        "--max-radius",
+        type=number(float, 0, 10_000, above=True),
+        default=15.0,
+        help="largest bead radius, px",
+    )
     p.add_argument(
         "--distortion",
         type=int,

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..errors import CommandError
-from ._parsing import Builder, Wanted, add_command
+from ._parsing import Builder, Wanted, add_command, number
 
 if TYPE_CHECKING:
     from ..ssm.model import ShapeModel
@@ -34,24 +34,24 @@ def _build_from_ct(p: argparse.ArgumentParser, wanted: Wanted) -> None:
     p.add_argument(
         "--voxel-size",
         nargs=3,
-        type=float,
+        type=number(float, 0, 1000, above=True),
         metavar=("X", "Y", "Z"),
         help="voxel spacing (column, row, slice) in mm; required for TIFF and NPY",
     )
     p.add_argument(
         "--threshold",
-        type=float,
+        type=number(float),
         help="bone threshold in the volume's units (default: 300 HU for DICOM CT, Otsu otherwise)",
     )
     p.add_argument(
         "--target-vertices",
-        type=int,
+        type=number(int, 0, 10_000_000),
         default=4000,
         help="decimate to about this many vertices; 0 keeps all (default 4000)",
     )
     p.add_argument(
         "--smooth-iterations",
-        type=int,
+        type=number(int, 0, 10_000),
         default=20,
         help="windowed-sinc smoothing iterations, 0 = none (default 20)",
     )
@@ -73,8 +73,12 @@ def _build_synth(p: argparse.ArgumentParser, wanted: Wanted) -> None:
 
     p.add_argument("template", help="template mesh or point file")
     p.add_argument("-o", "--output", required=True, help="output folder (created if needed)")
-    p.add_argument("--size", type=int, default=9, help="number of shapes (default 9)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument(
+        "--size", type=number(int, 1, 100_000), default=9, help="number of shapes (default 9)"
+    )
+    p.add_argument(
+        "--seed", type=number(int, 0, 2**32 - 1), default=0, help="random seed (default 0)"
+    )
     p.add_argument(
         "--families",
         default=",".join(FAMILIES),
@@ -82,7 +86,7 @@ def _build_synth(p: argparse.ArgumentParser, wanted: Wanted) -> None:
     )
     p.add_argument(
         "--strength",
-        type=float,
+        type=number(float, 0, 100),
         default=1.0,
         help="multiplier of all deformation magnitudes (default 1)",
     )
@@ -99,10 +103,10 @@ def _build_build(p: argparse.ArgumentParser, wanted: Wanted) -> None:
     p.add_argument("inputs", nargs="+", help="mesh/point files or folders of them")
     p.add_argument("-o", "--output", required=True, help="model file (.npz)")
     group = p.add_mutually_exclusive_group()
-    group.add_argument("--modes", type=int, help="number of modes to keep")
+    group.add_argument("--modes", type=number(int, 1, 100_000), help="number of modes to keep")
     group.add_argument(
         "--variance",
-        type=float,
+        type=number(float, 0, 1, above=True),
         default=0.98,
         help="explained-variance fraction to keep (default 0.98)",
     )
@@ -125,9 +129,14 @@ def _build_densify(p: argparse.ArgumentParser, wanted: Wanted) -> None:
     p.add_argument("model", help="surface model file (.npz)")
     p.add_argument("-o", "--output", required=True, help="dense point model file (.npz)")
     p.add_argument(
-        "--points", type=int, default=20000, help="number of interior points (default 20000)"
+        "--points",
+        type=number(int, 1, 10_000_000),
+        default=20000,
+        help="number of interior points (default 20000)",
     )
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument(
+        "--seed", type=number(int, 0, 2**32 - 1), default=0, help="random seed (default 0)"
+    )
     p.set_defaults(func=_cmd_densify)
 
 

@@ -78,3 +78,37 @@ def test_an_unrelated_unknown_option_gets_no_suggestion(capsys):
     with pytest.raises(SystemExit):
         main(["register", "c", "--silhouets", "3"])
     assert "did you mean" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (
+            ["annotate", "preview", "c", "--max-height", "-5", "-o", "p.png"],
+            "argument --max-height: must be >= 16 and <= 20000, got -5",
+        ),
+        (
+            ["population", "synth", "t.ply", "--size", "1000000000", "-o", "p"],
+            "argument --size: must be >= 1 and <= 100000, got 1000000000",
+        ),
+        (
+            ["ssm", "build", "a", "--variance", "1.5", "-o", "m.npz"],
+            "must be > 0 and <= 1, got 1.5",
+        ),
+        (["population", "synth", "t.ply", "--seed", "-1", "-o", "p"], "<= 4294967295, got -1"),
+        (
+            ["annotate", "contour", "i.png", "--sigma", "nan", "-o", "x.json"],
+            "argument --sigma: expected a finite number, got 'nan'",
+        ),
+        (
+            ["ssm", "densify", "m.npz", "--points", "x", "-o", "d.npz"],
+            "expected an integer, got 'x'",
+        ),
+    ],
+)
+def test_numeric_options_are_bounded(argv, message, capsys):
+    """Reproducers: ``--max-height -5`` was an OpenCV traceback, ``--size 1000000000`` ran."""
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1].endswith(message)
