@@ -83,7 +83,7 @@ _KEYS = {
     "model": {"ssm", "template", "landmarks", *MODEL_DEFAULTS},
     "views": {"name", "calibration", "calibration_format", "dlt_column", "image", "image_frame"},
     "annotations": {"file"},
-    "ground_truth": {"mesh", "up_to_pose"},
+    "ground_truth": {"mesh", "up_to_pose", "model_from_truth"},
 }
 _OPTION_FIELDS = {f.name: f for f in dataclasses.fields(RegistrationOptions)}
 POSES = ("known", "unknown", "refine")
@@ -145,6 +145,9 @@ class GroundTruth:
     vertices: np.ndarray
     faces: np.ndarray | None
     up_to_pose: bool = False
+    #: extension ``[ground_truth] model_from_truth = true``: the model was built from this very
+    #: surface (e.g. a harmonic population of the subject's own CT), so errors are optimistic
+    model_from_truth: bool = False
 
 
 @dataclass(frozen=True, eq=False)
@@ -648,9 +651,10 @@ def _load_ground_truth(ctx: _Ctx, doc: dict, scale: float, model: ShapeModel) ->
         verts, faces = read_mesh(path)
     except (ValueError, OSError) as exc:
         raise ctx.error("[ground_truth] mesh", _one_line(exc)) from None
-    up_to_pose = table.get("up_to_pose", False)
-    if not isinstance(up_to_pose, bool):
-        raise ctx.error("[ground_truth] up_to_pose", f"expected true or false: {up_to_pose!r}")
+    up_to_pose, from_truth = (table.get(k, False) for k in ("up_to_pose", "model_from_truth"))
+    for key, value in (("up_to_pose", up_to_pose), ("model_from_truth", from_truth)):
+        if not isinstance(value, bool):
+            raise ctx.error(f"[ground_truth] {key}", f"expected true or false: {value!r}")
     if up_to_pose and faces is None:
         raise ctx.error("[ground_truth] up_to_pose", f"{path.name}: needs a mesh with faces")
     verts = verts * scale
@@ -660,7 +664,7 @@ def _load_ground_truth(ctx: _Ctx, doc: dict, scale: float, model: ShapeModel) ->
             "[ground_truth] mesh",
             f"{path.name} is {ratio:.3g} times the model's size: units contradict the model's",
         )
-    return GroundTruth(path, verts, faces, up_to_pose)
+    return GroundTruth(path, verts, faces, up_to_pose, from_truth)
 
 
 def _header(ctx: _Ctx, doc: dict) -> tuple[str, str]:

@@ -192,6 +192,7 @@ def _ground_truth_entry(case: Case) -> dict[str, Any] | None:
         "mesh": _relative(gt.path, case.case_dir),
         "same_vertex_count": len(gt.vertices) == case.model.n_vertices,
         "up_to_pose": gt.up_to_pose,
+        "model_from_truth": gt.model_from_truth,
     }
 
 
@@ -305,7 +306,28 @@ def _ground_truth_metrics(
             }
         )
     metrics, vertex_error = surface_metrics(res.vertices, case.model.faces, gt_vertices, gt.faces)
+    metrics.update(_reference_fits(case, gt_vertices, metrics.get("vertex_rms_mm")))
     return metrics, vertex_error, alignment
+
+
+def _reference_fits(
+    case: Case, gt_vertices: np.ndarray, vertex_rms: float | None
+) -> dict[str, float]:
+    """The mean-shape baseline and the model floor (best rigid + model fit) of a ground truth
+    in vertex correspondence with the model, and the registration's error as a ratio to the
+    floor (mm; ``{}`` when the vertex counts differ)."""
+    if vertex_rms is None or len(gt_vertices) != case.model.n_vertices:
+        return {}
+    from ..ssm import fit_model
+
+    floor = fit_model(case.model, gt_vertices).rms_mm
+    out = {
+        "mean_shape_vertex_rms_mm": fit_model(case.model, gt_vertices, shape=False).rms_mm,
+        "model_floor_vertex_rms_mm": floor,
+    }
+    if floor > 1e-6:  # a truth inside the model's span has no meaningful ratio
+        out["vertex_rms_to_floor"] = vertex_rms / floor
+    return out
 
 
 def _report_views(

@@ -5,6 +5,7 @@ See ``docs/ssm.md``; the package exports the names listed in ``docs/api.md``.
 
 from .build import affine_fractions, build_ssm, explained_fractions, procrustes_align
 from .dense import densify
+from .fit import ModelFit, fit_model
 from .harmonic import BoxCage, box_cage, harmonic_coordinates
 from .model import ShapeModel
 from .population import FAMILIES, Population, synthesise_population
@@ -14,6 +15,7 @@ __all__ = [
     "FAMILIES",
     "BoneSurface",
     "BoxCage",
+    "ModelFit",
     "Population",
     "ShapeModel",
     "affine_fractions",
@@ -22,6 +24,7 @@ __all__ = [
     "build_ssm",
     "densify",
     "explained_fractions",
+    "fit_model",
     "harmonic_coordinates",
     "procrustes_align",
     "synthesise_population",

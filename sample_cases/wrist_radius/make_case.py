@@ -73,6 +73,7 @@ silhouettes = true
 [ground_truth]
 mesh = "model/radius_template.ply"   # the same subject's CT, in the CT's frame
 up_to_pose = true
+model_from_truth = true   # the model population was synthesised from this CT: errors are optimistic
 """
 
 

@@ -168,3 +168,26 @@ def test_report_from_document_and_former_signature_agree(registered, tmp_path):
         for d in (new, old)
     ]
     assert pages[0] == pages[1]
+
+
+def test_result_reports_the_mean_shape_baseline_and_the_model_floor(tmp_path):
+    """A truth outside the model's span: the floor is above zero and below the mean shape's."""
+    import json
+
+    from biplanar_reg.simulate import synthetic_bone_model
+    from biplanar_reg.ssm import ShapeModel
+
+    bone = synthetic_bone_model(6, seed=0)
+    model = ShapeModel(bone.mean, bone.modes, faces=bone.faces)  # gets the 8 default landmarks
+    outside = synthetic_bone_model(8, seed=0)  # the same bone with two modes more
+    truth = outside.instance(np.r_[np.zeros(6), 0.8, -0.8])
+    case = write_synthetic_case(
+        tmp_path / "c", 1, model=model, truth_shape=truth, image_size=(256, 256)
+    )
+    assert main(["register", str(case), "--out", str(tmp_path / "out")]) == 0
+    doc = json.loads((tmp_path / "out" / "result.json").read_text())
+    m = doc["metrics"]
+    assert 0 < m["model_floor_vertex_rms_mm"] < m["mean_shape_vertex_rms_mm"]
+    ratio = m["vertex_rms_mm"] / m["model_floor_vertex_rms_mm"]
+    assert m["vertex_rms_to_floor"] == pytest.approx(ratio)
+    assert doc["ground_truth"]["model_from_truth"] is False
