@@ -71,7 +71,7 @@ def fit_model(
             f"points: expected a finite ({model.n_vertices}, 3) array in correspondence with "
             f"the model, got shape {pts.shape}"
         )
-    basis = model.modes.reshape(model.n_modes, -1).T  # (3N, M)
+    basis = model.modes.reshape(model.n_modes, 3 * model.n_vertices).T  # (3N, M)
     w = np.zeros(model.n_modes)
     inst = model.instance(w)
     _, rot, t = _fit_transform(inst, pts, scaling=False)
