@@ -182,8 +182,8 @@ def report(args, trees, reg, stages, batch, knee_size, total) -> str:
     lines = [
         "# Case time: `biplanar-reg register` stage by stage, and a 100-case batch",
         "",
-        f"Command: `python benchmarks/case_time.py --reference {args.reference} --repeats "
-        f"{args.repeats} --batch {args.batch}` ({total / 60:.1f} min).",
+        f"Command: `python benchmarks/case_time.py --reference {args.reference} --tree "
+        f"{args.tree} --repeats {args.repeats} --batch {args.batch}` ({total / 60:.1f} min).",
         f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python "
         f"{platform.python_version()}; shared and noisy (load average at start "
         f"{os.getloadavg()[0]:.1f}): compare the two columns of a row, measured in the same run "
@@ -198,7 +198,7 @@ def report(args, trees, reg, stages, batch, knee_size, total) -> str:
         f"| case | variant | CPU s {ref} -> {new} (ratio) | wall s {ref} -> {new} |",
         "|---|---|---|---|",
     ]
-    for name in [*SAMPLES, "knee"]:
+    for name in [*args.samples, "knee"]:
         for var in ("report", "no report"):
             r = reg.get(
                 (ref, name, "report" if var == "no report" and (ref, name, var) not in reg else var)
@@ -250,8 +250,16 @@ def report(args, trees, reg, stages, batch, knee_size, total) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--reference", type=Path, default=Path("/tmp/speedbase"))
+    ap.add_argument(
+        "--tree",
+        type=Path,
+        default=REPO,
+        help="the tree to compare (default: this one; a snapshot worktree keeps edits made "
+        "during the run out of it)",
+    )
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--batch", type=int, default=100, help="cases in the batch (0: skip)")
+    ap.add_argument("--samples", nargs="*", default=SAMPLES, help="sample cases to register")
     ap.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "case_time.md")
     ap.add_argument("--work", type=Path, help="scratch folder (default: a temporary one)")
     args = ap.parse_args()
@@ -261,17 +269,17 @@ def main() -> None:
             "(git worktree add --detach /tmp/speedbase 266f442)"
         )
     t0 = time.perf_counter()
-    trees = {"reference": args.reference.resolve(), "this tree": REPO}
+    trees = {"reference": args.reference.resolve(), "this tree": args.tree.resolve()}
     work = args.work or Path(tempfile.mkdtemp(prefix="case_time-"))
     work.mkdir(parents=True, exist_ok=True)
     knee = work / "knee"
     if not (knee / "case.toml").exists():
-        child(REPO, ["-c", KNEE, str(knee)], work)
+        child(trees["this tree"], ["-c", KNEE, str(knee)], work)
     from biplanar_reg.cases.case import load_case
 
     m = load_case(knee).model
     knee_size = f"{m.n_vertices:,} vertices, {len(m.faces):,} triangles, {m.n_modes} modes"
-    cases = {n: REPO / "sample_cases" / n for n in SAMPLES}
+    cases = {n: REPO / "sample_cases" / n for n in args.samples}
     cases["knee"] = knee
     print("register ...", flush=True)
     reg = time_register(trees, cases, args.repeats, work)
