@@ -287,7 +287,9 @@ class _OutlineCache:
     The registration asks for the outline of the same posed shape several times (the boosting
     iterate's cost and matches, the local refinement's start and end, the final result); a hit
     returns the very arrays computed before (read-only), so the results are unchanged. An entry
-    holds references to its faces and view, so their identities stay valid while it lives.
+    holds references to its faces and view, so their identities stay valid while it lives; the
+    vertices are compared by value, the faces and views (frozen) by identity, so faces or a
+    view's arrays changed in place would not be noticed (nothing in the package does that).
     """
 
     def __init__(self, size: int = 8) -> None:
