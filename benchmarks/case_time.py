@@ -180,7 +180,7 @@ def fmt_pair(ref: tuple[float, float] | None, new: tuple[float, float] | None) -
 def report(args, trees, reg, stages, batch, knee_size, total) -> str:
     ref, new = list(trees)
     lines = [
-        "# Case time: `biplanar-reg register` stage by stage, and a 100-case batch",
+        f"# Case time: `biplanar-reg register` stage by stage, and a {args.batch}-case batch",
         "",
         f"Command: `python benchmarks/case_time.py --reference {args.reference} --tree "
         f"{args.tree} --repeats {args.repeats} --batch {args.batch}` ({total / 60:.1f} min).",
