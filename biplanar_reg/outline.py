@@ -27,6 +27,8 @@ row), 0-based; world points in mm (the view's world frame).
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import cv2
@@ -130,12 +132,11 @@ def coverage_mask(uv: np.ndarray, faces: np.ndarray, pad: int = 3) -> tuple[np.n
     Notes
     -----
     All triangles go to one ``cv2.fillPoly`` call, which fills by pairing edge crossings along
-    each scanline; where projected triangles overlap (the front and back of a closed surface)
-    it leaves some interior pixels empty (measured on the synthetic radius reference case: 13 %
-    fewer covered pixels than the exact pixel-centre coverage, in holes of a few pixels), and an
-    inner contour edge next to such a hole passes :func:`_outer_edges`. Kept as it is because the
-    registration's results (and the sample cases' ``expected.json``) are computed with it;
-    filling triangle by triangle removes the holes at the same cost but moves the results.
+    each scanline; where projected triangles overlap (e.g. the front and back of a closed
+    surface) it leaves interior pixels empty. :func:`mesh_outline` therefore passes the
+    front-facing triangles only, which cover a closed mesh's projection with few overlaps (on
+    the synthetic radius reference case: the default outline's vertices within 2.3 px of the
+    exact coverage's border, against 35.6 px with all triangles) at a third of the cost.
     """
     lo = np.floor(uv.min(axis=0)).astype(int) - pad
     hi = np.ceil(uv.max(axis=0)).astype(int) + pad
@@ -143,7 +144,7 @@ def coverage_mask(uv: np.ndarray, faces: np.ndarray, pad: int = 3) -> tuple[np.n
     mask = np.zeros((h, w), np.uint8)
     shift = 4  # cv2 fixed-point sub-pixel precision (1/16 px)
     pts = np.round((uv - lo) * (1 << shift)).astype(np.int32)[faces]
-    cv2.fillPoly(mask, list(pts), 1, lineType=cv2.LINE_8, shift=shift)
+    cv2.fillPoly(mask, pts, 1, lineType=cv2.LINE_8, shift=shift)
     # sliver triangles can leave one-pixel cracks inside the projection; a 3x3 closing fills
     # them (they would otherwise make inner contour edges look like outer ones) while keeping
     # real holes of the projection
@@ -162,7 +163,7 @@ def _facing(vertices: np.ndarray, faces: np.ndarray, view: View) -> np.ndarray:
 
 
 def _contour_generator_edges(
-    vertices: np.ndarray, he: HalfEdges, faces: np.ndarray, view: View
+    vertices: np.ndarray, he: HalfEdges, faces: np.ndarray, view: View, front: np.ndarray
 ) -> np.ndarray:
     """Directed edges (C, 2) of front faces whose twin is back-facing (or missing).
 
@@ -175,6 +176,8 @@ def _contour_generator_edges(
     faces : (F, 3) int array
         Triangles.
     view : View
+    front : (F,) bool array
+        :func:`_facing` of the faces.
 
     Returns
     -------
@@ -182,7 +185,6 @@ def _contour_generator_edges(
         Vertex-id edges. Their orientation follows the front faces' winding, so they chain into
         oriented loops; the same directed edges come out whichever way the mesh is oriented.
     """
-    front = _facing(vertices, faces, view)
     twin_front = np.where(he.twin_face >= 0, front[np.maximum(he.twin_face, 0)], False)
     return he.edges[front[he.face] & ~twin_front]
 
@@ -260,14 +262,68 @@ def mesh_outline(
     uv : (N, 2) array
         Projections of all vertices, pixels.
     """
+    if mask is None:
+        hit = _CACHE.get(vertices, faces, view)
+        if hit is not None:
+            return hit
     he = topology or half_edges(faces, len(vertices))
     uv = view.project(vertices)
-    edges = _contour_generator_edges(vertices, he, faces, view)
-    if mask is None:
-        mask, offset = coverage_mask(uv, faces)
-    else:
-        offset = np.zeros(2)
-    return _outer_edges(uv, edges, mask, offset), uv
+    front = _facing(vertices, faces, view)
+    edges = _contour_generator_edges(vertices, he, faces, view, front)
+    if mask is not None:
+        return _outer_edges(uv, edges, mask, np.zeros(2)), uv
+    # the front faces alone cover the projection of a closed mesh (every ray into it enters
+    # through a front face): a third of the raster work of all faces
+    cover, offset = coverage_mask(uv, faces[front])
+    out = (_outer_edges(uv, edges, cover, offset), uv)
+    _CACHE.put(vertices, faces, view, out)
+    return out
+
+
+class _OutlineCache:
+    """The last few :func:`mesh_outline` results (default coverage), keyed by the exact
+    vertices, the faces array and the view.
+
+    The registration asks for the outline of the same posed shape several times (the boosting
+    iterate's cost and matches, the local refinement's start and end, the final result); a hit
+    returns the very arrays computed before (read-only), so the results are unchanged. An entry
+    holds references to its faces and view, so their identities stay valid while it lives; the
+    vertices are compared by value, the faces and views (frozen) by identity, so faces or a
+    view's arrays changed in place would not be noticed (nothing in the package does that).
+    """
+
+    def __init__(self, size: int = 8) -> None:
+        self.size = size
+        self._items: OrderedDict[int, tuple] = OrderedDict()
+        self._count = 0
+        self._lock = threading.Lock()
+
+    def get(
+        self, vertices: np.ndarray, faces: np.ndarray, view: View
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The stored ``(edges, uv)`` for exactly these vertices, faces and view, or None."""
+        with self._lock:
+            for key, (V, F, vw, out) in reversed(self._items.items()):
+                same = F is faces and vw is view and V.shape == np.shape(vertices)
+                if same and np.array_equal(V, vertices):
+                    self._items.move_to_end(key)
+                    return out
+        return None
+
+    def put(
+        self, vertices: np.ndarray, faces: np.ndarray, view: View, out: tuple[np.ndarray, ...]
+    ) -> None:
+        """Store ``out`` (made read-only) for these vertices (copied), faces and view."""
+        for a in out:
+            a.setflags(write=False)
+        with self._lock:
+            self._count += 1
+            self._items[self._count] = (np.array(vertices, dtype=float), faces, view, out)
+            while len(self._items) > self.size:
+                self._items.popitem(last=False)
+
+
+_CACHE = _OutlineCache()
 
 
 def alpha_outline(

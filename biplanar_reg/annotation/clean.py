@@ -9,7 +9,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from matplotlib.path import Path as MplPath
 
 from .._validate import as_array, check_positive
 
@@ -234,6 +233,8 @@ def cut_polyline(
         keep &= (pts[:, 1] >= b) & (pts[:, 1] <= h - 1 - b)
     for k, zone in enumerate(exclusion_zones):
         poly = _as_polyline(zone, f"exclusion_zones[{k}]", min_points=3)
+        from matplotlib.path import Path as MplPath  # here: the registration needs none
+
         keep &= ~MplPath(poly).contains_points(pts)
     if not keep.any():
         return [], []

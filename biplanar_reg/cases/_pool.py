@@ -15,6 +15,10 @@ each worker is running:
   exits when its parent process changes (``os.getppid()``). Workers ignore SIGINT and stay in the
   batch's process group: Ctrl-C reaches the batch, which stops them; ``kill -- -PGID`` reaches
   them all.
+* each worker's BLAS/OpenMP libraries get ``cores // size`` threads (at least 1; environment
+  variables set for the spawned process, unless the user set them): two workers on two cores
+  otherwise run two BLAS threads each and oversubscribe the cores (measured: 1.61x instead of
+  1.80x over one worker, 16 % more CPU per case).
 """
 
 from __future__ import annotations
@@ -43,6 +47,38 @@ _PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 WATCHDOG_SECONDS = 0.25
 #: Consecutive workers dying before they are ready after which the pool gives up.
 MAX_START_FAILURES = 3
+#: Thread-count variables of the BLAS/OpenMP libraries numpy and scipy may load.
+THREAD_VARIABLES = (
+    "OMP_NUM_THREADS",
+    "OPENBLAS_NUM_THREADS",
+    "MKL_NUM_THREADS",
+    "BLIS_NUM_THREADS",
+    "VECLIB_MAXIMUM_THREADS",
+    "NUMEXPR_NUM_THREADS",
+)
+
+
+def available_cores() -> int:
+    """CPU cores this process may run on (its affinity mask where known)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+@contextlib.contextmanager
+def worker_threads(size: int):
+    """Within the block, ``os.environ`` gives spawned workers ``cores // size`` BLAS/OpenMP
+    threads each (variables the user set are kept); restored afterwards."""
+    n = str(max(1, available_cores() // max(1, size)))
+    added = [k for k in THREAD_VARIABLES if k not in os.environ]
+    for k in added:
+        os.environ[k] = n
+    try:
+        yield
+    finally:
+        for k in added:
+            os.environ.pop(k, None)
 
 #: ``on_result(job, kind, value)``: ``kind`` "done" (``value``: the task's return value) or
 #: "error" (``value``: the one-line message of the exception the task raised).
@@ -122,7 +158,8 @@ class _Pool:
         while len(self.workers) < min(self.size, len(self.pending) + self.busy()):
             parent, child = self.ctx.Pipe(duplex=True)
             p = self.ctx.Process(target=_worker_main, args=(child, os.getpid(), self.task))
-            p.start()
+            with worker_threads(self.size):
+                p.start()
             child.close()
             self.workers.append(_Worker(p, parent))
         for w in self.workers:

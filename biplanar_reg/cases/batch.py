@@ -41,6 +41,7 @@ import numpy as np
 
 from ..io.atomic import atomic_write_text
 from ._lock import OutputLock, describe, probe
+from ._pool import available_cores
 from ._shards import SUMMARY_FORMAT, parse_shard, read_shard_summaries, shard_file, shard_names
 from .outputs import clean_stale, is_complete
 
@@ -88,18 +89,20 @@ def read_record(case_name: str, out_dir: Path, status: str, seconds: float | Non
     row["certificate"] = doc.get("certificate")
     row["n_flags"] = len(doc.get("flags", []))
     row["flags"] = "; ".join(doc.get("flags", []))
-    row["report"] = f"{out_dir.name}/report.html"
+    row["report"] = f"{out_dir.name}/report.html" if (out_dir / "report.html").is_file() else ""
     return row
 
 
-def process_case(case_dir: str, out_dir: str, allow_outside: bool = False) -> dict:
+def process_case(
+    case_dir: str, out_dir: str, allow_outside: bool = False, report: bool = True
+) -> dict:
     """Register one case into ``out_dir``; return its summary row (never raises)."""
     from .run import run_case_dir
 
     t0 = time.perf_counter()
     name = Path(case_dir).name
     try:
-        run_case_dir(case_dir, out_dir, allow_outside=allow_outside)
+        run_case_dir(case_dir, out_dir, allow_outside=allow_outside, report=report)
         return read_record(name, Path(out_dir), "done", time.perf_counter() - t0)
     except Exception as exc:  # noqa: BLE001 - isolate the case, record why it failed
         reason = " ".join(str(exc).split()) or type(exc).__name__
@@ -320,10 +323,11 @@ def _failed(case_dir: str, reason: str) -> dict:
 def _run_local(
     jobs: list[tuple[str, str]],
     workers: int,
-    allow_outside: bool,
+    extra: tuple,
     on_done: Callable[[dict], None],
 ) -> None:
-    """Run jobs in the local pool; a case whose worker died is retried once in a fresh worker.
+    """Run jobs in the local pool (``process_case(case, out, *extra)``); a case whose worker
+    died is retried once in a fresh worker.
 
     Only the case a dead worker was running is charged the death (see :mod:`._pool`).
     """
@@ -335,7 +339,7 @@ def _run_local(
     def on_death(job: int, deaths: int, exitcode: int | None) -> bool:
         c, o = jobs[job]
         how = _exit_text(exitcode)
-        if is_complete(Path(o)):  # it finished before its worker died
+        if is_complete(Path(o), report=len(extra) < 2):  # it finished before its worker died
             on_done(read_record(Path(c).name, Path(o), "done", None))
         elif deaths >= _MAX_WORKER_DEATHS:
             on_done(_failed(c, f"the worker process died twice (killed or crashed; {how})"))
@@ -345,13 +349,13 @@ def _run_local(
         return False
 
     # process_case is looked up when the batch runs (tests replace it)
-    run_pool([(c, o, allow_outside) for c, o in jobs], workers, process_case, on_result, on_death)
+    run_pool([(c, o, *extra) for c, o in jobs], workers, process_case, on_result, on_death)
 
 
 def _run_dask(
     jobs: list[tuple[str, str]],
     address: Any,
-    allow_outside: bool,
+    extra: tuple,
     on_done: Callable[[dict], None],
 ) -> None:
     """Run jobs on ``dask.distributed.Client(address)`` (an address or a cluster object)."""
@@ -368,7 +372,7 @@ def _run_dask(
     try:
         futures = {
             client.submit(
-                process_case, c, o, allow_outside, pure=False, key=f"case-{i}-{Path(c).name}"
+                process_case, c, o, *extra, pure=False, key=f"case-{i}-{Path(c).name}"
             ): c
             for i, (c, o) in enumerate(jobs)
         }
@@ -385,7 +389,7 @@ def _run_dask(
 def _run_jobqueue(
     jobs: list[tuple[str, str]],
     engine: dict[str, Any],
-    allow_outside: bool,
+    extra: tuple,
     on_done: Callable[[dict], None],
 ) -> None:
     """Start a dask-jobqueue cluster, submit its worker jobs, run the cases on it, close it."""
@@ -394,7 +398,7 @@ def _run_jobqueue(
     cluster = _cluster.make_cluster(engine["cluster"], engine["options"])
     try:
         _cluster.submit(cluster, engine["cluster"], engine["jobs"])
-        _run_dask(jobs, cluster, allow_outside, on_done)
+        _run_dask(jobs, cluster, extra, on_done)
     finally:
         _cluster.close(cluster)
 
@@ -461,18 +465,19 @@ def _engine(
 
 
 def _execute(
-    jobs: list[tuple[str, str]], engine: dict[str, Any], allow_outside: bool, rec: _Recorder
+    jobs: list[tuple[str, str]], engine: dict[str, Any], extra: tuple, rec: _Recorder
 ) -> bool:
-    """Run the jobs on the engine; True when interrupted by SIGTERM / Ctrl-C."""
+    """Run the jobs on the engine (``process_case(case, out, *extra)``); True when interrupted
+    by SIGTERM / Ctrl-C."""
     previous = signal.signal(signal.SIGTERM, _raise_terminated) if threading_main() else None
     try:
         if engine.get("cluster"):
-            _run_jobqueue(jobs, engine, allow_outside, rec)
+            _run_jobqueue(jobs, engine, extra, rec)
         elif engine["scheduler"]:
-            _run_dask(jobs, engine["scheduler"], allow_outside, rec)
+            _run_dask(jobs, engine["scheduler"], extra, rec)
         else:
-            n = engine["workers"] or min(os.cpu_count() or 1, len(jobs))
-            _run_local(jobs, n, allow_outside, rec)
+            n = engine["workers"] or min(available_cores(), len(jobs))
+            _run_local(jobs, n, extra, rec)
     except (KeyboardInterrupt, _Terminated):
         log.warning("interrupted: %d of %d case(s) finished", len(rec.rows), rec.progress.total)
         return True
@@ -495,6 +500,7 @@ def run_batch(
     force: bool = False,
     allow_outside: bool = False,
     progress_stream=None,
+    report: bool = True,
 ) -> BatchSummary:
     """Register many cases into ``out/<case folder name>/`` and write the summary.
 
@@ -525,6 +531,10 @@ def run_batch(
         Passed to each case (paths outside the case folder).
     progress_stream : file, optional
         Where the progress bar goes (default stderr).
+    report : bool
+        Write each case's report.html (default); False: ``registered.ply`` and ``result.json``
+        only (``batch --no-report``; such a case counts as complete for a rerun without
+        reports only).
 
     Returns
     -------
@@ -551,11 +561,12 @@ def run_batch(
         for d in dirs:
             target = out / d.name
             clean_stale(target)
-            if not force and is_complete(target):
+            if not force and is_complete(target, report):
                 rec.skipped(read_record(d.name, target, "done", None))
             else:
                 todo.append((str(d), str(target)))
-        interrupted = _execute(todo, engine, allow_outside, rec) if todo else False
+        extra = (allow_outside,) if report else (allow_outside, False)  # fakes take 3 args
+        interrupted = _execute(todo, engine, extra, rec) if todo else False
         ordered = [
             rec.rows.get(d.name)
             or {"case": d.name, "status": "not run", "reason": "interrupted", "seconds": None}
@@ -573,7 +584,7 @@ def run_batch(
 def _merged_row(out: Path, name: str, row: dict | None, shard: str) -> dict:
     """The study row of case ``name``: its output folder, else what its shard recorded."""
     target = out / name
-    if is_complete(target):
+    if is_complete(target, report=False):  # shards may have run with --no-report
         seconds = row.get("seconds") if row else None
         ran = bool(row.get("ran", True)) if row and row.get("status") == "done" else False
         return {**read_record(name, target, "done", seconds), "ran": ran}

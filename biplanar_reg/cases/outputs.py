@@ -28,9 +28,11 @@ __all__: list[str] = []
 REQUIRED_OUTPUTS = ("registered.ply", "result.json", "report.html")
 
 
-def is_complete(out: Path) -> bool:
-    """True when ``out`` is a complete case output folder."""
-    return out.is_dir() and all((out / f).is_file() for f in REQUIRED_OUTPUTS)
+def is_complete(out: Path, report: bool = True) -> bool:
+    """True when ``out`` is a complete case output folder (``report=False``: without
+    ``report.html``, as ``--no-report`` writes it)."""
+    need = REQUIRED_OUTPUTS if report else tuple(f for f in REQUIRED_OUTPUTS if f != "report.html")
+    return out.is_dir() and all((out / f).is_file() for f in need)
 
 
 def _check_output_target(out: Path) -> None:

@@ -367,6 +367,7 @@ def register_case(
     include_phi: bool = False,
     load_seconds: float = 0.0,
     progress: Callable[[str], None] | None = None,
+    report: bool = True,
 ) -> RunOutcome:
     """Register a loaded case and write all its outputs atomically into ``out``.
 
@@ -382,6 +383,9 @@ def register_case(
     progress : callable, optional
         Called with a one-line message at each stage of the registration (the messages of
         :func:`biplanar_reg.registration.register_views`) and before the outputs are written.
+    report : bool
+        Write ``report.html`` and its figures (default); False writes ``registered.ply`` and
+        ``result.json`` only (its ``report`` is then None), for users who want the numbers.
 
     Raises
     ------
@@ -390,8 +394,6 @@ def register_case(
     CaseFailure
         The registration failed.
     """
-    from ..report import case_report  # looked up at call time (tests replace the writer)
-
     out_dir = Path(out) if out is not None else case.case_dir / "out"
     out_dir = out_dir.resolve()
     if out_dir == case.case_dir or case.case_dir.is_relative_to(out_dir):
@@ -417,21 +419,24 @@ def register_case(
         doc["ground_truth"]["alignment"] = alignment
     if include_phi:
         doc["phi"] = dicom_identifiers(case)
-    views = _report_views(case, obs, res, outlines)
     if progress is not None:
-        progress("writing registered.ply, result.json and the report")
+        progress("writing registered.ply, result.json" + (" and the report" if report else ""))
     with atomic_output_dir(out_dir) as tmp:
         t2 = time.perf_counter()
         write_mesh(tmp / "registered.ply", res.vertices, case.model.faces)
-        doc["report"] = case_report.write_case_report(
-            tmp,
-            doc,
-            views,
-            vertices=res.vertices,
-            faces=case.model.faces,
-            vertex_error=vertex_error,
-        )
-        doc["timings"]["report"] = time.perf_counter() - t2
+        doc["report"] = None
+        if report:
+            from ..report import case_report  # looked up at call time (tests replace it)
+
+            doc["report"] = case_report.write_case_report(
+                tmp,
+                doc,
+                _report_views(case, obs, res, outlines),
+                vertices=res.vertices,
+                faces=case.model.faces,
+                vertex_error=vertex_error,
+            )
+            doc["timings"]["report"] = time.perf_counter() - t2
         doc["timings"]["total"] = load_seconds + (time.perf_counter() - t0)
         atomic_write_json(tmp / "result.json", doc)
     log.info("%s: wrote %s", case.id, out_dir)
@@ -445,10 +450,12 @@ def run_case_dir(
     allow_outside: bool = False,
     include_phi: bool = False,
     progress: Callable[[str], None] | None = None,
+    report: bool = True,
 ) -> RunOutcome:
     """Load, register and write one case folder (the ``register`` command).
 
-    ``progress`` is passed to :func:`register_case` (stage messages, for a progress display).
+    ``progress`` and ``report`` are passed to :func:`register_case` (stage messages, for a
+    progress display; False: no report.html).
     """
     t0 = time.perf_counter()
     case = load_case(case_dir, allow_outside=allow_outside)
@@ -458,4 +465,5 @@ def run_case_dir(
         include_phi=include_phi,
         load_seconds=time.perf_counter() - t0,
         progress=progress,
+        report=report,
     )

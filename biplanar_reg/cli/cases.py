@@ -21,10 +21,14 @@ def _cmd_register(args: argparse.Namespace) -> int:
     from ..cases.run import run_case_dir
 
     outcome = run_case_dir(
-        args.case_dir, args.out, allow_outside=args.allow_outside, include_phi=args.include_phi
+        args.case_dir,
+        args.out,
+        allow_outside=args.allow_outside,
+        include_phi=args.include_phi,
+        report=not args.no_report,
     )
     doc = outcome.document
-    report = outcome.out_dir / "report.html"
+    report = None if args.no_report else outcome.out_dir / "report.html"
     if args.json:
         print(
             json.dumps(
@@ -32,7 +36,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
                     "status": "done",
                     "id": doc["id"],
                     "out": str(outcome.out_dir),
-                    "report": str(report),
+                    "report": None if report is None else str(report),
                     "flags": doc["flags"],
                     "metrics": doc["metrics"],
                 }
@@ -45,7 +49,8 @@ def _cmd_register(args: argparse.Namespace) -> int:
             for k in ("landmark_rms_px", "contour_rms_px", "vertex_rms_mm", "surface_rms_mm")
             if m.get(k) is not None
         ]
-        print(f"{doc['id']}: done ({', '.join(parts)}); report: {report}")
+        where = f"report: {report}" if report else f"outputs: {outcome.out_dir} (no report)"
+        print(f"{doc['id']}: done ({', '.join(parts)}); {where}")
         for f in doc["flags"]:
             print(f"  flag: {f}")
     return 0
@@ -67,6 +72,7 @@ def _check_batch_args(args: argparse.Namespace) -> None:
                 ("--cluster-option", args.cluster_option),
                 ("--force", args.force),
                 ("--allow-outside", args.allow_outside),
+                ("--no-report", args.no_report),
             )
             if value is not None and value is not False and value != []
         ]
@@ -101,6 +107,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
             shard=args.shard,
             force=args.force,
             allow_outside=args.allow_outside,
+            report=not args.no_report,
         )
         out = args.out
     c = summary.counts
@@ -146,6 +153,11 @@ def _build_register(p: argparse.ArgumentParser, wanted: Wanted) -> None:
         action="store_true",
         help="include DICOM patient identifiers in result.json and the report",
     )
+    p.add_argument(
+        "--no-report",
+        action="store_true",
+        help="write registered.ply and result.json only (no report.html and figures; faster)",
+    )
     p.set_defaults(func=_cmd_register)
 
 
@@ -179,6 +191,11 @@ def _build_batch(b: argparse.ArgumentParser, wanted: Wanted) -> None:
         help="build DIR/summary.* from the shards' outputs in DIR; runs nothing",
     )
     b.add_argument("--force", action="store_true", help="redo cases whose outputs exist")
+    b.add_argument(
+        "--no-report",
+        action="store_true",
+        help="write each case's registered.ply and result.json only (no report.html)",
+    )
     b.add_argument(
         "--allow-outside",
         action="store_true",
