@@ -46,7 +46,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import trimesh
 from scipy import ndimage
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
@@ -95,8 +94,8 @@ class RealisticScene:
         With landmarks (:func:`~.case_folder.synthetic_landmarks`).
     second : (vertices (K, 3), faces) tuple
         The second bone, template frame, mm, placed beside the bone.
-    tissue : (vertices, faces) tuple
-        A soft-tissue cylinder around both bones, template frame, mm.
+    tissue : (centre (3,), radius) tuple
+        A soft-tissue cylinder along the template's z axis around both bones, mm.
     views : list of PerspectiveView
         The full calibrations (world frame, mm).
     pose : (R, t)
@@ -112,7 +111,7 @@ class RealisticScene:
     n_train: int
     model: ShapeModel
     second: tuple[np.ndarray, np.ndarray]
-    tissue: tuple[np.ndarray, np.ndarray]
+    tissue: tuple[np.ndarray, float]
     views: list[PerspectiveView]
     pose: tuple[np.ndarray, np.ndarray]
     cut: np.ndarray
@@ -268,14 +267,29 @@ def _beside(bone: np.ndarray, other: np.ndarray, u: np.ndarray, gap_mm: float) -
     return other + shift
 
 
-def _tissue(points: np.ndarray, margin_mm: float = 12.0) -> tuple[np.ndarray, np.ndarray]:
-    """A capsule of soft tissue along z enclosing ``points`` (mm) with ``margin_mm`` to spare."""
+def _tissue(points: np.ndarray, margin_mm: float = 12.0) -> tuple[np.ndarray, float]:
+    """A cylinder of soft tissue along z enclosing ``points`` (mm) with ``margin_mm`` to spare:
+    a point on its axis and its radius (mm)."""
     c = points.mean(axis=0)
     r = float(np.max(np.linalg.norm(points[:, :2] - c[:2], axis=1))) + margin_mm
-    h = float(np.ptp(points[:, 2])) + 2 * margin_mm
-    cap = trimesh.creation.capsule(height=h, radius=r, count=[24, 24])
-    v = np.asarray(cap.vertices) - np.asarray(cap.vertices).mean(axis=0) + c
-    return v, np.asarray(cap.faces, dtype=np.int64)
+    return c, r
+
+
+def _cylinder_lengths(
+    view: PerspectiveView, centre: np.ndarray, axis: np.ndarray, radius: float
+) -> np.ndarray:
+    """Path length (H, W) of every pixel's ray through an infinite cylinder, mm (exact)."""
+    w, h = view.image_size
+    vv, uu = np.mgrid[0:h, 0:w]
+    o, d = view.rays(np.column_stack([uu.ravel(), vv.ravel()]).astype(float))
+    rel = o - centre
+    op = rel - np.outer(rel @ axis, axis)
+    dp = d - np.outer(d @ axis, axis)
+    a = np.sum(dp * dp, axis=1)
+    b = 2 * np.sum(op * dp, axis=1)
+    c = np.sum(op * op, axis=1) - radius**2
+    disc = np.maximum(b * b - 4 * a * c, 0.0)
+    return (np.sqrt(disc) / np.maximum(a, 1e-12)).reshape(h, w)
 
 
 @functools.lru_cache(maxsize=4)
@@ -287,6 +301,7 @@ def wrist_scene(
     n_train: int = 8,
     n_modes: int = 6,
     seed: int = 0,
+    resolution: int = 40,
 ) -> RealisticScene:
     """The default scene: the distal radius and the ulna of the shipped wrist CT and the two
     real calibrations (cached).
@@ -300,6 +315,9 @@ def wrist_scene(
         Target vertex count of the radius surface (the ulna gets 600).
     n_population, n_train, n_modes : int
         Population size (seed ``seed``), members the model is built from, modes kept.
+    resolution : int
+        Laplace grid of the population's harmonic coordinates (intervals along the longest
+        axis; a coarser grid is faster and as smooth).
     """
     data = _wrist_data(data_dir)
     rad = bone_surface(
@@ -309,7 +327,7 @@ def wrist_scene(
     uln = bone_surface(
         read_volume(data / "ulna_ct.tif", voxel_size=WRIST_CT_VOXEL_MM), target_vertices=600
     )
-    pop = synthesise_population(rad.vertices, n_population, seed=seed)
+    pop = synthesise_population(rad.vertices, n_population, seed=seed, resolution=resolution)
     model = build_ssm(pop.shapes[:n_train], faces=rad.faces, n_modes=n_modes)
     model = ShapeModel(
         model.mean,
@@ -402,7 +420,7 @@ def _render(
     view: PerspectiveView,
     bone: np.ndarray,
     second: np.ndarray,
-    tissue: np.ndarray,
+    tissue: tuple[np.ndarray, np.ndarray],
     rng: np.random.Generator,
     supersample: int,
 ):
@@ -410,7 +428,7 @@ def _render(
     pixel-exact coverage) and the second bone's coverage mask."""
     rad = render_radiograph(bone, scene.faces, view, mu_per_mm=MU_BONE, supersample=supersample)
     l2, m2 = path_lengths(second, scene.second[1], view, supersample=1)
-    l3, _ = path_lengths(tissue, scene.tissue[1], view, supersample=1)
+    l3 = _cylinder_lengths(view, tissue[0], tissue[1], scene.tissue[1])
     img = rad.image * np.exp(-MU_BONE * l2 - MU_SOFT * l3)
     img = ndimage.gaussian_filter(img, 0.8, mode="nearest")
     img = np.clip(img + rng.normal(0.0, 0.01, img.shape), 0.0, 1.0)
@@ -477,7 +495,7 @@ def _seed_scene(
     s_loc = scene.second[0]
     sc = s_loc.mean(axis=0)
     second = ((s_loc - sc) @ _small_rotation(rng, 3.0).T + sc + rng.uniform(-2, 2, 3)) @ R.T + t
-    tissue = scene.tissue[0] @ R.T + t
+    tissue = (R @ scene.tissue[0] + t, R[:, 2])  # a point on the axis and its direction
     views = [_crop(v, np.vstack([truth, second])) for v in scene.views]
     out: dict[str, list] = {k: [] for k in ("images", "outlines", "frac", "overlap", "contours")}
     for view in views:

@@ -11,7 +11,7 @@ from biplanar_reg.simulate.realistic import make_realistic_case, model_floor, wr
 
 @pytest.fixture(scope="module")
 def scene():
-    return wrist_scene(n_vertices=500, n_population=8, n_train=5, n_modes=4)
+    return wrist_scene(n_vertices=500, n_population=8, n_train=5, n_modes=4, resolution=20)
 
 
 @pytest.fixture(scope="module")
