@@ -386,18 +386,16 @@ def case_lines(jobs: list[dict]) -> list[str]:
     return out
 
 
-def main() -> None:
+def _arguments() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--base", type=Path, default=None, help="a second checkout to run too")
     ap.add_argument("--conditions", default=None, help="comma-separated (default all)")
-    ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--out", type=Path, default=None, help="markdown (the .json beside it)")
+    ap.add_argument("--from-json", type=Path, default=None, help="re-render a saved run")
     ap.add_argument("--worker", nargs=2, type=Path, help=argparse.SUPPRESS)
     args = ap.parse_args()
-    if args.worker:
-        run_worker(*args.worker)
-        return
     conditions = args.conditions.split(",") if args.conditions else list(CONDITIONS)
     if args.quick and not args.conditions:
         conditions = list(QUICK)
@@ -406,7 +404,51 @@ def main() -> None:
         ap.error(f"--conditions: unknown {unknown} (choose from {list(CONDITIONS)})")
     if "known-3" not in conditions:
         conditions.insert(0, "known-3")  # the reference of the ratios
+    args.condition_list = conditions
+    return args
+
+
+def _command(args: argparse.Namespace) -> str:
+    cmd = "python benchmarks/realistic.py"
+    cmd += " --quick" if args.quick else f" --seeds {args.seeds}"
+    if args.conditions:
+        cmd += f" --conditions {args.conditions}"
+    if args.base:
+        cmd += f" --base {args.base}"
+    return cmd
+
+
+def _case_meta(job: dict) -> dict:
+    keep = ("seed", "condition", "floor_mm", "mean_fit_mm", "blunder", "calibration_error")
+    return {k: job[k] for k in keep} | {
+        "overlap": job["overlap"],
+        "outline_fraction": job["outline_fraction"],
+    }
+
+
+def main() -> None:
+    args = _arguments()
+    if args.worker:
+        run_worker(*args.worker)
+        return
+    out = args.out or RESULTS / ("realistic_quick.md" if args.quick else "realistic.md")
+    from biplanar_reg.io.atomic import atomic_write_text
+
+    if args.from_json:
+        record = json.loads(args.from_json.read_text())
+    else:
+        record = run_all(args)
+        atomic_write_text(out.with_suffix(".json"), json.dumps(record, indent=1))
+    text = report(record)
+    atomic_write_text(out, text)
+    print(text)
+    print(f"wrote {out} ({record['total_s']:.0f} s)")
+
+
+def run_all(args: argparse.Namespace) -> dict:
+    """Generate the cases, run every tree; the record the report is made from."""
     seeds = list(range(3 if args.quick else args.seeds))
+    conditions = args.condition_list
     t0 = time.perf_counter()
     trees = {"this": REPO} | ({"base": args.base.resolve()} if args.base else {})
     with tempfile.TemporaryDirectory() as tmp:
@@ -418,45 +460,111 @@ def main() -> None:
         for label, path in trees.items():
             print(f"{label}: {path}")
             runs[label] = run_tree(path, bundle, bundle / f"{label}.json")
-    total = time.perf_counter() - t0
-    text = report(args, seeds, conditions, trees, jobs, runs, total)
-    out = args.out or RESULTS / ("realistic_quick.md" if args.quick else "realistic.md")
-    from biplanar_reg.io.atomic import atomic_write_text
+    return {
+        "command": _command(args),
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores shared with other jobs, "
+        f"Python {platform.python_version()}",
+        "trees": {k: str(p) for k, p in trees.items()},
+        "seeds": seeds,
+        "conditions": conditions,
+        "cases": [_case_meta(j) for j in jobs],
+        "runs": runs,
+        "total_s": time.perf_counter() - t0,
+    }
 
-    atomic_write_text(out, text)
-    print(text)
-    print(f"wrote {out} ({total:.0f} s)")
+
+def _targets(jobs: list[dict], results: list[dict]) -> list[str]:
+    """The issue's targets, measured on one tree's results."""
+    floor = {j["seed"]: j["floor_mm"] for j in jobs}
+    by = {(r["condition"], r["seed"]): r for r in results if r["status"] == "ok"}
+    seeds = sorted(floor)
+
+    def ratios(cond: str, key: str, ref: str | None) -> list[float]:
+        out = []
+        for s in seeds:
+            r, k = by.get((cond, s)), by.get((ref, s)) if ref else None
+            if r is not None and (ref is None or k is not None):
+                out.append(r[key] / (k[key] if ref else floor[s]))
+        return out
+
+    def verdict(values: list[float], limit: float, what: str) -> str:
+        if not values:
+            return f"{what}: no results (refused or not run)"
+        med = float(np.median(values))
+        within = sum(v <= limit for v in values)
+        ok = "met" if med <= limit else "NOT met"
+        return (
+            f"{what}: median {med:.2f}, max {max(values):.2f} (target <= {limit:.2f}: {ok}; "
+            f"{within}/{len(values)} cases within)"
+        )
+
+    clean = [r for r in results if r["status"] == "ok" and not r["condition"].startswith("blunder")]
+    flips = [
+        e
+        for r in results
+        if r["status"] == "ok" and r["condition"].startswith("unknown")
+        for e in r["view_rot_err_deg"]
+    ]
+    bl = [r for r in results if r["status"] == "ok" and r["condition"].startswith("blunder")]
+    return [
+        "* " + verdict(ratios("known-3", "world_mm", None), 1.25, "known-3 RMS / floor"),
+        "* "
+        + verdict(
+            ratios("refine-3", "world_mm", "known-3"),
+            1.25,
+            "refine-3 world RMS / known-3 world RMS",
+        ),
+        "* "
+        + verdict(
+            ratios("unknown-3", "aligned_mm", "known-3"),
+            1.25,
+            "unknown-3 aligned RMS / known-3 aligned RMS",
+        ),
+        f"* unknown view rotations flipped (> {FLIP_DEG:.0f} deg): "
+        f"{sum(e > FLIP_DEG for e in flips)} of {len(flips)}",
+        f"* good landmarks rejected over all clean (no-blunder) cases: "
+        f"{sum(len(r['good_rejected']) for r in clean)} in {len(clean)} registrations; in the "
+        f"blunder cases {sum(len(r['good_rejected']) for r in bl)}; blunder caught "
+        f"{sum(bool(r['blunder_caught']) for r in bl)} of {len(bl)}",
+        "* "
+        + verdict(
+            ratios("blunder-3", "world_mm", "known-3"),
+            1.20,
+            "blunder-3 RMS / known-3 RMS (what the blunder costs)",
+        ),
+    ]
 
 
-def report(args, seeds, conditions, trees, jobs, runs, total) -> str:
-    """The results page."""
-    cmd = "python benchmarks/realistic.py"
-    cmd += " --quick" if args.quick else f" --seeds {len(seeds)}"
-    if args.conditions:
-        cmd += f" --conditions {args.conditions}"
-    if args.base:
-        cmd += f" --base {args.base}"
-    trees_txt = "; ".join(f"`{k}` = {p} (package {runs[k]['package']})" for k, p in trees.items())
+def report(record: dict) -> str:
+    """The results page of a run record."""
+    jobs, runs, conditions = record["cases"], record["runs"], record["conditions"]
+    trees_txt = "; ".join(
+        f"`{k}` = {p} (package {runs[k]['package']})" for k, p in record["trees"].items()
+    )
     floors = [j["floor_mm"] for j in jobs if j["condition"] == "known-3"]
     means = [j["mean_fit_mm"] for j in jobs if j["condition"] == "known-3"]
+    targets = []
+    for label, run in runs.items():
+        targets += [f"Targets, `{label}`:", "", *_targets(jobs, run["results"]), ""]
     lines = [
         "# Registration on realistic cases (issue 16)",
         "",
-        f"Command: `{cmd}`  ",
-        f"Machine: {platform.machine()}, {os.cpu_count()} cores shared with other jobs, Python "
-        f"{platform.python_version()}, one BLAS thread per tree; total {total:.0f} s. Trees: "
-        f"{trees_txt}.",
+        f"Command: `{record['command']}`  ",
+        f"Machine: {record['machine']}, one BLAS thread per tree; total {record['total_s']:.0f} "
+        f"s. Trees: {trees_txt}.",
         "",
-        f"{len(seeds)} seeds x {len(conditions)} conditions, `register_views` with default "
-        "options and silhouettes on (see the docstring of `benchmarks/realistic.py` for the "
-        "conditions and columns, `biplanar_reg/simulate/realistic.py` for the cases). Model "
+        f"{len(record['seeds'])} seeds x {len(conditions)} conditions, `register_views` with "
+        "default options and silhouettes on (see the docstring of `benchmarks/realistic.py` for "
+        "the conditions and columns, `biplanar_reg/simulate/realistic.py` for the cases). Model "
         f"floor median {np.median(floors):.3f} mm (max {np.max(floors):.3f}); the mean shape's "
-        f"best rigid fit (no shape modelling at all) median {np.median(means):.3f} mm.",
+        f"best rigid fit (no shape modelling at all) median {np.median(means):.3f} mm. Raw "
+        "results: the `.json` beside this file (`--from-json` re-renders it).",
         "",
         *table(jobs, runs, conditions),
         "",
         *messages(runs),
         "",
+        *targets,
         "World RMS / floor per seed (`this` tree; R = refused, E = error):",
         "",
         *seed_lines(jobs, runs["this"]["results"], conditions),
