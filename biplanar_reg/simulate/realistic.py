@@ -51,7 +51,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 from skimage.measure import find_contours
 
-from ..annotation import Contour, livewire, render_radiograph
+from ..annotation import Contour, clean_contour, livewire, render_radiograph
 from ..annotation.render import path_lengths
 from ..calibration import load_calibration
 from ..calibration.views import PerspectiveView
@@ -402,7 +402,7 @@ class _SeedScene:
     outlines: list[np.ndarray]
     outline_fraction: list[float]
     overlap: list[float]
-    contours: list[np.ndarray]
+    contours: list[list[np.ndarray]]
 
 
 def _mask_outline(mask: np.ndarray) -> np.ndarray:
@@ -459,9 +459,9 @@ def _trace(
     spacing_px: float,
     noise_px: float,
     rng: np.random.Generator,
-) -> np.ndarray:
+) -> list[np.ndarray]:
     """A livewire trace from noisy anchors along ``keep`` points of the open polyline
-    ``outline`` (K, 2) from a random start."""
+    ``outline`` (K, 2) from a random start, cleaned: a list of open pieces (usually one)."""
     stretch = outline_stretch(outline, False, min(keep, len(outline)) / len(outline), rng)
     seg = np.linalg.norm(np.diff(stretch, axis=0), axis=1)
     s = np.concatenate([[0.0], np.cumsum(seg)])
@@ -471,7 +471,11 @@ def _trace(
     anchors = anchors + rng.normal(0.0, noise_px, anchors.shape)
     h, w = image.shape
     anchors = np.clip(anchors, 0, [w - 1, h - 1])
-    return livewire(image, anchors, closed=False, bone="dark")
+    raw = livewire(image, anchors, closed=False, bone="dark")
+    # then as a contour recipe does (annotation.recipe.run_recipe): resampled at 1 px, cut at
+    # the image border and at self-intersections
+    pieces, _ = clean_contour(raw, False, spacing_px=1.0, image_size=(w, h))
+    return pieces
 
 
 @functools.lru_cache(maxsize=64)
@@ -623,7 +627,7 @@ def make_realistic_case(
             landmark_ids=ids,
             landmark_uv=p,
             landmark_sigma_px=np.full(len(ids), sigma),
-            contours=[Contour(uv=c, closed=False)],
+            contours=[Contour(uv=p, closed=False) for p in c],
         )
         for v, p, c in zip(given, uv, geo.contours, strict=True)
     ]

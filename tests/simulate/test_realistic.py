@@ -38,14 +38,14 @@ def test_outlines_are_open_partial_and_on_the_bone(clean):
     for obs, true, frac in zip(
         clean.views, clean.true_outlines, clean.outline_fraction, strict=True
     ):
-        (contour,) = obs.contours
-        assert not contour.closed
+        assert obs.contours and not any(c.closed for c in obs.contours)
         assert 0.4 < frac < 0.85
-        length = np.sum(np.linalg.norm(np.diff(contour.uv, axis=0), axis=1))
-        full = np.sum(np.linalg.norm(np.diff(true, axis=0), axis=1))
+        uv = np.vstack([c.uv for c in obs.contours])
+        length = sum(np.sum(np.linalg.norm(np.diff(c.uv, axis=0), axis=1)) for c in obs.contours)
+        full = np.sum(np.linalg.norm(np.diff(np.vstack([true, true[:1]]), axis=0), axis=1))
         assert 0.3 * full < length < 0.95 * full
         # the livewire trace follows the true outline (median within 2 px)
-        d = np.min(np.linalg.norm(contour.uv[:, None] - true[None], axis=2), axis=1)
+        d = np.min(np.linalg.norm(uv[:, None] - true[None], axis=2), axis=1)
         assert np.median(d) < 2.0
 
 
