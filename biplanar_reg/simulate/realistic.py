@@ -91,7 +91,7 @@ class RealisticScene:
         Members, template frame, mm; the model is built from the first ``n_train``.
     n_train : int
     model : ShapeModel
-        With landmarks (:func:`~.case_folder.synthetic_landmarks`).
+        With landmarks (:func:`~.case_folder.synthetic_landmarks` not on ``cut``).
     second : (vertices (K, 3), faces) tuple
         The second bone, template frame, mm, placed beside the bone.
     tissue : (centre (3,), radius) tuple
@@ -329,12 +329,15 @@ def wrist_scene(
     )
     pop = synthesise_population(rad.vertices, n_population, seed=seed, resolution=resolution)
     model = build_ssm(pop.shapes[:n_train], faces=rad.faces, n_modes=n_modes)
+    cut = rad.vertices[:, 2] > rad.vertices[:, 2].max() - 4.0
+    # no landmark on the crop's cut (its centre, "proximal_tip", is nowhere in a radiograph)
+    marks = synthetic_landmarks(model, distal_sign=-1.0)
     model = ShapeModel(
         model.mean,
         model.modes,
         faces=model.faces,
         variances=model.variances,
-        landmarks=synthetic_landmarks(model, distal_sign=-1.0),
+        landmarks={k: i for k, i in marks.items() if not cut[i]},
     )
     rough = read_json(data.parent / "annotation" / "rough_pose.json")
     pose = (np.asarray(rough["R"], float), np.asarray(rough["t"], float))
@@ -353,7 +356,7 @@ def wrist_scene(
         tissue=_tissue(np.vstack([rad.vertices, ulna])),
         views=views,
         pose=pose,
-        cut=rad.vertices[:, 2] > rad.vertices[:, 2].max() - 4.0,
+        cut=cut,
     )
 
 
@@ -478,7 +481,7 @@ def _trace(
     return pieces
 
 
-@functools.lru_cache(maxsize=64)
+@functools.lru_cache(maxsize=32)
 def _seed_scene(
     scene: RealisticScene,
     seed: int,
