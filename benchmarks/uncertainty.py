@@ -15,7 +15,7 @@ model fit of the truth, vertex RMS).
 
 Usage::
 
-    python benchmarks/uncertainty.py [--trials 12] [--noise 1.5] [--out benchmarks/results/uncertainty.md]
+    python benchmarks/uncertainty.py [--trials 12] [--noise 1.5] [--out FILE.md]
 """
 
 from __future__ import annotations
@@ -82,6 +82,29 @@ def synthetic_case(model, template, seed, n_landmarks, noise_px, outline_noise_p
     return views, X
 
 
+def simple_cases(args):
+    """(model, views, truth, floor) of the ``--simple`` trials."""
+    template, faces = reference.radius_template(args.vertices)
+    model = reference.radius_model(template, faces)
+    for s in range(args.trials):
+        views, X = synthetic_case(
+            model, template, s, args.landmarks, args.noise, args.outline_noise
+        )
+        yield model, views, X, model_floor(model, X)
+
+
+def realistic_cases(args):
+    """(model, views, truth, floor) of :func:`biplanar_reg.simulate.realistic.make_realistic_case`
+    (``--landmarks`` in total, split evenly over the two views)."""
+    from biplanar_reg.simulate.realistic import make_realistic_case
+
+    for s in range(args.trials):
+        c = make_realistic_case(
+            s, n_landmarks_per_view=args.landmarks // 2, landmark_noise_px=args.noise
+        )
+        yield c.model, c.views, c.truth_vertices, c.floor_mm
+
+
 def coverage_row(res, X: np.ndarray, floor: float) -> dict:
     """Per-trial figures: error and sd statistics (mm) and the 2-sd coverage."""
     err = np.linalg.norm(res.vertices - X, axis=1) / np.sqrt(3.0)  # RMS over axes
@@ -103,19 +126,16 @@ def main() -> None:
     ap.add_argument("--noise", type=float, default=1.5, help="landmark click noise, px")
     ap.add_argument("--outline-noise", type=float, default=0.5, help="px")
     ap.add_argument("--vertices", type=int, default=1000)
+    ap.add_argument("--simple", action="store_true", help="exact outlines, no second bone")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
     t_start = time.process_time()
     with threadpool_limits(1):
-        template, faces = reference.radius_template(args.vertices)
-        model = reference.radius_model(template, faces)
+        cases = simple_cases(args) if args.simple else realistic_cases(args)
         rows = []
-        for s in range(args.trials):
-            views, X = synthetic_case(
-                model, template, s, args.landmarks, args.noise, args.outline_noise
-            )
+        for s, (model, views, X, floor) in enumerate(cases):
             res = register_views(model, views, options=RegistrationOptions())
-            row = coverage_row(res, X, model_floor(model, X))
+            row = coverage_row(res, X, floor)
             rows.append(row)
             print(
                 f"trial {s}: coverage {row['coverage']:.1%}, median sd {row['median_sd']:.3f} "
@@ -128,11 +148,19 @@ def main() -> None:
     lines = [
         "# Calibration of the per-vertex uncertainty (`sd_mm`)\n",
         f"`python benchmarks/uncertainty.py --trials {args.trials} --landmarks {args.landmarks} "
-        f"--noise {args.noise:g} --outline-noise {args.outline_noise:g}` on "
+        f"--noise {args.noise:g}"
+        f"{' --simple --outline-noise ' + format(args.outline_noise, 'g') if args.simple else ''}"
+        "` on "
         f"{platform.machine()}, Python {platform.python_version()}, one BLAS thread, "
         f"{time.process_time() - t_start:.0f} CPU s.\n",
-        f"Model: radius SSM, {model.n_vertices} vertices, {model.n_modes} modes; truths out of "
-        "its span (other harmonic populations).\n",
+        (
+            "Cases: exact outlines (80 % stretch, open), radius SSM of the sample cases"
+            if args.simple
+            else "Cases: `biplanar_reg.simulate.realistic.make_realistic_case` (wrist radius, "
+            "ulna overlapping, livewire-traced open outlines)"
+        )
+        + f"; {model.n_vertices} vertices, {model.n_modes} modes; truths out of the model's "
+        f"span; {args.landmarks} landmarks, {args.noise:g} px click noise.\n",
         "| trial | 2-sd coverage | median sd (mm) | median error, RMS over axes (mm) | "
         "vertex RMS (mm) | model floor (mm) |",
         "|---|---|---|---|---|---|",

@@ -27,7 +27,7 @@ from ..io.atomic import atomic_write_json
 from ..registration import RegistrationResult, ViewObservations, register_views
 from .case import Case, load_case, to_view_observations
 from .metrics import contour_errors, model_outlines, summary_stats, surface_metrics
-from .outputs import atomic_output_dir, clean_stale
+from .outputs import atomic_output_dir, clean_stale, mesh_properties, uncertainty_summary
 
 if TYPE_CHECKING:  # the report (matplotlib, VTK) is imported when a case is written
     from ..report.case_report import ReportView
@@ -241,6 +241,7 @@ def result_document(
             },
             "model": _model_entry(case),
             "ground_truth": _ground_truth_entry(case),
+            "uncertainty": uncertainty_summary(res.vertex_sd_mm),
             "warnings": case.warnings,
         }
     )
@@ -400,7 +401,8 @@ def register_case(
         progress("writing registered.ply, result.json and the report")
     with atomic_output_dir(out_dir) as tmp:
         t2 = time.perf_counter()
-        write_mesh(tmp / "registered.ply", res.vertices, case.model.faces)
+        props = mesh_properties(res.vertex_sd_mm)
+        write_mesh(tmp / "registered.ply", res.vertices, case.model.faces, props)
         doc["report"] = case_report.write_case_report(
             tmp,
             doc,
@@ -408,6 +410,7 @@ def register_case(
             vertices=res.vertices,
             faces=case.model.faces,
             vertex_error=vertex_error,
+            vertex_sd=res.vertex_sd_mm,
         )
         doc["timings"]["report"] = time.perf_counter() - t2
         doc["timings"]["total"] = load_seconds + (time.perf_counter() - t0)

@@ -44,8 +44,7 @@ Frames and units: world frame, mm.
 
 from __future__ import annotations
 
-import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -62,7 +61,6 @@ __all__ = ["Linearisation", "VertexUncertainty", "linearise_fit", "vertex_sd"]
 PRIOR_DOF = 4.0
 #: Largest lag (samples) of the outline residuals' autocorrelation.
 MAX_LAG = 400
-MIN_VARIANCE_RATIO = os.environ.get('UNC_CLAMP', '0') == '1'
 #: Fixed-point passes of leverage -> scale -> weights (the leverages depend on the weights).
 SCALE_PASSES = 3
 
@@ -222,13 +220,12 @@ def _group_scales(lin: Linearisation, prior: np.ndarray) -> tuple[np.ndarray, di
         for g, k in kappa.items():
             sel = grp == g
             dof = PRIOR_DOF + float(np.sum(np.clip(1.0 - h[sel], 0.0, 1.0)))
-            v_hat = (PRIOR_DOF + float(r[sel] @ r[sel])) / dof
-            v = max(1.0, v_hat) if MIN_VARIANCE_RATIO else v_hat
+            v = (PRIOR_DOF + float(r[sel] @ r[sel])) / dof
             row_w[sel] = 1.0 / (v * k)
             tau2 = max(0.0, v - 1.0) * float(np.mean(lin.sigma_mm[sel] ** 2))
             stats[int(g)] = {
                 "n": int(sel.sum()),
-                "variance_ratio": v_hat,
+                "variance_ratio": v,
                 "correlation_samples": k,
                 "excess_mm": float(np.sqrt(tau2)),
             }

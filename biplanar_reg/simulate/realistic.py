@@ -317,6 +317,7 @@ def wrist_scene(
         faces=model.faces,
         variances=model.variances,
         landmarks=synthetic_landmarks(model, distal_sign=-1.0),
+        truncation_modes=model.truncation_modes,
     )
     rough = read_json(data.parent / "annotation" / "rough_pose.json")
     pose = (np.asarray(rough["R"], float), np.asarray(rough["t"], float))
