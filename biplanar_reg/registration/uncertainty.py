@@ -18,21 +18,27 @@ that statement, per group of rows (the landmarks; each view's outline):
   residuals along the outline, in samples (``1 + 2 sum rho_k`` up to the first non-positive
   ``rho_k``), so the outline counts as ``n / kappa`` independent samples. Landmarks: 1.
 
-The posterior covariance is ``C = (sum_g J_g' J_g / (v_g kappa_g) + lambda diag(0, I))^-1`` (the
-shape prior ``w ~ N(0, I / lambda)``). Each vertex's 3x3 covariance is ``A_v C A_v'`` with
-``A_v = dV_v / dtheta = [-[R Q_v]_x, I, R P_v]``.
+The error covariance of the pose and weights is the sandwich of the estimator the refinement is:
+with its row weights ``W_e`` (landmarks ``2 lambda_lm``, outline samples
+``2 (1 - lambda_lm) / contour_spacing_px``, relative to the stated noise), ``C_e = (J' W_e J +
+lambda diag(0, I))^-1`` and the noise ``Sigma = diag(v_g kappa_g)``, it is
+``C_e (J' W_e Sigma W_e J + lambda diag(0, I)) C_e`` (the weights drawn from the prior
+``N(0, I / lambda)``); without ``W_e`` (:func:`vertex_sd` alone) the efficient
+``(J' Sigma^-1 J + lambda diag(0, I))^-1``. Each vertex's 3x3 covariance is ``A_v C A_v'``
+with ``A_v = dV_v / dtheta = [-[R Q_v]_x, I, R P_v]``.
 
 **Model truncation.** A model whose span does not contain the bone leaves an error no choice of
-``theta`` removes. It shows in the data as residual variance beyond the stated noise: per
-group ``tau_g^2 = max(0, v_g - 1) * mean(stated sigma^2)`` (mm^2, one direction: the outline
-normal, which at an occluding contour is the surface normal), pooled over the groups by their
-row counts. The shape model stores no variance of its discarded modes (a PCA of a few shapes
-has none to give for a new bone anyway), so this data-based estimate is the one used; it is
-spread uniformly over the surface and counted as a displacement along the surface normal
-(``tau^2`` added to the trace). Unobserved parts of the bone may deviate more: the estimate is
-a floor there, not a bound.
+``theta`` removes. :func:`biplanar_reg.ssm.build_ssm` stores it as ``truncation_modes`` (the
+leave-one-out residuals of its population, ``T``): the bone is ``model(theta) + T z`` with
+``z ~ N(0, I)``, which the fit ignored. Its error is then ``G (noise + K z)`` in the parameters
+(gain ``G = C_e J' W_e``, ``K = d rows / d z``) and ``A_v G K z - T_v z`` at vertex ``v``, which
+adds ``(A_v G K - T_v)(A_v G K - T_v)'``: the model's own error there and what it did to the fitted
+pose and weights. Any residual variance beyond the stated noise (``v_g > 1``) is added too, as
+``tau^2 = max(0, v_g - 1) * mean(stated sigma^2)`` (mm^2, pooled over the groups by their row
+counts, counted once along the surface normal). A model without truncation modes gets the
+pose and weight part and ``tau`` only: a lower bound.
 
-**The number.** ``sd_mm = sqrt((trace(A_v C A_v') + tau^2) / 3)``: the root mean square over the
+**The number.** ``sd_mm = sqrt((trace(Cov_v) + tau^2) / 3)``: the root mean square over the
 three axes of the vertex's position standard deviation, mm. The matching error statistic is
 the RMS over axes of the vertex's error vector, ``|e_v| / sqrt(3)``; "within 2 sd" means
 ``|e_v| <= 2 sqrt(3) sd_mm``. For a Gaussian error that event has probability 95.4 % (all
@@ -208,20 +214,26 @@ def _posterior(J: np.ndarray, row_w: np.ndarray, prior: np.ndarray) -> np.ndarra
         return np.linalg.pinv(H)
 
 
-def _group_scales(lin: Linearisation, prior: np.ndarray) -> tuple[np.ndarray, dict]:
-    """Per-row information weights ``1 / (v_g kappa_g)`` and the per-group statistics."""
+def _group_scales(
+    lin: Linearisation, prior: np.ndarray, est_w: np.ndarray | None
+) -> tuple[np.ndarray, dict]:
+    """Per-row noise variances ``v_g kappa_g`` (stated-noise units) and per-group statistics.
+
+    The leverages are those of the estimator (weights ``est_w``); without them, of the
+    efficient estimator (weights ``1 / (v kappa)``, found by :data:`SCALE_PASSES` passes)."""
     J, r, grp = lin.jacobian, lin.residuals, lin.group
-    row_w = np.ones(len(r))
+    row_var = np.ones(len(r))
     kappa = {g: (1.0 if g == 0 else correlation_length(r[grp == g])) for g in np.unique(grp)}
     stats: dict = {}
-    for _ in range(SCALE_PASSES):
-        C = _posterior(J, row_w, prior)
-        h = row_w * np.einsum("kp,pq,kq->k", J, C, J)
+    for _ in range(1 if est_w is not None else SCALE_PASSES):
+        w = 1.0 / row_var if est_w is None else est_w
+        C = _posterior(J, w, prior)
+        h = w * np.einsum("kp,pq,kq->k", J, C, J)
         for g, k in kappa.items():
             sel = grp == g
             dof = PRIOR_DOF + float(np.sum(np.clip(1.0 - h[sel], 0.0, 1.0)))
             v = (PRIOR_DOF + float(r[sel] @ r[sel])) / dof
-            row_w[sel] = 1.0 / (v * k)
+            row_var[sel] = v * k
             tau2 = max(0.0, v - 1.0) * float(np.mean(lin.sigma_mm[sel] ** 2))
             stats[int(g)] = {
                 "n": int(sel.sum()),
@@ -229,7 +241,23 @@ def _group_scales(lin: Linearisation, prior: np.ndarray) -> tuple[np.ndarray, di
                 "correlation_samples": k,
                 "excess_mm": float(np.sqrt(tau2)),
             }
-    return row_w, stats
+    return row_var, stats
+
+
+def _parameter_covariance(
+    J: np.ndarray, row_var: np.ndarray, prior: np.ndarray, est_w: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Error covariance of the estimate (P, P) and its gain ``G = C_e J' W_e`` (P, K).
+
+    With the estimator's weights ``W_e`` (``C_e = (J' W_e J + prior)^-1``) the sandwich
+    ``C_e (J' W_e Sigma W_e J + prior) C_e`` (``Sigma = diag(row_var)``, the prior term for the
+    weights drawn from the prior); without, the efficient ``(J' Sigma^-1 J + prior)^-1``."""
+    w = 1.0 / row_var if est_w is None else est_w
+    C = _posterior(J, w, prior)
+    G = C @ (J.T * w)
+    if est_w is None:
+        return C, G
+    return C @ (J.T @ (J * (w * w * row_var)[:, None]) + np.diag(prior)) @ C, G
 
 
 def vertex_jacobians(model: ShapeModel, state: PoseShape) -> np.ndarray:
@@ -247,7 +275,12 @@ def vertex_jacobians(model: ShapeModel, state: PoseShape) -> np.ndarray:
 
 
 def vertex_sd(
-    model: ShapeModel, state: PoseShape, lin: Linearisation, *, prior_weight: float = 1.0
+    model: ShapeModel,
+    state: PoseShape,
+    lin: Linearisation,
+    *,
+    prior_weight: float = 1.0,
+    estimator_weights: np.ndarray | None = None,
 ) -> VertexUncertainty:
     """Per-vertex standard deviation (mm) of a registration from its :class:`Linearisation`.
 
@@ -260,6 +293,9 @@ def vertex_sd(
         From :func:`linearise_fit` (rows scaled by the stated noise).
     prior_weight : float
         ``lambda`` of the shape prior ``1/2 lambda |w|^2``.
+    estimator_weights : (K,) array, optional
+        The weights the fit gave each row (relative to the stated-noise scaling): the error
+        covariance is then the sandwich of that estimator; default: the efficient estimator's.
 
     Returns
     -------
@@ -269,12 +305,12 @@ def vertex_sd(
     """
     M = model.n_modes
     prior = np.concatenate([np.zeros(6), np.full(M, float(prior_weight))])
-    row_w, stats = _group_scales(lin, prior)
-    C = _posterior(lin.jacobian, row_w, prior)
+    row_var, stats = _group_scales(lin, prior, estimator_weights)
+    C, G = _parameter_covariance(lin.jacobian, row_var, prior, estimator_weights)
     A = vertex_jacobians(model, state)
     cov = np.einsum("nip,pq,njq->nij", A, C, A)
     if model.truncation_modes is not None:
-        cov += _truncation_covariance(model, state, lin, row_w, C, A)
+        cov += _truncation_covariance(model, state, lin, G, A)
     trace = np.maximum(np.einsum("nii->n", cov), 0.0)
     n = np.array([s["n"] for s in stats.values()], float)
     ex2 = np.array([s["excess_mm"] ** 2 for s in stats.values()])
@@ -289,16 +325,16 @@ def vertex_sd(
     )
 
 
-def _truncation_covariance(model, state, lin, row_w, C, A) -> np.ndarray:
+def _truncation_covariance(model, state, lin, G, A) -> np.ndarray:
     """The truncation modes' share (N, 3, 3) of each vertex's error covariance, mm^2.
 
-    The fit ignored them (``z = 0``), so with ``G = C J' W`` the estimate's error is
+    The fit ignored them (``z = 0``), so with the gain ``G = C_e J' W_e`` its error is
     ``G (noise + K z)``: the vertex error ``A_v G K z - T_v z`` adds
     ``(A_v G K - T_v)(A_v G K - T_v)'`` (``z ~ N(0, I)``; ``K`` the rows' and ``T_v`` the
     vertex's truncation Jacobians), the sandwich of an estimator that ignores ``z``.
     """
     R = state[0]
-    GK = C @ (lin.jacobian.T * row_w) @ lin.truncation_jacobian  # (P, F)
+    GK = G @ lin.truncation_jacobian  # (P, F)
     T = np.einsum("rc,fnc->nrf", R, model.truncation_modes)  # (N, 3, F)
     D = np.einsum("nip,pf->nif", A, GK) - T
     return np.einsum("nif,njf->nij", D, D)
@@ -326,4 +362,11 @@ def registration_uncertainty(problem, result, outlines: dict, rejected: frozense
     lin = linearise_fit(problem.model, state, lm.rays.select(accepted), terms, problem.topology)
     if len(lin.residuals) == 0:
         return None
-    return vertex_sd(problem.model, state, lin, prior_weight=opts.prior_weight)
+    # the refinement's weights relative to the stated noise (:func:`.stages.refine_once`)
+    lam = opts.landmark_weight
+    est_w = np.where(
+        lin.group == 0, 2.0 * lam, 2.0 * max(1.0 - lam, 1e-12) / opts.contour_spacing_px
+    )
+    return vertex_sd(
+        problem.model, state, lin, prior_weight=opts.prior_weight, estimator_weights=est_w
+    )
