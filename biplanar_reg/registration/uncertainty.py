@@ -18,14 +18,19 @@ that statement, per group of rows (the landmarks; each view's outline):
   residuals along the outline, in samples (``1 + 2 sum rho_k`` up to the first non-positive
   ``rho_k``), so the outline counts as ``n / kappa`` independent samples. Landmarks: 1.
 
-The error covariance of the pose and weights is the sandwich of the estimator the refinement is:
-with its row weights ``W_e`` (landmarks ``2 lambda_lm``, outline samples
-``2 (1 - lambda_lm) / contour_spacing_px``, relative to the stated noise), ``C_e = (J' W_e J +
-lambda diag(0, I))^-1`` and the noise ``Sigma = diag(v_g kappa_g)``, it is
-``C_e (J' W_e Sigma W_e J + lambda diag(0, I)) C_e`` (the weights drawn from the prior
-``N(0, I / lambda)``); without ``W_e`` (:func:`vertex_sd` alone) the efficient
-``(J' Sigma^-1 J + lambda diag(0, I))^-1``. Each vertex's 3x3 covariance is ``A_v C A_v'``
-with ``A_v = dV_v / dtheta = [-[R Q_v]_x, I, R P_v]``.
+The error covariance of the pose and weights is that of the estimator the refinement is, with its
+row weights ``W_e`` (landmarks ``2 lambda_lm``, outline samples ``2 (1 - lambda_lm) /
+contour_spacing_px``, relative to the stated noise) and ``C_e = (J' W_e J + lambda diag(0,
+I))^-1``. Its data share is measured from the residuals themselves by a leave-one-cluster-out
+jackknife (the cluster-robust sandwich "CR3"): the clusters are the landmarks (one each) and
+contiguous blocks of ``max(10, 2 kappa_g)`` outline samples, and each contributes ``d d'`` with
+``d = C_e J_b' W_b (I - H_bb)^-1 r_b`` (the change of the estimate when the cluster is left out,
+one Gauss-Newton step). So a wrongly stated sigma, correlated tracing errors and a traced
+stretch that followed the wrong edge count as much as the residuals show, not as the sigmas
+say. The shape prior adds ``C_e lambda diag(0, I) C_e`` (true weights drawn from
+``N(0, I / lambda)``). Without ``W_e`` (:func:`vertex_sd` alone) the efficient
+``(J' Sigma^-1 J + lambda diag(0, I))^-1`` with ``Sigma = diag(v_g kappa_g)`` is used. Each
+vertex's 3x3 covariance is ``A_v C A_v'`` with ``A_v = dV_v / dtheta = [-[R Q_v]_x, I, R P_v]``.
 
 **Model truncation.** A model whose span does not contain the bone leaves an error no choice of
 ``theta`` removes. :func:`biplanar_reg.ssm.build_ssm` stores it as ``truncation_modes`` (the
@@ -67,6 +72,8 @@ __all__ = ["Linearisation", "VertexUncertainty", "linearise_fit", "vertex_sd"]
 PRIOR_DOF = 4.0
 #: Largest lag (samples) of the outline residuals' autocorrelation.
 MAX_LAG = 400
+#: Smallest jackknife block of outline samples.
+BLOCK_MIN = 10
 #: Fixed-point passes of leverage -> scale -> weights (the leverages depend on the weights).
 SCALE_PASSES = 3
 
@@ -260,6 +267,39 @@ def _parameter_covariance(
     return C @ (J.T @ (J * (w * w * row_var)[:, None]) + np.diag(prior)) @ C, G
 
 
+def _clusters(lin: Linearisation, stats: dict) -> list[np.ndarray]:
+    """Row indices of the jackknife clusters: each landmark (its two rows), and each outline
+    cut into contiguous blocks of ``max(BLOCK_MIN, 2 kappa)`` samples."""
+    out = []
+    for g, st in stats.items():
+        rows = np.flatnonzero(lin.group == g)
+        size = 2 if g == 0 else max(BLOCK_MIN, int(round(2.0 * st["correlation_samples"])))
+        out += [rows[i : i + size] for i in range(0, len(rows), size)]
+    return out
+
+
+def _jackknife_covariance(
+    lin: Linearisation, est_w: np.ndarray, prior: np.ndarray, clusters: list[np.ndarray]
+) -> np.ndarray:
+    """Leave-one-cluster-out (CR3) covariance of the estimate (P, P): the sum over clusters of
+    ``d d'`` with ``d = C_e J_b' W_b (I - H_bb)^-1 r_b`` (the one-step change of the estimate when
+    the cluster is left out), plus the prior term ``C_e lambda diag(0, I) C_e``."""
+    sw = np.sqrt(est_w)
+    J, r = lin.jacobian * sw[:, None], lin.residuals * sw
+    C = _posterior(J, np.ones(len(r)), prior)
+    V = C @ np.diag(prior) @ C
+    for rows in clusters:
+        Jb = J[rows]
+        I_H = np.eye(len(rows)) - Jb @ C @ Jb.T
+        try:
+            u = np.linalg.solve(I_H, r[rows])
+        except np.linalg.LinAlgError:
+            u = np.linalg.lstsq(I_H, r[rows], rcond=None)[0]
+        d = C @ (Jb.T @ u)
+        V += np.outer(d, d)
+    return V
+
+
 def vertex_jacobians(model: ShapeModel, state: PoseShape) -> np.ndarray:
     """``dV_v / dtheta`` (N, 3, 6 + M) of every posed vertex ``V_v = R Q_v(w) + t`` with
     respect to (rotation step, translation, weights), ``R <- exp([dw]_x) R``."""
@@ -307,6 +347,8 @@ def vertex_sd(
     prior = np.concatenate([np.zeros(6), np.full(M, float(prior_weight))])
     row_var, stats = _group_scales(lin, prior, estimator_weights)
     C, G = _parameter_covariance(lin.jacobian, row_var, prior, estimator_weights)
+    if estimator_weights is not None:  # the data's share from the residuals themselves
+        C = _jackknife_covariance(lin, estimator_weights, prior, _clusters(lin, stats))
     A = vertex_jacobians(model, state)
     cov = np.einsum("nip,pq,njq->nij", A, C, A)
     if model.truncation_modes is not None:

@@ -24,14 +24,16 @@ def scene():
     return model, (R, t, w), X, ids
 
 
-def _sd(model, truth_state, X, ids, noise_px, stated_px=1.0, seed=0):
+def _sd(model, truth_state, X, ids, noise_px, stated_px=1.0, seed=0, jackknife=False):
     """Fit landmark rays with ``noise_px`` click noise (stated sigma ``stated_px``), return sd."""
     views = biplanar_views(75.0)
     rays = observe(views, X, ids, noise_px=noise_px, rng=np.random.default_rng(seed))
     rays = rays.with_sigmas(np.full(len(rays), stated_px * 0.3 * 900 / 1200))  # px -> mm
     fit = refine_pose_shape(model, rays, truth_state)
     state = (fit.rotation, fit.translation, fit.weights)
-    return vertex_sd(model, state, linearise_fit(model, state, rays, []))
+    lin = linearise_fit(model, state, rays, [])
+    est_w = np.ones(len(lin.residuals)) if jackknife else None
+    return vertex_sd(model, state, lin, estimator_weights=est_w)
 
 
 def test_shapes_and_units(scene):
@@ -45,11 +47,14 @@ def test_shapes_and_units(scene):
     assert u.truncation_mm == 0.0  # this model has no truncation modes
 
 
-def test_sd_grows_with_fewer_landmarks_and_more_noise(scene):
+@pytest.mark.parametrize("jackknife", [False, True])
+def test_sd_grows_with_fewer_landmarks_and_more_noise(scene, jackknife):
     model, state, X, ids = scene
-    base = np.median(_sd(model, state, X, ids, 1.0).sd_mm)
-    fewer = np.median(_sd(model, state, X, [ids[0][:3], ids[1][:3]], 1.0).sd_mm)
-    noisier = np.median(_sd(model, state, X, ids, 4.0).sd_mm)  # stated 1 px: the data say 4
+    base = np.median(_sd(model, state, X, ids, 1.0, jackknife=jackknife).sd_mm)
+    few = [ids[0][:3], ids[1][:3]]
+    fewer = np.median(_sd(model, state, X, few, 1.0, jackknife=jackknife).sd_mm)
+    # stated 1 px: the data say 4
+    noisier = np.median(_sd(model, state, X, ids, 4.0, jackknife=jackknife).sd_mm)
     assert fewer > 1.2 * base
     assert noisier > 2.0 * base
 
