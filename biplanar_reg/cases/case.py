@@ -431,6 +431,7 @@ def _scaled_model(model: ShapeModel, s: float, landmarks: dict[str, int]) -> Sha
         faces=model.faces,
         variances=None if model.variances is None else model.variances * s * s,
         landmarks=landmarks,
+        truncation_modes=None if model.truncation_modes is None else model.truncation_modes * s,
     )
 
 

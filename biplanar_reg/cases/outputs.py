@@ -22,17 +22,45 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
+
 __all__: list[str] = []
 
 #: Files whose presence marks a complete case output folder.
 REQUIRED_OUTPUTS = ("registered.ply", "result.json", "report.html")
 
 
+<<<<<<< HEAD
 def is_complete(out: Path, report: bool = True) -> bool:
     """True when ``out`` is a complete case output folder (``report=False``: without
     ``report.html``, as ``--no-report`` writes it)."""
     need = REQUIRED_OUTPUTS if report else tuple(f for f in REQUIRED_OUTPUTS if f != "report.html")
     return out.is_dir() and all((out / f).is_file() for f in need)
+=======
+def uncertainty_summary(sd_mm: np.ndarray | None) -> dict[str, float] | None:
+    """``result.json["uncertainty"]``: median, 95th percentile and max of the per-vertex
+    standard deviation (mm; ``RegistrationResult.vertex_sd_mm``), or None without one."""
+    if sd_mm is None or len(sd_mm) == 0:
+        return None
+    sd = np.asarray(sd_mm, float)
+    return {
+        "median_mm": float(np.median(sd)),
+        "p95_mm": float(np.percentile(sd, 95)),
+        "max_mm": float(np.max(sd)),
+        "statistic": "per-vertex posterior sd, RMS over the three axes (pose, weights and "
+        "model truncation; view poses taken as known)",
+    }
+
+
+def mesh_properties(sd_mm: np.ndarray | None) -> dict[str, np.ndarray]:
+    """The vertex properties of ``registered.ply``: ``sd_mm`` when there is one."""
+    return {} if sd_mm is None else {"sd_mm": np.asarray(sd_mm, float)}
+
+
+def is_complete(out: Path) -> bool:
+    """True when ``out`` is a complete case output folder."""
+    return out.is_dir() and all((out / f).is_file() for f in REQUIRED_OUTPUTS)
+>>>>>>> wp-unc
 
 
 def _check_output_target(out: Path) -> None:

@@ -27,7 +27,7 @@ from ..io.atomic import atomic_write_json
 from ..registration import RegistrationResult, ViewObservations, register_views
 from .case import Case, load_case, to_view_observations
 from .metrics import contour_errors, model_outlines, summary_stats, surface_metrics
-from .outputs import atomic_output_dir, clean_stale
+from .outputs import atomic_output_dir, clean_stale, mesh_properties, uncertainty_summary
 
 if TYPE_CHECKING:  # the report (matplotlib, VTK) is imported when a case is written
     from ..report.case_report import ReportView
@@ -242,6 +242,7 @@ def result_document(
             },
             "model": _model_entry(case),
             "ground_truth": _ground_truth_entry(case),
+            "uncertainty": uncertainty_summary(res.vertex_sd_mm),
             "warnings": case.warnings,
         }
     )
@@ -423,6 +424,7 @@ def register_case(
         progress("writing registered.ply, result.json" + (" and the report" if report else ""))
     with atomic_output_dir(out_dir) as tmp:
         t2 = time.perf_counter()
+<<<<<<< HEAD
         write_mesh(tmp / "registered.ply", res.vertices, case.model.faces)
         doc["report"] = None
         if report:
@@ -437,6 +439,20 @@ def register_case(
                 vertex_error=vertex_error,
             )
             doc["timings"]["report"] = time.perf_counter() - t2
+=======
+        props = mesh_properties(res.vertex_sd_mm)
+        write_mesh(tmp / "registered.ply", res.vertices, case.model.faces, props)
+        doc["report"] = case_report.write_case_report(
+            tmp,
+            doc,
+            views,
+            vertices=res.vertices,
+            faces=case.model.faces,
+            vertex_error=vertex_error,
+            vertex_sd=res.vertex_sd_mm,
+        )
+        doc["timings"]["report"] = time.perf_counter() - t2
+>>>>>>> wp-unc
         doc["timings"]["total"] = load_seconds + (time.perf_counter() - t0)
         atomic_write_json(tmp / "result.json", doc)
     log.info("%s: wrote %s", case.id, out_dir)

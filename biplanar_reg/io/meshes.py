@@ -22,7 +22,7 @@ import numpy as np
 from .._validate import as_array
 from .atomic import atomic_path
 
-__all__ = ["read_mesh", "write_mesh"]
+__all__ = ["read_mesh", "write_mesh", "read_vertex_properties"]
 
 #: Suffixes understood by :func:`read_mesh` / :func:`write_mesh` (lower case).
 MESH_SUFFIXES: tuple[str, ...] = (".stl", ".ply", ".obj", ".vtk", ".vtp", ".csv", ".npy")
@@ -216,6 +216,29 @@ def _merge_in_first_use_order(
     return vertices[first[order]], rank[inverse.ravel()][faces]
 
 
+def read_vertex_properties(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """The per-vertex scalar properties of a PLY file other than ``x, y, z`` (e.g. ``sd_mm``
+    of ``registered.ply``), each (N,) float (read by trimesh).
+
+    Raises
+    ------
+    ValueError
+        The file is missing or not a readable PLY (the message names the file).
+    """
+    import trimesh
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: file not found")
+    try:
+        geom = trimesh.load(path, file_type="ply", process=False)
+    except Exception as exc:  # parser libraries raise anything; report it as bad input
+        raise ValueError(f"{path}: cannot read as PLY ({exc})") from None
+    raw = getattr(geom, "metadata", {}).get("_ply_raw", {}).get("vertex", {}).get("data")
+    names = () if raw is None or raw.dtype.names is None else raw.dtype.names
+    return {k: np.asarray(raw[k], float).ravel() for k in names if k not in ("x", "y", "z")}
+
+
 def to_polydata(vertices: np.ndarray, faces: np.ndarray):  # -> pyvista.PolyData
     """Wrap a triangle mesh's arrays as a ``pyvista.PolyData`` for VTK filters and writers."""
     import pyvista as pv
@@ -226,7 +249,12 @@ def to_polydata(vertices: np.ndarray, faces: np.ndarray):  # -> pyvista.PolyData
 
 
 # -- writing -------------------------------------------------------------------------------------
-def write_mesh(path: str | os.PathLike, vertices: object, faces: object | None = None) -> None:
+def write_mesh(
+    path: str | os.PathLike,
+    vertices: object,
+    faces: object | None = None,
+    vertex_properties: dict[str, object] | None = None,
+) -> None:
     """Write a triangle mesh, or a point cloud when ``faces`` is ``None``, atomically.
 
     Parameters
@@ -238,10 +266,14 @@ def write_mesh(path: str | os.PathLike, vertices: object, faces: object | None =
         Vertex coordinates, mm.
     faces : (F, 3) int array, optional
         Triangles indexing ``vertices``.
+    vertex_properties : dict of str to (N,) array, optional
+        Extra per-vertex scalars (e.g. ``{"sd_mm": ...}``), written as ``float`` vertex
+        properties; PLY only (:func:`read_vertex_properties` reads them back).
     """
     path = Path(path)
     suffix = _suffix(path)
     v, f = _check_arrays(f"write_mesh({path})", vertices, faces)
+    props = _check_properties(path, suffix, vertex_properties or {}, len(v))
     if f is None and suffix in _NEEDS_FACES:
         raise ValueError(f"{path}: STL needs faces; write a point cloud as .ply, .csv or .npy")
     if f is not None and suffix in _POINTS_ONLY:
@@ -257,7 +289,7 @@ def write_mesh(path: str | os.PathLike, vertices: object, faces: object | None =
         elif suffix in (".vtk", ".vtp"):
             _write_vtk(tmp, v, f)
         elif suffix == ".ply":
-            _write_ply(tmp, v, f)
+            _write_ply(tmp, v, f, props)
         else:
             _write_trimesh(tmp, suffix, v, f)
 
@@ -269,8 +301,26 @@ def _write_vtk(tmp: Path, vertices: np.ndarray, faces: np.ndarray | None) -> Non
     poly.save(tmp, binary=True)
 
 
-def _write_ply(tmp: Path, vertices: np.ndarray, faces: np.ndarray | None) -> None:
-    """Binary little-endian PLY with double-precision vertices (trimesh writes float32)."""
+def _check_properties(path: Path, suffix: str, props: dict, n: int) -> dict[str, np.ndarray]:
+    """Validated extra vertex properties: names are PLY words, each an (N,) finite array."""
+    out: dict[str, np.ndarray] = {}
+    for name, values in props.items():
+        if suffix != ".ply":
+            raise ValueError(f"{path}: vertex properties ({name!r}) are written to PLY only")
+        if not (isinstance(name, str) and name.isidentifier() and name not in ("x", "y", "z")):
+            raise ValueError(f"{path}: vertex property name {name!r} is not a valid PLY name")
+        try:
+            out[name] = as_array(name, values, (n,))
+        except ValueError as exc:
+            raise ValueError(f"{path}: vertex property {exc}") from None
+    return out
+
+
+def _write_ply(
+    tmp: Path, vertices: np.ndarray, faces: np.ndarray | None, props: dict[str, np.ndarray]
+) -> None:
+    """Binary little-endian PLY with double-precision vertices (trimesh writes float32) and
+    any extra vertex properties as float32."""
     header = [
         "ply",
         "format binary_little_endian 1.0",
@@ -279,13 +329,18 @@ def _write_ply(tmp: Path, vertices: np.ndarray, faces: np.ndarray | None) -> Non
         "property double x",
         "property double y",
         "property double z",
+        *(f"property float {name}" for name in props),
     ]
     if faces is not None:
         header += [f"element face {len(faces)}", "property list uchar int vertex_indices"]
     header.append("end_header\n")
     with open(tmp, "wb") as fh:
         fh.write("\n".join(header).encode("ascii"))
-        fh.write(np.ascontiguousarray(vertices, dtype="<f8").tobytes())
+        rec = np.zeros(len(vertices), dtype=[("xyz", "<f8", (3,))] + [(k, "<f4") for k in props])
+        rec["xyz"] = vertices
+        for name, values in props.items():
+            rec[name] = values
+        fh.write(rec.tobytes())
         if faces is not None:
             packed = np.zeros(len(faces), dtype=[("n", "u1"), ("idx", "<i4", (3,))])
             packed["n"] = 3

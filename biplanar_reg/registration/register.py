@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -24,6 +24,7 @@ from .options import IterationRecord, RegistrationOptions
 from .outline_match import outline_distances
 from .problem import Problem, make_problem
 from .stages import boost, landmark_consensus, landmark_start, refine_final
+from .uncertainty import registration_uncertainty
 from .view_poses import estimate_view_poses
 
 __all__ = ["RegistrationResult", "register_views"]
@@ -67,6 +68,9 @@ class RegistrationResult:
         For ``poses="refine"``: ``{"mode", "rotation_corrections_deg": {view: deg},
         "centre_corrections_mm": {view: mm}}``; for ``"unknown"``: ``{"mode",
         "certificates": {view: c}}``; for ``"known"``: ``{"mode"}``.
+    vertex_sd_mm : (N,) array or None
+        Posterior standard deviation of each registered vertex, mm (RMS over the axes; pose,
+        weights and model truncation: :mod:`.uncertainty`); None when it could not be formed.
     """
 
     rotation: np.ndarray
@@ -86,6 +90,7 @@ class RegistrationResult:
     gsft: GsftResult = field(repr=False)
     pose_info: dict = field(default_factory=dict)
     iterate_vertices: list = field(default_factory=list, repr=False)
+    vertex_sd_mm: np.ndarray | None = field(default=None, repr=False)
 
 
 def _check_views(model: ShapeModel, views: list[ViewObservations]) -> None:
@@ -175,7 +180,11 @@ def register_views(
     outlines = final.outlines
     if problem.use_outlines and not outlines:
         outlines = problem.outlines(final.result)
-    return _result(problem, final, outlines, pose_info, time.perf_counter() - t0)
+    unc = registration_uncertainty(problem, final.result, outlines, final.rejected)
+    return replace(
+        _result(problem, final, outlines, pose_info, time.perf_counter() - t0),
+        vertex_sd_mm=None if unc is None else unc.sd_mm,
+    )
 
 
 def _flags(problem: Problem, res: GsftResult, rejected: frozenset[int]) -> list[str]:

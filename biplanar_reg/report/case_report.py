@@ -271,6 +271,20 @@ def _surface_figure(
     return {"src": fname, "caption": f"{what} (rendered with {renderer})."}, renderer
 
 
+def _uncertainty_entry(folder: Path, views, vertices, faces, vertex_sd) -> dict[str, str]:
+    """``uncertainty.png``: the bone coloured by its per-vertex sd over each view."""
+    from .uncertainty import uncertainty_figure
+
+    panels = [(v.name, v.view, v.display) for v in views if v.view is not None]
+    uncertainty_figure(folder / "uncertainty.png", panels, vertices, faces, vertex_sd)
+    return {
+        "src": "uncertainty.png",
+        "caption": "Uncertainty: the registered bone coloured by its posterior sd per vertex "
+        "(mm, RMS over the three axes; pose, shape weights and the model's truncation error; "
+        "the view poses taken as known), projected into each view, pixels.",
+    }
+
+
 def _data_uri(path: Path) -> str:
     """A PNG file as a ``data:image/png;base64,...`` URI."""
     return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
@@ -328,6 +342,7 @@ def write_case_report(
     vertices: np.ndarray | None = None,
     faces: np.ndarray | None = None,
     vertex_error: np.ndarray | None = None,
+    vertex_sd: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Write the figures and ``report.html`` of one registered case into ``folder``.
 
@@ -348,6 +363,9 @@ def write_case_report(
         the shaded bone in the overlay of every view that has its ``view``.
     vertex_error : (N,) array, optional
         Distance of each registered vertex to the ground truth, mm (histogram, 3D colours).
+    vertex_sd : (N,) array, optional
+        Posterior sd of each registered vertex, mm (``RegistrationResult.vertex_sd_mm``); with
+        the faces, ``uncertainty.png`` (:func:`.uncertainty.uncertainty_figure`) is drawn.
 
     Returns
     -------
@@ -379,6 +397,8 @@ def write_case_report(
     if vertices is not None and faces is not None:
         entry, renderer = _surface_figure(folder, doc, vertices, faces, vertex_error)
         figures["surface"].append(entry)
+        if vertex_sd is not None:
+            figures["surface"].append(_uncertainty_entry(folder, views, vertices, faces, vertex_sd))
     _write_html(folder, doc, figures, contour_rows)
     names = [f["src"] for group in ("surface", "views", "plots") for f in figures[group]]
     return {"html": "report.html", "figures": names, "renderer": renderer}

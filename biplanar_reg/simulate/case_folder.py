@@ -231,7 +231,12 @@ def _case_model(model: ShapeModel | None, n_modes: int) -> ShapeModel:
     else:
         landmarks = dict(model.landmarks) if model.landmarks else synthetic_landmarks(model)
     return ShapeModel(
-        model.mean, model.modes, faces=model.faces, variances=model.variances, landmarks=landmarks
+        model.mean,
+        model.modes,
+        faces=model.faces,
+        variances=model.variances,
+        landmarks=landmarks,
+        truncation_modes=model.truncation_modes,
     )
 
 

@@ -338,6 +338,7 @@ def wrist_scene(
         faces=model.faces,
         variances=model.variances,
         landmarks={k: i for k, i in marks.items() if not cut[i]},
+        truncation_modes=model.truncation_modes,
     )
     rough = read_json(data.parent / "annotation" / "rough_pose.json")
     pose = (np.asarray(rough["R"], float), np.asarray(rough["t"], float))

@@ -145,8 +145,40 @@ def build_ssm(
     vecs = vecs * signs[:, None]
     modes = (np.sqrt(var[:k])[:, None] * vecs).reshape(k, n, 3)
     return ShapeModel(
-        mean.reshape(n, 3), modes, faces=faces, variances=var[:k], landmarks=landmarks
+        mean.reshape(n, 3),
+        modes,
+        faces=faces,
+        variances=var[:k],
+        landmarks=landmarks,
+        truncation_modes=leave_one_out_residuals(data, k),
     )
+
+
+#: Most leave-one-out folds :func:`leave_one_out_residual` runs (evenly spread over the shapes).
+MAX_FOLDS = 30
+
+
+def leave_one_out_residuals(data: np.ndarray, n_modes: int) -> np.ndarray | None:
+    """Truncation modes (F, N, 3) of a PCA model, mm: for each of at most :data:`MAX_FOLDS`
+    shapes, the PCA of the others with ``n_modes`` modes (at most their rank) and the
+    left-out shape's residual from its projection, divided by ``sqrt(F)`` (so that the sum of
+    the squares at a vertex is the mean square leave-one-out error there).
+
+    ``data`` (S, 3N): aligned shapes, one per row. None for fewer than 3 shapes.
+    """
+    s_count = len(data)
+    if s_count < 3:
+        return None
+    folds = np.unique(np.linspace(0, s_count - 1, min(s_count, MAX_FOLDS)).round().astype(int))
+    out = []
+    for i in folds:
+        rest = np.delete(data, i, axis=0)
+        mu = rest.mean(axis=0)
+        _, sig, vt = np.linalg.svd(rest - mu, full_matrices=False)
+        k = min(n_modes, int(np.sum(sig > 1e-9 * max(sig.max(initial=0.0), 1e-300))))
+        d = data[i] - mu
+        out.append(d - vt[:k].T @ (vt[:k] @ d))
+    return np.stack(out).reshape(len(folds), -1, 3) / np.sqrt(len(folds))
 
 
 def explained_fractions(model: ShapeModel) -> np.ndarray:

@@ -37,6 +37,12 @@ class ShapeModel:
         Variance explained by each mode (as learned); informative only.
     landmarks : mapping of str to int, optional
         Landmark name -> vertex index.
+    truncation_modes : (F, N, 3) array, optional
+        The model's truncation error as modes, mm per unit weight: displacement fields that
+        the modes cannot represent, scaled so that a shape's error is ``sum_f z_f
+        truncation_modes[f]`` with ``z_f ~ N(0, 1)`` (:func:`.build.build_ssm` stores the
+        leave-one-out residuals of its population over ``sqrt(F)``). The registration's
+        uncertainty marginalises over them. ``None``: unknown.
     """
 
     def __init__(
@@ -46,6 +52,7 @@ class ShapeModel:
         faces: object | None = None,
         variances: object | None = None,
         landmarks: Mapping[str, int] | None = None,
+        truncation_modes: object | None = None,
     ) -> None:
         self.mean = as_array("mean", mean, (None, 3))
         n = len(self.mean)
@@ -72,6 +79,9 @@ class ShapeModel:
             if np.any(v < 0):
                 raise ValueError("variances: must be non-negative")
             self.variances = v
+        self.truncation_modes = None
+        if truncation_modes is not None:
+            self.truncation_modes = as_array("truncation_modes", truncation_modes, (None, n, 3))
         self.landmarks: dict[str, int] = {}
         for name, idx in dict(landmarks or {}).items():
             self.add_landmark(name, idx)
@@ -99,6 +109,13 @@ class ShapeModel:
             f"ShapeModel(N={self.n_vertices}, M={self.n_modes}, {kind}, "
             f"landmarks={len(self.landmarks)})"
         )
+
+    @property
+    def truncation_sd(self) -> np.ndarray | None:
+        """Per-vertex RMS 3-D truncation error (N,) mm of :attr:`truncation_modes`, or None."""
+        if self.truncation_modes is None:
+            return None
+        return np.sqrt(np.sum(self.truncation_modes**2, axis=(0, 2)))
 
     # -- evaluation -----------------------------------------------------------------------------
     def check_weights(self, weights: object) -> np.ndarray:
@@ -152,6 +169,8 @@ class ShapeModel:
             arrays["faces"] = self.faces
         if self.variances is not None:
             arrays["variances"] = self.variances
+        if self.truncation_modes is not None:
+            arrays["truncation_modes"] = self.truncation_modes
         # through a file object: given a name, numpy would append ".npz" to the temporary one
         with atomic_path(path) as tmp, open(tmp, "wb") as fh:
             np.savez_compressed(fh, **arrays)
@@ -193,6 +212,7 @@ class ShapeModel:
                 faces=arrays.get("faces"),
                 variances=arrays.get("variances"),
                 landmarks=landmarks,
+                truncation_modes=arrays.get("truncation_modes"),
             )
         except (ValueError, TypeError) as exc:
             raise ValueError(f"{path}: {_one_line(exc)}") from None

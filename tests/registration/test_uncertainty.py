@@ -1,0 +1,110 @@
+"""Per-vertex posterior sd (registration/uncertainty.py): shapes, units and behaviour."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from biplanar_reg.cases.outputs import mesh_properties, uncertainty_summary
+from biplanar_reg.io.meshes import read_mesh, read_vertex_properties, write_mesh
+from biplanar_reg.registration.refine import refine_pose_shape
+from biplanar_reg.registration.uncertainty import linearise_fit, vertex_sd
+from biplanar_reg.simulate import biplanar_views, observe, random_pose, synthetic_bone_model
+from biplanar_reg.ssm import ShapeModel
+
+
+@pytest.fixture(scope="module")
+def scene():
+    model = synthetic_bone_model(4, resolution=(12, 10), seed=1)
+    rng = np.random.default_rng(3)
+    R, t = random_pose(rng, 5.0)
+    w = rng.normal(size=4)
+    X = model.instance(w) @ R.T + t
+    ids = [rng.choice(model.n_vertices, 5, replace=False) for _ in range(2)]
+    return model, (R, t, w), X, ids
+
+
+def _sd(model, truth_state, X, ids, noise_px, stated_px=1.0, seed=0, jackknife=False):
+    """Fit landmark rays with ``noise_px`` click noise (stated sigma ``stated_px``), return sd."""
+    views = biplanar_views(75.0)
+    rays = observe(views, X, ids, noise_px=noise_px, rng=np.random.default_rng(seed))
+    rays = rays.with_sigmas(np.full(len(rays), stated_px * 0.3 * 900 / 1200))  # px -> mm
+    fit = refine_pose_shape(model, rays, truth_state)
+    state = (fit.rotation, fit.translation, fit.weights)
+    lin = linearise_fit(model, state, rays, [])
+    est_w = np.ones(len(lin.residuals)) if jackknife else None
+    return vertex_sd(model, state, lin, estimator_weights=est_w)
+
+
+def test_shapes_and_units(scene):
+    model, state, X, ids = scene
+    u = _sd(model, state, X, ids, 1.0)
+    assert u.sd_mm.shape == (model.n_vertices,)
+    assert u.covariance.shape == (6 + model.n_modes,) * 2
+    assert np.all(np.isfinite(u.sd_mm)) and np.all(u.sd_mm > 0)
+    # 1 px is 0.225 mm at the bone: the sd of a ten-landmark fit is of that order, not 1e-3 or 10
+    assert 0.02 < np.median(u.sd_mm) < 5.0
+    assert u.truncation_mm == 0.0  # this model has no truncation modes
+
+
+@pytest.mark.parametrize("jackknife", [False, True])
+def test_sd_grows_with_fewer_landmarks_and_more_noise(scene, jackknife):
+    model, state, X, ids = scene
+    base = np.median(_sd(model, state, X, ids, 1.0, jackknife=jackknife).sd_mm)
+    few = [ids[0][:3], ids[1][:3]]
+    fewer = np.median(_sd(model, state, X, few, 1.0, jackknife=jackknife).sd_mm)
+    # stated 1 px: the data say 4
+    noisier = np.median(_sd(model, state, X, ids, 4.0, jackknife=jackknife).sd_mm)
+    assert fewer > 1.2 * base
+    assert noisier > 2.0 * base
+
+
+def test_truncation_modes_add_to_sd(scene):
+    model, state, X, ids = scene
+    trunc = 0.5 * np.random.default_rng(0).normal(size=(3, model.n_vertices, 3))
+    with_t = ShapeModel(model.mean, model.modes, faces=model.faces, truncation_modes=trunc)
+    a = _sd(model, state, X, ids, 1.0).sd_mm
+    b = _sd(with_t, state, X, ids, 1.0).sd_mm
+    assert np.all(b >= a - 1e-12)
+    # far from the landmarks the truncation error stays: about its own RMS over the axes
+    own = with_t.truncation_sd / np.sqrt(3.0)
+    assert np.median(b) > 0.5 * np.median(own)
+
+
+def test_ply_round_trip_of_sd_mm(tmp_path):
+    V = np.random.default_rng(0).normal(size=(6, 3))
+    F = np.array([[0, 1, 2], [2, 3, 4], [3, 4, 5]])
+    sd = np.linspace(0.1, 0.6, 6)
+    write_mesh(tmp_path / "r.ply", V, F, mesh_properties(sd))
+    props = read_vertex_properties(tmp_path / "r.ply")
+    np.testing.assert_allclose(props["sd_mm"], sd, rtol=1e-6)  # float32 in the file
+    V2, F2 = read_mesh(tmp_path / "r.ply")
+    np.testing.assert_array_equal(V2, V)
+    np.testing.assert_array_equal(F2, F)
+    with pytest.raises(ValueError, match="sd_mm"):
+        write_mesh(tmp_path / "bad.ply", V, F, {"sd_mm": sd[:3]})
+    with pytest.raises(ValueError, match="PLY only"):
+        write_mesh(tmp_path / "r.obj", V, F, {"sd_mm": sd})
+
+
+def test_result_json_uncertainty_keys():
+    s = uncertainty_summary(np.array([0.1, 0.2, 0.3, 0.4]))
+    assert {"median_mm", "p95_mm", "max_mm"} <= set(s)
+    assert s["median_mm"] == pytest.approx(0.25) and s["max_mm"] == pytest.approx(0.4)
+    assert uncertainty_summary(None) is None
+    assert mesh_properties(None) == {}
+
+
+def test_build_ssm_stores_leave_one_out_truncation(tmp_path):
+    rng = np.random.default_rng(0)
+    base = synthetic_bone_model(0, resolution=(8, 6)).mean
+    shapes = base + 0.5 * rng.normal(size=(6, *base.shape))
+    from biplanar_reg.ssm import build_ssm
+
+    m = build_ssm(shapes, n_modes=2)
+    assert m.truncation_modes.shape == (6, m.n_vertices, 3)
+    assert 0.3 < np.median(m.truncation_sd) / np.sqrt(3 * 0.25) < 1.5  # white noise of 0.5 mm
+    m.save(tmp_path / "m.npz")
+    np.testing.assert_array_equal(
+        ShapeModel.load(tmp_path / "m.npz").truncation_modes, m.truncation_modes
+    )
