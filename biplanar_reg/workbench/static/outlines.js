@@ -368,6 +368,15 @@ export class OutlineTools {
       ctx.strokeRect(x - 4, y - 4, 8, 8);
     }
     if (!p || p.view !== viewer.name || !p.moved) return;
+    if (p.kind === "anchor") {
+      // the dragged anchor, joined to its neighbours until the server's re-trace arrives
+      const s = this.selected(viewer);
+      const a = s?.contour.anchors ?? [];
+      const near = [a[p.k - 1], p.uv, a[p.k + 1]].filter(Boolean);
+      polyline(ctx, viewer, near, { color: COLORS.trace, width: 1, dash: [3, 3] });
+      drawAnchors(ctx, viewer, [p.uv]);
+      return;
+    }
     ctx.setLineDash([4, 3]);
     ctx.strokeStyle = p.kind === "grabcut" ? COLORS.trace : ZONE_LINE;
     ctx.lineWidth = 1.5;
