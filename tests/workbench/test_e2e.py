@@ -522,6 +522,10 @@ def test_view_and_edit_interactions(page, server, case_dir):
     # Double-click fits, and leaves no landmark behind.
     fit_zoom = _zoom(page, view)
     uv = np.array([700.0, 1200.0])
+    # the pixel under the cursor, in the status line (0-based pixel centres)
+    page.mouse.move(*_client(page, view, uv))
+    cursor = page.get_by_test_id("cursor").inner_text().split()
+    assert cursor[:5] == [view, "u", "700.0", "v", "1200.0"], cursor
     _wheel_zoom(page, view, uv)
     canvas.dblclick(position=_canvas_position(page, view, uv))
     page.wait_for_function(
