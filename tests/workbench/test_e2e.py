@@ -432,6 +432,8 @@ def _check_contour_residuals(page, case_dir: Path) -> None:
         [OUTLINE_VIEW, box["x"] + box["width"] / 2, box["y"] + box["height"] / 2],
     )
     assert np.hypot(u - worst["worst_uv"][0], v - worst["worst_uv"][1]) < 0.5
+    page.keyboard.press("Escape")  # no contour selected: every contour in its colours
+    assert page.evaluate("() => window.workbench.state.selectedContour") is None
     for view in ("cam01", "cam02"):  # "Bone" again: the whole bone for the screenshot
         page.get_by_test_id(f"view-{view}").locator("xpath=../..").locator(".fit-bone").click()
 

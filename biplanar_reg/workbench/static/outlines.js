@@ -91,10 +91,13 @@ export class OutlineTools {
   undo() {
     return this.tracer.undo();
   }
+  /** Esc: forget the gesture or the outline being traced; with neither, drop the selection. */
   cancel() {
+    const idle = !this.press && !this.eraseFrom && !this.tracer.tracing();
     this.press = null;
     this.eraseFrom = null;
     this.tracer.cancel();
+    if (idle && this.wb.selectedContour) this.wb.selectContour(null);
   }
   deleteSelected() {
     return this.tracer.deleteSelected();
