@@ -110,7 +110,10 @@ export class OutlineTools {
   }
 
   setSubmode(mode) {
-    this.cancel();
+    // the selection stays (select a contour, then pick Edit or Erase)
+    this.press = null;
+    this.eraseFrom = null;
+    this.tracer.cancel();
     this.submode = mode;
     for (const b of document.querySelectorAll("#outline-submodes button")) {
       b.setAttribute("aria-pressed", String(b.dataset.submode === mode));
