@@ -589,7 +589,51 @@ def test_view_and_edit_interactions(page, server, case_dir):
     _settle(page)
     saved = json.loads((case_dir / "annotations.json").read_text())
     assert len(saved["views"][view]["contours"]) == n_contours
+    _erase_brush_grabcut(page, case_dir, view, saved["views"][view]["contours"])
     assert page.errors == []
+
+
+def _erase_brush_grabcut(page, case_dir: Path, view: str, contours: list[dict]) -> None:
+    """Erase: two clicks on a contour drop the stretch between them; Brush: a painted stroke
+    across another contour cuts it; GrabCut: a dragged box, here one where it fails."""
+    n = len(contours)
+    line = np.asarray(contours[0]["uv"])
+    page.get_by_test_id("outline-erase").click()
+    for k in (len(line) // 3, len(line) // 3 + 20):
+        page.mouse.click(*_client(page, view, line[k]))
+    page.wait_for_selector(f"[data-testid=contour-{view}-{n}]")  # one piece more
+    _settle(page)
+    got = json.loads((case_dir / "annotations.json").read_text())["views"][view]["contours"]
+    # the two pieces take the contour's place: 21 points fewer (the clicked ends included)
+    assert [len(c["uv"]) for c in got[:2]] == [len(line) // 3, len(line) - len(line) // 3 - 21]
+    page.get_by_test_id("outline-brush").click()
+    page.get_by_test_id("zone-radius").fill("4")
+    target = np.asarray(got[2]["uv"])  # the view's second contour, not yet cut
+    mid = target[len(target) // 2]
+    page.mouse.move(*_client(page, view, mid - [8, 0]))
+    page.mouse.down()
+    page.mouse.move(*_client(page, view, mid + [8, 0]), steps=6)
+    page.mouse.up()
+    page.wait_for_selector(f"[data-testid=zone-{view}-0]")
+    _settle(page)
+    doc = json.loads((case_dir / ".workbench-cleaning.json").read_text())
+    assert len(doc["views"][view]["cleaning"]["exclusion_zones"]) == 1
+    assert len(_view_contours(page, view)) == len(got) + 1  # the stroke cut the contour in two
+    # GrabCut in a box round a faint bead of cam02: GrabCut finds no region there (the
+    # radiograph's contrast is too low); the page says so and nothing is added (GrabCut that
+    # succeeds: tests/workbench/test_outline_tools.py)
+    page.get_by_test_id("outline-grabcut").click()
+    n = len(_view_contours(page, view))
+    page.mouse.move(*_client(page, view, [585.0, 1452.0]))
+    page.mouse.down()
+    page.mouse.move(*_client(page, view, [612.0, 1480.0]), steps=6)
+    page.mouse.up()
+    _settle(page)
+    message = page.get_by_test_id("message").inner_text()
+    assert message == "grabcut: nothing was segmented inside the box/polygon", message
+    assert len(_view_contours(page, view)) == n
+    saved = json.loads((case_dir / "annotations.json").read_text())["views"][view]["contours"]
+    assert len(saved) == n
 
 
 def _canvas_position(page, view: str, uv) -> dict:
