@@ -608,7 +608,7 @@ def _erase_brush_grabcut(page, case_dir: Path, view: str, contours: list[dict]) 
     assert [len(c["uv"]) for c in got[:2]] == [len(line) // 3, len(line) - len(line) // 3 - 21]
     page.get_by_test_id("outline-brush").click()
     page.get_by_test_id("zone-radius").fill("4")
-    target = np.asarray(got[2]["uv"])  # the view's second contour, not yet cut
+    target = np.asarray(max(got[2:], key=lambda c: len(c["uv"]))["uv"])  # a longer one, uncut
     mid = target[len(target) // 2]
     page.mouse.move(*_client(page, view, mid - [8, 0]))
     page.mouse.down()
