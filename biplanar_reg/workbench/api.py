@@ -30,6 +30,7 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from .outline_tools import outline_routes
 from .session import Conflict, NotFound, Workbench
 
 __all__ = ["create_app"]
@@ -304,6 +305,7 @@ def _routes(wb: Workbench, token: str) -> list[Route | Mount]:
         ("/api/model/landmarks/{name}", h.model_landmark, ["PUT", "DELETE"]),
     ]
     routes: list[Route | Mount] = [Route(p, _guarded(fn), methods=m) for p, fn, m in table]
+    routes += outline_routes(wb, _guarded, _body, _call)  # outline editing (outline_tools.py)
     routes.append(Mount("/static", app=StaticFiles(directory=STATIC_DIR), name="static"))
     return routes
 

@@ -555,6 +555,14 @@ class Workbench:
         a = check_points(anchors, "anchors", v.size, 2, MAX_ANCHORS)
         return contour, {**_fingerprint(contour), "anchors": a.tolist()}
 
+    def edit_contours(self, view: str, change: Any) -> dict[str, Any]:
+        """Apply ``change(contours, anchors)`` to ``view`` and save; returns the view's
+        annotations. ``contours`` (of :class:`Contour`) and ``anchors`` (the anchor entry of
+        each, or None) are edited in place, in step; nothing is saved when ``change`` raises.
+        For the outline tools (:mod:`biplanar_reg.workbench.outline_tools`)."""
+        self._view(view)
+        return self._edit_contours(view, change)
+
     def _edit_contours(self, view: str, change: Any) -> dict[str, Any]:
         """Apply ``change(contours, anchors)`` (both lists, edited in place) and save."""
         with self._edit:

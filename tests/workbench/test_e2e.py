@@ -256,6 +256,8 @@ def test_annotate_register_review(page, server, case_dir, shipped, tmp_path, rec
     old = np.asarray(shipped["views"][OUTLINE_VIEW]["contours"][OUTLINE_INDEX]["uv"])
     _redraw_outline(page, old, shots)
     livewire_s = page.evaluate("() => window.workbench.state.timing.livewireSeconds")
+    circle = _exclusion_circle(page, case_dir, shots)
+    _edit_anchor(page, case_dir, shots)
 
     # Register (back in landmark mode, key L): progress streamed, then the result overlay,
     # metrics, flags and per-landmark residuals.
@@ -276,6 +278,7 @@ def test_annotate_register_review(page, server, case_dir, shipped, tmp_path, rec
     assert residual.count() == len(views)
     for view in views:  # "Bone": each view framed on the annotations and the result
         page.get_by_test_id(f"view-{view}").locator("xpath=../..").locator(".fit-bone").click()
+    _check_contour_residuals(page, case_dir)
     shots.take("result")
     assert page.errors == []
 
@@ -286,7 +289,7 @@ def test_annotate_register_review(page, server, case_dir, shipped, tmp_path, rec
         f"excluded); livewire server time per call median {1000 * np.median(livewire_s):.0f} ms,"
         f" max {1000 * np.max(livewire_s):.0f} ms ({len(livewire_s)} previews)"
     )
-    _check_saved_annotations(case_dir, shipped, old)
+    _check_saved_annotations(case_dir, shipped, old, circle)
     _check_same_result_as_cli(case_dir, tmp_path, page)
 
 
@@ -344,9 +347,102 @@ def _redraw_outline(page, old: np.ndarray, shots: _Screens) -> None:
     _settle(page)
 
 
-def _check_saved_annotations(case_dir: Path, shipped: dict, old: np.ndarray) -> None:
-    """The file holds the clicked landmarks (0.5 px), the redrawn contour and the rest as
-    shipped; it loads with the library's own validation."""
+def _view_contours(page, view: str) -> list[dict]:
+    return page.evaluate("(v) => window.workbench.state.viewAnnotations(v).contours", view)
+
+
+def _exclusion_circle(page, case_dir: Path, shots: _Screens) -> tuple[np.ndarray, float]:
+    """Circle tool: press on the redrawn contour a third along it, drag 10 px (image) out;
+    the saved contour is cut in two, the zone saved and listed. Returns (centre, radius)."""
+    page.get_by_test_id("outline-circle").click()
+    line = np.asarray(_view_contours(page, OUTLINE_VIEW)[-1]["uv"])
+    centre = line[len(line) // 3]
+    x, y = _client(page, OUTLINE_VIEW, centre)
+    zoom = _zoom(page, OUTLINE_VIEW)
+    page.mouse.move(x, y)
+    page.mouse.down()
+    page.mouse.move(x + 10 * zoom, y, steps=5)
+    page.mouse.up()
+    page.wait_for_selector(f"[data-testid=zone-{OUTLINE_VIEW}-0]")
+    page.wait_for_selector(f"[data-testid=contour-{OUTLINE_VIEW}-{OUTLINE_INDEX + 1}]")
+    _settle(page)
+    zones = json.loads((case_dir / ".workbench-cleaning.json").read_text())
+    (zone,) = zones["views"][OUTLINE_VIEW]["cleaning"]["exclusion_zones"]
+    radius = float(np.median(np.hypot(*(np.asarray(zone) - centre).T)))
+    assert radius == pytest.approx(10, abs=0.3)  # the 32-gon round the 10 px circle
+    shots.take("exclusion")
+    return centre, 10.0
+
+
+def _edit_anchor(page, case_dir: Path, shots: _Screens) -> None:
+    """Edit tool: select the second piece of the cut contour, drag its middle anchor 4 px
+    (image) outwards: the server re-traces it, the saved contour follows."""
+    page.get_by_test_id("outline-edit").click()
+    index = OUTLINE_INDEX + 1
+    piece = _view_contours(page, OUTLINE_VIEW)[index]
+    line = np.asarray(piece["uv"])
+    page.mouse.click(*_client(page, OUTLINE_VIEW, line[len(line) // 4]))
+    assert "selected" in page.get_by_test_id(f"contour-{OUTLINE_VIEW}-{index}").get_attribute(
+        "class"
+    )
+    anchors = np.asarray(piece["anchors"])
+    assert len(anchors) >= 3
+    k = len(anchors) // 2
+    x, y = _client(page, OUTLINE_VIEW, anchors[k])
+    zoom = _zoom(page, OUTLINE_VIEW)
+    page.mouse.move(x, y)
+    page.mouse.down()
+    page.mouse.move(x + 4 * zoom, y, steps=4)
+    page.mouse.up()
+    page.wait_for_function(
+        "([v, i, u]) => { const c = window.workbench.state.viewAnnotations(v).contours[i];"
+        " return c && c.anchors && c.anchors.some((a) => Math.abs(a[0] - u) < 0.05); }",
+        arg=[OUTLINE_VIEW, index, float(anchors[k][0] + 4)],
+    )
+    _settle(page)
+    saved = json.loads((case_dir / "annotations.json").read_text())
+    assert saved["views"][OUTLINE_VIEW]["contours"][index]["uv"] != piece["uv"]
+    # the edge strength along each contour is listed and the contours coloured by it
+    page.wait_for_function(
+        "(v) => document.querySelectorAll(`[data-testid^=quality-${v}-]`).length === "
+        "window.workbench.state.viewAnnotations(v).contours.length",
+        arg=OUTLINE_VIEW,
+    )
+    shots.take("outline_edit")
+
+
+def _check_contour_residuals(page, case_dir: Path) -> None:
+    """After the registration each contour's row has its residual (mean / worst stretch);
+    a click centres the view on the worst stretch."""
+    page.get_by_test_id("mode-outline").click()  # the contour list: the outline panel
+    n = len(_view_contours(page, OUTLINE_VIEW))
+    chips = page.locator(f"[data-testid^=contour-residual-{OUTLINE_VIEW}-]")
+    page.wait_for_function(
+        "([v, n]) => document.querySelectorAll(`[data-testid^=contour-residual-${v}-]`)"
+        ".length === n",
+        arg=[OUTLINE_VIEW, n],
+    )
+    assert chips.count() == n
+    res = page.evaluate("() => window.workbench.state.outlineTools.residuals.views")
+    worst = max(res[OUTLINE_VIEW], key=lambda r: r["worst_mean_px"])
+    page.get_by_test_id(f"contour-residual-{OUTLINE_VIEW}-{worst['index']}").click()
+    box = page.get_by_test_id(f"view-{OUTLINE_VIEW}").bounding_box()
+    u, v = page.evaluate(
+        "([view, x, y]) => window.workbench.clientToView(view, x, y)",
+        [OUTLINE_VIEW, box["x"] + box["width"] / 2, box["y"] + box["height"] / 2],
+    )
+    assert np.hypot(u - worst["worst_uv"][0], v - worst["worst_uv"][1]) < 0.5
+    page.keyboard.press("Escape")  # no contour selected: every contour in its colours
+    assert page.evaluate("() => window.workbench.state.selectedContour") is None
+    for view in ("cam01", "cam02"):  # "Bone" again: the whole bone for the screenshot
+        page.get_by_test_id(f"view-{view}").locator("xpath=../..").locator(".fit-bone").click()
+
+
+def _check_saved_annotations(
+    case_dir: Path, shipped: dict, old: np.ndarray, circle: tuple[np.ndarray, float]
+) -> None:
+    """The file holds the clicked landmarks (0.5 px), the redrawn contour cut in two by the
+    exclusion circle and the rest as shipped; it loads with the library's own validation."""
     from biplanar_reg.annotation import load_annotations
 
     saved = load_annotations(case_dir / "annotations.json")
@@ -359,13 +455,17 @@ def _check_saved_annotations(case_dir: Path, shipped: dict, old: np.ndarray) -> 
         kept = [
             c for i, c in enumerate(want["contours"]) if (view, i) != (OUTLINE_VIEW, OUTLINE_INDEX)
         ]
-        assert len(got.contours) == len(kept) + (view == OUTLINE_VIEW)
+        assert len(got.contours) == len(kept) + 2 * (view == OUTLINE_VIEW)
         for c, w in zip(got.contours, kept, strict=False):
             assert np.allclose(c.uv, w["uv"]), view
-    new = np.asarray(saved.views[OUTLINE_VIEW].contours[-1].uv)
-    # The livewire through anchors on the shipped contour follows the same edge.
-    assert len(new) > 50
-    assert np.median(_distance_to_polyline(new, old)) < 2.0
+    centre, radius = circle
+    for piece in saved.views[OUTLINE_VIEW].contours[-2:]:
+        new = np.asarray(piece.uv)
+        # The livewire through anchors on the shipped contour follows the same edge, and
+        # nothing of it is left inside the exclusion circle.
+        assert len(new) > 30
+        assert np.median(_distance_to_polyline(new, old)) < 2.0
+        assert np.all(np.hypot(*(new - centre).T) > radius - 1e-6)
 
 
 def _check_same_result_as_cli(case_dir: Path, tmp_path: Path, page) -> None:
@@ -380,6 +480,11 @@ def _check_same_result_as_cli(case_dir: Path, tmp_path: Path, page) -> None:
     run_case_dir(rerun, rerun / "out")
     cli_doc = json.loads((rerun / "out" / "result.json").read_text())
     assert workbench_doc["flags"] == cli_doc["flags"]
+    from biplanar_reg.io.meshes import read_mesh
+
+    wb_vertices, _ = read_mesh(case_dir / "out" / "registered.ply")
+    cli_vertices, _ = read_mesh(rerun / "out" / "registered.ply")
+    assert np.abs(wb_vertices - cli_vertices).max() < 1e-6  # mm: the same bone
     for key, value in cli_doc["metrics"].items():
         if isinstance(value, float):
             assert workbench_doc["metrics"][key] == pytest.approx(value, rel=1e-6, abs=1e-9), key
@@ -419,6 +524,10 @@ def test_view_and_edit_interactions(page, server, case_dir):
     # Double-click fits, and leaves no landmark behind.
     fit_zoom = _zoom(page, view)
     uv = np.array([700.0, 1200.0])
+    # the pixel under the cursor, in the status line (0-based pixel centres)
+    page.mouse.move(*_client(page, view, uv))
+    cursor = page.get_by_test_id("cursor").inner_text().split()
+    assert cursor[:5] == [view, "u", "700.0", "v", "1200.0"], cursor
     _wheel_zoom(page, view, uv)
     canvas.dblclick(position=_canvas_position(page, view, uv))
     page.wait_for_function(
@@ -480,7 +589,51 @@ def test_view_and_edit_interactions(page, server, case_dir):
     _settle(page)
     saved = json.loads((case_dir / "annotations.json").read_text())
     assert len(saved["views"][view]["contours"]) == n_contours
+    _erase_brush_grabcut(page, case_dir, view, saved["views"][view]["contours"])
     assert page.errors == []
+
+
+def _erase_brush_grabcut(page, case_dir: Path, view: str, contours: list[dict]) -> None:
+    """Erase: two clicks on a contour drop the stretch between them; Brush: a painted stroke
+    across another contour cuts it; GrabCut: a dragged box, here one where it fails."""
+    n = len(contours)
+    line = np.asarray(contours[0]["uv"])
+    page.get_by_test_id("outline-erase").click()
+    for k in (len(line) // 3, len(line) // 3 + 20):
+        page.mouse.click(*_client(page, view, line[k]))
+    page.wait_for_selector(f"[data-testid=contour-{view}-{n}]")  # one piece more
+    _settle(page)
+    got = json.loads((case_dir / "annotations.json").read_text())["views"][view]["contours"]
+    # the two pieces take the contour's place: 21 points fewer (the clicked ends included)
+    assert [len(c["uv"]) for c in got[:2]] == [len(line) // 3, len(line) - len(line) // 3 - 21]
+    page.get_by_test_id("outline-brush").click()
+    page.get_by_test_id("zone-radius").fill("4")
+    target = np.asarray(max(got[2:], key=lambda c: len(c["uv"]))["uv"])  # a longer one, uncut
+    mid = target[len(target) // 2]
+    page.mouse.move(*_client(page, view, mid - [8, 0]))
+    page.mouse.down()
+    page.mouse.move(*_client(page, view, mid + [8, 0]), steps=6)
+    page.mouse.up()
+    page.wait_for_selector(f"[data-testid=zone-{view}-0]")
+    _settle(page)
+    doc = json.loads((case_dir / ".workbench-cleaning.json").read_text())
+    assert len(doc["views"][view]["cleaning"]["exclusion_zones"]) == 1
+    assert len(_view_contours(page, view)) == len(got) + 1  # the stroke cut the contour in two
+    # GrabCut in a box round a faint bead of cam02: GrabCut finds no region there (the
+    # radiograph's contrast is too low); the page says so and nothing is added (GrabCut that
+    # succeeds: tests/workbench/test_outline_tools.py)
+    page.get_by_test_id("outline-grabcut").click()
+    n = len(_view_contours(page, view))
+    page.mouse.move(*_client(page, view, [585.0, 1452.0]))
+    page.mouse.down()
+    page.mouse.move(*_client(page, view, [612.0, 1480.0]), steps=6)
+    page.mouse.up()
+    _settle(page)
+    message = page.get_by_test_id("message").inner_text()
+    assert message == "grabcut: nothing was segmented inside the box/polygon", message
+    assert len(_view_contours(page, view)) == n
+    saved = json.loads((case_dir / "annotations.json").read_text())["views"][view]["contours"]
+    assert len(saved) == n
 
 
 def _canvas_position(page, view: str, uv) -> dict:

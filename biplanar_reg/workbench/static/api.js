@@ -29,7 +29,7 @@ function withToken(url) {
 }
 
 /** One JSON request. Resolves to the parsed body, rejects with an ApiError. */
-async function request(method, path, body, { signal } = {}) {
+export async function request(method, path, body, { signal } = {}) {
   const headers = { Accept: "application/json" };
   if (TOKEN) headers["X-Workbench-Token"] = TOKEN;
   if (body !== undefined) headers["Content-Type"] = "application/json";
@@ -78,6 +78,9 @@ export const api = {
 
   livewire: (view, anchors, closed, signal) =>
     request("POST", `api/views/${enc(view)}/livewire`, { anchors, closed }, { signal }),
+  /** The livewire through the anchors, cut by the exclusion zones, saved: {index, pieces, view}. */
+  traceOutline: (view, anchors, closed) =>
+    request("POST", `api/views/${enc(view)}/outlines`, { anchors, closed }),
   addContour: (view, uv, closed, anchors) =>
     request("POST", `api/views/${enc(view)}/contours`, { uv, closed, anchors }),
   /** Resolves to the view's annotations (the server answers {"index", "view"}). */

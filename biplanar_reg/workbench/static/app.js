@@ -6,6 +6,7 @@
 
 import { api } from "./api.js";
 import { fatal } from "./fatal.js";
+import { installOutlineTools } from "./outlines.js";
 import { RegisterPanel } from "./register.js";
 import { Viewer } from "./viewer.js";
 import { Workbench } from "./workbench.js";
@@ -175,6 +176,7 @@ async function main() {
     `poses: ${caseInfo.poses ?? "?"} · silhouettes: ${caseInfo.silhouettes ? "on" : "off"}`;
   for (const info of caseInfo.views) wb.viewers.set(info.name, buildView(wb, info));
   wireControls(wb);
+  installOutlineTools(wb); // outline editing, zones, GrabCut, quality (outlines.js)
   document.body.dataset.mode = wb.mode;
   wb.refresh();
   exposeForTests(wb);

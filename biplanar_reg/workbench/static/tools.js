@@ -273,11 +273,13 @@ export class OutlineTool {
     const closed = this.wb.closedOutline;
     this.wb.edit(async () => {
       try {
-        const path = await api.livewire(t.view, t.anchors, closed);
-        const out = await api.addContour(t.view, path.uv, closed, t.anchors);
+        // traced again on the server and cut by the view's exclusion zones (outline_tools.py)
+        const out = await api.traceOutline(t.view, t.anchors, closed);
         this.reset();
         this.wb.setViewAnnotations(t.view, out.view);
-        this.wb.status(`${t.view}: contour #${out.index} saved (${path.uv.length} points)`);
+        const n = out.view.contours[out.index].uv.length;
+        const pieces = out.pieces > 1 ? `, cut by exclusion zones into ${out.pieces} pieces` : "";
+        this.wb.status(`${t.view}: contour #${out.index} saved (${n} points${pieces})`);
       } finally {
         this.busy = false; // on an error the anchors stay, so Enter can retry
         this.wb.redraw();

@@ -1,0 +1,543 @@
+"""Outline editing in the workbench: anchors re-traced, stretches erased, exclusion zones,
+GrabCut, per-contour quality and per-contour residuals.
+
+The numerics are the library's (:func:`biplanar_reg.annotation.livewire`,
+:func:`biplanar_reg.annotation.clean.cut_polyline`, :func:`biplanar_reg.annotation.
+grabcut_outline`, :func:`biplanar_reg.annotation.features.gradient_magnitude`,
+:func:`biplanar_reg.report.contour_residuals`); this module applies them to one open case and
+saves the outcome through :meth:`Workbench.edit_contours`, so that ``annotations.json`` always
+holds the contours as ``biplanar-reg register`` will use them.
+
+**Exclusion zones** are polygons (pixels) of a view where no outline is trusted (a marker bead,
+an overlapping bone). Adding one cuts the view's contours at once (the points inside are
+dropped; a contour may become several pieces), and every contour traced, re-traced or made by
+GrabCut through this module afterwards is cut the same way. The zones are kept in
+``CASE_DIR/.workbench-cleaning.json`` (``biplanar-reg/workbench-cleaning@1``: ``{"views":
+{view: {"cleaning": {"exclusion_zones": [[[u, v], ...], ...]}}}}``, the ``cleaning`` block of
+a contour recipe, see ``docs/annotation.md``); the annotation file holds the cut contours, so
+``register`` needs no zone file to see the same contour. Removing a zone does not bring back
+what it cut (re-trace the contour).
+
+A piece of a cut or erased contour keeps the anchors that lie on it, plus its two ends, so
+that it can be edited like any traced contour: re-tracing runs the livewire through its
+anchors and cuts the path by the zones again.
+
+Pixels are ``(u, v)`` = (column, row), 0-based, origin at the centre of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from ..annotation import Contour, grabcut_outline, livewire
+from ..annotation.clean import cut_polyline
+from ..annotation.features import gradient_magnitude
+from ..io import atomic_write_json, read_json
+from .session import (
+    LIVEWIRE_SIGMA_PX,
+    MAX_ANCHORS,
+    NotFound,
+    Workbench,
+    _fingerprint,
+    check_flag,
+    check_point,
+    check_points,
+    check_positive,
+)
+
+__all__ = ["OutlineTools", "outline_routes"]
+
+log = logging.getLogger(__name__)
+
+CLEANING_NAME = ".workbench-cleaning.json"
+CLEANING_FORMAT = "biplanar-reg/workbench-cleaning@1"
+#: Vertices of the polygon that stands for an exclusion circle (circumscribed: the circle lies
+#: inside it).
+CIRCLE_VERTICES = 32
+MAX_ZONES = 500
+#: An anchor within this distance of a piece stays one of its anchors, pixels (the livewire
+#: moves anchors by up to 2 px onto the edge).
+ANCHOR_TOL_PX = 3.0
+#: Edge strength = gradient magnitude / its 99.5th percentile over the image (the livewire
+#: cost's reference). Below WEAK a point is on a faint edge; a contour whose median is below
+#: FAINT is "faint" (on the wrist radiographs the shipped cortex contours have medians of
+#: 0.32-0.35, the faint medial ones 0.17-0.21); at STRONG and beyond a point is on one of the
+#: image's strongest edges (on a radiograph with markers: metal, beads, the collimator).
+WEAK = 0.2
+FAINT = 0.25
+STRONG = 1.0
+GRABCUT_MAX_ITERATIONS = 20
+
+
+# -- pure helpers (pixels) -----------------------------------------------------------------------
+
+
+def circle_polygon(center: np.ndarray, radius_px: float, n: int = CIRCLE_VERTICES) -> np.ndarray:
+    """The ``n``-gon circumscribing the circle (centre and radius in pixels), (n, 2)."""
+    r = radius_px / math.cos(math.pi / n)
+    t = 2 * math.pi * np.arange(n) / n
+    return np.column_stack([center[0] + r * np.cos(t), center[1] + r * np.sin(t)])
+
+
+def brush_polygons(points: np.ndarray, radius_px: float) -> list[np.ndarray]:
+    """Outlines (pixels) of a brush stroke: the points joined by a line ``2 radius_px`` wide.
+
+    Rasterised at 4 sub-pixels per pixel on a crop around the stroke, outer boundaries only.
+    """
+    scale = 4
+    lo = np.floor(points.min(axis=0) - radius_px - 2)
+    hi = np.ceil(points.max(axis=0) + radius_px + 2)
+    w, h = ((hi - lo) * scale + 1).astype(int)
+    mask = np.zeros((h, w), np.uint8)
+    pts = np.round((points - lo) * scale).astype(np.int32)
+    r = max(int(round(radius_px * scale)), 1)
+    for p in pts:
+        cv2.circle(mask, (int(p[0]), int(p[1])), r, 1, -1)
+    if len(pts) > 1:
+        cv2.polylines(mask, [pts.reshape(-1, 1, 2)], False, 1, 2 * r + 1)
+    found, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    out = []
+    for c in found:
+        poly = c.reshape(-1, 2).astype(float) / scale + lo
+        if len(poly) >= 3:
+            out.append(poly)
+    return out
+
+
+def _nearest(points: np.ndarray, p: np.ndarray) -> tuple[int, float]:
+    d = np.linalg.norm(points - p, axis=1)
+    k = int(np.argmin(d))
+    return k, float(d[k])
+
+
+def piece_anchors(piece: np.ndarray, closed: bool, anchors: np.ndarray | None) -> list | None:
+    """Anchors of a piece of a contour: the old ``anchors`` within :data:`ANCHOR_TOL_PX` of it,
+    in order along it, and (open pieces) its two ends; None when fewer than two."""
+    chosen: list[tuple[int, np.ndarray]] = []
+    if anchors is not None:
+        for a in anchors:
+            k, d = _nearest(piece, a)
+            if d <= ANCHOR_TOL_PX:
+                chosen.append((k, a))
+    if not closed:
+        chosen = [(k, a) for k, a in chosen if 0 < k < len(piece) - 1]
+        chosen = [(0, piece[0]), *chosen, (len(piece) - 1, piece[-1])]
+    chosen.sort(key=lambda item: item[0])
+    out: list[list[float]] = []
+    for _, a in chosen:
+        if not out or np.hypot(*(np.asarray(out[-1]) - a)) > 1.0:
+            out.append([round(float(a[0]), 3), round(float(a[1]), 3)])
+    need = 3 if closed else 2
+    return out if len(out) >= need else None
+
+
+def erase_stretch(
+    uv: np.ndarray, closed: bool, a: np.ndarray, b: np.ndarray
+) -> list[np.ndarray]:
+    """``uv`` without the stretch between its points nearest to ``a`` and ``b`` (both
+    dropped); for a closed contour the shorter of the two stretches. Pieces of < 3 points
+    are dropped; the result is open."""
+    i, _ = _nearest(uv, a)
+    j, _ = _nearest(uv, b)
+    i, j = min(i, j), max(i, j)
+    if not closed:
+        pieces = [uv[:i], uv[j + 1 :]]
+    else:
+        seg = np.linalg.norm(np.diff(np.vstack([uv, uv[:1]]), axis=0), axis=1)
+        inner = float(seg[i:j].sum())  # i -> j
+        if inner <= float(seg.sum()) - inner:  # drop i..j, keep j+1 .. n-1, 0 .. i-1
+            pieces = [np.vstack([uv[j + 1 :], uv[:i]])]
+        else:  # drop j..n-1, 0..i
+            pieces = [uv[i + 1 : j]]
+    return [p for p in pieces if len(p) >= 3]
+
+
+# -- the tools over one workbench ------------------------------------------------------------------
+
+
+class OutlineTools:
+    """The outline tools over an open :class:`Workbench` (see the module docstring).
+
+    Every method checks its input first (``ValueError`` starting with the field, as the
+    session's) and writes nothing unless the whole request is valid.
+    """
+
+    def __init__(self, wb: Workbench):
+        self.wb = wb
+        self.path: Path = wb.case_dir / CLEANING_NAME
+        self._lock = threading.RLock()
+        self._grad: dict[str, tuple[np.ndarray, float]] = {}
+        self._zones: dict[str, list[list[list[float]]]] = self._read()
+
+    # -- the zone file ---------------------------------------------------------------------
+
+    def _read(self) -> dict[str, list[list[list[float]]]]:
+        if not self.path.is_file() or not self.path.resolve().is_relative_to(self.wb.case_dir):
+            return {}
+        try:
+            doc = read_json(self.path)
+            out = {}
+            for view, entry in doc["views"].items():
+                if view in self.wb.views:
+                    zones = entry["cleaning"]["exclusion_zones"]
+                    out[view] = [np.asarray(z, float).reshape(-1, 2).tolist() for z in zones]
+            return out
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:
+            log.warning("%s: ignored (%s)", self.path, exc)
+            return {}
+
+    def _write(self, zones: dict[str, list[list[list[float]]]]) -> None:
+        views = {v: {"cleaning": {"exclusion_zones": z}} for v, z in zones.items() if z}
+        atomic_write_json(self.path, {"format": CLEANING_FORMAT, "views": views})
+        self._zones = zones
+
+    def zones(self, view: str) -> list[list[list[float]]]:
+        """The exclusion polygons of ``view`` (pixels)."""
+        self._view(view)
+        return [list(z) for z in self._zones.get(view, [])]
+
+    # -- helpers -------------------------------------------------------------------------------
+
+    def _view(self, name: str) -> Any:
+        v = self.wb.views.get(name)
+        if v is None:
+            raise NotFound(f"view: unknown view {name!r} (views: {', '.join(self.wb.views)})")
+        return v
+
+    def _cut(self, view: str, uv: np.ndarray, closed: bool, zones=None):
+        zones = self._zones.get(view, []) if zones is None else zones
+        if not zones:
+            return [uv], [closed]
+        return cut_polyline(uv, closed, exclusion_zones=[np.asarray(z) for z in zones])
+
+    def _pieces(self, view, uv, closed, anchors, zones=None) -> list[tuple[Contour, Any]]:
+        """The contour ``uv`` cut by the zones, each piece with its anchor entry."""
+        pieces, flags = self._cut(view, uv, closed, zones)
+        out = []
+        for p, c in zip(pieces, flags, strict=True):
+            contour = Contour(p, c)
+            if len(pieces) == 1 and c == closed and anchors is not None:
+                kept = np.round(np.asarray(anchors, float), 3).tolist()
+            else:
+                kept = piece_anchors(p, c, None if anchors is None else np.asarray(anchors))
+            entry = None if kept is None else {**_fingerprint(contour), "anchors": kept}
+            out.append((contour, entry))
+        return out
+
+    def _replace(self, view: str, index: int | None, make: Callable) -> dict[str, Any]:
+        """Replace contour ``index`` (append when None) by the pieces ``make(contour, entry)``
+        returns; answers ``{"index", "pieces", "view"}``."""
+        info: dict[str, Any] = {}
+
+        def change(contours: list[Contour], saved: list[Any]) -> None:
+            if index is not None and not 0 <= index < len(contours):
+                raise NotFound(
+                    f"views.{view}.contours[{index}]: no such contour ({len(contours)} in the "
+                    "view)"
+                )
+            old = (None, None) if index is None else (contours[index], saved[index])
+            pieces = make(*old)
+            at = len(contours) if index is None else index
+            if index is not None:
+                del contours[index], saved[index]
+            for k, (c, e) in enumerate(pieces):
+                contours.insert(at + k, c)
+                saved.insert(at + k, e)
+            info.update(index=at, pieces=len(pieces))
+
+        with self._lock:
+            doc = self.wb.edit_contours(view, change)
+        return {**info, "view": doc}
+
+    # -- tracing and editing ---------------------------------------------------------------
+
+    def _trace(self, view: str, anchors: object, closed: object) -> tuple[np.ndarray, Any, bool]:
+        v = self._view(view)
+        v.need_image()
+        is_closed = check_flag(closed, "closed", False)
+        pts = check_points(anchors, "anchors", v.size, 3 if is_closed else 2, MAX_ANCHORS)
+        path = livewire(v.image, pts, is_closed, sigma_px=LIVEWIRE_SIGMA_PX, cost=v.cost())
+        return np.round(path, 3), pts, is_closed
+
+    def _nonempty(self, pieces: list, field: str) -> list:
+        if not pieces:
+            raise ValueError(f"{field}: the outline lies entirely inside exclusion zones")
+        return pieces
+
+    def trace(self, view: str, anchors: object, closed: object = None) -> dict[str, Any]:
+        """A new contour: the livewire through ``anchors``, cut by the view's zones, appended
+        (one contour per piece). ``{"index": first piece, "pieces", "view"}``."""
+        path, pts, is_closed = self._trace(view, anchors, closed)
+        pieces = self._nonempty(self._pieces(view, path, is_closed, pts), "anchors")
+        return self._replace(view, None, lambda *_: pieces)
+
+    def retrace(
+        self, view: str, index: int, anchors: object, closed: object = None
+    ) -> dict[str, Any]:
+        """Contour ``index`` traced again through the edited ``anchors`` (an anchor dragged,
+        inserted or deleted): the livewire between neighbours, cut by the zones; the pieces
+        take its place. ``{"index", "pieces", "view"}``."""
+        path, pts, is_closed = self._trace(view, anchors, closed)
+        pieces = self._nonempty(self._pieces(view, path, is_closed, pts), "anchors")
+        return self._replace(view, index, lambda *_: pieces)
+
+    def erase(self, view: str, index: int, start: object, end: object) -> dict[str, Any]:
+        """Contour ``index`` without the stretch between its points nearest to ``start`` and
+        ``end`` (pixels); nothing left removes the contour. ``{"index", "pieces", "view"}``."""
+        v = self._view(view)
+        a = check_point(start, "from", v.size)
+        b = check_point(end, "to", v.size)
+
+        def make(contour: Contour, entry: Any) -> list:
+            anchors = None if entry is None else np.asarray(entry["anchors"], float)
+            pieces = erase_stretch(np.asarray(contour.uv, float), contour.closed, a, b)
+            return [
+                (Contour(p, False), _entry(p, piece_anchors(p, False, anchors)))
+                for p in pieces
+            ]
+
+        return self._replace(view, int(index), make)
+
+    def grabcut(self, view: str, box: object, iterations: object = None) -> dict[str, Any]:
+        """A closed contour from GrabCut in ``box`` = ``[u0, v0, u1, v1]`` (pixels, inside the
+        image), cut by the zones and appended. ``{"index", "pieces", "view", "seconds"}``."""
+        t0 = time.perf_counter()
+        v = self._view(view)
+        v.need_image()
+        if not isinstance(box, list) or len(box) != 4:
+            raise ValueError(f"box: expected [u0, v0, u1, v1] in pixels, got {box!r:.60}")
+        p0 = check_point(box[:2], "box[0:2]", v.size)
+        p1 = check_point(box[2:], "box[2:4]", v.size)
+        lo, hi = np.minimum(p0, p1), np.maximum(p0, p1)
+        if np.any(hi - lo < 8):
+            raise ValueError(f"box: must be at least 8 px wide and high, got {box}")
+        its = 5 if iterations is None else iterations
+        if isinstance(its, bool) or not isinstance(its, int):
+            raise ValueError(f"iterations: expected a whole number, got {its!r:.60}")
+        if not 1 <= its <= GRABCUT_MAX_ITERATIONS:
+            raise ValueError(f"iterations: expected 1 to {GRABCUT_MAX_ITERATIONS}, got {its}")
+        outline = grabcut_outline(v.image, box=np.r_[lo, hi], iterations=its)
+        pieces = self._nonempty(self._pieces(view, outline, True, None), "box")
+        return {**self._replace(view, None, lambda *_: pieces), "seconds": _since(t0)}
+
+    # -- exclusion zones -------------------------------------------------------------------
+
+    def _zone_polygons(self, v: Any, body: dict[str, Any]) -> list[np.ndarray]:
+        given = [k for k in ("circle", "polygon", "brush") if body.get(k) is not None]
+        if len(given) != 1:
+            raise ValueError("body: give exactly one of circle, polygon and brush")
+        kind = given[0]
+        if kind == "polygon":
+            return [check_points(body["polygon"], "polygon", v.size, 3, MAX_ANCHORS)]
+        spec = body[kind]
+        if not isinstance(spec, dict):
+            raise ValueError(f"{kind}: expected an object, got {spec!r:.60}")
+        limit = float(max(v.size)) if v.size else 1e6
+        radius = check_positive(spec.get("radius_px"), f"{kind}.radius_px", None)
+        if radius is None or radius > limit:
+            raise ValueError(f"{kind}.radius_px: expected a number in (0, {limit:g}] pixels")
+        if kind == "circle":
+            return [circle_polygon(check_point(spec.get("center"), "circle.center", v.size),
+                                   radius)]  # fmt: skip
+        pts = check_points(spec.get("points"), "brush.points", v.size, 1, MAX_ANCHORS)
+        return brush_polygons(pts, radius)
+
+    def add_zone(self, view: str, body: dict[str, Any]) -> dict[str, Any]:
+        """Add an exclusion zone to ``view`` and cut its contours by it: ``body`` has one of
+        ``{"circle": {"center": [u, v], "radius_px": r}}``, ``{"polygon": [[u, v], ...]}``,
+        ``{"brush": {"points": [[u, v], ...], "radius_px": r}}`` (pixels). Returns ``{"zones",
+        "added", "cut": [indices of the contours it cut, before the cut], "view"}``."""
+        v = self._view(view)
+        polys = [np.round(p, 3).tolist() for p in self._zone_polygons(v, body)]
+        cut: list[int] = []
+        with self._lock:
+            zones = {k: list(z) for k, z in self._zones.items()}
+            if len(zones.get(view, [])) + len(polys) > MAX_ZONES:
+                raise ValueError(f"zones: at most {MAX_ZONES} per view")
+            zones[view] = zones.get(view, []) + polys
+
+            def change(contours: list[Contour], saved: list[Any]) -> None:
+                new_c, new_s = [], []
+                for i, (c, e) in enumerate(zip(contours, saved, strict=True)):
+                    anchors = None if e is None else e["anchors"]
+                    pieces = self._pieces(view, np.asarray(c.uv), c.closed, anchors, polys)
+                    if len(pieces) != 1 or len(pieces[0][0].uv) != len(c.uv):
+                        cut.append(i)
+                    else:
+                        pieces = [(c, e)]
+                    new_c += [p[0] for p in pieces]
+                    new_s += [p[1] for p in pieces]
+                contours[:], saved[:] = new_c, new_s
+
+            doc = self.wb.edit_contours(view, change)
+            self._write(zones)
+        return {"zones": zones[view], "added": len(polys), "cut": cut, "view": doc}
+
+    def delete_zone(self, view: str, index: int) -> dict[str, Any]:
+        """Remove zone ``index`` of ``view`` (the contours it cut stay cut): ``{"zones"}``."""
+        self._view(view)
+        with self._lock:
+            zones = {k: list(z) for k, z in self._zones.items()}
+            have = zones.get(view, [])
+            if not 0 <= index < len(have):
+                raise NotFound(f"zones.{view}[{index}]: no such zone ({len(have)} in the view)")
+            del have[index]
+            zones[view] = have
+            self._write(zones)
+        return {"zones": have}
+
+    # -- quality and residuals -------------------------------------------------------------
+
+    def _gradient(self, view: str) -> tuple[np.ndarray, float]:
+        v = self._view(view)
+        v.need_image()
+        with self._lock:
+            if view not in self._grad:
+                g = gradient_magnitude(v.image.display.astype(np.float64), LIVEWIRE_SIGMA_PX)
+                self._grad[view] = (g, float(np.percentile(g, 99.5)))
+            return self._grad[view]
+
+    def quality(self, view: str) -> dict[str, Any]:
+        """Edge strength along each contour of ``view``: ``{"contours": [{"index",
+        "strength": per point, "median", "weak_fraction", "strong_fraction", "verdict"}],
+        "weak", "faint", "strong"}`` (strength = gradient magnitude at the point / the image's
+        99.5th percentile of it; ``strong_fraction``: the share at :data:`STRONG` or above;
+        verdict ``faint`` when the median is below :data:`FAINT`, else ``ok``)."""
+        g, ref = self._gradient(view)
+        va = self.wb.view_document(view)
+        out = []
+        for i, c in enumerate(va["contours"]):
+            uv = np.asarray(c["uv"], float)
+            s = ndimage.map_coordinates(g, [uv[:, 1], uv[:, 0]], order=1, mode="nearest")
+            s = s / ref if ref > 0 else np.zeros(len(uv))
+            med = float(np.median(s))
+            strong = float(np.mean(s >= STRONG))
+            verdict = "faint" if med < FAINT else "ok"
+            out.append({
+                "index": i,
+                "strength": np.round(s, 2).tolist(),
+                "median": round(med, 3),
+                "weak_fraction": round(float(np.mean(s < WEAK)), 3),
+                "strong_fraction": round(strong, 3),
+                "verdict": verdict,
+            })  # fmt: skip
+        return {"contours": out, "weak": WEAK, "faint": FAINT, "strong": STRONG}
+
+    def residuals(self) -> dict[str, Any]:
+        """Per-contour residuals of the current contours against the last registration's
+        outline (:func:`biplanar_reg.report.contour_residuals`): ``{"views": {view: [{"index",
+        "mean_px", "max_px", "worst_mean_px", "worst_uv", "length_px"}]}}``; 404 before any
+        registration."""
+        from ..report import contour_residuals
+
+        result = self.wb.result()
+        views: dict[str, list[dict[str, Any]]] = {}
+        for name in self.wb.views:
+            outline = [np.asarray(p, float) for p in result["views"][name]["outline_px"]]
+            contours = [
+                Contour(np.asarray(c["uv"], float), c["closed"])
+                for c in self.wb.view_document(name)["contours"]
+            ]
+            views[name] = [
+                {
+                    "index": r.index,
+                    "mean_px": _finite(r.mean_px),
+                    "max_px": _finite(r.max_px),
+                    "worst_mean_px": _finite(r.worst_mean_px),
+                    "worst_uv": np.round(r.worst_uv, 2).tolist(),
+                    "length_px": round(r.length_px, 2),
+                }
+                for r in contour_residuals(contours, outline)
+            ]
+        return {"views": views}
+
+
+def _entry(piece: np.ndarray, anchors: list | None) -> dict[str, Any] | None:
+    return None if anchors is None else {**_fingerprint(Contour(piece, False)), "anchors": anchors}
+
+
+def _finite(x: float) -> float | None:
+    return round(float(x), 3) if math.isfinite(x) else None
+
+
+def _since(t0: float) -> float:
+    return time.perf_counter() - t0
+
+
+# -- routes ---------------------------------------------------------------------------------------
+
+
+def outline_routes(
+    wb: Workbench,
+    guarded: Callable[[Callable[..., Awaitable[Any]]], Any],
+    body: Callable[..., Awaitable[dict[str, Any]]],
+    call: Callable[..., Awaitable[Any]],
+) -> list[Any]:
+    """The API routes of the outline tools (``docs/workbench.md``); ``guarded``, ``body`` and
+    ``call`` are the server's error mapping, JSON body reader and thread-pool runner."""
+    from starlette.requests import Request
+    from starlette.responses import JSONResponse
+    from starlette.routing import Route
+
+    tools = OutlineTools(wb)
+
+    async def outlines(request: Request) -> JSONResponse:
+        b = await body(request)
+        view = request.path_params["view"]
+        return JSONResponse(await call(tools.trace, view, b.get("anchors"), b.get("closed")))
+
+    async def retrace(request: Request) -> JSONResponse:
+        b = await body(request)
+        p = request.path_params
+        args = (p["view"], p["index"], b.get("anchors"), b.get("closed"))
+        return JSONResponse(await call(tools.retrace, *args))
+
+    async def erase(request: Request) -> JSONResponse:
+        b = await body(request)
+        p = request.path_params
+        args = (p["view"], p["index"], b.get("from"), b.get("to"))
+        return JSONResponse(await call(tools.erase, *args))
+
+    async def grabcut(request: Request) -> JSONResponse:
+        b = await body(request)
+        args = (request.path_params["view"], b.get("box"), b.get("iterations"))
+        return JSONResponse(await call(tools.grabcut, *args))
+
+    async def zones(request: Request) -> JSONResponse:
+        view = request.path_params["view"]
+        if request.method == "GET":
+            return JSONResponse({"zones": await call(tools.zones, view)})
+        return JSONResponse(await call(tools.add_zone, view, await body(request)))
+
+    async def zone(request: Request) -> JSONResponse:
+        p = request.path_params
+        return JSONResponse(await call(tools.delete_zone, p["view"], p["index"]))
+
+    async def quality(request: Request) -> JSONResponse:
+        return JSONResponse(await call(tools.quality, request.path_params["view"]))
+
+    async def residuals(request: Request) -> JSONResponse:
+        return JSONResponse(await call(tools.residuals))
+
+    v = "/api/views/{view}"
+    table = [
+        (v + "/outlines", outlines, ["POST"]),
+        (v + "/contours/{index:int}/anchors", retrace, ["PUT"]),
+        (v + "/contours/{index:int}/erase", erase, ["POST"]),
+        (v + "/grabcut", grabcut, ["POST"]),
+        (v + "/exclusions", zones, ["GET", "POST"]),
+        (v + "/exclusions/{index:int}", zone, ["DELETE"]),
+        (v + "/quality", quality, ["GET"]),
+        ("/api/result/contours", residuals, ["GET"]),
+    ]
+    return [Route(path, guarded(fn), methods=m) for path, fn, m in table]
