@@ -131,16 +131,19 @@ def posed_overlay(
     landmarks: Mapping[str, int],
 ) -> dict[str, dict[str, Any]]:
     """What the page draws per view: ``{view: {"outline_px", "outline_closed",
-    "landmarks_px"}}`` of the mean shape posed by ``(R, t)`` (pixels, outlines by
+    "landmarks_px", "centre_px"}}`` of the mean shape posed by ``(R, t)`` (pixels; the
+    centre is the posed vertices' mean, about which nudges turn; outlines by
     :func:`biplanar_reg.outline.outline_polylines`, longest first)."""
     V = mean @ R.T + t
     names = [n for n, i in landmarks.items() if 0 <= i < len(V)]
     ids = np.array([landmarks[n] for n in names], np.int64)
     out = {}
+    centre = V.mean(axis=0)
     for cv in views:
         lines, closed = outline_polylines(V, cv.view, faces)
         uv = cv.view.project(V[ids]) if len(ids) else np.zeros((0, 2))
         out[cv.name] = {
+            "centre_px": np.round(cv.view.project(centre[None])[0], 2).tolist(),
             "outline_px": [np.round(line, 2).tolist() for line in lines],
             "outline_closed": [bool(c) for c in closed],
             "landmarks_px": {n: np.round(p, 2).tolist() for n, p in zip(names, uv, strict=True)},
