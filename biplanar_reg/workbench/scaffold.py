@@ -95,7 +95,7 @@ def _view_lines(case_dir: Path, views: Sequence[NewView]) -> list[str]:
         field = f"views[{i}]"
         if not _NAME.match(v.name or ""):
             raise ValueError(f"{field}.name: {v.name!r}: use 1-64 letters, digits, '_', '-', '.'")
-        if names.count(v.name) > 1:
+        if v.name in names[:i]:
             raise ValueError(f"{field}.name: {v.name!r} is given twice")
         lines += ["[[views]]", f"name = {_q(v.name)}"]
         calib = _inside(case_dir, v.calibration, field + ".calibration")
@@ -213,20 +213,35 @@ def candidate_files(case_dir: str | os.PathLike) -> dict[str, list[str]]:
             count += 1
             if count > MAX_LISTED:
                 return found
-            _classify(found, path.relative_to(root).as_posix(), name.lower())
+            _classify(found, path, path.relative_to(root).as_posix())
     return found
 
 
-def _classify(found: Mapping[str, list[str]], rel: str, lower: str) -> None:
-    suffix = Path(lower).suffix
+def _is_landmark_file(path: Path) -> bool:
+    """A small JSON object of names to vertex indices (the ``[model] landmarks`` format)."""
+    try:
+        if path.stat().st_size > 1_000_000:
+            return False
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return (
+        bool(doc)
+        and isinstance(doc, dict)
+        and all(isinstance(v, int) and not isinstance(v, bool) for v in doc.values())
+    )
+
+
+def _classify(found: Mapping[str, list[str]], path: Path, rel: str) -> None:
+    suffix = path.suffix.lower()
     if suffix in SSM_SUFFIXES + MESH_SUFFIXES:
         found["models"].append(rel)
-    if suffix in CALIBRATION_SUFFIXES and "landmark" not in lower:
+    if suffix == ".json" and _is_landmark_file(path):
+        found["landmarks"].append(rel)
+    elif suffix in CALIBRATION_SUFFIXES:
         found["calibrations"].append(rel)
     if suffix in IMAGE_SUFFIXES:
         found["images"].append(rel)
-    if suffix == ".json" and "landmark" in lower:
-        found["landmarks"].append(rel)
 
 
 def views_from_json(value: Any) -> list[NewView]:
