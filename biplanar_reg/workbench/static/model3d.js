@@ -208,12 +208,14 @@ export class ModelView {
     ray.setFromCamera(ndc, this.camera);
     const target = this.current();
     const hit = ray.intersectObject(target.mesh, false)[0];
-    if (!hit || !hit.face) return null;
+    if (!hit) return null;
+    // the vertex nearest to the surface point (of all: a long triangle's corners may be far)
+    const p = target.positions;
+    const { x, y, z } = hit.point;
     let best = null;
     let bestDist = Infinity;
-    for (const i of [hit.face.a, hit.face.b, hit.face.c]) {
-      const p = target.positions;
-      const d = hit.point.distanceToSquared(new THREE.Vector3(p[3 * i], p[3 * i + 1], p[3 * i + 2]));
+    for (let i = 0; i < p.length / 3; i++) {
+      const d = (p[3 * i] - x) ** 2 + (p[3 * i + 1] - y) ** 2 + (p[3 * i + 2] - z) ** 2;
       if (d < bestDist) [best, bestDist] = [i, d];
     }
     return best;
