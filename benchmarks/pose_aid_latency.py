@@ -61,12 +61,12 @@ def main() -> None:
             rows.setdefault("landmark edit -> pose aid", []).append((doc["seconds"], cpu))
             body = {"view": "cam01", "translate_px": [2.0, -1.0]} if k % 2 else {
                 "view": "cam02", "rotate_deg": 2.0}  # fmt: skip
-            wall, cpu, doc = _timed(lambda: c.post("/api/pose-aid/nudge", json=body).json())
+            wall, cpu, doc = _timed(lambda b=body: c.post("/api/pose-aid/nudge", json=b).json())
             rows.setdefault("nudge", []).append((doc["seconds"], cpu))
             line = np.array(doc["views"]["cam01"]["outline_px"][0])
             anchors = [line[0].tolist(), line[len(line) // 8].tolist()]
             wall, cpu, lw = _timed(
-                lambda: c.post("/api/views/cam01/livewire", json={"anchors": anchors}).json()
+                lambda a=anchors: c.post("/api/views/cam01/livewire", json={"anchors": a}).json()
             )
             rows.setdefault("reference: livewire preview", []).append((lw["seconds"], cpu))
             if k < 5:

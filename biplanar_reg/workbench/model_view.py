@@ -20,7 +20,7 @@ from ..cases.case import UNIT_SCALE
 from ..io import read_mesh
 from ..report.shading import shaded_faces
 
-__all__ = ["mesh_document", "vertex_errors", "shading_document"]
+__all__ = ["ModelView", "mesh_document", "vertex_errors", "shading_document"]
 
 
 def mesh_document(

@@ -20,7 +20,14 @@ from typing import Any
 from ..cases import CaseSetup, read_case_setup
 from ..io import atomic_write_text
 
-__all__ = ["NewView", "scaffold_case", "candidate_files", "parse_view_option"]
+__all__ = [
+    "NewView",
+    "scaffold_case",
+    "case_toml_text",
+    "candidate_files",
+    "parse_view_option",
+    "create_new_case_app",
+]
 
 #: Model files by suffix: an SSM written by ``biplanar-reg ssm build``, or a template mesh.
 SSM_SUFFIXES = (".npz",)

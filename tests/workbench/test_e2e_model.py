@@ -20,7 +20,6 @@ import json
 import os
 import shutil
 import threading
-import time
 import tomllib
 from pathlib import Path
 
@@ -168,6 +167,7 @@ def _saved_landmarks(case_dir: Path) -> dict:
 
 def test_model_view_and_pose_aid(server, page, case_dir, shipped):
     import time as _t
+
     t0 = _t.perf_counter()
     _open(page, server)
     print("open", _t.perf_counter() - t0)
@@ -239,7 +239,8 @@ def _pixel_colours(page, view: str, uv) -> list[list[int]]:
         """([view, u, v]) => {
           const viewer = window.workbench.state.viewers.get(view);
           const [x, y] = viewer.toCanvas(u, v), dpr = window.devicePixelRatio || 1;
-          const d = viewer.ctx.getImageData(Math.round(x * dpr) - 2, Math.round(y * dpr) - 2, 5, 5).data;
+          const [px, py] = [Math.round(x * dpr) - 2, Math.round(y * dpr) - 2];
+          const d = viewer.ctx.getImageData(px, py, 5, 5).data;
           const out = [];
           for (let i = 0; i < d.length; i += 4) out.push([d[i], d[i + 1], d[i + 2]]);
           return out;
