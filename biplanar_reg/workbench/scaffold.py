@@ -25,7 +25,6 @@ __all__ = [
     "scaffold_case",
     "case_toml_text",
     "candidate_files",
-    "parse_view_option",
     "create_new_case_app",
 ]
 
