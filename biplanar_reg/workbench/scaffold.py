@@ -34,6 +34,8 @@ MESH_SUFFIXES = (".ply", ".stl", ".obj", ".vtk", ".vtp", ".off")
 CALIBRATION_SUFFIXES = (".txt", ".json", ".csv", ".cal", ".dcm", ".xml")
 IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".jpg", ".jpeg", ".dcm", ".bmp")
 _NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+#: Text files that are documentation, not calibrations (licence, read-me, notices).
+_NOT_CALIBRATION = re.compile(r"^(licen[cs]e|readme|copying|notice|authors|changelog)", re.I)
 #: Files listed for the page's form, at most.
 MAX_LISTED = 2000
 
@@ -244,7 +246,7 @@ def _classify(found: Mapping[str, list[str]], path: Path, rel: str) -> None:
         found["models"].append(rel)
     if suffix == ".json" and _is_landmark_file(path):
         found["landmarks"].append(rel)
-    elif suffix in CALIBRATION_SUFFIXES:
+    elif suffix in CALIBRATION_SUFFIXES and not _NOT_CALIBRATION.match(path.name):
         found["calibrations"].append(rel)
     if suffix in IMAGE_SUFFIXES:
         found["images"].append(rel)

@@ -212,7 +212,7 @@ def _define_landmark_in_3d(page, case_dir: Path) -> None:
     page.get_by_test_id("model-name").fill("listers_tubercle")
     page.get_by_test_id("model-landmark-listers_tubercle").click()
     page.click("#model-enlarge")
-    page.evaluate("() => window.workbench.model.resize()")
+    page.evaluate("() => { const m = window.workbench.model; m.frame(m.current()); m.resize(); }")
     _shot(page, "model")
     page.click("#model-enlarge")
 

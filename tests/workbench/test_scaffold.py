@@ -112,7 +112,9 @@ def test_the_cli_options_scaffold_or_leave_it_to_the_form(loose):
 
 
 def test_the_form_lists_the_files_and_creates_the_case(loose):
+    (loose / "calib" / "LICENSE.txt").write_text("not a calibration\n")
     found = candidate_files(loose)
+    assert "calib/LICENSE.txt" not in found["calibrations"]
     assert "model/bone_ssm.npz" in found["models"] and "gt/bone.ply" in found["models"]
     assert {"calib/cam1.txt", "calib/cam2.json"} <= set(found["calibrations"])
     assert found["images"] == ["xray/cam1.png", "xray/cam2.png"]

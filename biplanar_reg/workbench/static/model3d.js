@@ -19,6 +19,44 @@ function ramp(t) {
   return [Math.min(1, 2 * x), Math.min(1, 2 - 2 * x) * (0.35 + 0.65 * Math.min(1, 2 * x)), Math.max(0, 1 - 2 * x)];
 }
 
+/** The principal axes of points [x0, y0, z0, ...] (unit THREE.Vector3, largest spread first):
+ * Jacobi rotations of their 3 x 3 covariance. */
+function principalAxes(p) {
+  const n = p.length / 3;
+  const mean = [0, 0, 0];
+  for (let i = 0; i < n; i++) for (let k = 0; k < 3; k++) mean[k] += p[3 * i + k] / n;
+  const C = [[0, 0, 0], [0, 0, 0], [0, 0, 0]];
+  for (let i = 0; i < n; i++) {
+    for (let a = 0; a < 3; a++) {
+      for (let b = 0; b < 3; b++) C[a][b] += (p[3 * i + a] - mean[a]) * (p[3 * i + b] - mean[b]);
+    }
+  }
+  const V = [[1, 0, 0], [0, 1, 0], [0, 0, 1]];
+  for (let sweep = 0; sweep < 20; sweep++) {
+    for (const [a, b] of [[0, 1], [0, 2], [1, 2]]) {
+      if (Math.abs(C[a][b]) < 1e-12 * (Math.abs(C[a][a]) + Math.abs(C[b][b]) + 1e-300)) continue;
+      const th = 0.5 * Math.atan2(2 * C[a][b], C[b][b] - C[a][a]);
+      const [c, s] = [Math.cos(th), Math.sin(th)];
+      for (const M of [C]) {
+        for (let k = 0; k < 3; k++) { // rows a, b
+          const [x, y] = [M[a][k], M[b][k]];
+          M[a][k] = c * x - s * y;
+          M[b][k] = s * x + c * y;
+        }
+      }
+      for (const M of [C, V]) {
+        for (let k = 0; k < 3; k++) { // columns a, b
+          const [x, y] = [M[k][a], M[k][b]];
+          M[k][a] = c * x - s * y;
+          M[k][b] = s * x + c * y;
+        }
+      }
+    }
+  }
+  const order = [0, 1, 2].sort((i, j) => C[j][j] - C[i][i]);
+  return order.map((i) => new THREE.Vector3(V[0][i], V[1][i], V[2][i]).normalize());
+}
+
 export class ModelView {
   /**
    * @param {Workbench} wb the page state (its caseInfo landmark names are updated here)
@@ -89,12 +127,14 @@ export class ModelView {
     return { geometry, positions, mesh, centre, radius: size.length() / 2, doc };
   }
 
-  /** Camera looking at the mesh's box from the front, the light from the camera. */
+  /** Camera looking at the mesh across its long axis (drawn upright) from the side of its
+   * thinnest extent: the principal axes of its vertices; the light from the camera. */
   frame(m) {
-    const d = m.radius / Math.tan((this.camera.fov * Math.PI) / 360) * 1.15;
+    const [long, , thin] = principalAxes(m.positions);
+    const d = (m.radius / Math.tan((this.camera.fov * Math.PI) / 360)) * 1.15;
     this.controls.target.copy(m.centre);
-    this.camera.position.set(m.centre.x, m.centre.y - d, m.centre.z);
-    this.camera.up.set(0, 0, 1);
+    this.camera.position.copy(m.centre).addScaledVector(thin, -d);
+    this.camera.up.copy(long);
     this.camera.near = d / 100;
     this.camera.far = d * 10;
     this.camera.updateProjectionMatrix();
@@ -152,14 +192,24 @@ export class ModelView {
     this.render();
   }
 
-  /** HTML labels next to each landmark's projection. */
+  /** HTML labels next to each landmark's projection, moved down past the labels already
+   * placed (landmarks are often close together). */
   placeLabels() {
     const w = this.els.box.clientWidth;
     const h = this.els.box.clientHeight;
+    const boxes = [];
     for (const { sphere, label } of this.markers.values()) {
       const p = sphere.position.clone().project(this.camera);
-      label.style.left = `${((p.x + 1) / 2) * w + 6}px`;
-      label.style.top = `${((1 - p.y) / 2) * h - 8}px`;
+      const x = ((p.x + 1) / 2) * w + 8;
+      let y = ((1 - p.y) / 2) * h - 8;
+      const lw = label.offsetWidth || 8 * label.textContent.length;
+      for (let k = 0; k < 6; k++) {
+        if (!boxes.some((b) => x < b[2] && b[0] < x + lw && y < b[3] && b[1] < y + 13)) break;
+        y += 13;
+      }
+      boxes.push([x, y, x + lw, y + 13]);
+      label.style.left = `${x}px`;
+      label.style.top = `${y}px`;
       label.hidden = p.z > 1;
     }
   }

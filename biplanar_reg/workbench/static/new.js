@@ -38,7 +38,7 @@ function addView(files, i) {
     td.append(el);
     row.append(td);
   }
-  $("views").tBodies[0].append(row);
+  $("view-rows").tBodies[0].append(row);
 }
 
 async function main() {
@@ -48,10 +48,10 @@ async function main() {
   if (files.landmarks.length) $("landmarks").value = files.landmarks[0];
   addView(files, 0);
   addView(files, 1);
-  $("add-view").addEventListener("click", () => addView(files, $("views").tBodies[0].rows.length));
+  $("add-view").addEventListener("click", () => addView(files, $("view-rows").tBodies[0].rows.length));
   $("new-case").addEventListener("submit", async (ev) => {
     ev.preventDefault();
-    const views = [...$("views").tBodies[0].rows].map((r) => ({
+    const views = [...$("view-rows").tBodies[0].rows].map((r) => ({
       name: r.querySelector(".view-name").value.trim(),
       calibration: r.querySelector(".view-calibration").value,
       image: r.querySelector(".view-image").value || null,
