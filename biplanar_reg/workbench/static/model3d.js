@@ -200,16 +200,16 @@ export class ModelView {
     const boxes = [];
     for (const { sphere, label } of this.markers.values()) {
       const p = sphere.position.clone().project(this.camera);
-      const x = ((p.x + 1) / 2) * w + 8;
-      let y = ((1 - p.y) / 2) * h - 8;
-      const lw = label.offsetWidth || 8 * label.textContent.length;
-      for (let k = 0; k < 6; k++) {
-        if (!boxes.some((b) => x < b[2] && b[0] < x + lw && y < b[3] && b[1] < y + 13)) break;
-        y += 13;
-      }
-      boxes.push([x, y, x + lw, y + 13]);
-      label.style.left = `${x}px`;
-      label.style.top = `${y}px`;
+      const [cx, cy] = [((p.x + 1) / 2) * w, ((1 - p.y) / 2) * h];
+      const lw = label.offsetWidth || 7 * label.textContent.length;
+      // right, left, then above/below the ball: the first place that misses the others
+      const tries = [[8, -7], [-lw - 8, -7], [8, -20], [-lw - 8, -20], [8, 6], [-lw - 8, 6]];
+      const free = ([dx, dy]) =>
+        !boxes.some((b) => cx + dx < b[2] && b[0] < cx + dx + lw && cy + dy < b[3] && b[1] < cy + dy + 13);
+      const [dx, dy] = tries.find(free) ?? tries[0];
+      boxes.push([cx + dx, cy + dy, cx + dx + lw, cy + dy + 13]);
+      label.style.left = `${cx + dx}px`;
+      label.style.top = `${cy + dy}px`;
       label.hidden = p.z > 1;
     }
   }
