@@ -1,4 +1,8 @@
-"""CLI: ``biplanar-reg workbench CASE_DIR [--port N] [--host H] [--no-browser]``.
+"""CLI: ``biplanar-reg workbench [--new] CASE_DIR [--port N] [--host H] [--no-browser]``.
+
+``--new`` scaffolds the folder's ``case.toml`` first (:mod:`biplanar_reg.workbench.scaffold`):
+from ``--model`` and two or more ``--view NAME=CALIBRATION[,IMAGE]`` when given, otherwise
+from a form in the page listing the folder's files; the workbench then opens on the new case.
 
 Serves the workbench of one case folder (:mod:`biplanar_reg.workbench`) with uvicorn in this
 process, prints its URL with the launch token (one line starting with ``http://``) and opens
@@ -59,43 +63,106 @@ def _sigterm_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-def _cmd_workbench(args: argparse.Namespace) -> int:
-    import secrets
-    import threading
-    import webbrowser
-
+def _serve(app: Any, sock: Any) -> None:
     import uvicorn
 
-    from ..workbench import Workbench, create_app
+    # an open event stream would otherwise hold a graceful shutdown until it ends
+    config = uvicorn.Config(app, log_level="warning", lifespan="off", timeout_graceful_shutdown=3)
+    with _sigterm_as_interrupt():
+        uvicorn.Server(config).run(sockets=[sock])
+
+
+def _announce(args: argparse.Namespace, port: int, token: str) -> None:
+    import webbrowser
+
+    host = f"[{args.host}]" if ":" in args.host else args.host
+    url = f"http://{host}:{port}/?token={token}"
+    if args.host not in LOOPBACK:
+        print(
+            f"warning: listening on {args.host}: other machines can connect (each request "
+            "still needs the token)",
+            file=sys.stderr,
+        )
+    print(url, flush=True)
+    if not args.no_browser:
+        webbrowser.open(url)
+
+
+def _open(wb: Any, token: str, port: int) -> Any:
+    """The workbench's app, its caches warming up in the background."""
+    import threading
+
+    from ..workbench import create_app
+
+    wb.set_port(port)
+    app = create_app(wb, token)
+    # tiles and livewire costs are built while the browser loads the page
+    threading.Thread(target=wb.warm_up, name="workbench-warm-up", daemon=True).start()
+    return app
+
+
+def _new_case(args: argparse.Namespace) -> bool:
+    """``--new``: write ``case.toml`` from the options; False when the form must ask."""
+    from pathlib import Path
+
+    from ..workbench.scaffold import parse_view_option, scaffold_case
+
+    folder = Path(args.case_dir)
+    if (folder / "case.toml").exists():
+        raise ValueError(f"--new: {folder / 'case.toml'} exists already; open it without --new")
+    if not folder.is_dir():
+        raise ValueError(f"CASE_DIR: {folder}: not a folder (create it and put the files in it)")
+    views = [parse_view_option(v) for v in args.view or []]
+    if args.model is None or len(views) < 2:
+        return False
+    scaffold_case(folder, model=args.model, views=views, landmarks=args.landmarks,
+                  poses=args.poses)  # fmt: skip
+    return True
+
+
+def _cmd_new_form(args: argparse.Namespace, sock: Any, token: str) -> int:
+    """Serve the "new case" form; the workbench replaces it once the case is written."""
+    from pathlib import Path
+
+    from ..workbench import Workbench
+    from ..workbench.scaffold import Switch, create_new_case_app
+
+    opened: list[Any] = []
+    port = sock.getsockname()[1]
+    switch = Switch(None)
+
+    def open_case(setup: Any) -> None:
+        wb = Workbench(setup.case_dir, port=port)
+        opened.append(wb)
+        switch.app = _open(wb, token, port)
+
+    switch.app = create_new_case_app(Path(args.case_dir).resolve(), token, open_case)
+    _announce(args, port, token)
+    try:
+        _serve(switch, sock)
+    finally:
+        for wb in opened:
+            wb.close()
+    return 0
+
+
+def _cmd_workbench(args: argparse.Namespace) -> int:
+    import secrets
+
+    from ..workbench import Workbench
 
     if not 0 <= args.port <= 65535:
         raise ValueError(f"--port: expected 0..65535, got {args.port}")
+    token = secrets.token_urlsafe(24)
+    if args.new and not _new_case(args):
+        return _cmd_new_form(args, _bind(args.host, args.port), token)
     wb = Workbench(args.case_dir)
     try:
         sock = _bind(args.host, args.port)
         port = sock.getsockname()[1]
-        wb.set_port(port)
-        token = secrets.token_urlsafe(24)
-        app = create_app(wb, token)
-        # tiles and livewire costs are built while the browser loads the page
-        threading.Thread(target=wb.warm_up, name="workbench-warm-up", daemon=True).start()
-        host = f"[{args.host}]" if ":" in args.host else args.host
-        url = f"http://{host}:{port}/?token={token}"
-        if args.host not in LOOPBACK:
-            print(
-                f"warning: listening on {args.host}: other machines can connect (each request "
-                "still needs the token)",
-                file=sys.stderr,
-            )
-        print(url, flush=True)
-        if not args.no_browser:
-            webbrowser.open(url)
-        # an open event stream would otherwise hold a graceful shutdown until it ends
-        config = uvicorn.Config(
-            app, log_level="warning", lifespan="off", timeout_graceful_shutdown=3
-        )
-        with _sigterm_as_interrupt():
-            uvicorn.Server(config).run(sockets=[sock])
+        app = _open(wb, token, port)
+        _announce(args, port, token)
+        _serve(app, sock)
         return 0
     finally:
         wb.close()
@@ -108,6 +175,18 @@ def _build_workbench(p: argparse.ArgumentParser, wanted: Wanted) -> None:
     p.add_argument(
         "--no-browser", action="store_true", help="print the URL only, do not open a browser"
     )
+    new = p.add_argument_group("a new case (--new)")
+    new.add_argument(
+        "--new", action="store_true",
+        help="write CASE_DIR/case.toml first: from --model and --view, or in the page",
+    )  # fmt: skip
+    new.add_argument("--model", help="shape model (.npz) or template mesh, inside CASE_DIR")
+    new.add_argument(
+        "--view", action="append", metavar="NAME=CALIBRATION[,IMAGE]",
+        help="a view's calibration and image files, inside CASE_DIR (twice or more)",
+    )  # fmt: skip
+    new.add_argument("--landmarks", help="model landmark file (default: beside the model)")
+    new.add_argument("--poses", default="known", choices=["known", "unknown", "refine"])
     p.set_defaults(func=_cmd_workbench)
 
 

@@ -208,6 +208,11 @@ class _Handlers:
     def __init__(self, wb: Workbench, token: str):
         self.wb = wb
         self.token = token
+        from .model_view import ModelView
+        from .pose_aid import PoseAid
+
+        self.aid = PoseAid(wb)
+        self.meshes = ModelView(wb, self.aid.mean)
 
     async def index(self, request: Request) -> Response:
         html = await _call(_page, self.token)
@@ -284,6 +289,36 @@ class _Handlers:
         body = await _body(request)
         return JSONResponse(await _call(self.wb.set_model_landmark, name, body.get("vertex")))
 
+    async def pose_aid(self, request: Request) -> Response:
+        return JSONResponse(await _call(self.aid.document))
+
+    async def pose_aid_action(self, request: Request) -> Response:
+        action = request.path_params["action"]
+        body = await _body(request) if action == "nudge" else {}
+        if action == "nudge":
+            args = (body.get("view"), body.get("translate_px"), body.get("rotate_deg"))
+            return JSONResponse(await _call(self.aid.nudge, *args))
+        if action == "reset":
+            return JSONResponse(await _call(self.aid.reset))
+        if action == "start":
+            return JSONResponse(await _call(self.aid.save_start))
+        raise ApiError(404, f"{request.url.path}: no such pose-aid action (nudge, reset, start)")
+
+    async def propose_outline(self, request: Request) -> Response:
+        body = await _body(request)
+        args = (request.path_params["view"], body.get("spacing_px"))
+        return JSONResponse(await _call(self.aid.propose, *args))
+
+    async def model_mesh(self, request: Request) -> Response:
+        return JSONResponse(await _call(self.meshes.model_mesh))
+
+    async def result_mesh(self, request: Request) -> Response:
+        return JSONResponse(await _call(self.meshes.result_mesh))
+
+    async def result_shading(self, request: Request) -> Response:
+        view = request.path_params["view"]
+        return JSONResponse(await _call(self.meshes.shading, view))
+
 
 def _routes(wb: Workbench, token: str) -> list[Route | Mount]:
     """The page, the JSON API and the static files."""
@@ -303,6 +338,12 @@ def _routes(wb: Workbench, token: str) -> list[Route | Mount]:
         ("/api/register/events", h.events, ["GET"]),
         ("/api/result", h.result, ["GET"]),
         ("/api/model/landmarks/{name}", h.model_landmark, ["PUT", "DELETE"]),
+        ("/api/model/mesh", h.model_mesh, ["GET"]),
+        ("/api/result/mesh", h.result_mesh, ["GET"]),
+        ("/api/result/shading/{view}", h.result_shading, ["GET"]),
+        ("/api/pose-aid", h.pose_aid, ["GET"]),
+        ("/api/pose-aid/{action}", h.pose_aid_action, ["POST"]),
+        (v + "/propose-outline", h.propose_outline, ["POST"]),
     ]
     routes: list[Route | Mount] = [Route(p, _guarded(fn), methods=m) for p, fn, m in table]
     routes += outline_routes(wb, _guarded, _body, _call)  # outline editing (outline_tools.py)

@@ -93,6 +93,18 @@ export const api = {
   getRegister: () => request("GET", "api/register"),
   getResult: () => request("GET", "api/result"),
 
+  // the 3D model view, the pose aid and the result's shading (model3d.js, poseaid.js)
+  getModelMesh: () => request("GET", "api/model/mesh"),
+  putModelLandmark: (name, vertex) =>
+    request("PUT", `api/model/landmarks/${enc(name)}`, { vertex }),
+  getResultMesh: () => request("GET", "api/result/mesh"),
+  getResultShading: (view) => request("GET", `api/result/shading/${enc(view)}`),
+  getPoseAid: () => request("GET", "api/pose-aid"),
+  poseAidAction: (action, body) => request("POST", `api/pose-aid/${action}`, body ?? {}),
+  proposeOutline: (view, spacingPx) =>
+    request("POST", `api/views/${enc(view)}/propose-outline`,
+      spacingPx === undefined ? {} : { spacing_px: spacingPx }),
+
   /** URL of one grey PNG tile, raw values mapped from [lo, hi] to [0, 255]. */
   tileUrl: (view, level, tx, ty, lo, hi) =>
     withToken(`api/views/${enc(view)}/tiles/${level}/${tx}/${ty}.png?lo=${lo}&hi=${hi}`),

@@ -6,7 +6,9 @@
 
 import { api } from "./api.js";
 import { fatal } from "./fatal.js";
+import { ModelView } from "./model3d.js";
 import { installOutlineTools } from "./outlines.js";
+import { PoseAid, PoseTool, ResultShading } from "./poseaid.js";
 import { RegisterPanel } from "./register.js";
 import { Viewer } from "./viewer.js";
 import { Workbench } from "./workbench.js";
@@ -126,6 +128,7 @@ function onKey(wb, ev) {
   const key = ev.key;
   if (key === "l" || key === "L") wb.setMode("landmark");
   else if (key === "o" || key === "O") wb.setMode("outline");
+  else if ((key === "p" || key === "P") && wb.tools.pose) wb.setMode("pose");
   else if (key === "f" || key === "F") wb.viewers.get(wb.activeView)?.fit();
   else if (key === "Enter" && wb.mode === "outline") outline.finish();
   else if (key === "Escape") wb.tool().cancel();
@@ -158,6 +161,41 @@ function exposeForTests(wb) {
     idle: () => wb.queue.then(() => undefined),
     tilesPending: () => [...wb.viewers.values()].reduce((n, v) => n + v.tiles.pending(), 0),
   };
+}
+
+/** The 3D model view, the pose aid (Pose mode) and the result's shading. */
+async function initModelAndPose(wb) {
+  const aid = new PoseAid(wb, {
+    panel: $("pose-panel"), status: $("pose-status"), reset: $("pose-reset"),
+    save: $("pose-save"), propose: $("pose-propose"), accept: $("pose-accept"),
+    discard: $("pose-discard"), show: $("pose-show"), time: $("pose-time"),
+  });
+  const shading = new ResultShading(wb, $("show-shading"));
+  wb.tools.pose = new PoseTool(wb, aid);
+  wb.overlays.push((ctx, v) => shading.draw(ctx, v), (ctx, v) => aid.draw(ctx, v));
+  $("mode-pose").addEventListener("click", () => wb.setMode("pose"));
+  const model = new ModelView(wb, {
+    box: $("model-box"), name: $("model-name"), list: $("model-landmarks"),
+    status: $("model-status"), showResult: $("model-result"), legend: $("model-legend"),
+  });
+  $("model-result").addEventListener("change", (ev) => model.setShowResult(ev.target.checked));
+  $("model-enlarge").addEventListener("click", () => {
+    const big = $("model-panel").classList.toggle("big");
+    $("model-enlarge").setAttribute("aria-pressed", String(big));
+    model.resize();
+  });
+  const onResult = async (result) => {
+    if (!result) return;
+    await Promise.all([shading.load(), model.loadResult()]);
+  };
+  wb.resultListeners.push((r) => onResult(r).catch((err) => wb.error(err)));
+  window.workbench.poseAid = aid;
+  window.workbench.model = model;
+  await Promise.all([
+    aid.init(),
+    model.init().catch((err) => model.say(`3D view: ${err.message}`, true)),
+    wb.result ? onResult(wb.result) : null,
+  ]);
 }
 
 async function main() {
@@ -193,6 +231,7 @@ async function main() {
   } catch (err) {
     wb.error(err);
   }
+  await initModelAndPose(wb);
   document.body.dataset.ready = "true";
 }
 

@@ -27,6 +27,10 @@ export class Workbench {
     this.queue = Promise.resolve(); // edits run one at a time, in order
     this.timing = { loaded: performance.now(), registerStart: null, livewireSeconds: [] };
     this.tools = { landmark: new LandmarkTool(this), outline: new OutlineTool(this) };
+    // hooks of the model view and the pose aid (model3d.js, poseaid.js)
+    this.overlays = []; // fn(ctx, viewer), drawn first (under the result and the annotations)
+    this.annotationListeners = []; // fn(view) after each saved edit of a view's annotations
+    this.resultListeners = []; // fn(result) when a registration result arrives
   }
 
   tool() {
@@ -51,6 +55,16 @@ export class Workbench {
     const sel = this.selectedContour;
     if (sel && sel.view === view && sel.index >= va.contours.length) this.selectedContour = null;
     this.refresh();
+    for (const fn of this.annotationListeners) fn(view);
+  }
+
+  /** The model's landmarks changed (defined or moved in the 3D view). */
+  setModelLandmarks(landmarks) {
+    this.caseInfo.model_landmarks = { ...landmarks };
+    this.caseInfo.landmark_names = Object.keys(landmarks);
+    this.selectedLandmark ??= this.caseInfo.landmark_names[0] ?? null;
+    this.refresh();
+    for (const fn of this.annotationListeners) fn(null);
   }
 
   /** Run an edit after the previous ones; a failure is shown and the annotations reloaded, so
@@ -140,9 +154,10 @@ export class Workbench {
     if (mode === this.mode) return;
     this.tool().cancel();
     this.mode = mode;
-    for (const m of ["landmark", "outline"]) {
-      $(`mode-${m}`).setAttribute("aria-pressed", String(m === mode));
+    for (const m of Object.keys(this.tools)) {
+      $(`mode-${m}`)?.setAttribute("aria-pressed", String(m === mode));
     }
+    $("pose-panel")?.classList.toggle("active", mode === "pose");
     document.body.dataset.mode = mode;
     $("landmarks-panel").classList.toggle("active", mode === "landmark");
     $("outline-panel").classList.toggle("active", mode === "outline");
@@ -152,6 +167,7 @@ export class Workbench {
   setResult(result) {
     this.result = result;
     this.refresh();
+    for (const fn of this.resultListeners) fn(result);
   }
 
   // ---- display ---------------------------------------------------------------------------
@@ -175,6 +191,7 @@ export class Workbench {
   drawOverlay(ctx, viewer) {
     const va = this.viewAnnotations(viewer.name);
     const result = this.showResult ? this.result?.views?.[viewer.name] : null;
+    for (const fn of this.overlays) fn(ctx, viewer);
     if (result) overlay.drawResult(ctx, viewer, result, va.landmarks);
     const sel = this.selectedContour;
     const boxes = []; // label boxes, so that no label hides another
