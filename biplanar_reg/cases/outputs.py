@@ -30,13 +30,6 @@ __all__: list[str] = []
 REQUIRED_OUTPUTS = ("registered.ply", "result.json", "report.html")
 
 
-<<<<<<< HEAD
-def is_complete(out: Path, report: bool = True) -> bool:
-    """True when ``out`` is a complete case output folder (``report=False``: without
-    ``report.html``, as ``--no-report`` writes it)."""
-    need = REQUIRED_OUTPUTS if report else tuple(f for f in REQUIRED_OUTPUTS if f != "report.html")
-    return out.is_dir() and all((out / f).is_file() for f in need)
-=======
 def uncertainty_summary(sd_mm: np.ndarray | None) -> dict[str, float] | None:
     """``result.json["uncertainty"]``: median, 95th percentile and max of the per-vertex
     standard deviation (mm; ``RegistrationResult.vertex_sd_mm``), or None without one."""
@@ -57,10 +50,11 @@ def mesh_properties(sd_mm: np.ndarray | None) -> dict[str, np.ndarray]:
     return {} if sd_mm is None else {"sd_mm": np.asarray(sd_mm, float)}
 
 
-def is_complete(out: Path) -> bool:
-    """True when ``out`` is a complete case output folder."""
-    return out.is_dir() and all((out / f).is_file() for f in REQUIRED_OUTPUTS)
->>>>>>> wp-unc
+def is_complete(out: Path, report: bool = True) -> bool:
+    """True when ``out`` is a complete case output folder (``report=False``: without
+    ``report.html``, as ``--no-report`` writes it)."""
+    need = REQUIRED_OUTPUTS if report else tuple(f for f in REQUIRED_OUTPUTS if f != "report.html")
+    return out.is_dir() and all((out / f).is_file() for f in need)
 
 
 def _check_output_target(out: Path) -> None:

@@ -424,8 +424,8 @@ def register_case(
         progress("writing registered.ply, result.json" + (" and the report" if report else ""))
     with atomic_output_dir(out_dir) as tmp:
         t2 = time.perf_counter()
-<<<<<<< HEAD
-        write_mesh(tmp / "registered.ply", res.vertices, case.model.faces)
+        props = mesh_properties(res.vertex_sd_mm)
+        write_mesh(tmp / "registered.ply", res.vertices, case.model.faces, props)
         doc["report"] = None
         if report:
             from ..report import case_report  # looked up at call time (tests replace it)
@@ -437,22 +437,9 @@ def register_case(
                 vertices=res.vertices,
                 faces=case.model.faces,
                 vertex_error=vertex_error,
+                vertex_sd=res.vertex_sd_mm,
             )
             doc["timings"]["report"] = time.perf_counter() - t2
-=======
-        props = mesh_properties(res.vertex_sd_mm)
-        write_mesh(tmp / "registered.ply", res.vertices, case.model.faces, props)
-        doc["report"] = case_report.write_case_report(
-            tmp,
-            doc,
-            views,
-            vertices=res.vertices,
-            faces=case.model.faces,
-            vertex_error=vertex_error,
-            vertex_sd=res.vertex_sd_mm,
-        )
-        doc["timings"]["report"] = time.perf_counter() - t2
->>>>>>> wp-unc
         doc["timings"]["total"] = load_seconds + (time.perf_counter() - t0)
         atomic_write_json(tmp / "result.json", doc)
     log.info("%s: wrote %s", case.id, out_dir)
