@@ -57,6 +57,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
+WRIST_DATA = REPO / "sample_cases" / "wrist_radius" / "data"
 
 #: name -> (poses, landmarks per view, blunder, calibration error)
 CONDITIONS: dict[str, tuple[str, int, bool, bool]] = {
@@ -126,7 +127,7 @@ def make_bundle(folder: Path, seeds: list[int], conditions: list[str]) -> int:
     from biplanar_reg.simulate.realistic import make_realistic_case, model_floor, wrist_scene
     from biplanar_reg.ssm import ShapeModel
 
-    scene = wrist_scene()
+    scene = wrist_scene(str(WRIST_DATA))
     m = scene.model
     np.savez(folder / "model.npz", mean=m.mean, modes=m.modes, faces=m.faces)
     mean_only = ShapeModel(m.mean, np.zeros((0, m.n_vertices, 3)))
@@ -141,6 +142,7 @@ def make_bundle(folder: Path, seeds: list[int], conditions: list[str]) -> int:
                 n_landmarks_per_view=n,
                 blunder_px=b_px if blunder else 0.0,
                 calibration_error=(deg, mm) if calib else (0.0, 0.0),
+                scene=scene,
             )
             mean_fit = model_floor(mean_only, case.truth_vertices)[0]
             jobs.append(job_doc(case, seed, cond, mean_fit))

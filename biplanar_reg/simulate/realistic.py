@@ -6,8 +6,8 @@ harmonic population of it (:func:`biplanar_reg.ssm.synthesise_population`), the 
 built from its first ``n_train`` members only (so the other members, the truths, are out of the
 model's span), a second bone beside the first (rendered into the radiographs, where it overlaps
 the bone's outline), a soft-tissue cylinder around both, and the calibrated views.
-:func:`wrist_scene` is the default: the distal radius and ulna from the shipped CT volumes of
-``sample_cases/wrist_radius/data`` and its two real MayaCam 2.0 calibrations.
+:func:`wrist_scene` builds one from the wrist data of a clone (``sample_cases/wrist_radius/data``:
+the distal radius and ulna CT volumes and the two real MayaCam 2.0 calibrations).
 
 :func:`make_realistic_case` makes one seeded case from it, as an annotator would see it:
 
@@ -72,7 +72,6 @@ __all__ = [
 
 #: Voxel size (column, row, slice) of the shipped wrist CT volumes, mm (their README).
 WRIST_CT_VOXEL_MM = (0.39625, 0.39625, 0.625)
-_WRIST = Path("sample_cases") / "wrist_radius"
 #: Attenuation of bone and soft tissue, 1/mm.
 MU_BONE, MU_SOFT = 0.05, 0.01
 
@@ -220,17 +219,14 @@ def model_floor(
 
 
 # -- scenes ---------------------------------------------------------------------------------------
-def _wrist_data(data_dir: str | Path | None) -> Path:
-    """The shipped wrist data folder (source tree beside the package, or under the cwd)."""
-    if data_dir is not None:
-        return Path(data_dir)
-    for root in (Path(__file__).resolve().parents[2], Path.cwd()):
-        if (root / _WRIST / "data" / "radius_ct.tif").is_file():
-            return root / _WRIST / "data"
-    raise ValueError(
-        f"{_WRIST / 'data'}: the shipped wrist data was not found beside the package or under "
-        f"{Path.cwd()}; pass data_dir"
-    )
+def _wrist_data(data_dir: str | Path) -> Path:
+    """The wrist data folder, checked: the CT volumes and calibrations must be there."""
+    data = Path(data_dir)
+    need = ["radius_ct.tif", "ulna_ct.tif", "cam01_calibration_mayacam2.txt"]
+    missing = [n for n in need if not (data / n).is_file()]
+    if missing:
+        raise ValueError(f"{data}: not the wrist data folder (no {', '.join(missing)})")
+    return data
 
 
 def _overlap_direction(
@@ -294,7 +290,7 @@ def _cylinder_lengths(
 
 @functools.lru_cache(maxsize=4)
 def wrist_scene(
-    data_dir: str | None = None,
+    data_dir: str,
     *,
     n_vertices: int = 1000,
     n_population: int = 18,
@@ -308,9 +304,11 @@ def wrist_scene(
 
     Parameters
     ----------
-    data_dir : str, optional
-        The folder of ``radius_ct.tif``, ``ulna_ct.tif`` and the calibrations (default: the
-        source tree's ``sample_cases/wrist_radius/data``).
+    data_dir : str
+        The folder of ``radius_ct.tif``, ``ulna_ct.tif`` and the two MayaCam 2.0 calibrations
+        ``cam0{1,2}_calibration_mayacam2.txt``, with the rough pose of the radius in
+        ``../annotation/rough_pose.json``: ``sample_cases/wrist_radius/data`` of a clone (the
+        installed package ships no data).
     n_vertices : int
         Target vertex count of the radius surface (the ulna gets 600).
     n_population, n_train, n_modes : int
@@ -598,10 +596,11 @@ def make_realistic_case(
     supersample : int
         Rays per pixel side of the bone's rendering (odd; 3 smooths the pixel staircase of
         its outline at ~10x the rendering time, 1 relies on the 0.8 px blur).
-    scene : RealisticScene, optional
-        Default :func:`wrist_scene`.
+    scene : RealisticScene
+        The scene (e.g. :func:`wrist_scene`); required.
     """
-    scene = scene or wrist_scene()
+    if scene is None:
+        raise ValueError("scene: pass a RealisticScene, e.g. wrist_scene(data_dir)")
     if blunder_px < 0 or landmark_noise_px < 0:
         raise ValueError("blunder_px and landmark_noise_px must be >= 0")
     frac = (float(outline_fraction[0]), float(outline_fraction[1]))

@@ -3,15 +3,21 @@ outlines, the blunder and calibration error where the case says)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from biplanar_reg.simulate.realistic import make_realistic_case, model_floor, wrist_scene
 
+WRIST_DATA = Path(__file__).resolve().parents[2] / "sample_cases" / "wrist_radius" / "data"
+
 
 @pytest.fixture(scope="module")
 def scene():
-    return wrist_scene(n_vertices=500, n_population=8, n_train=5, n_modes=4, resolution=20)
+    return wrist_scene(
+        str(WRIST_DATA), n_vertices=500, n_population=8, n_train=5, n_modes=4, resolution=20
+    )
 
 
 @pytest.fixture(scope="module")
