@@ -69,17 +69,21 @@ _SKRON_CACHE: dict[int, tuple[np.ndarray, ...]] = {}
 
 
 def skron(T: np.ndarray) -> np.ndarray:
-    """Matrix ``P`` with ``P @ svec(X) == svec(T @ X @ T)`` for symmetric ``T``."""
+    """Matrix ``P`` with ``P @ svec(X) == svec(T @ X @ T)`` for symmetric ``T``.
+
+    ``P[(i, j), (k, l)] = (T_ik T_jl + T_il T_jk) * scale`` over the svec pairs: four
+    whole-matrix gathers of the small ``T`` and one fused multiply-add, no Python loop.
+    """
     n = T.shape[0]
     if n not in _SKRON_CACHE:  # index tables depend on n only
         i, j, s = _triu(n)
-        a_i, a_j = i[:, None], j[:, None]
-        b_k, b_l = i[None, :], j[None, :]
-        scale = (s[:, None] / s[None, :]) * np.where(b_k == b_l, 0.5, 1.0)
-        _SKRON_CACHE[n] = (a_i * n + b_k, b_l * n + a_j, a_i * n + b_l, b_k * n + a_j, scale)
-    ik, lj, il, kj, scale = _SKRON_CACHE[n]
-    t = T.ravel()
-    return (t[ik] * t[lj] + t[il] * t[kj]) * scale
+        scale = (s[:, None] / s[None, :]) * np.where(i == j, 0.5, 1.0)[None, :]
+        _SKRON_CACHE[n] = (np.ix_(i, i), np.ix_(j, j), np.ix_(i, j), np.ix_(j, i), scale)
+    ik, jl, il, jk, scale = _SKRON_CACHE[n]
+    P = T[ik] * T[jl]
+    P += T[il] * T[jk]
+    P *= scale
+    return P
 
 
 # -- problem protocol -----------------------------------------------------------------------------
@@ -178,15 +182,47 @@ def _nt_scaling(cones: _Cones, s: np.ndarray, z: np.ndarray) -> _Scaling:
     return _Scaling(w, lam, Rs, Rtis, lams)
 
 
+def _update_scaling(cones: _Cones, sc: _Scaling, s_t: np.ndarray, z_t: np.ndarray) -> _Scaling:
+    """The NT scaling at the new point, from the new point *in the old scaled space*
+    (``s_t = lambda + a W^-T ds``, ``z_t = lambda + a W dz``), as CVXOPT's ``update_scaling``.
+
+    Recomputing the scaling from the unscaled ``s`` and ``z`` (:func:`_nt_scaling`) factors
+    matrices whose eigenvalues span ~1 / mu^2 close to a rank-one optimum, and the iterates
+    stall at a relative gap of ~1e-5; the scaled points are well conditioned.
+    """
+    m = cones.n_lp
+    w = sc.w * np.sqrt(s_t[:m] / z_t[:m])
+    lam = np.sqrt(s_t[:m] * z_t[:m])
+    Rs, Rtis, lams = [], [], []
+    for n, sl, R, Rti in zip(cones.sizes, cones.slices, sc.R, sc.Rti, strict=True):
+        Ls = np.linalg.cholesky(smat(s_t[sl], n))
+        Lz = np.linalg.cholesky(smat(z_t[sl], n))
+        U, lmb, Vt = np.linalg.svd(Lz.T @ Ls)
+        isq = 1.0 / np.sqrt(lmb)
+        Rs.append(R @ Ls @ Vt.T * isq)
+        Rtis.append(Rti @ Lz @ U * isq)
+        lams.append(lmb)
+    return _Scaling(w, lam, Rs, Rtis, lams)
+
+
+def _lam_vec(cones: _Cones, sc: _Scaling) -> np.ndarray:
+    """``lambda`` as a cone vector (the scaled point: W z = W^-T s = lambda)."""
+    out = np.empty(cones.dim)
+    out[: cones.n_lp] = sc.lam_lp
+    for sl, lam in zip(cones.slices, sc.lam_psd, strict=True):
+        out[sl] = svec(np.diag(lam))
+    return out
+
+
 def _apply(cones: _Cones, sc: _Scaling, u: np.ndarray, kind: str) -> np.ndarray:
     """Apply a scaling operator to a cone vector.
 
-    kind: "Wt" (W'), "W" (W), "Winvt" (W^-T), "D" ((W'W)^-1).
+    kind: "Wt" (W'), "W" (W), "Winvt" (W^-T), "Winv" (W^-1), "D" ((W'W)^-1).
     """
     m = cones.n_lp
     out = np.empty_like(u)
     lp = u[:m]
-    scale = {"Wt": sc.w, "W": sc.w, "Winvt": 1.0 / sc.w, "D": sc.w**-2.0}[kind]
+    scale = {"Wt": sc.w, "W": sc.w, "Winvt": 1 / sc.w, "Winv": 1 / sc.w, "D": sc.w**-2.0}[kind]
     out[:m] = scale * lp
     for n, sl, R, Rti in zip(cones.sizes, cones.slices, sc.R, sc.Rti, strict=True):
         X = smat(u[sl], n)
@@ -196,6 +232,8 @@ def _apply(cones: _Cones, sc: _Scaling, u: np.ndarray, kind: str) -> np.ndarray:
             Y = R.T @ X @ R
         elif kind == "Winvt":
             Y = Rti.T @ X @ Rti
+        elif kind == "Winv":
+            Y = Rti @ X @ Rti.T
         else:
             T = Rti @ Rti.T
             Y = T @ X @ T
@@ -248,15 +286,26 @@ def _max_step(cones: _Cones, sc: _Scaling, dt: np.ndarray) -> float:
     return np.inf if worst <= 0 else 1.0 / worst
 
 
-def _newton(prob, cones, sc, solve, res, rs):
-    """Search direction: ``lambda o (W dz + W^-T ds) = rs`` plus the linearised residuals."""
-    rx, ry, rz = res
-    b3 = -rz - _apply(cones, sc, _lam_prod(cones, sc, rs, divide=True), "Wt")
+def _kkt3(prob, cones, sc, solve, rhs):
+    """Solve ``A'dy + G'dz = bx``, ``A dx = by``, ``G dx - W'W dz = bz`` through the reduced
+    factorisation ``solve`` of ``[G'(W'W)^-1 G  A'; A  0]``."""
+    bx, by, bz = rhs
+    dx, dy = solve(bx + prob.Gt(_apply(cones, sc, bz, "D")), by)
+    dz = _apply(cones, sc, prob.G(dx) - bz, "D")
+    return dx, dy, dz
 
-    dx, dy = solve(-rx + prob.Gt(_apply(cones, sc, b3, "D")), -ry)
-    gdx = prob.G(dx)
-    dz = _apply(cones, sc, gdx - b3, "D")
-    ds = -rz - gdx
+
+def _newton(prob, cones, sc, solve, res, rs):
+    """Search direction: ``lambda o (W dz + W^-T ds) = rs`` plus the linearised residuals.
+
+    (Iterative refinement on the full linear system was tried and measured not to help: at
+    the stall the reduced matrix's Cholesky error is not small, and refinement diverges.)
+    """
+    rx, ry, rz = res
+    rhs = (-rx, -ry, -rz - _apply(cones, sc, _lam_prod(cones, sc, rs, divide=True), "Wt"))
+    d = _kkt3(prob, cones, sc, solve, rhs)
+    dx, dy, dz = d
+    ds = -rz - prob.G(dx)
     return dx, dy, ds, dz
 
 
@@ -316,11 +365,11 @@ def _stats(prob: ConicProblem, p: _Point, norms: tuple[float, float, float]) -> 
     return _Stats(rx, ry, rz, float(p.s @ p.z), pcost, dcost, pres, dres)
 
 
-def _step(prob, cones, p: _Point, st: _Stats, step_fraction, verbose):
-    """Mehrotra predictor-corrector direction at ``p`` and its step length."""
+def _step(prob, cones, p: _Point, sc: _Scaling, st: _Stats, step_fraction, verbose):
+    """Mehrotra predictor-corrector direction at ``p`` (NT scaling ``sc``), its step length
+    and the scaled steps ``W^-T ds``, ``W dz``."""
     e = cones.identity()
     mu = st.gap / cones.degree
-    sc = _nt_scaling(cones, p.s, p.z)
     solve = prob.kkt_factor(sc.w ** (-2.0), [Rti @ Rti.T for Rti in sc.Rti])
     lam2 = _lam_sq(cones, sc)
     res = (st.rx, st.ry, st.rz)
@@ -339,7 +388,18 @@ def _step(prob, cones, p: _Point, st: _Stats, step_fraction, verbose):
     alpha = min(1.0, step_fraction * a_max)
     if verbose:
         print(f"      a_aff {a_aff:.3g} sigma {sigma:.3g} alpha {alpha:.3g}")
-    return _Point(dx, dy, ds, dz), alpha
+    return _Point(dx, dy, ds, dz), alpha, ds_t, dz_t
+
+
+def _advance(cones, p: _Point, sc: _Scaling, d: _Point, alpha: float, ds_t, dz_t):
+    """The next iterate and its scaling: ``s = W' lambda``, ``z = W^-1 lambda`` from the
+    updated scaling (so that point and scaling stay consistent)."""
+    lam = _lam_vec(cones, sc)
+    sc = _update_scaling(cones, sc, lam + alpha * ds_t, lam + alpha * dz_t)
+    lam = _lam_vec(cones, sc)
+    s = _apply(cones, sc, lam, "Wt")
+    z = _apply(cones, sc, lam, "Winv")
+    return _Point(p.x + alpha * d.x, p.y + alpha * d.y, s, z), sc
 
 
 def solve_conic(
@@ -363,6 +423,7 @@ def solve_conic(
     cones = _Cones(prob.n_lp, tuple(prob.psd_sizes))
     norms = tuple(max(1.0, float(np.linalg.norm(v))) for v in (prob.c, prob.b, prob.h))
     p = _starting_point(prob, cones)
+    sc = _nt_scaling(cones, p.s, p.z)
     status = "max_iter"
     it = 0
     best = None  # (merit, point, stats) of the best iterate so far
@@ -382,20 +443,26 @@ def solve_conic(
             st.dres / tol_feas,
             min(st.gap / tol_gap_abs, st.rel_gap / tol_gap_rel),
         )
+        # Close to a rank-deficient optimum the scaled KKT system loses accuracy and the
+        # iterates stop improving: then return the best one instead of wandering off. (The
+        # comparison is with the best *earlier* iterate: comparing after the update counted
+        # every improving endgame iteration as a stall and stopped 3 iterations in.)
+        endgame = max(st.pres, st.dres) < 1e-6 and st.rel_gap < 1e-3
+        stall = stall + 1 if endgame and best is not None and merit >= 0.9 * best[0] else 0
         if best is None or merit < best[0]:
             best = (merit, p, st)
-        # Close to a rank-deficient optimum the scaled KKT system loses accuracy and the
-        # iterates stop improving: then return the best one instead of wandering off.
-        endgame = max(st.pres, st.dres) < 1e-6 and st.rel_gap < 1e-3
-        stall = stall + 1 if endgame and merit >= 0.9 * best[0] else 0
         if it == max_iter or stall >= 3:
             _, p, st = best
             break
-        d, alpha = _step(prob, cones, p, st, step_fraction, verbose)
+        d, alpha, ds_t, dz_t = _step(prob, cones, p, sc, st, step_fraction, verbose)
         if alpha < 1e-10:
             _, p, st = best
             break
-        p = _Point(p.x + alpha * d.x, p.y + alpha * d.y, p.s + alpha * d.s, p.z + alpha * d.z)
+        try:
+            p, sc = _advance(cones, p, sc, d, alpha, ds_t, dz_t)
+        except np.linalg.LinAlgError:  # the scaled point left the cone (rounding): stop here
+            _, p, st = best
+            break
     if status != "solved":
         # Clarabel's "AlmostSolved" analogue: reduced tolerances that the rounding and the local
         # refinement downstream comfortably absorb.
@@ -416,13 +483,37 @@ def solve_conic(
 
 
 def dense_kkt_factor(H: np.ndarray, A: np.ndarray):
-    """Factor ``[H A'; A 0]`` for a small dense PSD ``H``; returns ``(bx, by) -> (x, y)``.
+    """Factor ``[H A'; A 0]`` for a small dense positive definite ``H``; returns
+    ``(bx, by) -> (x, y)``.
 
-    The matrix is symmetrically Jacobi-scaled before the LU factorisation: near the optimum the
-    entries of ``H`` span many orders of magnitude.
+    ``H`` is symmetrically Jacobi-scaled (near the optimum its entries span many orders of
+    magnitude) and factored by Cholesky; the equalities are eliminated through the small
+    Schur complement ``A H^-1 A'``, also by Cholesky (``A`` has full row rank). Half the work
+    of an LU of the whole indefinite matrix. Should rounding make either factor fail, the
+    whole scaled matrix is factored by LU instead.
     """
-    n, m = H.shape[0], A.shape[0]
     dsc = 1.0 / np.sqrt(np.maximum(np.diag(H), 1e-12 * max(1.0, float(np.max(np.diag(H))))))
+    Hs = H * dsc[:, None]
+    Hs *= dsc[None, :]
+    As = A * dsc[None, :]
+    try:
+        L = sla.cho_factor(Hs, lower=True, overwrite_a=True, check_finite=False)
+        HiA = sla.cho_solve(L, As.T, check_finite=False)
+        S = sla.cho_factor(As @ HiA, lower=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        return _lu_kkt_factor(H, A, dsc)
+
+    def solve(bx: np.ndarray, by: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        u = sla.cho_solve(L, dsc * bx, check_finite=False)
+        y = sla.cho_solve(S, As @ u - by, check_finite=False)
+        return dsc * (u - HiA @ y), y
+
+    return solve
+
+
+def _lu_kkt_factor(H: np.ndarray, A: np.ndarray, dsc: np.ndarray):
+    """LU of the Jacobi-scaled ``[H A'; A 0]`` (the fallback of :func:`dense_kkt_factor`)."""
+    n, m = H.shape[0], A.shape[0]
     K = np.zeros((n + m, n + m))
     K[:n, :n] = H * dsc[:, None] * dsc[None, :]
     K[:n, n:] = (A * dsc[None, :]).T
