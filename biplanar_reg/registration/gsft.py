@@ -58,6 +58,9 @@ MIN_DEPTH_SIZES = 5.0
 DEFAULT_DEPTH_REWARD = 0.1
 #: The conic solvers of ``solve_gsft(..., backend=...)``.
 BACKENDS = ("auto", "ipm", "clarabel", "cvxpy")
+#: Clarabel settings of the ``backend="auto"`` fallback (used only when the IPM fails): a bound
+#: on its time (seconds) and iterations, so a last resort cannot run for minutes.
+FALLBACK_SETTINGS = {"time_limit": 30.0, "max_iter": 100}
 #: The SDP is solved again, centred on the object, when it lands farther than this from the
 #: guessed centre (normalised units: model RMS radii).
 RECENTRE_DISTANCE = 3.0
@@ -259,8 +262,9 @@ def _solve_sdp(data: KnownPoseData, backend: str, settings: dict | None) -> _Sdp
 
         sol = solve_known_pose_cvxpy(data, settings)
         return _solved(sol, "cvxpy", sol.status)
-    # the IPM's settings are not Clarabel's: a fallback from "auto" uses Clarabel's defaults
-    sdp = KnownPoseSDP(len(data), data.n_modes, settings if backend == "clarabel" else None)
+    # the IPM's settings are not Clarabel's: a fallback from "auto" uses bounded defaults
+    fallback = settings if backend == "clarabel" else FALLBACK_SETTINGS
+    sdp = KnownPoseSDP(len(data), data.n_modes, fallback)
     sol = sdp.solve(data)
     return _solved(sol, "clarabel", "solved" if sol.status == "Solved" else "solved_reduced")
 

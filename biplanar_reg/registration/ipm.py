@@ -182,47 +182,15 @@ def _nt_scaling(cones: _Cones, s: np.ndarray, z: np.ndarray) -> _Scaling:
     return _Scaling(w, lam, Rs, Rtis, lams)
 
 
-def _update_scaling(cones: _Cones, sc: _Scaling, s_t: np.ndarray, z_t: np.ndarray) -> _Scaling:
-    """The NT scaling at the new point, from the new point *in the old scaled space*
-    (``s_t = lambda + a W^-T ds``, ``z_t = lambda + a W dz``), as CVXOPT's ``update_scaling``.
-
-    Recomputing the scaling from the unscaled ``s`` and ``z`` (:func:`_nt_scaling`) factors
-    matrices whose eigenvalues span ~1 / mu^2 close to a rank-one optimum, and the iterates
-    stall at a relative gap of ~1e-5; the scaled points are well conditioned.
-    """
-    m = cones.n_lp
-    w = sc.w * np.sqrt(s_t[:m] / z_t[:m])
-    lam = np.sqrt(s_t[:m] * z_t[:m])
-    Rs, Rtis, lams = [], [], []
-    for n, sl, R, Rti in zip(cones.sizes, cones.slices, sc.R, sc.Rti, strict=True):
-        Ls = np.linalg.cholesky(smat(s_t[sl], n))
-        Lz = np.linalg.cholesky(smat(z_t[sl], n))
-        U, lmb, Vt = np.linalg.svd(Lz.T @ Ls)
-        isq = 1.0 / np.sqrt(lmb)
-        Rs.append(R @ Ls @ Vt.T * isq)
-        Rtis.append(Rti @ Lz @ U * isq)
-        lams.append(lmb)
-    return _Scaling(w, lam, Rs, Rtis, lams)
-
-
-def _lam_vec(cones: _Cones, sc: _Scaling) -> np.ndarray:
-    """``lambda`` as a cone vector (the scaled point: W z = W^-T s = lambda)."""
-    out = np.empty(cones.dim)
-    out[: cones.n_lp] = sc.lam_lp
-    for sl, lam in zip(cones.slices, sc.lam_psd, strict=True):
-        out[sl] = svec(np.diag(lam))
-    return out
-
-
 def _apply(cones: _Cones, sc: _Scaling, u: np.ndarray, kind: str) -> np.ndarray:
     """Apply a scaling operator to a cone vector.
 
-    kind: "Wt" (W'), "W" (W), "Winvt" (W^-T), "Winv" (W^-1), "D" ((W'W)^-1).
+    kind: "Wt" (W'), "W" (W), "Winvt" (W^-T), "D" ((W'W)^-1).
     """
     m = cones.n_lp
     out = np.empty_like(u)
     lp = u[:m]
-    scale = {"Wt": sc.w, "W": sc.w, "Winvt": 1 / sc.w, "Winv": 1 / sc.w, "D": sc.w**-2.0}[kind]
+    scale = {"Wt": sc.w, "W": sc.w, "Winvt": 1.0 / sc.w, "D": sc.w**-2.0}[kind]
     out[:m] = scale * lp
     for n, sl, R, Rti in zip(cones.sizes, cones.slices, sc.R, sc.Rti, strict=True):
         X = smat(u[sl], n)
@@ -232,8 +200,6 @@ def _apply(cones: _Cones, sc: _Scaling, u: np.ndarray, kind: str) -> np.ndarray:
             Y = R.T @ X @ R
         elif kind == "Winvt":
             Y = Rti.T @ X @ Rti
-        elif kind == "Winv":
-            Y = Rti @ X @ Rti.T
         else:
             T = Rti @ Rti.T
             Y = T @ X @ T
@@ -365,11 +331,11 @@ def _stats(prob: ConicProblem, p: _Point, norms: tuple[float, float, float]) -> 
     return _Stats(rx, ry, rz, float(p.s @ p.z), pcost, dcost, pres, dres)
 
 
-def _step(prob, cones, p: _Point, sc: _Scaling, st: _Stats, step_fraction, verbose):
-    """Mehrotra predictor-corrector direction at ``p`` (NT scaling ``sc``), its step length
-    and the scaled steps ``W^-T ds``, ``W dz``."""
+def _step(prob, cones, p: _Point, st: _Stats, step_fraction, verbose):
+    """Mehrotra predictor-corrector direction at ``p`` and its step length."""
     e = cones.identity()
     mu = st.gap / cones.degree
+    sc = _nt_scaling(cones, p.s, p.z)
     solve = prob.kkt_factor(sc.w ** (-2.0), [Rti @ Rti.T for Rti in sc.Rti])
     lam2 = _lam_sq(cones, sc)
     res = (st.rx, st.ry, st.rz)
@@ -388,18 +354,7 @@ def _step(prob, cones, p: _Point, sc: _Scaling, st: _Stats, step_fraction, verbo
     alpha = min(1.0, step_fraction * a_max)
     if verbose:
         print(f"      a_aff {a_aff:.3g} sigma {sigma:.3g} alpha {alpha:.3g}")
-    return _Point(dx, dy, ds, dz), alpha, ds_t, dz_t
-
-
-def _advance(cones, p: _Point, sc: _Scaling, d: _Point, alpha: float, ds_t, dz_t):
-    """The next iterate and its scaling: ``s = W' lambda``, ``z = W^-1 lambda`` from the
-    updated scaling (so that point and scaling stay consistent)."""
-    lam = _lam_vec(cones, sc)
-    sc = _update_scaling(cones, sc, lam + alpha * ds_t, lam + alpha * dz_t)
-    lam = _lam_vec(cones, sc)
-    s = _apply(cones, sc, lam, "Wt")
-    z = _apply(cones, sc, lam, "Winv")
-    return _Point(p.x + alpha * d.x, p.y + alpha * d.y, s, z), sc
+    return _Point(dx, dy, ds, dz), alpha
 
 
 def solve_conic(
@@ -411,6 +366,7 @@ def solve_conic(
     max_iter: int = 60,
     step_fraction: float = 0.95,
     verbose: bool = False,
+    start: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> ConicSolution:
     """Solve a :class:`ConicProblem`; see the module docstring.
 
@@ -422,8 +378,7 @@ def solve_conic(
     """
     cones = _Cones(prob.n_lp, tuple(prob.psd_sizes))
     norms = tuple(max(1.0, float(np.linalg.norm(v))) for v in (prob.c, prob.b, prob.h))
-    p = _starting_point(prob, cones)
-    sc = _nt_scaling(cones, p.s, p.z)
+    p = _starting_point(prob, cones) if start is None else _Point(*start)
     status = "max_iter"
     it = 0
     best = None  # (merit, point, stats) of the best iterate so far
@@ -454,15 +409,11 @@ def solve_conic(
         if it == max_iter or stall >= 3:
             _, p, st = best
             break
-        d, alpha, ds_t, dz_t = _step(prob, cones, p, sc, st, step_fraction, verbose)
+        d, alpha = _step(prob, cones, p, st, step_fraction, verbose)
         if alpha < 1e-10:
             _, p, st = best
             break
-        try:
-            p, sc = _advance(cones, p, sc, d, alpha, ds_t, dz_t)
-        except np.linalg.LinAlgError:  # the scaled point left the cone (rounding): stop here
-            _, p, st = best
-            break
+        p = _Point(p.x + alpha * d.x, p.y + alpha * d.y, p.s + alpha * d.s, p.z + alpha * d.z)
     if status != "solved":
         # Clarabel's "AlmostSolved" analogue: reduced tolerances that the rounding and the local
         # refinement downstream comfortably absorb.

@@ -31,7 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import SolverFailure
-from .ipm import dense_kkt_factor, skron
+from .ipm import dense_kkt_factor, skron, smat, svec
 from .lifting import (
     gram_size,
     point_map_pattern,
@@ -360,6 +360,24 @@ class KnownPoseIPM:
         # depth rows: (V_j - C_j) . d_j >= min_depth, every point in front of its ray's origin
         depth0 = np.einsum("ki,ki->k", origins, directions) + min_depth
         self.h = np.concatenate([cxd, -cxd, -depth0, np.zeros(nt)])
+
+    def warm_point(self, gram: np.ndarray, t: np.ndarray, mu: float):
+        """An interior primal-dual start near the primal point ``(gram, t)`` (normalised
+        units): the Gram matrix moved inside by ``sqrt(mu)``, bounds ``e`` just above the
+        residuals, and dual points ``z = mu / s`` (``Z = mu S^-1``) on the central path."""
+        n, nt, K = self.n, self.nt, self.K
+        beta = np.sqrt(mu)
+        x = np.zeros(self.nz + 3 * K)
+        x[:nt] = svec(gram + beta * np.eye(n))
+        x[nt : nt + 3] = t
+        x[self.nz :] = np.abs(self._B(x[: self.nz]) - self.h[: 3 * K]) + beta
+        s = self.h - self.G(x)
+        lp = 7 * K
+        s[:lp] = np.maximum(s[:lp], beta)
+        z = np.empty_like(s)
+        z[:lp] = mu / s[:lp]
+        z[lp:] = svec(mu * np.linalg.inv(smat(s[lp:], n)))
+        return x, np.zeros(len(self.b)), s, z
 
     # -- the linear map z = (Delta, t) -> r = V x d (without the constant) -----------------------
     def points(self, z: np.ndarray) -> np.ndarray:
