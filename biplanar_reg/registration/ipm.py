@@ -28,6 +28,8 @@ from typing import Protocol
 
 import numpy as np
 import scipy.linalg as sla
+from scipy.linalg.lapack import dpotrf as _potrf
+from scipy.linalg.lapack import dpotrs as _potrs
 
 __all__: list[str] = []
 
@@ -140,13 +142,13 @@ class _Cones:
             off += nt
         self.dim = off
         self.degree = n_lp + sum(psd_sizes)
+        self._e = np.zeros(self.dim)  # the identity element of the cone product
+        self._e[:n_lp] = 1.0
+        for n, sl in zip(psd_sizes, self.slices, strict=True):
+            self._e[sl] = svec(np.eye(n))
 
     def identity(self) -> np.ndarray:
-        e = np.zeros(self.dim)
-        e[: self.n_lp] = 1.0
-        for n, sl in zip(self.sizes, self.slices, strict=True):
-            e[sl] = svec(np.eye(n))
-        return e
+        return self._e.copy()
 
     def min_eig(self, u: np.ndarray) -> float:
         vals = [np.min(u[: self.n_lp])] if self.n_lp else []
@@ -447,16 +449,17 @@ def dense_kkt_factor(H: np.ndarray, A: np.ndarray):
     Hs = H * dsc[:, None]
     Hs *= dsc[None, :]
     As = A * dsc[None, :]
-    try:
-        L = sla.cho_factor(Hs, lower=True, overwrite_a=True, check_finite=False)
-        HiA = sla.cho_solve(L, As.T, check_finite=False)
-        S = sla.cho_factor(As @ HiA, lower=True, check_finite=False)
-    except np.linalg.LinAlgError:
+    # LAPACK directly: scipy's cho_factor / cho_solve wrappers cost more than the work here
+    L, info = _potrf(Hs, lower=1, clean=0, overwrite_a=1)
+    if info == 0:
+        HiA, _ = _potrs(L, As.T, lower=1)
+        S, info = _potrf(As @ HiA, lower=1, clean=0, overwrite_a=1)
+    if info != 0:  # not numerically positive definite
         return _lu_kkt_factor(H, A, dsc)
 
     def solve(bx: np.ndarray, by: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        u = sla.cho_solve(L, dsc * bx, check_finite=False)
-        y = sla.cho_solve(S, As @ u - by, check_finite=False)
+        u, _ = _potrs(L, dsc * bx, lower=1)
+        y, _ = _potrs(S, As @ u - by, lower=1)
         return dsc * (u - HiA @ y), y
 
     return solve
