@@ -80,6 +80,13 @@ def straightforward(D, origins, directions, eps, n_modes):
     """The straightforward cvxpy formulation; returns (gram, objective, CPU seconds incl.
     compile)."""
     t0 = time.process_time()
+    prob, Delta = straightforward_problem(D, origins, directions, eps, n_modes)
+    prob.solve(solver=cp.CLARABEL)
+    return np.asarray(Delta.value), float(prob.value), time.process_time() - t0
+
+
+def straightforward_problem(D, origins, directions, eps, n_modes):
+    """The straightforward cvxpy statement: ``(cvxpy.Problem, Delta variable)``."""
     K = len(D)
     n = 10 + n_modes
     Delta = cp.Variable((n, n), PSD=True)
@@ -112,9 +119,7 @@ def straightforward(D, origins, directions, eps, n_modes):
     A_vec = np.zeros((A.shape[0], n * n))
     A_vec[:, ju * n + iu] = A[:, k] / coef[None, :]
     cons = [sp.csr_matrix(A_vec) @ cp.vec(Delta, order="F") == b_rot]
-    prob = cp.Problem(cp.Minimize(eps * cp.trace(Delta) + cp.norm1(resid)), cons)
-    prob.solve(solver=cp.CLARABEL)
-    return np.asarray(Delta.value), float(prob.value), time.process_time() - t0
+    return cp.Problem(cp.Minimize(eps * cp.trace(Delta) + cp.norm1(resid)), cons), Delta
 
 
 def scene(K, n_modes, noise_px, seed, model):

@@ -437,7 +437,7 @@ class KnownPoseIPM:
         blocks = self.Dt.T @ (Wp[:, :, None] * self.Dt[:, None, :]).reshape(self.K, -1)
         H = np.zeros((self.nz, self.nz))
         H[: self.nt, : self.nt] = skron(psd_T[0])
-        H.flat[self._h_index] += blocks.ravel()[self._h_take] * self._h_coef
+        H.reshape(-1)[self._h_index] += blocks.reshape(-1).take(self._h_take) * self._h_coef
         fac = dense_kkt_factor(H, self.A_full)
         ratio = (d2 - d1) / dsum
 
