@@ -89,3 +89,18 @@ def test_the_clarabel_fallback_is_bounded_in_time():
     data = KnownPoseData(prob.D, rays.normalised(res.centre, prob.scale), prob.a, prob.eps)
     with pytest.raises(SolverFailure, match="MaxTime"):
         sdp.solve(data)
+
+
+def test_a_warm_started_solve_reaches_the_cold_solution():
+    """``warm_start`` (the previous boosting iterate) changes how the IPM starts, not where it
+    ends: a re-solve with redrawn rays agrees with its cold solve."""
+    model = synthetic_bone_model(8, seed=0)
+    first = solve_gsft(model, _rays(model, 60, seed=3))
+    rays = _rays(model, 60, seed=3)
+    rays = RayObservations(rays.vertex_ids[:50], rays.origins[:50], rays.directions[:50])
+    cold = solve_gsft(model, rays, refine=False)
+    warm = solve_gsft(model, rays, refine=False, warm_start=first)
+    assert warm.status in ("solved", "solved_reduced") and warm.backend == "ipm"
+    assert abs(warm.objective - cold.objective) <= 1e-4 * abs(cold.objective)
+    assert np.abs(warm.sdp_weights - cold.sdp_weights).max() <= 1e-3
+    assert np.abs(warm.sdp_rotation - cold.sdp_rotation).max() <= 2e-5
