@@ -28,6 +28,8 @@ from typing import Protocol
 
 import numpy as np
 import scipy.linalg as sla
+from scipy.linalg.lapack import dpotrf as _potrf
+from scipy.linalg.lapack import dpotrs as _potrs
 
 __all__: list[str] = []
 
@@ -40,46 +42,57 @@ def _triu_colmajor(n: int) -> tuple[np.ndarray, np.ndarray]:
     return ii.T[mask.T], jj.T[mask.T]
 
 
-_TRIU_CACHE: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+_TRIU_CACHE: dict[int, tuple[np.ndarray, ...]] = {}
 
 
-def _triu(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _triu(n: int) -> tuple[np.ndarray, ...]:
+    """Row, column and scale of every svec entry, and the flat indices ``i n + j``, ``j n + i``
+    into an ``n x n`` matrix (``take`` with flat indices is several times faster than 2-D
+    fancy indexing on these small matrices)."""
     if n not in _TRIU_CACHE:  # pure function of n: a memo, not state
         i, j = _triu_colmajor(n)
-        _TRIU_CACHE[n] = (i, j, np.where(i == j, 1.0, np.sqrt(2.0)))
+        _TRIU_CACHE[n] = (i, j, np.where(i == j, 1.0, np.sqrt(2.0)), i * n + j, j * n + i)
     return _TRIU_CACHE[n]
 
 
 def svec(X: np.ndarray) -> np.ndarray:
     """Scaled upper-triangle vector of a symmetric matrix."""
-    i, j, s = _triu(X.shape[0])
-    return X[i, j] * s
+    _, _, s, ij, _ = _triu(X.shape[0])
+    return X.ravel().take(ij) * s
 
 
 def smat(x: np.ndarray, n: int) -> np.ndarray:
     """Inverse of :func:`svec`."""
-    i, j, s = _triu(n)
-    X = np.zeros((n, n))
-    X[i, j] = x / s
-    X[j, i] = X[i, j]
-    return X
+    _, _, s, ij, ji = _triu(n)
+    X = np.zeros(n * n)
+    v = x / s
+    X[ij] = v
+    X[ji] = v
+    return X.reshape(n, n)
 
 
 _SKRON_CACHE: dict[int, tuple[np.ndarray, ...]] = {}
 
 
 def skron(T: np.ndarray) -> np.ndarray:
-    """Matrix ``P`` with ``P @ svec(X) == svec(T @ X @ T)`` for symmetric ``T``."""
+    """Matrix ``P`` with ``P @ svec(X) == svec(T @ X @ T)`` for symmetric ``T``.
+
+    ``P[(i, j), (k, l)] = (T_ik T_jl + T_il T_jk) * scale`` over the svec pairs: four ``take``
+    of the small ``T`` with precomputed flat indices and one fused multiply-add, no loop.
+    """
     n = T.shape[0]
     if n not in _SKRON_CACHE:  # index tables depend on n only
-        i, j, s = _triu(n)
-        a_i, a_j = i[:, None], j[:, None]
-        b_k, b_l = i[None, :], j[None, :]
-        scale = (s[:, None] / s[None, :]) * np.where(b_k == b_l, 0.5, 1.0)
-        _SKRON_CACHE[n] = (a_i * n + b_k, b_l * n + a_j, a_i * n + b_l, b_k * n + a_j, scale)
-    ik, lj, il, kj, scale = _SKRON_CACHE[n]
+        i, j, s, _, _ = _triu(n)
+        scale = (s[:, None] / s[None, :]) * np.where(i == j, 0.5, 1.0)[None, :]
+        flat = [(a[:, None] * n + b[None, :]).ravel() for a, b in ((i, i), (j, j), (i, j), (j, i))]
+        _SKRON_CACHE[n] = (*flat, scale.ravel())
+    ik, jl, il, jk, scale = _SKRON_CACHE[n]
     t = T.ravel()
-    return (t[ik] * t[lj] + t[il] * t[kj]) * scale
+    P = t.take(ik) * t.take(jl)
+    P += t.take(il) * t.take(jk)
+    P *= scale
+    nt = n * (n + 1) // 2
+    return P.reshape(nt, nt)
 
 
 # -- problem protocol -----------------------------------------------------------------------------
@@ -136,13 +149,13 @@ class _Cones:
             off += nt
         self.dim = off
         self.degree = n_lp + sum(psd_sizes)
+        self._e = np.zeros(self.dim)  # the identity element of the cone product
+        self._e[:n_lp] = 1.0
+        for n, sl in zip(psd_sizes, self.slices, strict=True):
+            self._e[sl] = svec(np.eye(n))
 
     def identity(self) -> np.ndarray:
-        e = np.zeros(self.dim)
-        e[: self.n_lp] = 1.0
-        for n, sl in zip(self.sizes, self.slices, strict=True):
-            e[sl] = svec(np.eye(n))
-        return e
+        return self._e.copy()
 
     def min_eig(self, u: np.ndarray) -> float:
         vals = [np.min(u[: self.n_lp])] if self.n_lp else []
@@ -248,15 +261,26 @@ def _max_step(cones: _Cones, sc: _Scaling, dt: np.ndarray) -> float:
     return np.inf if worst <= 0 else 1.0 / worst
 
 
-def _newton(prob, cones, sc, solve, res, rs):
-    """Search direction: ``lambda o (W dz + W^-T ds) = rs`` plus the linearised residuals."""
-    rx, ry, rz = res
-    b3 = -rz - _apply(cones, sc, _lam_prod(cones, sc, rs, divide=True), "Wt")
+def _kkt3(prob, cones, sc, solve, rhs):
+    """Solve ``A'dy + G'dz = bx``, ``A dx = by``, ``G dx - W'W dz = bz`` through the reduced
+    factorisation ``solve`` of ``[G'(W'W)^-1 G  A'; A  0]``."""
+    bx, by, bz = rhs
+    dx, dy = solve(bx + prob.Gt(_apply(cones, sc, bz, "D")), by)
+    dz = _apply(cones, sc, prob.G(dx) - bz, "D")
+    return dx, dy, dz
 
-    dx, dy = solve(-rx + prob.Gt(_apply(cones, sc, b3, "D")), -ry)
-    gdx = prob.G(dx)
-    dz = _apply(cones, sc, gdx - b3, "D")
-    ds = -rz - gdx
+
+def _newton(prob, cones, sc, solve, res, rs):
+    """Search direction: ``lambda o (W dz + W^-T ds) = rs`` plus the linearised residuals.
+
+    (Iterative refinement on the full linear system was tried and measured not to help: at
+    the stall the reduced matrix's Cholesky error is not small, and refinement diverges.)
+    """
+    rx, ry, rz = res
+    rhs = (-rx, -ry, -rz - _apply(cones, sc, _lam_prod(cones, sc, rs, divide=True), "Wt"))
+    d = _kkt3(prob, cones, sc, solve, rhs)
+    dx, dy, dz = d
+    ds = -rz - prob.G(dx)
     return dx, dy, ds, dz
 
 
@@ -351,6 +375,7 @@ def solve_conic(
     max_iter: int = 60,
     step_fraction: float = 0.95,
     verbose: bool = False,
+    start: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> ConicSolution:
     """Solve a :class:`ConicProblem`; see the module docstring.
 
@@ -362,7 +387,7 @@ def solve_conic(
     """
     cones = _Cones(prob.n_lp, tuple(prob.psd_sizes))
     norms = tuple(max(1.0, float(np.linalg.norm(v))) for v in (prob.c, prob.b, prob.h))
-    p = _starting_point(prob, cones)
+    p = _starting_point(prob, cones) if start is None else _Point(*start)
     status = "max_iter"
     it = 0
     best = None  # (merit, point, stats) of the best iterate so far
@@ -382,17 +407,26 @@ def solve_conic(
             st.dres / tol_feas,
             min(st.gap / tol_gap_abs, st.rel_gap / tol_gap_rel),
         )
+        # Close to a rank-deficient optimum the scaled KKT system loses accuracy and the
+        # iterates stop improving: then return the best one instead of wandering off. (The
+        # comparison is with the best *earlier* iterate: comparing after the update counted
+        # every improving endgame iteration as a stall and stopped 3 iterations in.)
+        endgame = max(st.pres, st.dres) < 1e-6 and st.rel_gap < 1e-3
+        stall = stall + 1 if endgame and best is not None and merit >= 0.9 * best[0] else 0
         if best is None or merit < best[0]:
             best = (merit, p, st)
-        # Close to a rank-deficient optimum the scaled KKT system loses accuracy and the
-        # iterates stop improving: then return the best one instead of wandering off.
-        endgame = max(st.pres, st.dres) < 1e-6 and st.rel_gap < 1e-3
-        stall = stall + 1 if endgame and merit >= 0.9 * best[0] else 0
         if it == max_iter or stall >= 3:
             _, p, st = best
             break
-        d, alpha = _step(prob, cones, p, st, step_fraction, verbose)
-        if alpha < 1e-10:
+        try:
+            d, alpha = _step(prob, cones, p, st, step_fraction, verbose)
+        except np.linalg.LinAlgError:  # s or z numerically singular: as close as it gets
+            alpha = 0.0
+        # A blocked step once the reduced tolerances hold is where the scaled KKT system has
+        # lost its accuracy: the iterations after it wander (measured: 3-11 more iterations,
+        # whose count depended on BLAS rounding, for a gap at most a few times smaller).
+        blocked = alpha < 0.1 and max(st.pres, st.dres) < 1e-6 and st.rel_gap < 1e-4
+        if alpha < 1e-10 or blocked:
             _, p, st = best
             break
         p = _Point(p.x + alpha * d.x, p.y + alpha * d.y, p.s + alpha * d.s, p.z + alpha * d.z)
@@ -416,13 +450,38 @@ def solve_conic(
 
 
 def dense_kkt_factor(H: np.ndarray, A: np.ndarray):
-    """Factor ``[H A'; A 0]`` for a small dense PSD ``H``; returns ``(bx, by) -> (x, y)``.
+    """Factor ``[H A'; A 0]`` for a small dense positive definite ``H``; returns
+    ``(bx, by) -> (x, y)``.
 
-    The matrix is symmetrically Jacobi-scaled before the LU factorisation: near the optimum the
-    entries of ``H`` span many orders of magnitude.
+    ``H`` is symmetrically Jacobi-scaled (near the optimum its entries span many orders of
+    magnitude) and factored by Cholesky; the equalities are eliminated through the small
+    Schur complement ``A H^-1 A'``, also by Cholesky (``A`` has full row rank). Half the work
+    of an LU of the whole indefinite matrix. Should rounding make either factor fail, the
+    whole scaled matrix is factored by LU instead.
     """
-    n, m = H.shape[0], A.shape[0]
     dsc = 1.0 / np.sqrt(np.maximum(np.diag(H), 1e-12 * max(1.0, float(np.max(np.diag(H))))))
+    Hs = H * dsc[:, None]
+    Hs *= dsc[None, :]
+    As = A * dsc[None, :]
+    # LAPACK directly: scipy's cho_factor / cho_solve wrappers cost more than the work here
+    L, info = _potrf(Hs, lower=1, clean=0, overwrite_a=1)
+    if info == 0:
+        HiA, _ = _potrs(L, As.T, lower=1)
+        S, info = _potrf(As @ HiA, lower=1, clean=0, overwrite_a=1)
+    if info != 0:  # not numerically positive definite
+        return _lu_kkt_factor(H, A, dsc)
+
+    def solve(bx: np.ndarray, by: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        u, _ = _potrs(L, dsc * bx, lower=1)
+        y, _ = _potrs(S, As @ u - by, lower=1)
+        return dsc * (u - HiA @ y), y
+
+    return solve
+
+
+def _lu_kkt_factor(H: np.ndarray, A: np.ndarray, dsc: np.ndarray):
+    """LU of the Jacobi-scaled ``[H A'; A 0]`` (the fallback of :func:`dense_kkt_factor`)."""
+    n, m = H.shape[0], A.shape[0]
     K = np.zeros((n + m, n + m))
     K[:n, :n] = H * dsc[:, None] * dsc[None, :]
     K[:n, n:] = (A * dsc[None, :]).T

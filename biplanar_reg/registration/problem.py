@@ -169,12 +169,19 @@ def solve(
     rays: RayObservations,
     options: RegistrationOptions,
     start: GsftResult | None = None,
+    warm: GsftResult | None = None,
 ) -> GsftResult:
-    """G-SfT on ``rays`` (world frame) with the options' trace and prior weights; warm-started
-    from ``start``'s pose and weights when given."""
+    """G-SfT on ``rays`` (world frame) with the options' trace and prior weights; the
+    refinement also starts from ``start``'s pose and weights when given, and the SDP solve is
+    warm-started from ``warm`` (``solve_gsft(..., warm_start=)``) when given."""
     initial = None if start is None else (start.rotation, start.translation, start.weights)
     return solve_gsft(
-        model, rays, eps=options.eps, prior_weight=options.prior_weight, initial=initial
+        model,
+        rays,
+        eps=options.eps,
+        prior_weight=options.prior_weight,
+        initial=initial,
+        warm_start=warm,
     )
 
 

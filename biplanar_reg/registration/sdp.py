@@ -31,7 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import SolverFailure
-from .ipm import dense_kkt_factor, skron
+from .ipm import dense_kkt_factor, skron, smat, svec
 from .lifting import (
     gram_size,
     point_map_pattern,
@@ -342,6 +342,9 @@ class KnownPoseIPM:
         self.d = directions
         self.skew = skew(directions)
         self.kpat, self.cpat = point_map_pattern(n_modes)
+        self._pairs, self._h_index, self._h_coef, self._h_take = _data_block_layout(
+            self.kpat, self.cpat, nt
+        )
         A_rot, self.b = rotation_constraints(n)
         self.A_eq = A_rot.toarray()
         self.A_full = np.hstack([self.A_eq, np.zeros((len(self.b), 3))])
@@ -357,6 +360,24 @@ class KnownPoseIPM:
         # depth rows: (V_j - C_j) . d_j >= min_depth, every point in front of its ray's origin
         depth0 = np.einsum("ki,ki->k", origins, directions) + min_depth
         self.h = np.concatenate([cxd, -cxd, -depth0, np.zeros(nt)])
+
+    def warm_point(self, gram: np.ndarray, t: np.ndarray, mu: float):
+        """An interior primal-dual start near the primal point ``(gram, t)`` (normalised
+        units): the Gram matrix moved inside by ``sqrt(mu)``, bounds ``e`` just above the
+        residuals, and dual points ``z = mu / s`` (``Z = mu S^-1``) on the central path."""
+        n, nt, K = self.n, self.nt, self.K
+        beta = np.sqrt(mu)
+        x = np.zeros(self.nz + 3 * K)
+        x[:nt] = svec(gram + beta * np.eye(n))
+        x[nt : nt + 3] = t
+        x[self.nz :] = np.abs(self._B(x[: self.nz]) - self.h[: 3 * K]) + beta
+        s = self.h - self.G(x)
+        lp = 7 * K
+        s[:lp] = np.maximum(s[:lp], beta)
+        z = np.empty_like(s)
+        z[:lp] = mu / s[:lp]
+        z[lp:] = svec(mu * np.linalg.inv(smat(s[lp:], n)))
+        return x, np.zeros(len(self.b)), s, z
 
     # -- the linear map z = (Delta, t) -> r = V x d (without the constant) -----------------------
     def points(self, z: np.ndarray) -> np.ndarray:
@@ -411,20 +432,12 @@ class KnownPoseIPM:
         d1, d2, d4 = d_lp[:m], d_lp[m : 2 * m], d_lp[2 * m :]
         dsum = d1 + d2
         omega = (4.0 * d1 * d2 / dsum).reshape(self.K, 3)
-        # sum_j B_j' diag(omega_j) B_j with B_j = -[d_j]_x applied to V_j
-        W = np.matmul(np.swapaxes(self.skew, 1, 2) * omega[:, None, :], self.skew)
-        W += d4[:, None, None] * self.d[:, :, None] * self.d[:, None, :]  # depth rows
+        # sum_j W_j[r, r2] Dt_j Dt_j' for the 6 pairs r <= r2: one (p, K) x (K, 6p) product
+        Wp = _ray_weights(self.d, omega, d4)
+        blocks = self.Dt.T @ (Wp[:, :, None] * self.Dt[:, None, :]).reshape(self.K, -1)
         H = np.zeros((self.nz, self.nz))
-        idx = [np.concatenate([self.kpat[r], [self.nt + r]]) for r in range(3)]
-        cv = [np.concatenate([self.cpat[r], [1.0]]) for r in range(3)]
-        for r in range(3):
-            for r2 in range(r, 3):
-                Mrr = (self.Dt * W[:, r, r2, None]).T @ self.Dt
-                block = cv[r][:, None] * Mrr * cv[r2][None, :]
-                H[np.ix_(idx[r], idx[r2])] += block
-                if r2 != r:
-                    H[np.ix_(idx[r2], idx[r])] += block.T
-        H[: self.nt, : self.nt] += skron(psd_T[0])
+        H[: self.nt, : self.nt] = skron(psd_T[0])
+        H.reshape(-1)[self._h_index] += blocks.reshape(-1).take(self._h_take) * self._h_coef
         fac = dense_kkt_factor(H, self.A_full)
         ratio = (d2 - d1) / dsum
 
@@ -435,3 +448,56 @@ class KnownPoseIPM:
             return np.concatenate([z, e]), y
 
         return solve
+
+
+def _ray_weights(d: np.ndarray, omega: np.ndarray, d_depth: np.ndarray) -> np.ndarray:
+    """Upper triangles ``(00, 01, 02, 11, 12, 22)`` of the 3 x 3 matrices
+    ``W_j = [d_j]_x' diag(omega_j) [d_j]_x + d_depth_j d_j d_j'`` (K, 6), C order.
+
+    Written out entry by entry: a batched (K, 3, 3) matmul is several times slower.
+    """
+    d0, d1, d2 = d[:, 0], d[:, 1], d[:, 2]
+    w0, w1, w2 = omega[:, 0], omega[:, 1], omega[:, 2]
+    W = np.empty((len(d), 6))
+    W[:, 0] = w1 * d2 * d2 + w2 * d1 * d1 + d_depth * d0 * d0
+    W[:, 1] = (d_depth - w2) * d0 * d1
+    W[:, 2] = (d_depth - w1) * d0 * d2
+    W[:, 3] = w0 * d2 * d2 + w2 * d0 * d0 + d_depth * d1 * d1
+    W[:, 4] = (d_depth - w0) * d1 * d2
+    W[:, 5] = w0 * d1 * d1 + w1 * d0 * d0 + d_depth * d2 * d2
+    return W
+
+
+def _data_block_layout(
+    kpat: np.ndarray, cpat: np.ndarray, nt: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Where the data blocks of :meth:`KnownPoseIPM.kkt_factor` go in the reduced matrix.
+
+    Coordinate ``r`` of a point reads the entries ``idx_r = (kpat[r], nt + r)`` of ``z`` with
+    coefficients ``cv_r = (cpat[r], 1)`` times ``Dt_j``, so block ``(r, r2)`` of
+    ``sum_j W_j[r, r2] Dt_j Dt_j'`` adds ``cv_r cv_r2' *`` it at ``(idx_r, idx_r2)`` (and its
+    transpose at ``(idx_r2, idx_r)``). The ``idx_r`` are disjoint, so every target is hit once.
+
+    Returns the 6 pairs ``r <= r2`` as flat indices into a 3 x 3, the flat target indices into
+    the ``(nt + 3)^2`` matrix and, per target, the coefficient and the entry of the ``(p, 6p)``
+    block product it takes.
+    """
+    nz = nt + 3
+    p = kpat.shape[1] + 1
+    idx = [np.concatenate([kpat[r], [nt + r]]) for r in range(3)]
+    cv = [np.concatenate([cpat[r], [1.0]]) for r in range(3)]
+    pairs = np.triu_indices(3)  # (r, r2) with r <= r2; flat index 3 r + r2 in a 3 x 3
+    targets, coefs, takes = [], [], []
+    a, b = np.meshgrid(np.arange(p), np.arange(p), indexing="ij")
+    for q, (r, r2) in enumerate(zip(*pairs, strict=True)):
+        src = a * 6 * p + q * p + b  # entry (a, b) of block q in the (p, 6p) product
+        coef = cv[r][:, None] * cv[r2][None, :]
+        targets.append((idx[r][:, None] * nz + idx[r2][None, :]).ravel())
+        coefs.append(coef.ravel())
+        takes.append(src.ravel())
+        if r != r2:
+            targets.append((idx[r2][None, :] * nz + idx[r][:, None]).ravel())
+            coefs.append(coef.ravel())
+            takes.append(src.ravel())
+    flat_pairs = 3 * pairs[0] + pairs[1]
+    return flat_pairs, np.concatenate(targets), np.concatenate(coefs), np.concatenate(takes)

@@ -289,7 +289,7 @@ def _boost_step(problem: Problem, s: _BoostState, outlines, detect: bool) -> boo
         return False
     s.prev_key, s.n_matches = matches.key, len(matches.key)
     rays = RayObservations.concatenate([problem.landmark_rays(s.rejected), matches.rays])
-    s.result = solve(problem.model, rays, problem.options, start=s.result)
+    s.result = solve(problem.model, rays, problem.options, start=s.result, warm=s.result)
     settled = s.k - s.last_rejection >= 2  # the outline fit has had two updates since
     if detect and settled:
         bad = find_blunder(problem, s.result, rays, s.rejected)
