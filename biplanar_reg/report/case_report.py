@@ -50,6 +50,17 @@ log = logging.getLogger(__name__)
 _METRICS = (
     ("vertex_rms_mm", "vertex RMS error", "mm"),
     ("vertex_max_mm", "vertex max error", "mm"),
+    (
+        "mean_shape_vertex_rms_mm",
+        "baseline: the mean shape alone, rigidly aligned, vertex RMS",
+        "mm",
+    ),
+    (
+        "model_floor_vertex_rms_mm",
+        "model floor: best rigid + model fit of the truth, vertex RMS",
+        "mm",
+    ),
+    ("vertex_rms_to_floor", "vertex RMS error / model floor", "x"),
     ("surface_mean_mm", "surface distance, mean", "mm"),
     ("surface_rms_mm", "surface distance, RMS", "mm"),
     ("surface_p95_mm", "surface distance, 95th percentile", "mm"),
@@ -324,6 +335,7 @@ def _write_html(
         flags=[(f, flag_advice(f)) for f in doc["flags"]],
         warnings=doc["warnings"],
         metrics=metric_rows(doc),
+        model_from_truth=bool((doc.get("ground_truth") or {}).get("model_from_truth")),
         figures=embedded,
         landmark_rows=_landmark_rows(doc),
         contour_rows=contour_rows,

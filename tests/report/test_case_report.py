@@ -238,3 +238,21 @@ def test_report_views_use_the_registrations_view_poses(no_truth):
     shift = posed[0].landmarks_px[name] - as_calibrated[0].landmarks_px[name]
     assert shift[0] > 1.0  # moved by the pose, in pixels
     assert posed[1].view is obs[1].view  # no pose given: the calibration's view
+
+
+def test_page_says_when_the_model_was_built_from_the_ground_truth(no_truth, tmp_path):
+    from biplanar_reg.report import write_case_report
+
+    _, out, doc = no_truth
+    doc = json.loads((out / "result.json").read_text())
+    doc["metrics"].update(
+        vertex_rms_mm=0.8, mean_shape_vertex_rms_mm=1.5, model_floor_vertex_rms_mm=0.25
+    )
+    doc["metrics"]["vertex_rms_to_floor"] = 3.2
+    for from_truth in (False, True):
+        doc["ground_truth"] = {"mesh": "gt.ply", "up_to_pose": True, "model_from_truth": from_truth}
+        write_case_report(tmp_path, doc, [])
+        html = (tmp_path / "report.html").read_text()
+        assert ("The model was built from this ground truth" in html) is from_truth
+        assert "baseline: the mean shape alone, rigidly aligned, vertex RMS" in html
+        assert '<td>vertex RMS error / model floor</td><td class="num">3.2</td>' in html
