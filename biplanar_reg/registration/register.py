@@ -18,12 +18,13 @@ import numpy as np
 
 from ..outline import chain_edges
 from ..ssm.model import ShapeModel
+from .blunders import rejected_landmarks
 from .gsft import GsftResult
 from .observations import ViewObservations
 from .options import IterationRecord, RegistrationOptions
 from .outline_match import outline_distances
 from .problem import Problem, make_problem
-from .stages import boost, landmark_consensus, landmark_start, refine_final
+from .stages import boost, choose_start, landmark_start, refine_final
 from .view_poses import estimate_view_poses
 
 __all__ = ["RegistrationResult", "register_views"]
@@ -50,7 +51,10 @@ class RegistrationResult:
     silhouettes_px : dict
         ``{view: list of (Q, 2) polylines}``: the registered model's outline in each view.
     rejected : list of (view, landmark)
-        Landmarks detected as blunders and down-weighted.
+        Landmarks whose robust weight is below ``options.rejection_weight`` (blunders).
+    landmark_weights : dict
+        ``{view: {landmark: weight in [0, 1]}}``: each landmark's robust weight at the
+        returned fit (:mod:`.blunders`; all 1 with ``robust=False``).
     view_poses : dict
         ``{view: {"R", "t", "centre"}}`` used (known) or estimated.
     flags : list of str
@@ -86,6 +90,7 @@ class RegistrationResult:
     gsft: GsftResult = field(repr=False)
     pose_info: dict = field(default_factory=dict)
     iterate_vertices: list = field(default_factory=list, repr=False)
+    landmark_weights: dict = field(default_factory=dict)
 
 
 def _check_views(model: ShapeModel, views: list[ViewObservations]) -> None:
@@ -169,8 +174,8 @@ def register_views(
         views, pose_info = posed.views, posed.info
         say(f"view poses ({poses}): {pose_info}")
     problem = make_problem(model, views, opts, silhouettes, say)
-    start = landmark_consensus(problem, landmark_start(problem))
-    run = boost(problem, start.result, start.rejected, opts.max_iterations, detect=opts.robust)
+    start = choose_start(problem, landmark_start(problem))
+    run = boost(problem, start.result, start.weights, opts.max_iterations, detect=opts.robust)
     final = refine_final(problem, run)
     outlines = final.outlines
     if problem.use_outlines and not outlines:
@@ -182,7 +187,7 @@ def _flags(problem: Problem, res: GsftResult, rejected: frozenset[int]) -> list[
     """Quality flags (not failures) of a result."""
     opts, lm = problem.options, problem.landmarks
     flags: list[str] = []
-    if res.certificate > opts.certificate_flag:
+    if res.certificate > opts.start_certificate:
         flags.append(f"relaxation not tight (certificate {res.certificate:.2g})")
     if not res.refine_converged:
         flags.append("local refinement did not converge")
@@ -196,9 +201,19 @@ def _flags(problem: Problem, res: GsftResult, rejected: frozenset[int]) -> list[
     return flags
 
 
+def _weights_by_view(problem: Problem, weights: np.ndarray) -> dict[str, dict[str, float]]:
+    """``{view: {landmark: weight}}`` (every view, possibly without landmarks)."""
+    out: dict[str, dict[str, float]] = {v.name: {} for v in problem.views}
+    for (view, name), w in zip(problem.landmarks.names, weights, strict=True):
+        out[view][name] = float(w)
+    return out
+
+
 def _result(problem: Problem, final, outlines: dict, pose_info: dict, seconds: float):
     """Assemble the :class:`RegistrationResult` with errors, outlines and flags."""
     views, res = problem.views, final.result
+    weights = np.ones(len(problem.landmarks)) if final.weights is None else final.weights
+    rejected = rejected_landmarks(problem, weights)
     contour_err = {v.name: np.zeros(0) for v in views}
     outline_px: dict[str, list[np.ndarray]] = {v.name: [] for v in views}
     for i, o in outlines.items():
@@ -219,9 +234,9 @@ def _result(problem: Problem, final, outlines: dict, pose_info: dict, seconds: f
         landmark_errors_px=landmark_errors(views, res.vertices),
         contour_errors_px=contour_err,
         silhouettes_px=outline_px,
-        rejected=[problem.landmarks.names[i] for i in sorted(final.rejected)],
+        rejected=[problem.landmarks.names[i] for i in sorted(rejected)],
         view_poses=view_poses,
-        flags=_flags(problem, res, final.rejected),
+        flags=_flags(problem, res, rejected),
         timings={
             "total": seconds,
             "iterations": float(sum(r.seconds for r in final.records)),
@@ -229,4 +244,5 @@ def _result(problem: Problem, final, outlines: dict, pose_info: dict, seconds: f
         gsft=res,
         pose_info=pose_info,
         iterate_vertices=final.iterates,
+        landmark_weights=_weights_by_view(problem, weights),
     )
