@@ -1,28 +1,32 @@
-"""Landmark blunders by robust estimation: a Geman-McClure loss solved by graduated non-convexity.
+"""Landmark blunders by robust estimation: a truncated least-squares loss solved by graduated
+non-convexity.
 
 One principle replaces a stack of tests: every landmark's term of the registration objective is
-the Geman-McClure loss of its reprojection error ``e`` (pixels over the annotated sigma)::
+the truncated quadratic of its reprojection error ``e`` (pixels over the annotated sigma)::
 
-    rho(e) = c^2 e^2 / (c^2 + e^2),        c = robust_threshold * s,
+    rho(e) = min(e^2, c^2),        c = robust_threshold * s,
 
 with the scale ``s`` estimated from the data (:func:`landmark_scale`: the landmark errors'
-median over that of a 2-D unit Gaussian, never below 1, the annotated sigma). Minimising it is
-iteratively reweighted least squares (Black-Rangarajan duality): each landmark weighs
-``w = (c^2 / (c^2 + e^2))^2`` in [0, 1]. The loss is not convex, so it is approached by
-graduated non-convexity (Yang et al. 2020, "Graduated Non-Convexity for Robust Spatial
-Perception", the GM surrogate ``w = (mu c^2 / (mu c^2 + e^2))^2``): from ``mu`` large enough
-that every weight is at least 1/4 (nearly least squares, warm-started from the convex
-solution) ``mu`` is divided by ``gnc_factor`` per step down to 1, refitting pose and shape
-(:func:`.refine.refine_pose_shape`) on the landmarks and the outline matches after each
-reweighting (:func:`gnc_weights`).
+median over that of a 2-D unit Gaussian, never below 1, the annotated sigma). By the
+Black-Rangarajan duality minimising it is a weighted least-squares problem in which each
+landmark weighs ``w`` in [0, 1]: 1 within ``c``, 0 beyond. The loss is not convex, so it is
+approached by graduated non-convexity (Yang et al. 2020, "Graduated Non-Convexity for Robust
+Spatial Perception", the TLS surrogate of :func:`tls_weights`): from ``mu`` small enough that
+the surrogate is convex (every weight graded, warm-started from the convex solution of the
+landmarks and outline matches) ``mu`` is multiplied by ``gnc_factor`` per step up to
+:data:`MU_MAX`, refitting pose and shape (:func:`.refine.refine_pose_shape`) on the landmarks
+and the outline matches after each reweighting (:func:`gnc_weights`).
 
 Why the scale comes from the data: when the model does not span the bone, every landmark keeps a
 residual of several pixels; a fixed threshold in annotated sigmas then rejects good landmarks,
 while the robust scale grows with the residuals and only a landmark far outside them (a
-blunder of tens of pixels) loses its weight. A landmark *counts as rejected* when its weight is
-below ``rejection_weight`` (default 0.1, i.e. an error above 1.47 c; :func:`rejected_landmarks`).
-The outline matches need no weights here: the boosting's matching gates them
-(:mod:`.outline_match`).
+blunder of tens of pixels) loses its weight. Why truncated least squares: inside ``c`` a
+landmark keeps its full weight (a smooth redescending loss such as Geman-McClure also
+down-weights good landmarks a little, and on the out-of-span sample case that moved the fit
+towards the outlines: vertex RMS +10 %). A landmark *counts as rejected* when its weight is
+below ``rejection_weight`` (default 0.5; the final weights are 0 or 1;
+:func:`rejected_landmarks`). The outline matches need no weights here: the boosting's matching
+gates them (:mod:`.outline_match`).
 
 Weights enter the solvers as sigmas: ``sigma / sqrt(w)``, with ``w`` floored at
 ``rejected_sigma_factor ** -2`` so every ray stays finite and the problem keeps its size.
@@ -67,7 +71,7 @@ def landmark_scale(errors: np.ndarray) -> float:
 
 
 def gm_weights(errors: np.ndarray, c: float, mu: float = 1.0) -> np.ndarray:
-    """Geman-McClure (GNC surrogate) weights ``(mu c^2 / (mu c^2 + e^2))^2`` in (0, 1].
+    """Geman-McClure weights of the GNC surrogate, ``(mu c^2 / (mu c^2 + e^2))^2`` in (0, 1].
 
     Parameters
     ----------
@@ -76,10 +80,17 @@ def gm_weights(errors: np.ndarray, c: float, mu: float = 1.0) -> np.ndarray:
     c : float
         Width of the loss (> 0).
     mu : float
-        GNC control parameter (>= 1; 1 is the Geman-McClure loss itself).
+        GNC control parameter (>= 1): large, the surrogate is nearly quadratic (every weight
+        near 1); 1 is the Geman-McClure loss itself.
     """
     k = mu * c * c
-    return (k / (k + np.square(errors))) ** 2
+    return (k / (k + np.square(np.asarray(errors, dtype=float)))) ** 2
+
+
+def inlier_weights(problem: Problem, gm: np.ndarray) -> np.ndarray:
+    """The weights returned and used: 1 for a landmark whose Geman-McClure weight is at least
+    ``rejection_weight``, 0 below (a good landmark keeps its full weight)."""
+    return (np.asarray(gm) >= problem.options.rejection_weight).astype(float)
 
 
 def robust_width(problem: Problem, errors: np.ndarray) -> float:
@@ -88,18 +99,35 @@ def robust_width(problem: Problem, errors: np.ndarray) -> float:
 
 
 def reweight(problem: Problem, vertices: np.ndarray) -> np.ndarray:
-    """Geman-McClure weights (``mu = 1``) of every landmark for the fit ``vertices`` (N, 3),
+    """The weights (:func:`inlier_weights` of the Geman-McClure weights, ``mu = 1``) of every
+    landmark for the fit ``vertices`` (N, 3),
     the scale re-estimated from its errors; all ones without ``robust`` or with fewer than
     :data:`MIN_LANDMARKS` landmarks."""
     lm = problem.landmarks
     if not problem.options.robust or len(lm) < MIN_LANDMARKS:
         return np.ones(len(lm))
     e = problem.landmark_px_errors(vertices) / lm.sigma_px
-    return gm_weights(e, robust_width(problem, e))
+    return inlier_weights(problem, gm_weights(e, robust_width(problem, e)))
 
 
-def rejected_landmarks(problem: Problem, weights: np.ndarray) -> frozenset[int]:
-    """Indices of the landmarks whose weight is below ``rejection_weight``."""
+def robust_cost(problem: Problem, result: GsftResult, outlines: dict) -> float:
+    """The iteration cost of :meth:`.problem.Problem.cost` with every landmark's term
+    truncated where its Geman-McClure weight falls to ``rejection_weight`` (the error at which
+    it would count as rejected), the scale re-estimated at ``result``: comparable between fits
+    that reject different landmarks, unlike a cost over the accepted landmarks only."""
+    lm, opts = problem.landmarks, problem.options
+    outline_part = problem.cost(result, outlines, frozenset(range(len(lm))))
+    if len(lm) == 0:
+        return outline_part
+    e = problem.landmark_px_errors(result.vertices) / lm.sigma_px
+    cap = robust_width(problem, e) * np.sqrt(max(opts.rejection_weight**-0.5 - 1.0, 0.0))
+    return outline_part + opts.landmark_weight * float(np.mean(np.minimum(e, cap) ** 2))
+
+
+def rejected_landmarks(problem: Problem, weights: np.ndarray | None) -> frozenset[int]:
+    """Indices of the landmarks whose weight is below ``rejection_weight`` (None: all 1)."""
+    if weights is None:
+        return frozenset()
     level = problem.options.rejection_weight
     return frozenset(int(i) for i in np.flatnonzero(np.asarray(weights) < level))
 
@@ -130,16 +158,18 @@ def gnc_weights(
     Returns
     -------
     weights : (L,) array
-        In [0, 1], at ``mu = 1`` after the last refit.
+        0 or 1: the loss's own weights at the last refit.
     vertices : (N, 3) array
         The last refit's registered vertices (world frame, mm).
 
     Notes
     -----
-    The schedule of Yang et al. (2020) for the GM loss: ``mu_0 = 2 max(e)^2 / c^2`` (so every
-    weight starts at 4/9 or more), divided by ``gnc_factor`` after every reweight-and-refit until
-    it reaches 1; each refit runs ``blunder_refine_iterations`` Levenberg-Marquardt iterations
-    from the previous one. The scale is re-estimated from each refit's errors.
+    The schedule of Yang et al. (2020) for the TLS loss: ``mu_0 = c^2 / (2 max(e)^2 - c^2)``,
+    multiplied by ``gnc_factor`` after every reweight-and-refit until it exceeds
+    :data:`MU_MAX` or every weight is 0 or 1; each refit runs ``blunder_refine_iterations``
+    Levenberg-Marquardt iterations from the previous one. The scale is re-estimated from each
+    refit's errors. Returns all ones at once when every error is within ``c / sqrt(2)`` (the
+    surrogate then weighs every landmark 1 for any ``mu``).
     """
     model, lm, opts = problem.model, problem.landmarks, problem.options
     state = (result.rotation, result.translation, result.weights)
@@ -164,5 +194,5 @@ def gnc_weights(
         e = problem.landmark_px_errors(vertices) / lm.sigma_px
         c = robust_width(problem, e)
         if mu <= 1.0:
-            return gm_weights(e, c), vertices
+            return inlier_weights(problem, gm_weights(e, c)), vertices
         mu = max(1.0, mu / opts.gnc_factor)

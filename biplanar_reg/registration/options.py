@@ -19,6 +19,9 @@ __all__ = ["RegistrationOptions", "IterationRecord"]
 #: Default certificate above which the landmark-only relaxation counts as not tight (the rigid
 #: mean-shape start is then tried too).
 START_CERTIFICATE = 1e-2
+#: Default gap (px) between the rounded relaxation and the returned fit above which a result is
+#: flagged "relaxation not tight" (see docs/registration.md, quality flags, for the measurement).
+RELAXATION_FLAG_PX = 25.0
 #: Default landmark reprojection error (px RMS) above which a result is flagged.
 REPROJECTION_FLAG_PX = 5.0
 
@@ -81,20 +84,19 @@ class RegistrationOptions:
     mutual : bool
         Keep only mutual nearest-neighbour matches.
     robust : bool
-        Weight the landmarks by a robust (Geman-McClure) loss with a scale estimated from the
-        data, solved by graduated non-convexity (:mod:`.blunders`); off: every landmark
-        weighs 1.
+        Weight the landmarks by a robust (truncated least-squares) loss with a scale estimated
+        from the data, solved by graduated non-convexity (:mod:`.blunders`); off: every
+        landmark weighs 1.
     robust_threshold : float
-        Width ``c`` of the robust loss in robust scales (the landmark errors' median scale,
-        at least the annotated sigma): a landmark with error ``e`` weighs
-        ``(c^2 / (c^2 + e^2))^2``. Measured on the synthetic bone: out of the model's span good
-        landmarks reach 3.3 scales, a 30-60 px blunder 7 or more.
+        Truncation ``c`` of the robust loss in robust scales (the landmark errors' median
+        scale, at least the annotated sigma): a landmark whose error exceeds it at the fit
+        weighs 0. See docs/registration.md for the measurements that set the default.
     rejection_weight : float
         A landmark whose weight is below this level (in (0, 1]) counts as rejected: it is
-        reported in ``rejected`` and flagged. 0.1 is an error above 1.47 ``c``.
+        reported in ``rejected`` and flagged.
     gnc_factor : float
-        Graduated non-convexity: the control parameter ``mu`` is divided by this (> 1) per
-        reweighting step, from where the loss is nearly quadratic down to the loss itself.
+        Graduated non-convexity: the control parameter ``mu`` is multiplied by this (> 1) per
+        reweighting step, from where the surrogate loss is convex to the loss itself.
     eps : float
         SDP trace weight (see :func:`.gsft.solve_gsft`).
     prior_weight : float
@@ -120,6 +122,10 @@ class RegistrationOptions:
         mean-shape start is then tried too (formerly ``certificate_flag``).
     reprojection_flag_px : float
         Landmark reprojection RMS (px) above which a result is flagged.
+    relaxation_flag_px : float
+        A result is flagged "relaxation not tight" when the rounded solution of its convex
+        relaxation and the returned fit differ by more than this in some view (RMS over the
+        vertices of their projections, px; :func:`.register.relaxation_gap_px`).
     end_margin_px : float
         Outline matches (and, in the boosting cost, annotated points) within this many pixels
         of an open contour's ends are not used: the annotation says nothing beyond its ends,
@@ -164,6 +170,7 @@ consensus_margin, readmit_sigmas : None
     consensus_iterations: int = 1
     start_certificate: float = START_CERTIFICATE
     reprojection_flag_px: float = REPROJECTION_FLAG_PX
+    relaxation_flag_px: float = RELAXATION_FLAG_PX
     end_margin_px: float = 3.0
     max_tangent_angle_deg: float = 45.0
     wide_gate_factor: float = 2.0
@@ -185,6 +192,7 @@ consensus_margin, readmit_sigmas : None
                     DeprecationWarning,
                     stacklevel=3,
                 )
+                object.__setattr__(self, key, None)
         for key, new in RENAMED_OPTIONS.items():
             value = getattr(self, key)
             if value is not None:

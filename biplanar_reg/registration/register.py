@@ -24,7 +24,7 @@ from .observations import ViewObservations
 from .options import IterationRecord, RegistrationOptions
 from .outline_match import outline_distances
 from .problem import Problem, make_problem
-from .stages import boost, choose_start, landmark_start, refine_final
+from .stages import boost, landmark_start, refine_final, robust_start
 from .view_poses import estimate_view_poses
 
 __all__ = ["RegistrationResult", "register_views"]
@@ -174,7 +174,7 @@ def register_views(
         views, pose_info = posed.views, posed.info
         say(f"view poses ({poses}): {pose_info}")
     problem = make_problem(model, views, opts, silhouettes, say)
-    start = choose_start(problem, landmark_start(problem))
+    start = robust_start(problem, landmark_start(problem))
     run = boost(problem, start.result, start.weights, opts.max_iterations, detect=opts.robust)
     final = refine_final(problem, run)
     outlines = final.outlines
@@ -183,12 +183,34 @@ def register_views(
     return _result(problem, final, outlines, pose_info, time.perf_counter() - t0)
 
 
+def relaxation_gap_px(problem: Problem, res: GsftResult) -> float:
+    """How far the returned fit is from the rounded relaxation it was refined from, pixels.
+
+    The largest over the views of the RMS distance between the model's vertices projected
+    with the rounded SDP solution of ``res`` (``sdp_rotation``, ``sdp_translation``,
+    ``sdp_weights``) and with ``res`` itself. A tight relaxation's rounded solution is the
+    convex problem's optimum and the refinements only polish it (a fraction of a pixel); a
+    loose one's can be anywhere, and the fit returned is then only a local optimum from it.
+    """
+    model = problem.model
+    rounded = model.instance(res.sdp_weights) @ res.sdp_rotation.T + res.sdp_translation
+    gaps = [
+        np.sqrt(np.mean(np.sum((v.view.project(rounded) - v.view.project(res.vertices)) ** 2, 1)))
+        for v in problem.views
+    ]
+    return float(max(gaps))
+
+
 def _flags(problem: Problem, res: GsftResult, rejected: frozenset[int]) -> list[str]:
     """Quality flags (not failures) of a result."""
     opts, lm = problem.options, problem.landmarks
     flags: list[str] = []
-    if res.certificate > opts.start_certificate:
-        flags.append(f"relaxation not tight (certificate {res.certificate:.2g})")
+    gap = relaxation_gap_px(problem, res)
+    if gap > opts.relaxation_flag_px:
+        flags.append(
+            f"relaxation not tight (rounded relaxation {gap:.2g} px from the fit, certificate "
+            f"{res.certificate:.2g})"
+        )
     if not res.refine_converged:
         flags.append("local refinement did not converge")
     err = problem.landmark_px_errors(res.vertices)
