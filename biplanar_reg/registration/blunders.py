@@ -1,32 +1,34 @@
-"""Landmark blunders by robust estimation: a truncated least-squares loss solved by graduated
-non-convexity.
+"""Landmark blunders by robust estimation: a Geman-McClure loss solved by graduated
+non-convexity, with a scale estimated from the data.
 
 One principle replaces a stack of tests: every landmark's term of the registration objective is
-the truncated quadratic of its reprojection error ``e`` (pixels over the annotated sigma)::
+the Geman-McClure loss of its reprojection error ``e`` (pixels over the annotated sigma)::
 
-    rho(e) = min(e^2, c^2),        c = robust_threshold * s,
+    rho(e) = c^2 e^2 / (c^2 + e^2),        c = robust_threshold * s,
 
 with the scale ``s`` estimated from the data (:func:`landmark_scale`: the landmark errors'
 median over that of a 2-D unit Gaussian, never below 1, the annotated sigma). By the
-Black-Rangarajan duality minimising it is a weighted least-squares problem in which each
-landmark weighs ``w`` in [0, 1]: 1 within ``c``, 0 beyond. The loss is not convex, so it is
-approached by graduated non-convexity (Yang et al. 2020, "Graduated Non-Convexity for Robust
-Spatial Perception", the TLS surrogate of :func:`tls_weights`): from ``mu`` small enough that
-the surrogate is convex (every weight graded, warm-started from the convex solution of the
-landmarks and outline matches) ``mu`` is multiplied by ``gnc_factor`` per step up to
-:data:`MU_MAX`, refitting pose and shape (:func:`.refine.refine_pose_shape`) on the landmarks
-and the outline matches after each reweighting (:func:`gnc_weights`).
+Black-Rangarajan duality minimising it is iteratively reweighted least squares with the weight
+``(c^2 / (c^2 + e^2))^2`` per landmark. The loss is not convex, so it is approached by graduated
+non-convexity (Yang et al. 2020, "Graduated Non-Convexity for Robust Spatial Perception", GM
+surrogate :func:`gm_weights`): from ``mu = 2 max(e)^2 / c^2`` (nearly least squares,
+warm-started from the convex solution of the landmarks and outline matches) ``mu`` is divided
+by ``gnc_factor`` per step down to 1, refitting pose and shape (:func:`.refine.refine_pose_shape`)
+on the weighted landmarks and the outline matches after each reweighting (:func:`gnc_weights`).
+
+The weights returned and used are the GNC's verdict made binary (:func:`inlier_weights`): 1 for a
+landmark whose Geman-McClure weight is at least ``rejection_weight`` (0.1, i.e. an error below
+``1.47 c``), 0 below. Why: the smooth loss also down-weights good landmarks by up to ~40 %, and
+on the out-of-span ``synthetic_radius_blunder`` sample case that moved the fit towards the
+outlines (vertex RMS +10 %); with binary weights a good landmark keeps its full weight. A
+landmark *counts as rejected* when its weight is below ``rejection_weight``
+(:func:`rejected_landmarks`).
 
 Why the scale comes from the data: when the model does not span the bone, every landmark keeps a
 residual of several pixels; a fixed threshold in annotated sigmas then rejects good landmarks,
 while the robust scale grows with the residuals and only a landmark far outside them (a
-blunder of tens of pixels) loses its weight. Why truncated least squares: inside ``c`` a
-landmark keeps its full weight (a smooth redescending loss such as Geman-McClure also
-down-weights good landmarks a little, and on the out-of-span sample case that moved the fit
-towards the outlines: vertex RMS +10 %). A landmark *counts as rejected* when its weight is
-below ``rejection_weight`` (default 0.5; the final weights are 0 or 1;
-:func:`rejected_landmarks`). The outline matches need no weights here: the boosting's matching
-gates them (:mod:`.outline_match`).
+blunder of tens of pixels) loses its weight. The outline matches need no weights here: the
+boosting's matching gates them (:mod:`.outline_match`).
 
 Weights enter the solvers as sigmas: ``sigma / sqrt(w)``, with ``w`` floored at
 ``rejected_sigma_factor ** -2`` so every ray stays finite and the problem keeps its size.
@@ -110,20 +112,6 @@ def reweight(problem: Problem, vertices: np.ndarray) -> np.ndarray:
     return inlier_weights(problem, gm_weights(e, robust_width(problem, e)))
 
 
-def robust_cost(problem: Problem, result: GsftResult, outlines: dict) -> float:
-    """The iteration cost of :meth:`.problem.Problem.cost` with every landmark's term
-    truncated where its Geman-McClure weight falls to ``rejection_weight`` (the error at which
-    it would count as rejected), the scale re-estimated at ``result``: comparable between fits
-    that reject different landmarks, unlike a cost over the accepted landmarks only."""
-    lm, opts = problem.landmarks, problem.options
-    outline_part = problem.cost(result, outlines, frozenset(range(len(lm))))
-    if len(lm) == 0:
-        return outline_part
-    e = problem.landmark_px_errors(result.vertices) / lm.sigma_px
-    cap = robust_width(problem, e) * np.sqrt(max(opts.rejection_weight**-0.5 - 1.0, 0.0))
-    return outline_part + opts.landmark_weight * float(np.mean(np.minimum(e, cap) ** 2))
-
-
 def rejected_landmarks(problem: Problem, weights: np.ndarray | None) -> frozenset[int]:
     """Indices of the landmarks whose weight is below ``rejection_weight`` (None: all 1)."""
     if weights is None:
@@ -158,18 +146,17 @@ def gnc_weights(
     Returns
     -------
     weights : (L,) array
-        0 or 1: the loss's own weights at the last refit.
+        0 or 1 (:func:`inlier_weights` of the Geman-McClure weights at ``mu = 1`` after the
+        last refit).
     vertices : (N, 3) array
         The last refit's registered vertices (world frame, mm).
 
     Notes
     -----
-    The schedule of Yang et al. (2020) for the TLS loss: ``mu_0 = c^2 / (2 max(e)^2 - c^2)``,
-    multiplied by ``gnc_factor`` after every reweight-and-refit until it exceeds
-    :data:`MU_MAX` or every weight is 0 or 1; each refit runs ``blunder_refine_iterations``
-    Levenberg-Marquardt iterations from the previous one. The scale is re-estimated from each
-    refit's errors. Returns all ones at once when every error is within ``c / sqrt(2)`` (the
-    surrogate then weighs every landmark 1 for any ``mu``).
+    The schedule of Yang et al. (2020) for the GM loss: ``mu_0 = 2 max(e)^2 / c^2`` (every
+    weight starts at 4/9 or more), divided by ``gnc_factor`` after every reweight-and-refit
+    until it reaches 1; each refit runs ``blunder_refine_iterations`` Levenberg-Marquardt
+    iterations from the previous one. The scale is re-estimated from each refit's errors.
     """
     model, lm, opts = problem.model, problem.landmarks, problem.options
     state = (result.rotation, result.translation, result.weights)

@@ -84,19 +84,19 @@ class RegistrationOptions:
     mutual : bool
         Keep only mutual nearest-neighbour matches.
     robust : bool
-        Weight the landmarks by a robust (truncated least-squares) loss with a scale estimated
-        from the data, solved by graduated non-convexity (:mod:`.blunders`); off: every
-        landmark weighs 1.
+        Weight the landmarks by a robust (Geman-McClure) loss with a scale estimated from the
+        data, solved by graduated non-convexity (:mod:`.blunders`); off: every landmark
+        weighs 1.
     robust_threshold : float
-        Truncation ``c`` of the robust loss in robust scales (the landmark errors' median
-        scale, at least the annotated sigma): a landmark whose error exceeds it at the fit
-        weighs 0. See docs/registration.md for the measurements that set the default.
+        Width ``c`` of the robust loss in robust scales (the landmark errors' median scale,
+        at least the annotated sigma). See docs/registration.md for the measurements behind
+        the default.
     rejection_weight : float
-        A landmark whose weight is below this level (in (0, 1]) counts as rejected: it is
-        reported in ``rejected`` and flagged.
+        A landmark whose Geman-McClure weight at the fit is below this level (in (0, 1])
+        counts as rejected and weighs 0; the others weigh 1. 0.1 is an error above 1.47 ``c``.
     gnc_factor : float
-        Graduated non-convexity: the control parameter ``mu`` is multiplied by this (> 1) per
-        reweighting step, from where the surrogate loss is convex to the loss itself.
+        Graduated non-convexity: the control parameter ``mu`` is divided by this (> 1) per
+        reweighting step, from where the loss is nearly quadratic down to the loss itself.
     eps : float
         SDP trace weight (see :func:`.gsft.solve_gsft`).
     prior_weight : float
