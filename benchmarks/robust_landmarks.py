@@ -55,7 +55,11 @@ def model_floor(model: ShapeModel, X: np.ndarray, iterations: int = 30) -> float
 def trial(full: ShapeModel, model: ShapeModel, seed: int, args, opts) -> dict:
     """The three fits of one seed; errors in mm, rejections as landmark names."""
     views, truth = boosting_case(
-        full, seed, fraction=0.8, noise_px=1.5, outline_noise_px=0.5,
+        full,
+        seed,
+        fraction=0.8,
+        noise_px=1.5,
+        outline_noise_px=0.5,
         landmarks_per_view=args.landmarks,
     )
     X = truth[3]
@@ -105,11 +109,18 @@ def main() -> None:
     ap.add_argument("--landmarks", type=int, default=3, help="landmarks per view")
     ap.add_argument("--blunder", type=float, default=40.0, help="blunder length, px")
     ap.add_argument(
-        "--outside", type=float, default=1.0,
+        "--outside",
+        type=float,
+        default=1.0,
         help="scale of the truth's deformation along the modes the model lacks (1: as the rest)",
     )
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="a RegistrationOptions field (float or true/false), repeatable")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a RegistrationOptions field (float or true/false), repeatable",
+    )
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
     bone = synthetic_bone_model(8, seed=0, resolution=(40, 32))

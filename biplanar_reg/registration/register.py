@@ -201,11 +201,14 @@ def relaxation_gap_px(problem: Problem, res: GsftResult) -> float:
     return float(max(gaps))
 
 
-def _flags(problem: Problem, res: GsftResult, rejected: frozenset[int]) -> list[str]:
-    """Quality flags (not failures) of a result."""
+def _flags(
+    problem: Problem, res: GsftResult, rejected: frozenset[int], gap: float | None = None
+) -> list[str]:
+    """Quality flags (not failures) of a result (``gap``: its :func:`relaxation_gap_px`,
+    computed when not given)."""
     opts, lm = problem.options, problem.landmarks
     flags: list[str] = []
-    gap = relaxation_gap_px(problem, res)
+    gap = relaxation_gap_px(problem, res) if gap is None else gap
     if gap > opts.relaxation_flag_px:
         flags.append(
             f"relaxation not tight (rounded relaxation {gap:.2g} px from the fit, certificate "

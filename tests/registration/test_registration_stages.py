@@ -12,9 +12,11 @@ from registration_problems import clean_views, problem_for, with_blunder
 
 from biplanar_reg.registration import RegistrationOptions, register_views
 from biplanar_reg.registration.blunders import (
+    gm_weights,
     gnc_weights,
+    inlier_weights,
+    landmark_scale,
     rejected_landmarks,
-    tls_weights,
     weighted_landmark_rays,
 )
 from biplanar_reg.registration.problem import solve
@@ -209,13 +211,22 @@ def test_match_outlines_first_matching_keeps_every_match_in_the_gate(clean):
 # -- robust weights --------------------------------------------------------------------------
 
 
-def test_tls_weights_grade_from_convex_to_the_truncation():
-    e = np.array([0.0, 1.0, 2.9, 3.1, 10.0])
-    np.testing.assert_array_equal(tls_weights(e, 3.0), [1, 1, 1, 0, 0])
-    small = tls_weights(e, 3.0, 1e-3)  # nearly convex: every weight between 0 and 1, graded
-    assert np.all(np.diff(small) <= 0) and 0 < small[-1] < small[1] < 1
-    big = tls_weights(e, 3.0, 1e6)
-    np.testing.assert_allclose(big, [1, 1, 1, 0, 0], atol=1e-3)
+def test_gm_weights_grade_from_nearly_quadratic_to_the_loss(clean):
+    e = np.array([0.0, 1.0, 3.0, 5.8, 6.0, 40.0])
+    w = gm_weights(e, 4.0)
+    np.testing.assert_allclose(w, (16.0 / (16.0 + e**2)) ** 2)
+    assert np.all(np.diff(w) < 0) and w[0] == 1.0
+    assert np.all(gm_weights(e, 4.0, 2.0 * 40.0**2 / 16.0) >= 4.0 / 9.0 - 1e-12)  # GNC's start
+    p = clean[0]  # rejection_weight 0.1: rejected beyond 1.47 c
+    np.testing.assert_array_equal(inlier_weights(p, gm_weights(e, 4.0)), [1, 1, 1, 1, 0, 0])
+
+
+def test_landmark_scale_is_the_rayleigh_median_at_least_one():
+    rng = np.random.default_rng(0)
+    e = np.linalg.norm(rng.normal(scale=3.0, size=(20_000, 2)), axis=1)
+    assert landmark_scale(e) == pytest.approx(3.0, rel=0.03)
+    assert landmark_scale(np.array([0.1, 0.2, 0.3])) == 1.0
+    assert landmark_scale(np.r_[np.full(5, 2.0), 1e6]) == pytest.approx(2.0 / 1.1774, rel=1e-3)
 
 
 def test_gnc_weights_drop_a_40_px_blunder_and_keep_clean_landmarks(model, views, clean):
