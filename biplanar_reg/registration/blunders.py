@@ -112,6 +112,20 @@ def reweight(problem: Problem, vertices: np.ndarray) -> np.ndarray:
     return inlier_weights(problem, gm_weights(e, robust_width(problem, e)))
 
 
+def robust_cost(problem: Problem, result: GsftResult, outlines: dict) -> float:
+    """The iteration cost of :meth:`.problem.Problem.cost` with every landmark's term
+    truncated where its Geman-McClure weight falls to ``rejection_weight`` (the error at which
+    it would count as rejected), the scale re-estimated at ``result``: comparable between fits
+    that reject different landmarks, unlike a cost over the accepted landmarks only."""
+    lm, opts = problem.landmarks, problem.options
+    outline_part = problem.cost(result, outlines, frozenset(range(len(lm))))
+    if len(lm) == 0:
+        return outline_part
+    e = problem.landmark_px_errors(result.vertices) / lm.sigma_px
+    cap = robust_width(problem, e) * np.sqrt(max(opts.rejection_weight**-0.5 - 1.0, 0.0))
+    return outline_part + opts.landmark_weight * float(np.mean(np.minimum(e, cap) ** 2))
+
+
 def rejected_landmarks(problem: Problem, weights: np.ndarray | None) -> frozenset[int]:
     """Indices of the landmarks whose weight is below ``rejection_weight`` (None: all 1)."""
     if weights is None:

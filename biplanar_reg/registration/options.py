@@ -36,7 +36,7 @@ COUNT_RANGES: dict[str, tuple[int, int]] = {
     "blunder_refine_iterations": (1, 10_000),
 }
 # fields that must be fractions in (0, 1]
-_FRACTIONS = ("landmark_weight", "rejection_weight")
+_FRACTIONS = ("landmark_weight", "rejection_weight", "consensus_margin")
 # fields that may be 0
 _NON_NEGATIVE = ("prior_weight", "end_margin_px")
 # fields with a range of their own: (low, high, low inclusive) with high inclusive
@@ -54,7 +54,6 @@ DEPRECATED_OPTIONS: dict[str, str] = {
     "blunder_contrast": "robust_threshold",
     "max_rejected_fraction": "rejection_weight",
     "consensus_trigger": "robust_threshold",
-    "consensus_margin": "robust_threshold",
     "readmit_sigmas": "rejection_weight",
 }
 #: Renamed options: the old key sets the new one (with a DeprecationWarning).
@@ -116,7 +115,12 @@ class RegistrationOptions:
         Levenberg-Marquardt iterations of each refit between two reweightings of the graduated
         non-convexity (1 to 10000).
     consensus_iterations : int
-        Boosting iterations of each short fit in the start choice (1 to 1000).
+        Boosting iterations of each short fit in the start choice and the robust start
+        (1 to 1000).
+    consensus_margin : float
+        The robust start: a landmark-only start without one landmark replaces the robust
+        landmark-only start when its short fit's robust cost is below this fraction (in
+        (0, 1]) of the latter's (:func:`.stages.robust_start`).
     start_certificate : float
         Certificate above which the landmark-only relaxation counts as not tight: the rigid
         mean-shape start is then tried too (formerly ``certificate_flag``).
@@ -143,7 +147,7 @@ class RegistrationOptions:
         sigma grows at most by this factor, so a rejected landmark no longer pulls the fit and
         the problem keeps its size (one structure for every solve).
     blunder_threshold, blunder_contrast, max_rejected_fraction, consensus_trigger, \
-consensus_margin, readmit_sigmas : None
+readmit_sigmas : None
         Deprecated (the former blunder heuristics; :data:`DEPRECATED_OPTIONS`): accepted with a
         DeprecationWarning and ignored.
     certificate_flag : None
@@ -168,6 +172,7 @@ consensus_margin, readmit_sigmas : None
     match_floor_px: float = 3.0
     blunder_refine_iterations: int = 5
     consensus_iterations: int = 1
+    consensus_margin: float = 0.5
     start_certificate: float = START_CERTIFICATE
     reprojection_flag_px: float = REPROJECTION_FLAG_PX
     relaxation_flag_px: float = RELAXATION_FLAG_PX
@@ -179,7 +184,6 @@ consensus_margin, readmit_sigmas : None
     blunder_contrast: float | None = None
     max_rejected_fraction: float | None = None
     consensus_trigger: float | None = None
-    consensus_margin: float | None = None
     readmit_sigmas: float | None = None
     certificate_flag: float | None = None
 

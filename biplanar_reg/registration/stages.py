@@ -28,6 +28,7 @@ from .blunders import (
     gnc_weights,
     rejected_landmarks,
     reweight,
+    robust_cost,
     weighted_landmark_rays,
 )
 from .gsft import GsftResult
@@ -162,24 +163,61 @@ def start_from_landmarks(problem: Problem, weights: np.ndarray | None) -> Start:
     return choose_start(problem, Start(landmark_solve(problem, weights), weights))
 
 
-def robust_start(problem: Problem, start: Start) -> Start:
-    """``start`` with robust landmark weights estimated from the landmarks alone (graduated
-    non-convexity without outlines, :func:`.blunders.gnc_weights`), re-solved with them when
-    some landmark is rejected, then :func:`choose_start`.
-
-    With few landmarks a blunder spoils the landmark-only start so that the outline fit
-    converges in a wrong basin, where every landmark is a few pixels off and none stands out;
-    a blunder the landmarks alone can expose no longer does. One they cannot is left to the
-    boosting's reweighting (:func:`boost`).
-    """
-    if not problem.options.robust:
-        return choose_start(problem, start)
+def _landmark_only_start(problem: Problem, start: Start) -> Start:
+    """``start`` with robust weights from the landmarks alone (graduated non-convexity without
+    outlines), re-solved with them when some landmark is rejected, then :func:`choose_start`."""
     weights, _ = gnc_weights(problem, start.result, RayObservations.empty())
     if not rejected_landmarks(problem, weights):
         return choose_start(problem, start)
     names = [problem.landmarks.names[i] for i in sorted(rejected_landmarks(problem, weights))]
     problem.say(f"robust start: rejected {names}")
     return start_from_landmarks(problem, weights)
+
+
+def _short_fit(problem: Problem, start: Start) -> Iterate:
+    """The best iterate of a short boosted fit from ``start`` (reused if already run)."""
+    if start.short_fit is not None:
+        return start.short_fit
+    n = problem.options.consensus_iterations
+    return boost(problem, start.result, start.weights, n, detect=False).best
+
+
+def robust_start(problem: Problem, start: Start) -> Start:
+    """The start of the robust fit: the lowest robust cost over several starts.
+
+    The robust objective is not convex, and with few landmarks a blunder spoils the
+    landmark-only start so that the outline fit converges in the wrong basin, where every
+    landmark is a few pixels off and none stands out. So the starts are (a) the landmark-only
+    start with robust weights from the landmarks alone (:func:`.blunders.gnc_weights`) and,
+    with outlines and at least 5 landmarks, (b) each landmark-only start without one landmark;
+    each gets a short boosted fit (``consensus_iterations``). A start without a landmark is
+    taken when its robust cost (:func:`.blunders.robust_cost`: truncated landmark terms plus
+    the outline term) is below ``consensus_margin`` times that of (a) and the lowest: short
+    fits are not converged, and without the margin a start without a good landmark wins by
+    chance (measured: one out-of-span trial then rejected a good landmark and missed the
+    blunder). No landmark is rejected here: the boosting's reweighting decides that from the
+    chosen start.
+    """
+    if not problem.options.robust:
+        return choose_start(problem, start)
+    chosen = _landmark_only_start(problem, start)
+    n_lm = len(problem.landmarks)
+    if not (problem.use_outlines and n_lm >= 5):
+        return chosen
+    fit = _short_fit(problem, chosen)
+    base_cost = robust_cost(problem, fit.result, fit.outlines)
+    best, best_cost, left_out = chosen, problem.options.consensus_margin * base_cost, None
+    for i in range(n_lm):
+        w = np.ones(n_lm)
+        w[i] = 0.0
+        alt = start_from_landmarks(problem, w)
+        fit = _short_fit(problem, alt)
+        cost = robust_cost(problem, fit.result, fit.outlines)
+        if cost < best_cost:
+            best, best_cost, left_out = alt, cost, i
+    if left_out is not None:
+        problem.say(f"robust start: the start without {problem.landmarks.names[left_out]}")
+    return Start(best.result, best.weights, best.short_fit)
 
 
 # -- 3. outline boosting -------------------------------------------------------------------

@@ -50,6 +50,7 @@ BAD = {
     "match_floor_px": [0.0, -3.0, math.inf],
     "blunder_refine_iterations": [0, -1, 10_001],
     "consensus_iterations": [0, -1, 1001],
+    "consensus_margin": [0.0, 1.01, math.nan],
     "start_certificate": [0.0, -1e-2, math.inf],
     "reprojection_flag_px": [0.0, -5.0, math.nan],
     "relaxation_flag_px": [0.0, -5.0, math.nan],
@@ -81,6 +82,7 @@ def test_boundary_values_are_accepted():
         silhouette_points=3,
         prior_weight=0.0,
         rejection_weight=1.0,
+        consensus_margin=1.0,
         consensus_iterations=1,
         blunder_refine_iterations=1,
     )
