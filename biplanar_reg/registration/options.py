@@ -7,6 +7,7 @@ caller can change it and ``result.json`` records it.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -15,8 +16,12 @@ from .gsft import DEFAULT_EPS
 
 __all__ = ["RegistrationOptions", "IterationRecord"]
 
-#: Default certificate above which a result is flagged "relaxation not tight".
-CERTIFICATE_FLAG = 1e-2
+#: Default certificate above which the landmark-only relaxation counts as not tight (the rigid
+#: mean-shape start is then tried too).
+START_CERTIFICATE = 1e-2
+#: Default gap (px) between the rounded relaxation and the returned fit above which a result is
+#: flagged "relaxation not tight" (see docs/registration.md, quality flags, for the measurement).
+RELAXATION_FLAG_PX = 25.0
 #: Default landmark reprojection error (px RMS) above which a result is flagged.
 REPROJECTION_FLAG_PX = 5.0
 
@@ -31,14 +36,28 @@ COUNT_RANGES: dict[str, tuple[int, int]] = {
     "blunder_refine_iterations": (1, 10_000),
 }
 # fields that must be fractions in (0, 1]
-_FRACTIONS = ("landmark_weight", "max_rejected_fraction", "consensus_margin")
+_FRACTIONS = ("landmark_weight", "rejection_weight", "consensus_margin")
 # fields that may be 0
 _NON_NEGATIVE = ("prior_weight", "end_margin_px")
 # fields with a range of their own: (low, high, low inclusive) with high inclusive
 _RANGES = {
     "max_tangent_angle_deg": (0.0, 180.0, False),
     "rejected_sigma_factor": (1.0, np.inf, True),
+    "gnc_factor": (1.0, np.inf, False),
 }
+
+#: Options of the former heuristic blunder handling (leave-one-out tests, consensus, cap,
+#: re-admission), replaced by the robust loss (:mod:`.blunders`): still accepted (a case file's
+#: ``[registration]`` keys keep loading) with a DeprecationWarning, and ignored.
+DEPRECATED_OPTIONS: dict[str, str] = {
+    "blunder_threshold": "robust_threshold",
+    "blunder_contrast": "robust_threshold",
+    "max_rejected_fraction": "rejection_weight",
+    "consensus_trigger": "robust_threshold",
+    "readmit_sigmas": "rejection_weight",
+}
+#: Renamed options: the old key sets the new one (with a DeprecationWarning).
+RENAMED_OPTIONS: dict[str, str] = {"certificate_flag": "start_certificate"}
 
 
 @dataclass(frozen=True)
@@ -64,9 +83,19 @@ class RegistrationOptions:
     mutual : bool
         Keep only mutual nearest-neighbour matches.
     robust : bool
-        Detect landmark blunders and down-weight them.
-    blunder_threshold : float
-        A landmark whose leave-one-out residual exceeds this many sigmas is a blunder.
+        Weight the landmarks by a robust (Geman-McClure) loss with a scale estimated from the
+        data, solved by graduated non-convexity (:mod:`.blunders`); off: every landmark
+        weighs 1.
+    robust_threshold : float
+        Width ``c`` of the robust loss in robust scales (the landmark errors' median scale,
+        at least the annotated sigma). See docs/registration.md for the measurements behind
+        the default.
+    rejection_weight : float
+        A landmark whose Geman-McClure weight at the fit is below this level (in (0, 1])
+        counts as rejected and weighs 0; the others weigh 1. 0.1 is an error above 1.47 ``c``.
+    gnc_factor : float
+        Graduated non-convexity: the control parameter ``mu`` is divided by this (> 1) per
+        reweighting step, from where the loss is nearly quadratic down to the loss itself.
     eps : float
         SDP trace weight (see :func:`.gsft.solve_gsft`).
     prior_weight : float
@@ -82,34 +111,25 @@ class RegistrationOptions:
     match_floor_px : float
         Smallest outlier threshold for outline matches after the first matching of a start,
         and for the final refinement's gate, pixels.
-    max_rejected_fraction : float
-        Largest fraction of the landmarks that may be rejected as blunders (at least one is
-        always allowed): many landmarks disagreeing with the fit point at the model, not at
-        the annotator.
-    blunder_contrast : float
-        A blunder's leave-one-out score must also exceed this multiple of the median score of
-        the other landmarks (while the outline fit settles, every score is inflated alike).
     blunder_refine_iterations : int
-        Levenberg-Marquardt iterations of each leave-one-out refit in the blunder test
-        (1 to 10000).
-    consensus_trigger : float
-        The landmark-blunder consensus runs when some landmark's error at the landmark-only
-        start exceeds this many sigmas (measured: 0.2-0.9 on clean 0.5 px data, 1.2-8.2 with
-        one 40 px blunder of 6).
+        Levenberg-Marquardt iterations of each refit between two reweightings of the graduated
+        non-convexity (1 to 10000).
     consensus_iterations : int
-        Boosting iterations of each short fit in the consensus and in the start choice
+        Boosting iterations of each short fit in the start choice and the robust start
         (1 to 1000).
     consensus_margin : float
-        A leave-one-out hypothesis is accepted when its short fit's cost is below this
-        fraction of the all-landmarks fit's cost.
-    readmit_sigmas : float
-        A rejected landmark whose error under the final fit is within this many sigmas is
-        taken back and the refinement repeated.
-    certificate_flag : float
-        Certificate above which the landmark-only relaxation counts as not tight (then the
-        rigid mean-shape start is tried too) and a result is flagged.
+        The robust start: a landmark-only start without one landmark replaces the robust
+        landmark-only start when its short fit's robust cost is below this fraction (in
+        (0, 1]) of the latter's (:func:`.stages.robust_start`).
+    start_certificate : float
+        Certificate above which the landmark-only relaxation counts as not tight: the rigid
+        mean-shape start is then tried too (formerly ``certificate_flag``).
     reprojection_flag_px : float
         Landmark reprojection RMS (px) above which a result is flagged.
+    relaxation_flag_px : float
+        A result is flagged "relaxation not tight" when the rounded solution of its convex
+        relaxation and the returned fit differ by more than this in some view (RMS over the
+        vertices of their projections, px; :func:`.register.relaxation_gap_px`).
     end_margin_px : float
         Outline matches (and, in the boosting cost, annotated points) within this many pixels
         of an open contour's ends are not used: the annotation says nothing beyond its ends,
@@ -123,8 +143,15 @@ class RegistrationOptions:
         of the landmark reprojection RMS (when that exceeds ``gate_px``): a start still far off
         must not drop every match.
     rejected_sigma_factor : float
-        A rejected landmark's sigma is multiplied by this (>= 1): it no longer pulls the fit,
-        and the problem keeps its size (one structure for every solve).
+        Landmark weights are floored at ``1 / rejected_sigma_factor^2`` (>= 1): a landmark's
+        sigma grows at most by this factor, so a rejected landmark no longer pulls the fit and
+        the problem keeps its size (one structure for every solve).
+    blunder_threshold, blunder_contrast, max_rejected_fraction, consensus_trigger, \
+readmit_sigmas : None
+        Deprecated (the former blunder heuristics; :data:`DEPRECATED_OPTIONS`): accepted with a
+        DeprecationWarning and ignored.
+    certificate_flag : None
+        Deprecated spelling of ``start_certificate`` (sets it, with a DeprecationWarning).
     """
 
     landmark_weight: float = 0.5
@@ -134,29 +161,55 @@ class RegistrationOptions:
     gate_px: float = 15.0
     mutual: bool = False
     robust: bool = True
-    blunder_threshold: float = 10.0
+    robust_threshold: float = 4.0
+    rejection_weight: float = 0.1
+    gnc_factor: float = 1.4
     eps: float = DEFAULT_EPS
     prior_weight: float = 1.0
     tol: float = 1e-4
     contour_sigma_px: float = 1.0
     contour_spacing_px: float = 5.0
     match_floor_px: float = 3.0
-    max_rejected_fraction: float = 0.125
-    blunder_contrast: float = 3.0
-    blunder_refine_iterations: int = 15
-    consensus_trigger: float = 1.0
+    blunder_refine_iterations: int = 5
     consensus_iterations: int = 1
     consensus_margin: float = 0.5
-    readmit_sigmas: float = 3.0
-    certificate_flag: float = CERTIFICATE_FLAG
+    start_certificate: float = START_CERTIFICATE
     reprojection_flag_px: float = REPROJECTION_FLAG_PX
+    relaxation_flag_px: float = RELAXATION_FLAG_PX
     end_margin_px: float = 3.0
     max_tangent_angle_deg: float = 45.0
     wide_gate_factor: float = 2.0
     rejected_sigma_factor: float = 1e3
+    blunder_threshold: float | None = None
+    blunder_contrast: float | None = None
+    max_rejected_fraction: float | None = None
+    consensus_trigger: float | None = None
+    readmit_sigmas: float | None = None
+    certificate_flag: float | None = None
 
     def __post_init__(self) -> None:
+        for key, new in DEPRECATED_OPTIONS.items():
+            if getattr(self, key) is not None:
+                warnings.warn(
+                    f"RegistrationOptions: {key} is deprecated and ignored (blunders are "
+                    f"handled by a robust loss; see {new} and docs/registration.md)",
+                    DeprecationWarning,
+                    stacklevel=3,
+                )
+                object.__setattr__(self, key, None)
+        for key, new in RENAMED_OPTIONS.items():
+            value = getattr(self, key)
+            if value is not None:
+                warnings.warn(
+                    f"RegistrationOptions: {key} is deprecated, use {new}",
+                    DeprecationWarning,
+                    stacklevel=3,
+                )
+                object.__setattr__(self, new, value)
+                object.__setattr__(self, key, None)
         for f in fields(self):
+            if f.default is None and getattr(self, f.name) is None:
+                continue
             _check_field(f.name, getattr(self, f.name), f.default)
 
 

@@ -18,12 +18,13 @@ import numpy as np
 
 from ..outline import chain_edges
 from ..ssm.model import ShapeModel
+from .blunders import rejected_landmarks
 from .gsft import GsftResult
 from .observations import ViewObservations
 from .options import IterationRecord, RegistrationOptions
 from .outline_match import outline_distances
 from .problem import Problem, make_problem
-from .stages import boost, landmark_consensus, landmark_start, refine_final
+from .stages import boost, landmark_start, refine_final, robust_start
 from .uncertainty import registration_uncertainty
 from .view_poses import estimate_view_poses
 
@@ -51,7 +52,10 @@ class RegistrationResult:
     silhouettes_px : dict
         ``{view: list of (Q, 2) polylines}``: the registered model's outline in each view.
     rejected : list of (view, landmark)
-        Landmarks detected as blunders and down-weighted.
+        Landmarks whose robust weight is below ``options.rejection_weight`` (blunders).
+    landmark_weights : dict
+        ``{view: {landmark: weight in [0, 1]}}``: each landmark's robust weight at the
+        returned fit (:mod:`.blunders`; all 1 with ``robust=False``).
     view_poses : dict
         ``{view: {"R", "t", "centre"}}`` used (known) or estimated.
     flags : list of str
@@ -90,6 +94,7 @@ class RegistrationResult:
     gsft: GsftResult = field(repr=False)
     pose_info: dict = field(default_factory=dict)
     iterate_vertices: list = field(default_factory=list, repr=False)
+    landmark_weights: dict = field(default_factory=dict)
     vertex_sd_mm: np.ndarray | None = field(default=None, repr=False)
 
 
@@ -174,8 +179,8 @@ def register_views(
         views, pose_info = posed.views, posed.info
         say(f"view poses ({poses}): {pose_info}")
     problem = make_problem(model, views, opts, silhouettes, say)
-    start = landmark_consensus(problem, landmark_start(problem))
-    run = boost(problem, start.result, start.rejected, opts.max_iterations, detect=opts.robust)
+    start = robust_start(problem, landmark_start(problem))
+    run = boost(problem, start.result, start.weights, opts.max_iterations, detect=opts.robust)
     final = refine_final(problem, run)
     outlines = final.outlines
     if problem.use_outlines and not outlines:
@@ -187,12 +192,37 @@ def register_views(
     )
 
 
-def _flags(problem: Problem, res: GsftResult, rejected: frozenset[int]) -> list[str]:
-    """Quality flags (not failures) of a result."""
+def relaxation_gap_px(problem: Problem, res: GsftResult) -> float:
+    """How far the returned fit is from the rounded relaxation it was refined from, pixels.
+
+    The largest over the views of the RMS distance between the model's vertices projected
+    with the rounded SDP solution of ``res`` (``sdp_rotation``, ``sdp_translation``,
+    ``sdp_weights``) and with ``res`` itself. A tight relaxation's rounded solution is the
+    convex problem's optimum and the refinements only polish it (a fraction of a pixel); a
+    loose one's can be anywhere, and the fit returned is then only a local optimum from it.
+    """
+    model = problem.model
+    rounded = model.instance(res.sdp_weights) @ res.sdp_rotation.T + res.sdp_translation
+    gaps = [
+        np.sqrt(np.mean(np.sum((v.view.project(rounded) - v.view.project(res.vertices)) ** 2, 1)))
+        for v in problem.views
+    ]
+    return float(max(gaps))
+
+
+def _flags(
+    problem: Problem, res: GsftResult, rejected: frozenset[int], gap: float | None = None
+) -> list[str]:
+    """Quality flags (not failures) of a result (``gap``: its :func:`relaxation_gap_px`,
+    computed when not given)."""
     opts, lm = problem.options, problem.landmarks
     flags: list[str] = []
-    if res.certificate > opts.certificate_flag:
-        flags.append(f"relaxation not tight (certificate {res.certificate:.2g})")
+    gap = relaxation_gap_px(problem, res) if gap is None else gap
+    if gap > opts.relaxation_flag_px:
+        flags.append(
+            f"relaxation not tight (rounded relaxation {gap:.2g} px from the fit, certificate "
+            f"{res.certificate:.2g})"
+        )
     if not res.refine_converged:
         flags.append("local refinement did not converge")
     err = problem.landmark_px_errors(res.vertices)
@@ -205,9 +235,19 @@ def _flags(problem: Problem, res: GsftResult, rejected: frozenset[int]) -> list[
     return flags
 
 
+def _weights_by_view(problem: Problem, weights: np.ndarray) -> dict[str, dict[str, float]]:
+    """``{view: {landmark: weight}}`` (every view, possibly without landmarks)."""
+    out: dict[str, dict[str, float]] = {v.name: {} for v in problem.views}
+    for (view, name), w in zip(problem.landmarks.names, weights, strict=True):
+        out[view][name] = float(w)
+    return out
+
+
 def _result(problem: Problem, final, outlines: dict, pose_info: dict, seconds: float):
     """Assemble the :class:`RegistrationResult` with errors, outlines and flags."""
     views, res = problem.views, final.result
+    weights = np.ones(len(problem.landmarks)) if final.weights is None else final.weights
+    rejected = rejected_landmarks(problem, weights)
     contour_err = {v.name: np.zeros(0) for v in views}
     outline_px: dict[str, list[np.ndarray]] = {v.name: [] for v in views}
     for i, o in outlines.items():
@@ -228,9 +268,9 @@ def _result(problem: Problem, final, outlines: dict, pose_info: dict, seconds: f
         landmark_errors_px=landmark_errors(views, res.vertices),
         contour_errors_px=contour_err,
         silhouettes_px=outline_px,
-        rejected=[problem.landmarks.names[i] for i in sorted(final.rejected)],
+        rejected=[problem.landmarks.names[i] for i in sorted(rejected)],
         view_poses=view_poses,
-        flags=_flags(problem, res, final.rejected),
+        flags=_flags(problem, res, rejected),
         timings={
             "total": seconds,
             "iterations": float(sum(r.seconds for r in final.records)),
@@ -238,4 +278,5 @@ def _result(problem: Problem, final, outlines: dict, pose_info: dict, seconds: f
         gsft=res,
         pose_info=pose_info,
         iterate_vertices=final.iterates,
+        landmark_weights=_weights_by_view(problem, weights),
     )

@@ -1,18 +1,20 @@
 """The stages of the registration pipeline, in the order :func:`.register.register_views`
 calls them:
 
-1. :func:`landmark_start`: G-SfT on the landmarks alone, with leave-one-out blunder rejection;
+1. :func:`landmark_start`: G-SfT on the landmarks alone;
 2. :func:`choose_start`: when that relaxation is not tight, the rigid mean-shape start is tried
    too and the start whose short boosted fit explains the data better is kept;
-3. :func:`landmark_consensus`: a blunder that spoils the start itself is found by a consensus
-   over leave-one-out starts;
-4. :func:`boost`: outline boosting (match the model's outline to the annotated outlines,
-   re-solve, repeat), with blunder rejection once the fit has settled;
-5. :func:`refine_final`: the final local refinement of the registration objective itself, and
-   the re-admission of rejected landmarks that the final fit agrees with.
+3. :func:`boost`: outline boosting (match the model's outline to the annotated outlines,
+   re-solve, repeat); with ``robust``, the landmarks' robust weights are re-estimated after
+   every solve by graduated non-convexity (:mod:`.blunders`), and when the set of rejected
+   landmarks changes the boosting restarts from a landmark-only start with the new weights;
+4. :func:`refine_final`: the final local refinement of the registration objective itself, then
+   one reweighting of the landmarks at the refined fit (refined again if the rejected set
+   changed).
 
 Each stage takes the :class:`.problem.Problem` and an explicit state and returns a new state;
-none mutates its inputs. World frame, mm; image quantities in pixels.
+none mutates its inputs. Landmark weights are (L,) arrays in [0, 1] (``None``: all 1).
+World frame, mm; image quantities in pixels.
 """
 
 from __future__ import annotations
@@ -22,7 +24,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .blunders import find_blunder
+from .blunders import (
+    gnc_weights,
+    rejected_landmarks,
+    reweight,
+    robust_cost,
+    weighted_landmark_rays,
+)
 from .gsft import GsftResult
 from .options import IterationRecord
 from .outline_fit import OutlineTerm, refine_on_outlines
@@ -36,7 +44,7 @@ __all__ = [
     "Refined",
     "landmark_start",
     "choose_start",
-    "landmark_consensus",
+    "robust_start",
     "boost",
     "refine_final",
 ]
@@ -54,71 +62,69 @@ class Iterate:
 
 @dataclass(frozen=True)
 class Start:
-    """A start for boosting: the result, the rejected landmarks (indices into the problem's
-    landmarks) and, when one was run to choose it, the best iterate of its short boosted fit."""
+    """A start for boosting: the result, the landmark weights it was solved with ((L,) in
+    [0, 1]; None: all 1) and, when one was run to choose it, the best iterate of its short
+    boosted fit."""
 
     result: GsftResult
-    rejected: frozenset[int] = frozenset()
+    weights: np.ndarray | None = None
     short_fit: Iterate | None = None
 
 
 @dataclass(frozen=True)
 class BoostRun:
     """Output of :func:`boost`: every iteration's record and vertices, the lowest-cost iterate
-    and the rejected landmarks at the end."""
+    and the landmark weights at the end."""
 
     records: list[IterationRecord]
     iterates: list[np.ndarray]
     best: Iterate
-    rejected: frozenset[int]
+    weights: np.ndarray | None
 
 
 @dataclass(frozen=True)
 class Refined:
     """Output of :func:`refine_final`: the result with its outlines, all records (the boosting
     ones and one per accepted refinement step), vertices per record, the returned record's
-    index and the rejected landmarks at the end."""
+    index and the landmark weights at the end (re-estimated at the returned fit)."""
 
     result: GsftResult
     outlines: dict[int, ModelOutline]
     records: list[IterationRecord]
     iterates: list[np.ndarray]
     best_index: int
-    rejected: frozenset[int]
+    weights: np.ndarray | None
 
 
 # -- 1. landmarks only ---------------------------------------------------------------------
 
 
-def landmark_solve(problem: Problem, rejected: frozenset[int]) -> GsftResult:
-    """G-SfT on the landmarks alone (rejected ones down-weighted)."""
-    return solve(problem.model, problem.landmark_rays(rejected), problem.options)
+def landmark_solve(problem: Problem, weights: np.ndarray | None) -> GsftResult:
+    """G-SfT on the landmarks alone, weighted by ``weights`` (None: all 1)."""
+    return solve(problem.model, weighted_landmark_rays(problem, weights), problem.options)
 
 
 def landmark_start(problem: Problem) -> Start:
-    """The landmark-only solve; with ``robust``, blunders are rejected one at a time by the
-    leave-one-out test until none is left."""
-    rejected: frozenset[int] = frozenset()
-    res = landmark_solve(problem, rejected)
-    while problem.options.robust:
-        bad = find_blunder(problem, res, problem.landmark_rays(rejected), rejected)
-        if bad is None:
-            break
-        rejected = rejected | {bad}
-        res = landmark_solve(problem, rejected)
+    """The landmark-only solve, every landmark weighing 1 (with few landmarks a blunder is
+    absorbed by the shape here; the outlines expose it during boosting)."""
+    res = landmark_solve(problem, None)
     problem.say(
         f"landmarks: {len(problem.landmarks)} observations, certificate {res.certificate:.1e}"
     )
-    return Start(res, rejected)
+    return Start(res)
 
 
 # -- 2. start choice -----------------------------------------------------------------------
 
 
-def rigid_mean_start(problem: Problem, result: GsftResult, rejected: frozenset[int]) -> GsftResult:
-    """The mean shape posed by the landmarks alone (6 parameters: tight), as a result."""
+def rigid_mean_start(
+    problem: Problem, result: GsftResult, weights: np.ndarray | None
+) -> GsftResult:
+    """The mean shape posed by the (weighted) landmarks alone (6 parameters: tight), as a
+    result."""
     model = problem.model
-    r = solve(problem.rigid_model(), problem.landmark_rays(rejected), problem.options)
+    rays = weighted_landmark_rays(problem, weights)
+    r = solve(problem.rigid_model(), rays, problem.options)
     return with_pose(
         result,
         r.rotation,
@@ -130,7 +136,7 @@ def rigid_mean_start(problem: Problem, result: GsftResult, rejected: frozenset[i
 
 def choose_start(problem: Problem, start: Start) -> Start:
     """Keep ``start``, or, when its relaxation is not tight (certificate above
-    ``certificate_flag``: few landmarks for the pose and all the modes make the rounded
+    ``start_certificate``: few landmarks for the pose and all the modes make the rounded
     solution unreliable), the rigid mean-shape start if its short boosted fit explains the
     outlines and landmarks better. The short fit of the start kept is returned with it."""
     opts = problem.options
@@ -138,25 +144,34 @@ def choose_start(problem: Problem, start: Start) -> Start:
     if (
         not problem.use_outlines
         or problem.model.n_modes == 0
-        or res.certificate <= opts.certificate_flag
+        or res.certificate <= opts.start_certificate
     ):
         return start
-    alt = rigid_mean_start(problem, res, start.rejected)
+    alt = rigid_mean_start(problem, res, start.weights)
     n = opts.consensus_iterations
-    full = boost(problem, res, start.rejected, n, detect=False).best
-    other = boost(problem, alt, start.rejected, n, detect=False).best
+    full = boost(problem, res, start.weights, n, detect=False).best
+    other = boost(problem, alt, start.weights, n, detect=False).best
     problem.say(f"start: landmark-only {full.cost:.3g}, rigid mean shape {other.cost:.3g}")
     if other.cost < full.cost:
-        return Start(alt, start.rejected, other)
-    return Start(res, start.rejected, full)
+        return Start(alt, start.weights, other)
+    return Start(res, start.weights, full)
 
 
-def start_from_landmarks(problem: Problem, rejected: frozenset[int]) -> Start:
-    """A fresh start without the ``rejected`` landmarks: solve, then :func:`choose_start`."""
-    return choose_start(problem, Start(landmark_solve(problem, rejected), rejected))
+def start_from_landmarks(problem: Problem, weights: np.ndarray | None) -> Start:
+    """A fresh start with the landmarks weighted by ``weights``: solve, then
+    :func:`choose_start`."""
+    return choose_start(problem, Start(landmark_solve(problem, weights), weights))
 
 
-# -- 3. consensus over leave-one-out starts -------------------------------------------------
+def _landmark_only_start(problem: Problem, start: Start) -> Start:
+    """``start`` with robust weights from the landmarks alone (graduated non-convexity without
+    outlines), re-solved with them when some landmark is rejected, then :func:`choose_start`."""
+    weights, _ = gnc_weights(problem, start.result, RayObservations.empty())
+    if not rejected_landmarks(problem, weights):
+        return choose_start(problem, start)
+    names = [problem.landmarks.names[i] for i in sorted(rejected_landmarks(problem, weights))]
+    problem.say(f"robust start: rejected {names}")
+    return start_from_landmarks(problem, weights)
 
 
 def _short_fit(problem: Problem, start: Start) -> Iterate:
@@ -164,45 +179,48 @@ def _short_fit(problem: Problem, start: Start) -> Iterate:
     if start.short_fit is not None:
         return start.short_fit
     n = problem.options.consensus_iterations
-    return boost(problem, start.result, start.rejected, n, detect=False).best
+    return boost(problem, start.result, start.weights, n, detect=False).best
 
 
-def landmark_consensus(problem: Problem, start: Start) -> Start:
-    """Reject the landmark whose omission explains the data best, if by a clear margin.
+def robust_start(problem: Problem, start: Start) -> Start:
+    """The start of the robust fit: the lowest robust cost over several starts.
 
-    A gross landmark error spoils the landmark-only start, and the outline fit then converges
-    from the wrong place; with few landmarks no single fit can tell which one is wrong. So
-    each landmark is left out in turn, a short boosted fit is run from that start, and the
-    hypothesis whose fit explains the outlines and the remaining landmarks best is kept if its
-    cost is below ``consensus_margin`` times the all-landmarks fit's. It costs (L + 1) short
-    fits, so it runs only when some landmark disagrees with the start by more than
-    ``consensus_trigger`` sigmas (and with outlines, >= 5 landmarks, no rejection yet).
+    The robust objective is not convex, and with few landmarks a blunder spoils the
+    landmark-only start so that the outline fit converges in the wrong basin, where every
+    landmark is a few pixels off and none stands out. So the starts are (a) the landmark-only
+    start with robust weights from the landmarks alone (:func:`.blunders.gnc_weights`) and,
+    with outlines and at least 5 landmarks, (b) each landmark-only start without one landmark;
+    each gets a short boosted fit (``consensus_iterations``). A start without a landmark is
+    taken when its robust cost (:func:`.blunders.robust_cost`: truncated landmark terms plus
+    the outline term) is below ``consensus_margin`` times that of (a) and the lowest: short
+    fits are not converged, and without the margin a start without a good landmark wins by
+    chance (measured: one out-of-span trial then rejected a good landmark and missed the
+    blunder). No landmark is rejected here: the boosting's reweighting decides that from the
+    chosen start.
     """
-    opts, lm = problem.options, problem.landmarks
-    err = problem.landmark_px_errors(start.result.vertices) / lm.sigma_px
-    chosen = choose_start(problem, start)
-    if not (
-        opts.robust
-        and problem.use_outlines
-        and not chosen.rejected
-        and len(lm) >= 5
-        and err.max() > opts.consensus_trigger
-    ):
+    if not problem.options.robust:
+        return choose_start(problem, start)
+    chosen = _landmark_only_start(problem, start)
+    n_lm = len(problem.landmarks)
+    if not (problem.use_outlines and n_lm >= 5):
         return chosen
-    base_cost = _short_fit(problem, chosen).cost
-    best: tuple[float, GsftResult, int] | None = None
-    for i in range(len(lm)):
-        fit = _short_fit(problem, start_from_landmarks(problem, frozenset({i})))
-        if best is None or fit.cost < best[0]:
-            best = (fit.cost, fit.result, i)
-    cost_i, result_i, i = best
-    problem.say(f"blunder consensus: best without {lm.names[i]}: {cost_i:.3g} / {base_cost:.3g}")
-    if cost_i < opts.consensus_margin * base_cost:
-        return Start(result_i, chosen.rejected | {i})
-    return chosen
+    fit = _short_fit(problem, chosen)
+    base_cost = robust_cost(problem, fit.result, fit.outlines)
+    best, best_cost, left_out = chosen, problem.options.consensus_margin * base_cost, None
+    for i in range(n_lm):
+        w = np.ones(n_lm)
+        w[i] = 0.0
+        alt = start_from_landmarks(problem, w)
+        fit = _short_fit(problem, alt)
+        cost = robust_cost(problem, fit.result, fit.outlines)
+        if cost < best_cost:
+            best, best_cost, left_out = alt, cost, i
+    if left_out is not None:
+        problem.say(f"robust start: the start without {problem.landmarks.names[left_out]}")
+    return Start(best.result, best.weights, best.short_fit)
 
 
-# -- 4. outline boosting -------------------------------------------------------------------
+# -- 3. outline boosting -------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -251,25 +269,34 @@ class _BoostState:
     """The boosting loop's state (private to :func:`boost`)."""
 
     result: GsftResult
-    rejected: frozenset[int]
+    weights: np.ndarray | None
     best: Iterate
+    tried: set[frozenset[int]]  # rejected sets boosting has (re)started from
     k: int = 0
     k_start: int = 0  # iteration of the last (re)start from a landmark-only solve
-    last_rejection: int = -1  # iteration of the last blunder rejection (-1: none yet)
     prev_key: frozenset | None = None
     prev_cost: float = np.inf
     n_matches: int = 0
 
+    def rejected(self, problem: Problem) -> frozenset[int]:
+        """The landmarks whose current weight is below ``rejection_weight``."""
+        if self.weights is None:
+            return frozenset()
+        return rejected_landmarks(problem, self.weights)
 
-def _restart_after_rejection(problem: Problem, s: _BoostState, bad: int) -> None:
-    """Start afresh without landmark ``bad``: the matches so far were found from a fit the
-    blunder had pulled away, and a fit from them stays near it. Earlier costs are not
-    comparable, so the best iterate is reset."""
-    s.rejected = s.rejected | {bad}
-    s.last_rejection = s.k_start = s.k + 1
-    s.result = start_from_landmarks(problem, s.rejected).result
+
+def _restart(problem: Problem, s: _BoostState, weights: np.ndarray) -> None:
+    """Start afresh from a landmark-only solve with ``weights``: the matches so far were found
+    from a fit that the landmarks now rejected (or taken back) had pulled, and a fit from them
+    stays near it. Earlier costs are not comparable, so the best iterate is reset."""
+    s.weights = weights
+    s.tried.add(s.rejected(problem))
+    s.k_start = s.k + 1
+    s.result = start_from_landmarks(problem, weights).result
     s.prev_key, s.prev_cost, s.n_matches = None, np.inf, 0
     s.best = Iterate(np.inf, 0, s.result)
+    names = [problem.landmarks.names[i] for i in sorted(s.rejected(problem))]
+    problem.say(f"robust weights: rejected {names or 'none'}; restarting from the landmarks")
 
 
 def _converged(problem: Problem, s: _BoostState, cost: float, max_iterations: int) -> bool:
@@ -282,26 +309,30 @@ def _converged(problem: Problem, s: _BoostState, cost: float, max_iterations: in
 
 
 def _boost_step(problem: Problem, s: _BoostState, outlines, detect: bool) -> bool:
-    """Match, re-solve and (once settled) test for a blunder; False when the matches are
-    those of the previous iteration (the same solution would come back)."""
-    matches = match_outlines(problem, s.result, outlines, s.k == s.k_start, s.rejected)
+    """Match, re-solve and (with ``detect``) re-estimate the landmark weights; False when the
+    matches are those of the previous iteration (the same solution would come back)."""
+    rejected = s.rejected(problem)
+    matches = match_outlines(problem, s.result, outlines, s.k == s.k_start, rejected)
     if matches.key == s.prev_key:
         return False
     s.prev_key, s.n_matches = matches.key, len(matches.key)
-    rays = RayObservations.concatenate([problem.landmark_rays(s.rejected), matches.rays])
+    lm = weighted_landmark_rays(problem, s.weights)
+    rays = RayObservations.concatenate([lm, matches.rays])
     s.result = solve(problem.model, rays, problem.options, start=s.result, warm=s.result)
-    settled = s.k - s.last_rejection >= 2  # the outline fit has had two updates since
-    if detect and settled:
-        bad = find_blunder(problem, s.result, rays, s.rejected)
-        if bad is not None:
-            _restart_after_rejection(problem, s, bad)
+    if detect:
+        weights, _ = gnc_weights(problem, s.result, matches.rays)
+        now = rejected_landmarks(problem, weights)
+        if now != rejected and now not in s.tried:
+            _restart(problem, s, weights)
+        else:
+            s.weights = weights
     return True
 
 
 def boost(
     problem: Problem,
     result: GsftResult,
-    rejected: frozenset[int],
+    weights: np.ndarray | None,
     max_iterations: int,
     *,
     detect: bool,
@@ -309,16 +340,21 @@ def boost(
     """Convex outline iterations from ``result`` (iteration 0 is ``result`` itself).
 
     Stops at ``max_iterations``, when the cost settles (``tol``) or when the matches repeat.
-    With ``detect``, a landmark blunder found once the fit has settled is rejected and the
-    boosting restarts from a landmark-only start without it.
+    With ``detect`` (and ``robust``), the landmark weights are re-estimated after every solve
+    (:func:`.blunders.gnc_weights`); when the set of rejected landmarks changes to one not
+    started from before, the boosting restarts from a landmark-only start with the new weights.
+    Without outlines the weights are estimated once from the landmarks alone.
     """
-    s = _BoostState(result, rejected, Iterate(np.inf, 0, result))
+    if detect and not problem.use_outlines:
+        weights, result = _landmarks_only_weights(problem, result)
+    s = _BoostState(result, weights, Iterate(np.inf, 0, result), set())
+    s.tried.add(s.rejected(problem))
     records: list[IterationRecord] = []
     iterates: list[np.ndarray] = []
     t_it = time.perf_counter()
     while True:
         outlines = problem.outlines(s.result) if problem.use_outlines else {}
-        cost = problem.cost(s.result, outlines, s.rejected)
+        cost = problem.cost(s.result, outlines, s.rejected(problem))
         iterates.append(s.result.vertices)
         records.append(
             IterationRecord(
@@ -338,17 +374,26 @@ def boost(
             f"outline iteration {s.k}: {s.n_matches} matches, cost {cost:.4g}, "
             f"certificate {s.result.certificate:.1e}"
         )
-    return BoostRun(records, iterates, s.best, s.rejected)
+    return BoostRun(records, iterates, s.best, s.weights)
 
 
-# -- 5. final refinement and re-admission ---------------------------------------------------
+def _landmarks_only_weights(problem: Problem, result: GsftResult) -> tuple[np.ndarray, GsftResult]:
+    """Robust weights from the landmarks alone, and the landmark-only solve with them (the
+    start itself when nothing is rejected)."""
+    weights, _ = gnc_weights(problem, result, RayObservations.empty())
+    if rejected_landmarks(problem, weights):
+        result = landmark_solve(problem, weights)
+    return weights, result
+
+
+# -- 4. final refinement and reweighting ---------------------------------------------------
 
 
 def refine_once(
     problem: Problem,
     result: GsftResult,
     outlines: dict[int, ModelOutline],
-    rejected: frozenset[int],
+    weights: np.ndarray | None,
     callback=None,
 ):
     """The local refinement (:func:`.outline_fit.refine_on_outlines`) from ``result``.
@@ -370,7 +415,7 @@ def refine_once(
         )
         for i, t in problem.targets.items()
     ]
-    lm = problem.landmark_rays(rejected)
+    lm = weighted_landmark_rays(problem, weights)
     fit = refine_on_outlines(
         problem.model,
         (result.rotation, result.translation, result.weights),
@@ -413,28 +458,34 @@ class _Recorder:
 
 
 def refine_final(problem: Problem, run: BoostRun) -> Refined:
-    """Refine the best convex iterate on the objective itself, then take back any rejected
-    landmark the refined fit reproduces within ``readmit_sigmas`` (it was rejected while the
-    fit was still far off) and refine again with it."""
+    """Refine the best convex iterate on the objective itself, then reweight the landmarks at
+    the refined fit (:func:`.blunders.reweight`, one IRLS step); when that changes the set of
+    rejected landmarks (a landmark rejected while the fit was still far off is taken back, or
+    one the refined fit contradicts is dropped) refine again with the new weights."""
     records, iterates = list(run.records), list(run.iterates)
     best = run.best
-    res, outlines, rejected = best.result, best.outlines, run.rejected
+    res, outlines, weights = best.result, best.outlines, run.weights
     if not (problem.use_outlines and problem.options.refine_iterations > 0):
-        return Refined(res, outlines, records, iterates, best.index, rejected)
+        return Refined(res, outlines, records, iterates, best.index, weights)
     record = _Recorder(problem, records, iterates, res.certificate)
-    res, fit = refine_once(problem, res, outlines, rejected, record)
+    res, fit = refine_once(problem, res, outlines, weights, record)
     problem.say(
         f"outline refinement: {fit.iterations} iterations, objective "
         f"{fit.cost_before:.4g} -> {fit.cost_after:.4g}"
     )
-    err = problem.landmark_px_errors(res.vertices) / problem.landmarks.sigma_px
-    back = frozenset(i for i in rejected if err[i] <= problem.options.readmit_sigmas)
-    if back:
-        rejected = rejected - back
-        names = [problem.landmarks.names[i] for i in sorted(back)]
-        problem.say(f"taken back: {names} (fit the final result)")
-        res, fit = refine_once(problem, res, problem.outlines(res), rejected, record)
+    before = rejected_landmarks(
+        problem, np.ones(len(problem.landmarks)) if weights is None else weights
+    )
+    if problem.options.robust:
+        weights = reweight(problem, res.vertices)
+        if rejected_landmarks(problem, weights) != before:
+            names = [
+                problem.landmarks.names[i] for i in sorted(rejected_landmarks(problem, weights))
+            ]
+            problem.say(f"reweighted at the refined fit: rejected {names or 'none'}")
+            res, fit = refine_once(problem, res, problem.outlines(res), weights, record)
+            weights = reweight(problem, res.vertices)
     best_index = best.index
     if records[-1].kind == "local":
         best_index, outlines = records[-1].index, problem.outlines(res)
-    return Refined(res, outlines, records, iterates, best_index, rejected)
+    return Refined(res, outlines, records, iterates, best_index, weights)

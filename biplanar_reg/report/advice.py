@@ -17,9 +17,10 @@ __all__ = ["FLAG_ADVICE", "flag_advice", "flag_kind"]
 #: Flag kind -> what to do about it (one line, plain text).
 FLAG_ADVICE: dict[str, str] = {
     "relaxation not tight": (
-        "The landmarks do not pin down one pose and shape: add landmarks (spread over the "
-        "bone, each in both views if possible) and check that every landmark's name is the "
-        "model landmark it marks (the model's landmarks file)."
+        "The convex relaxation's own answer is far from the returned fit, so the result rests "
+        "on the local refinement alone: add landmarks (spread over the bone, each in both "
+        "views if possible), check that every landmark's name is the model landmark it marks, "
+        "and trace more of each outline."
     ),
     "large landmark reprojection error": (
         "Landmarks and registered bone disagree by more than reprojection_flag_px: check the "
@@ -27,7 +28,8 @@ FLAG_ADVICE: dict[str, str] = {
         "for a landmark with a large error in one view only (swapped or misnamed click)."
     ),
     "rejected observations": (
-        "These landmark clicks disagree with all the others and were down-weighted: check "
+        "These landmark clicks disagree with the other landmarks and the outlines by far more "
+        "than the others do and were given weight 0 (landmark_weights in result.json): check "
         "each one's position and name in its view, then fix or delete it and register again."
     ),
     "local refinement did not converge": (

@@ -111,13 +111,13 @@ def test_a_landmark_blunder_is_flagged_and_does_not_wreck_the_result(model, seed
 
 
 def test_a_good_landmark_rejected_early_is_taken_back(model):
-    """Seed 17 (benchmarks/blunder.py, no blunder): the consensus over short fits rejects a good
-    landmark (its short fit without it looks better); the final fit agrees with that landmark
-    to 0.8 px, so the rejection is withdrawn and the result equals the non-robust fit."""
+    """Seed 17 (benchmarks/blunder.py, no blunder): the former consensus over short fits
+    rejected a good landmark here. With robust weights a landmark left out at the start or
+    rejected while the fit is far off gets its weight back from the reweighting of the
+    boosting or of the refined fit: nothing is rejected and the result equals the non-robust
+    fit."""
     views, X = _case(model, 17, frac=0.8, noise=0.5)
-    msgs: list[str] = []
-    robust = register_views(model, views, progress=msgs.append)
-    assert any(m.startswith("taken back") for m in msgs)  # the situation this test is about
+    robust = register_views(model, views)
     assert robust.rejected == [] and not any("rejected" in f for f in robust.flags)
     naive = register_views(model, views, options=RegistrationOptions(robust=False))
     assert _rms(robust.vertices, X) <= 1.05 * _rms(naive.vertices, X)

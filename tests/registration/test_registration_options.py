@@ -9,6 +9,7 @@ import dataclasses
 import math
 import re
 import shutil
+import warnings
 from pathlib import Path
 
 import pytest
@@ -16,19 +17,18 @@ from registration_problems import problem_for, with_blunder
 
 from biplanar_reg.cases import load_case, registration_options
 from biplanar_reg.registration import RegistrationOptions, register_views
-from biplanar_reg.registration.blunders import find_blunder
-from biplanar_reg.registration.rays import RayObservations
+from biplanar_reg.registration.options import DEPRECATED_OPTIONS, RENAMED_OPTIONS
 from biplanar_reg.registration.stages import (
     boost,
     choose_start,
-    landmark_consensus,
     landmark_start,
     match_outlines,
-    refine_final,
 )
 
 ROOT = Path(__file__).resolve().parents[2]
-FIELDS = {f.name: f for f in dataclasses.fields(RegistrationOptions)}
+OLD = {**DEPRECATED_OPTIONS, **RENAMED_OPTIONS}
+#: The current options (the deprecated ones, default None, are tested on their own below).
+FIELDS = {f.name: f for f in dataclasses.fields(RegistrationOptions) if f.name not in OLD}
 NONE: frozenset[int] = frozenset()
 
 #: Values outside each field's documented domain. Every non-bool field must be listed (a new
@@ -39,22 +39,21 @@ BAD = {
     "refine_iterations": [-1, 10_001],
     "silhouette_points": [2, 0, 100_001, 9223372036854775807],
     "gate_px": [0.0, -1.0, math.inf, math.nan],
-    "blunder_threshold": [0.0, -3.0, math.inf],
+    "robust_threshold": [0.0, -3.0, math.inf],
+    "rejection_weight": [0.0, 1.5, -0.1, math.nan],
+    "gnc_factor": [1.0, 0.5, math.inf, math.nan],
     "eps": [0.0, -1e-3, math.nan],
     "prior_weight": [-1.0, math.inf, math.nan],
     "tol": [0.0, -1e-4, math.nan],
     "contour_sigma_px": [0.0, -1.0, math.inf],
     "contour_spacing_px": [0.0, -5.0, math.nan],
     "match_floor_px": [0.0, -3.0, math.inf],
-    "max_rejected_fraction": [0.0, 1.5, -0.1, math.nan],
-    "blunder_contrast": [0.0, -3.0, math.nan],
     "blunder_refine_iterations": [0, -1, 10_001],
-    "consensus_trigger": [0.0, -1.0, math.inf],
     "consensus_iterations": [0, -1, 1001],
     "consensus_margin": [0.0, 1.01, math.nan],
-    "readmit_sigmas": [0.0, -3.0, math.nan],
-    "certificate_flag": [0.0, -1e-2, math.inf],
+    "start_certificate": [0.0, -1e-2, math.inf],
     "reprojection_flag_px": [0.0, -5.0, math.nan],
+    "relaxation_flag_px": [0.0, -5.0, math.nan],
     "end_margin_px": [-1.0, math.inf, math.nan],
     "max_tangent_angle_deg": [0.0, -10.0, 181.0, math.nan],
     "wide_gate_factor": [0.0, -2.0, math.inf],
@@ -82,7 +81,7 @@ def test_boundary_values_are_accepted():
         refine_iterations=0,
         silhouette_points=3,
         prior_weight=0.0,
-        max_rejected_fraction=1.0,
+        rejection_weight=1.0,
         consensus_margin=1.0,
         consensus_iterations=1,
         blunder_refine_iterations=1,
@@ -164,13 +163,13 @@ def test_every_field_is_in_cases_md_with_its_default(key):
 # -- case files ------------------------------------------------------------------------------
 
 
-def _other_value(default):
+def _other_value(key, default):
     """A valid value different from ``default``, of its type."""
     if isinstance(default, bool):
         return not default
     if isinstance(default, int):
         return default + 1
-    return default * 0.5
+    return default * (2.0 if key == "gnc_factor" else 0.5)  # gnc_factor must stay above 1
 
 
 def _toml(value) -> str:
@@ -178,16 +177,16 @@ def _toml(value) -> str:
 
 
 def test_every_field_is_a_registration_key():
-    table = {k: _other_value(f.default) for k, f in FIELDS.items()}
+    table = {k: _other_value(k, f.default) for k, f in FIELDS.items()}
     opts = registration_options(table)
-    assert dataclasses.asdict(opts) == table
+    assert {k: v for k, v in dataclasses.asdict(opts).items() if k in FIELDS} == table
     assert all(type(getattr(opts, k)) is type(v) for k, v in table.items())
 
 
 def test_a_case_file_accepts_every_field(tmp_path):
     case = tmp_path / "case"
     shutil.copytree(ROOT / "sample_cases" / "synthetic_demo", case)
-    values = {k: _other_value(f.default) for k, f in FIELDS.items()}
+    values = {k: _other_value(k, f.default) for k, f in FIELDS.items()}
     p = case / "case.toml"
     text = p.read_text(encoding="utf-8")
     assert "[registration]\n" in text
@@ -195,89 +194,59 @@ def test_a_case_file_accepts_every_field(tmp_path):
     p.write_text(text.replace("[registration]\n", "[registration]\n" + keys, 1), encoding="utf-8")
     c = load_case(case)
     assert c.warnings == []
-    assert dataclasses.asdict(c.options) == values
+    assert {k: v for k, v in dataclasses.asdict(c.options).items() if k in FIELDS} == values
 
 
 # -- behaviour -------------------------------------------------------------------------------
 
 
 @pytest.fixture(scope="module")
-def spoiled(model, views):
-    """View 1's first landmark 40 px off, and the landmark-only start it spoils."""
-    obs = with_blunder(views, 0, 0)
-    return obs, landmark_start(problem_for(model, obs))
-
-
-@pytest.fixture(scope="module")
 def good_fit(model, views):
-    """A boosted fit of the clean data (the blunder tests' refits start from it)."""
+    """A boosted fit of the clean data."""
     p = problem_for(model, views)
-    return boost(p, landmark_start(p).result, NONE, 3, detect=False).best.result
+    return boost(p, landmark_start(p).result, None, 3, detect=False).best.result
 
 
-def _consensus(model, obs, start, **options):
-    msgs: list[str] = []
-    p = problem_for(model, obs, RegistrationOptions(**options), say=msgs.append)
-    return landmark_consensus(p, start), msgs
+@pytest.mark.parametrize(("key", "new"), sorted(OLD.items()))
+def test_a_deprecated_option_still_loads_with_a_warning(key, new):
+    """The former heuristic blunder options: accepted (case files keep loading), with a
+    DeprecationWarning naming the replacement; ``certificate_flag`` sets ``start_certificate``."""
+    with pytest.warns(DeprecationWarning, match=rf"{key} is deprecated.*{new}"):
+        opts = registration_options({key: 0.5})
+    assert getattr(opts, key) is None
+    if key in RENAMED_OPTIONS:
+        assert getattr(opts, new) == 0.5
+    else:
+        assert dataclasses.replace(opts, **{key: None}) == RegistrationOptions()
+    if key in RENAMED_OPTIONS:  # a renamed option's value is checked as the new one's
+        with pytest.raises(ValueError, match=rf"^{new}: "), warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            RegistrationOptions(**{key: -1.0})
 
 
-def test_consensus_margin_tiny_rejects_nothing(model, spoiled):
-    obs, start = spoiled
-    out, msgs = _consensus(model, obs, start, consensus_margin=1e-6)
-    assert any(m.startswith("blunder consensus") for m in msgs)  # it ran ...
-    assert out.rejected == NONE  # ... and no hypothesis was that much better
+def test_robust_threshold_sets_which_landmark_counts_as_rejected(model, views):
+    """The blunder's weight falls with the loss's width; ``rejection_weight`` is the level."""
+    obs = with_blunder(views, 0, 0)
+    wide = register_views(model, obs, options=RegistrationOptions(robust_threshold=1e3))
+    assert wide.rejected == [] and min(wide.landmark_weights["cam1"].values()) > 0.99
+    off = register_views(model, obs, options=RegistrationOptions(robust=False))
+    assert off.rejected == [] and set(off.landmark_weights["cam1"].values()) == {1.0}
 
 
-def test_consensus_trigger_large_skips_the_consensus(model, spoiled):
-    obs, start = spoiled
-    out, msgs = _consensus(model, obs, start, consensus_trigger=1e6)
-    assert not any(m.startswith("blunder consensus") for m in msgs)
-    assert out.rejected == NONE
-
-
-def _blunder_test(model, views, good_fit, rejected, **options):
-    p = problem_for(model, with_blunder(views, 1, 1), RegistrationOptions(**options))
-    m = match_outlines(p, good_fit, p.outlines(good_fit), False, rejected)
-    rays = RayObservations.concatenate([p.landmark_rays(rejected), m.rays])
-    return find_blunder(p, good_fit, rays, rejected)
-
-
-def test_max_rejected_fraction_caps_the_rejections(model, views, good_fit):
-    """One landmark already rejected: the default cap (1 in 8, at least one) stops the test;
-    allowing half of the landmarks lets it find the blunder (index 4)."""
-    assert _blunder_test(model, views, good_fit, NONE) == 4
-    assert _blunder_test(model, views, good_fit, frozenset({0})) is None
-    assert _blunder_test(model, views, good_fit, frozenset({0}), max_rejected_fraction=0.5) == 4
-
-
-@pytest.mark.parametrize("options", [{"blunder_threshold": 1e3}, {"blunder_contrast": 1e3}])
-def test_blunder_thresholds_can_accept_the_blunder(model, views, good_fit, options):
-    assert _blunder_test(model, views, good_fit, NONE, **options) is None
-
-
-@pytest.mark.parametrize(("readmit", "rejected"), [(3.0, set()), (1e-3, {2})])
-def test_readmit_sigmas_decides_whether_a_rejected_landmark_comes_back(
-    model, views, readmit, rejected
-):
-    p = problem_for(model, views, RegistrationOptions(readmit_sigmas=readmit))
-    run = boost(p, landmark_start(p).result, frozenset({2}), 3, detect=False)
-    assert refine_final(p, run).rejected == frozenset(rejected)
-
-
-def test_certificate_flag_decides_the_start_choice(model, views):
+def test_start_certificate_decides_the_start_choice(model, views):
     p = problem_for(model, views)
     start = landmark_start(p)
     assert 1e-3 < start.result.certificate < 1.0
     assert choose_start(p, start).short_fit is not None  # default 1e-2: not tight, compared
-    loose = problem_for(model, views, RegistrationOptions(certificate_flag=1.0))
+    loose = problem_for(model, views, RegistrationOptions(start_certificate=1.0))
     assert choose_start(loose, start) is start
 
 
 @pytest.mark.parametrize(
     ("options", "flag", "present"),
     [
-        ({}, "relaxation not tight", True),
-        ({"certificate_flag": 1.0}, "relaxation not tight", False),
+        ({"relaxation_flag_px": 1e-3}, "relaxation not tight", True),
+        ({"relaxation_flag_px": 1e6}, "relaxation not tight", False),
         ({}, "large landmark reprojection error", False),
         ({"reprojection_flag_px": 1e-3}, "large landmark reprojection error", True),
     ],

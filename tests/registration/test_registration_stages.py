@@ -11,20 +11,25 @@ import pytest
 from registration_problems import clean_views, problem_for, with_blunder
 
 from biplanar_reg.registration import RegistrationOptions, register_views
-from biplanar_reg.registration.blunders import find_blunder, max_rejections
+from biplanar_reg.registration.blunders import (
+    gm_weights,
+    gnc_weights,
+    inlier_weights,
+    landmark_scale,
+    rejected_landmarks,
+    weighted_landmark_rays,
+)
 from biplanar_reg.registration.problem import solve
-from biplanar_reg.registration.rays import RayObservations
 from biplanar_reg.registration.stages import (
     BoostRun,
     Start,
     boost,
     choose_start,
-    landmark_consensus,
     landmark_start,
     match_outlines,
     refine_final,
     rigid_mean_start,
-    start_from_landmarks,
+    robust_start,
 )
 from biplanar_reg.registration.view_poses import estimate_view_poses
 
@@ -36,7 +41,7 @@ def clean(model, views):
     """The clean problem, its landmark start and a boosted run from it."""
     p = problem_for(model, views)
     start = landmark_start(p)
-    run = boost(p, start.result, NONE, p.options.max_iterations, detect=True)
+    run = boost(p, start.result, None, p.options.max_iterations, detect=True)
     return p, start, run
 
 
@@ -61,7 +66,7 @@ def test_landmark_start_is_the_landmark_solve_and_leaves_the_problem_alone(model
     p = problem_for(model, views)
     sigmas, uv = p.landmarks.rays.sigmas.copy(), views[0].landmark_uv.copy()
     start = landmark_start(p)
-    assert start.rejected == NONE and start.short_fit is None
+    assert start.weights is None and start.short_fit is None
     direct = solve(model, p.landmark_rays(NONE), p.options)
     np.testing.assert_allclose(start.result.vertices, direct.vertices, atol=1e-9)
     # landmark_rays builds new sigmas for the rejected ones: the problem's own stay put
@@ -70,23 +75,13 @@ def test_landmark_start_is_the_landmark_solve_and_leaves_the_problem_alone(model
     np.testing.assert_array_equal(views[0].landmark_uv, uv)
 
 
-def test_six_landmarks_are_too_few_to_test_a_blunder_at_the_start(blunder):
-    """With 6 landmark rays the leave-one-out test has no redundancy (< 2 (6 + 8) rays): the
-    blunder spoils the start, which is what the consensus stage is for."""
-    p, start = blunder
-    assert start.rejected == NONE
-    err = p.landmark_px_errors(start.result.vertices) / p.landmarks.sigma_px
-    assert err.max() > p.options.consensus_trigger
-    assert find_blunder(p, start.result, p.landmark_rays(NONE), NONE) is None
-
-
 # -- start choice ----------------------------------------------------------------------------
 
 
 def test_choose_start_keeps_a_tight_start_unchanged(model, views, clean):
     p, start, _ = clean
-    assert start.result.certificate > p.options.certificate_flag  # the default tries the other
-    loose = problem_for(model, views, RegistrationOptions(certificate_flag=1.0))
+    assert start.result.certificate > p.options.start_certificate  # the default tries the other
+    loose = problem_for(model, views, RegistrationOptions(start_certificate=1.0))
     assert choose_start(loose, start) is start
     no_outlines = problem_for(model, views, outlines=False)
     assert choose_start(no_outlines, start) is start
@@ -95,11 +90,11 @@ def test_choose_start_keeps_a_tight_start_unchanged(model, views, clean):
 def test_choose_start_returns_the_better_short_fit(clean):
     p, start, _ = clean
     chosen = choose_start(p, start)
-    assert chosen.rejected == start.rejected and chosen.short_fit is not None
+    assert chosen.weights is start.weights and chosen.short_fit is not None
     n = p.options.consensus_iterations
-    own = boost(p, start.result, NONE, n, detect=False).best
-    rigid = rigid_mean_start(p, start.result, NONE)
-    other = boost(p, rigid, NONE, n, detect=False).best
+    own = boost(p, start.result, None, n, detect=False).best
+    rigid = rigid_mean_start(p, start.result, None)
+    other = boost(p, rigid, None, n, detect=False).best
     assert chosen.short_fit.cost == pytest.approx(min(own.cost, other.cost), rel=1e-12)
     kept = rigid if other.cost < own.cost else start.result
     np.testing.assert_allclose(chosen.result.vertices, kept.vertices, atol=1e-9)
@@ -108,36 +103,37 @@ def test_choose_start_returns_the_better_short_fit(clean):
 
 def test_rigid_mean_start_is_the_posed_mean_shape(model, clean):
     p, start, _ = clean
-    r = rigid_mean_start(p, start.result, NONE)
+    r = rigid_mean_start(p, start.result, None)
     np.testing.assert_array_equal(r.weights, np.zeros(model.n_modes))
     np.testing.assert_allclose(r.rotation @ r.rotation.T, np.eye(3), atol=1e-9)
     np.testing.assert_allclose(r.vertices, model.mean @ r.rotation.T + r.translation, atol=1e-9)
 
 
-# -- consensus -------------------------------------------------------------------------------
+# -- robust start ----------------------------------------------------------------------------
 
 
-def test_landmark_consensus_rejects_a_blunder_that_spoils_the_start(blunder):
+def test_robust_start_rejects_a_blunder_that_spoils_the_start(blunder):
     p, start = blunder
     before = start.result.vertices.copy()
-    out = landmark_consensus(p, start)
-    assert out.rejected == frozenset({0})
-    assert start.rejected == NONE  # input unchanged
+    out = robust_start(p, start)
+    assert rejected_landmarks(p, out.weights) == frozenset({0})
+    assert start.weights is None  # input unchanged
     np.testing.assert_array_equal(start.result.vertices, before)
     # the new start ignores the blunder (it is its 40 px off) and fits the other landmarks
-    # much better than the spoiled start (up to 16 px there)
+    # much better than the spoiled start
     err = p.landmark_px_errors(out.result.vertices)
     spoiled = p.landmark_px_errors(start.result.vertices)
     assert err[0] > 30.0 and np.max(err[1:]) < 0.5 * np.max(spoiled[1:])
 
 
-def test_landmark_consensus_is_the_start_choice_on_clean_data(clean):
+def test_robust_start_rejects_nothing_in_the_end_on_clean_data(clean):
+    """The robust start may begin without a landmark (its short fit was cheaper); the
+    boosting's reweighting takes it back and nothing is rejected."""
     p, start, _ = clean
-    err = p.landmark_px_errors(start.result.vertices) / p.landmarks.sigma_px
-    assert err.max() < p.options.consensus_trigger  # the consensus is not triggered
-    out = landmark_consensus(p, start)
-    assert out.rejected == NONE
-    np.testing.assert_allclose(out.result.vertices, choose_start(p, start).result.vertices)
+    out = robust_start(p, start)
+    assert out.short_fit is not None and len(rejected_landmarks(p, out.weights)) <= 1
+    run = boost(p, out.result, out.weights, p.options.max_iterations, detect=True)
+    assert rejected_landmarks(p, refine_final(p, run).weights) == NONE
 
 
 # -- boosting --------------------------------------------------------------------------------
@@ -145,13 +141,15 @@ def test_landmark_consensus_is_the_start_choice_on_clean_data(clean):
 
 def test_boost_without_iterations_returns_the_start(clean):
     p, start, _ = clean
-    run = boost(p, start.result, frozenset({1}), 0, detect=True)
+    w = np.ones(len(p.landmarks))
+    w[1] = 0.0
+    run = boost(p, start.result, w, 0, detect=True)
     assert isinstance(run, BoostRun) and len(run.records) == 1 and len(run.iterates) == 1
     rec = run.records[0]
     assert (rec.index, rec.kind, rec.n_matches) == (0, "sdp", 0)
     assert rec.cost == pytest.approx(p.cost(start.result, p.outlines(start.result), {1}))
     assert run.best.result is start.result and run.best.index == 0
-    assert run.best.cost == rec.cost and run.rejected == frozenset({1})
+    assert run.best.cost == rec.cost and run.weights is w
     np.testing.assert_array_equal(run.iterates[0], start.result.vertices)
 
 
@@ -162,28 +160,24 @@ def test_boost_records_are_consecutive_and_its_best_is_the_lowest_cost(clean):
     assert all(r.kind == "sdp" for r in run.records) and len(run.iterates) == len(idx)
     assert all(r.n_matches > 50 for r in run.records[1:])
     costs = [r.cost for r in run.records]
-    assert run.rejected == NONE and run.best.cost == min(costs)
+    assert rejected_landmarks(p, run.weights) == NONE and run.best.cost == min(costs)
     assert run.best.cost < 0.5 * costs[0]  # the outlines help
     np.testing.assert_array_equal(run.best.result.vertices, run.iterates[run.best.index])
     assert set(run.best.outlines) == set(p.targets)
 
 
 def test_boost_restarts_without_a_blunder_it_detects(blunder):
-    """From the spoiled start, boosting with detection rejects the blunder once the fit has
-    settled and restarts from a landmark-only start without it (a record with no matches);
-    the best iterate is the lowest-cost one since that restart."""
+    """From the spoiled start, boosting's reweighting rejects the blunder and restarts from a
+    landmark-only start with the new weights (a record with no matches); the best iterate is
+    the lowest-cost one since that restart."""
     p, start = blunder
-    rejected = NONE
-    run = boost(p, start.result, rejected, p.options.max_iterations, detect=True)
-    assert rejected == NONE and run.rejected == frozenset({0})
+    run = boost(p, start.result, None, p.options.max_iterations, detect=True)
+    assert rejected_landmarks(p, run.weights) == frozenset({0})
     assert [r.index for r in run.records] == list(range(len(run.records)))
     restarts = [r.index for r in run.records if r.n_matches == 0]
     assert restarts[0] == 0 and len(restarts) == 2
     k = restarts[-1]
-    fresh = start_from_landmarks(p, run.rejected).result
-    np.testing.assert_allclose(run.iterates[k], fresh.vertices, atol=1e-9)
-    costs = [r.cost for r in run.records]
-    assert run.best.index >= k and run.best.cost == min(costs[k:])
+    assert run.best.index >= k and run.best.cost == min(r.cost for r in run.records[k:])
     assert run.best.cost == run.records[run.best.index].cost
 
 
@@ -217,30 +211,45 @@ def test_match_outlines_first_matching_keeps_every_match_in_the_gate(clean):
     assert narrow.key <= wide.key and len(narrow.key) > 0.8 * len(wide.key)
 
 
-# -- blunders --------------------------------------------------------------------------------
+# -- robust weights --------------------------------------------------------------------------
 
 
-def _rays_of_fit(p, result, rejected=NONE):
-    m = match_outlines(p, result, p.outlines(result), False, rejected)
-    return RayObservations.concatenate([p.landmark_rays(rejected), m.rays])
+def test_gm_weights_grade_from_nearly_quadratic_to_the_loss(clean):
+    e = np.array([0.0, 1.0, 3.0, 5.8, 6.0, 40.0])
+    w = gm_weights(e, 4.0)
+    np.testing.assert_allclose(w, (16.0 / (16.0 + e**2)) ** 2)
+    assert np.all(np.diff(w) < 0) and w[0] == 1.0
+    assert np.all(gm_weights(e, 4.0, 2.0 * 40.0**2 / 16.0) >= 4.0 / 9.0 - 1e-12)  # GNC's start
+    p = clean[0]  # rejection_weight 0.1: rejected beyond 1.47 c
+    np.testing.assert_array_equal(inlier_weights(p, gm_weights(e, 4.0)), [1, 1, 1, 1, 0, 0])
 
 
-def test_find_blunder_names_a_40_px_blunder_and_nothing_on_clean_data(model, views, clean):
+def test_landmark_scale_is_the_rayleigh_median_at_least_one():
+    rng = np.random.default_rng(0)
+    e = np.linalg.norm(rng.normal(scale=3.0, size=(20_000, 2)), axis=1)
+    assert landmark_scale(e) == pytest.approx(3.0, rel=0.03)
+    assert landmark_scale(np.array([0.1, 0.2, 0.3])) == 1.0
+    assert landmark_scale(np.r_[np.full(5, 2.0), 1e6]) == pytest.approx(2.0 / 1.1774, rel=1e-3)
+
+
+def test_gnc_weights_drop_a_40_px_blunder_and_keep_clean_landmarks(model, views, clean):
     p, _, run = clean
-    res = run.best.result  # a good fit: the refits start near the truth
-    assert find_blunder(p, res, _rays_of_fit(p, res), NONE) is None
+    res = run.best.result  # a good fit: the reweighting starts near the truth
+    m = match_outlines(p, res, p.outlines(res), False, NONE)
+    w, _ = gnc_weights(p, res, m.rays)
+    np.testing.assert_array_equal(w, np.ones(len(p.landmarks)))
     bad = problem_for(model, with_blunder(views, 1, 1))  # landmark index 3 + 1
-    assert find_blunder(bad, res, _rays_of_fit(bad, res), NONE) == 4
-    # a rejected landmark is not tested again (and the cap of one is reached)
-    assert find_blunder(bad, res, _rays_of_fit(bad, res, frozenset({4})), frozenset({4})) is None
+    w, _ = gnc_weights(bad, res, m.rays)
+    assert rejected_landmarks(bad, w) == frozenset({4}) and np.all(np.delete(w, 4) == 1.0)
 
 
-@pytest.mark.parametrize(
-    ("n", "fraction", "cap"),
-    [(0, 0.125, 1), (6, 0.125, 1), (15, 0.125, 1), (16, 0.125, 2), (24, 0.25, 6), (5, 1.0, 5)],
-)
-def test_max_rejections(n, fraction, cap):
-    assert max_rejections(n, fraction) == cap
+def test_weighted_landmark_rays_divide_the_sigmas_by_the_root_weight(clean):
+    p = clean[0]
+    w = np.linspace(0.0, 1.0, len(p.landmarks))
+    sig = weighted_landmark_rays(p, w).sigmas
+    base = p.landmark_rays(NONE).sigmas
+    np.testing.assert_allclose(sig[1:], base[1:] / np.sqrt(w[1:]))
+    assert sig[0] == pytest.approx(base[0] * p.options.rejected_sigma_factor)  # floored weight
 
 
 # -- final refinement ------------------------------------------------------------------------
@@ -256,7 +265,8 @@ def test_refine_final_never_increases_the_objective(clean):
     assert local and all(r.kind == "local" for r in local)
     assert [r.index for r in fin.records] == list(range(len(fin.records)))
     assert np.all(np.diff([r.cost for r in local]) <= 0)
-    assert fin.best_index == fin.records[-1].index and fin.rejected == NONE
+    assert fin.best_index == fin.records[-1].index
+    np.testing.assert_array_equal(fin.weights, np.ones(len(p.landmarks)))
     assert len(fin.iterates) == len(fin.records)
     np.testing.assert_allclose(fin.iterates[-1], fin.result.vertices, atol=1e-9)
 
@@ -270,17 +280,18 @@ def test_refine_final_without_iterations_returns_the_best_iterate(model, views, 
 
 
 def test_refine_final_takes_back_a_wrongly_rejected_landmark(model, views, clean):
-    """A good landmark (index 2) rejected: the final fit reproduces it within
-    ``readmit_sigmas``, so it is taken back and the refinement repeated with it."""
+    """A good landmark (index 2) weighted 0: the reweighting at the refined fit finds it
+    within the truncation, gives it weight 1 and refines again with it."""
     _, start, _ = clean
     msgs: list[str] = []
     p = problem_for(model, views, say=msgs.append)
-    run = boost(p, start.result, frozenset({2}), p.options.max_iterations, detect=False)
+    w = np.ones(len(p.landmarks))
+    w[2] = 0.0
+    run = boost(p, start.result, w, p.options.max_iterations, detect=False)
     fin = refine_final(p, run)
-    assert run.rejected == frozenset({2}) and fin.rejected == NONE
-    assert any(m.startswith("taken back") and "v" in m for m in msgs)
-    err = p.landmark_px_errors(fin.result.vertices) / p.landmarks.sigma_px
-    assert err[2] <= p.options.readmit_sigmas
+    assert rejected_landmarks(p, run.weights) == frozenset({2})
+    np.testing.assert_array_equal(fin.weights, np.ones(len(p.landmarks)))
+    assert any(m.startswith("reweighted at the refined fit: rejected none") for m in msgs)
     # each refinement's objective never increases; the one rise is the re-admission (the
     # objective gains the landmark's term)
     local = np.array([r.cost for r in fin.records if r.kind == "local"])
@@ -296,8 +307,8 @@ def _composed(model, views, poses):
     if poses != "known":
         views = estimate_view_poses(model, views, poses, opts).views
     p = problem_for(model, views, opts)
-    start = landmark_consensus(p, landmark_start(p))
-    run = boost(p, start.result, start.rejected, opts.max_iterations, detect=opts.robust)
+    start = robust_start(p, landmark_start(p))
+    run = boost(p, start.result, start.weights, opts.max_iterations, detect=opts.robust)
     return p, refine_final(p, run)
 
 
@@ -313,7 +324,10 @@ def test_register_views_is_the_composition_of_the_stages(model, views, kind, pos
     np.testing.assert_allclose(res.vertices, fin.result.vertices, rtol=0, atol=1e-9)
     _same_records(res.iterations, fin.records)
     assert res.best_iteration == fin.best_index
-    assert res.rejected == [p.landmarks.names[i] for i in sorted(fin.rejected)]
+    rejected = rejected_landmarks(p, fin.weights)
+    assert res.rejected == [p.landmarks.names[i] for i in sorted(rejected)]
+    weights = [w for per_view in res.landmark_weights.values() for w in per_view.values()]
+    np.testing.assert_allclose(weights, fin.weights)
     assert res.rejected == ([] if kind == "clean" else [("cam1", views[0].landmark_names[0])])
 
 
@@ -321,4 +335,4 @@ def test_start_is_frozen(clean):
     _, start, _ = clean
     assert isinstance(start, Start)
     with pytest.raises(AttributeError):
-        start.rejected = frozenset({1})  # type: ignore[misc]
+        start.weights = None  # type: ignore[misc]

@@ -187,12 +187,12 @@ def test_advice_covers_every_flag_the_registration_raises():
     assert kinds <= set(FLAG_ADVICE), kinds - set(FLAG_ADVICE)
     # and at run time: every flag raised at once, each with its own advice
     problem = SimpleNamespace(
-        options=SimpleNamespace(certificate_flag=0.0, reprojection_flag_px=0.0),
+        options=SimpleNamespace(relaxation_flag_px=0.0, reprojection_flag_px=0.0),
         landmarks=SimpleNamespace(names=[("cam1", "tip"), ("cam2", "head")]),
         landmark_px_errors=lambda vertices: [3.0, 40.0],
     )
     res = SimpleNamespace(certificate=0.5, refine_converged=False, vertices=None)
-    flags = register._flags(problem, res, frozenset({1}))
+    flags = register._flags(problem, res, frozenset({1}), gap=1.0)
     assert len(flags) == 4
     advice = [flag_advice(f) for f in flags]
     assert len(set(advice)) == 4 and all(a in FLAG_ADVICE.values() for a in advice)
