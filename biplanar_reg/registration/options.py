@@ -125,6 +125,11 @@ class RegistrationOptions:
     rejected_sigma_factor : float
         A rejected landmark's sigma is multiplied by this (>= 1): it no longer pulls the fit,
         and the problem keeps its size (one structure for every solve).
+    pose_sigma_deg, pose_sigma_mm : float
+        ``poses = "refine"``: the expected error of each non-gauge view's calibration, rotation
+        (degrees) and source position (mm): the standard deviations of the Gaussian prior on
+        the corrections in the joint refinement of the views on the outlines
+        (:mod:`.view_poses`).
     """
 
     landmark_weight: float = 0.5
@@ -154,6 +159,8 @@ class RegistrationOptions:
     max_tangent_angle_deg: float = 45.0
     wide_gate_factor: float = 2.0
     rejected_sigma_factor: float = 1e3
+    pose_sigma_deg: float = 2.0
+    pose_sigma_mm: float = 5.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
