@@ -684,7 +684,14 @@ def _refine(
         replace(_refine_from(model, rays, start, prior_weight, max_iter), start=i)
         for i, start in enumerate(starts)
     ]
-    return sorted(fits, key=lambda f: f.cost_after)
+    if len(fits) == 1:
+        return fits
+    # each fit estimated its own common sigma (when none was given), and its cost is then
+    # about half its degrees of freedom whatever its residuals: compare them all with the
+    # first start's sigmas
+    sig = fits[0].sigmas
+    common = [r.with_sigmas(s) for r, s in zip(rays, sig, strict=True)]
+    return sorted(fits, key=lambda f: joint_cost(model, common, f.state, prior_weight))
 
 
 def _unrefined(
