@@ -51,7 +51,8 @@ def scene(model: ShapeModel, seed: int):
     for k, n in enumerate(COUNTS):
         tilt = np.deg2rad(rng.uniform(25, 50))
         az = np.deg2rad(120 * k + rng.uniform(-20, 20))
-        src = SOURCE_MM * np.array([np.sin(tilt) * np.cos(az), np.sin(tilt) * np.sin(az), np.cos(tilt)])
+        direction = [np.sin(tilt) * np.cos(az), np.sin(tilt) * np.sin(az), np.cos(tilt)]
+        src = SOURCE_MM * np.array(direction)
         view = look_at_view(src, np.zeros(3), up=(0.0, 0.0, 1.0) if k else (0.0, 1.0, 0.0))
         sel = ids[start : start + n]
         start += n
@@ -90,18 +91,30 @@ def main(n_seeds: int) -> None:
         plain = solve_gsft_unknown_poses(model, rays, refine=False)
         from biplanar_reg.registration import unknown_poses as up
 
-        fit = up._refine(model, rays, [(plain.object_rotations, plain.object_translations,
-                                        plain.weights)], 1.0, 50)[0]
+        fit = up._refine(
+            model,
+            rays,
+            [(plain.object_rotations, plain.object_translations, plain.weights)],
+            1.0,
+            50,
+        )[0]
         Rs, ts, _ = fit.state
         rel = np.array([Rs[x] @ Rs[0].T for x in range(len(Rs))])
         X1 = X @ views[0].R.T + views[0].t
-        e = (max_rotation_error(views, res.sdp_view_rotations), max_rotation_error(views, rel),
-             max_rotation_error(views, res.view_rotations))
+        e = (
+            max_rotation_error(views, res.sdp_view_rotations),
+            max_rotation_error(views, rel),
+            max_rotation_error(views, res.view_rotations),
+        )
         worst.append(e[2])
-        print(f"| {seed} | {e[0]:.1f} | {e[1]:.1f} | {e[2]:.2f} | {res.start} | "
-              f"{aligned_rms(res.vertices, X1):.2f} |")
-    print(f"\nlargest result view-rotation error: {max(worst):.2f} deg; median "
-          f"{np.median(worst):.2f} deg")
+        print(
+            f"| {seed} | {e[0]:.1f} | {e[1]:.1f} | {e[2]:.2f} | {res.start} | "
+            f"{aligned_rms(res.vertices, X1):.2f} |"
+        )
+    print(
+        f"\nlargest result view-rotation error: {max(worst):.2f} deg; median "
+        f"{np.median(worst):.2f} deg"
+    )
 
 
 if __name__ == "__main__":

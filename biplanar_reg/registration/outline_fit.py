@@ -179,7 +179,7 @@ class PosePrior:
     sigma_mm: float
 
 
-def _prior_residuals(Rs, ts, prior: PosePrior | None) -> np.ndarray:
+def prior_residuals(Rs, ts, prior: PosePrior | None) -> np.ndarray:
     """The residuals of :class:`PosePrior` (6 per non-gauge view), empty without one."""
     if prior is None or len(Rs) == 1:
         return np.zeros(0)
@@ -196,10 +196,10 @@ def _prior_residuals(Rs, ts, prior: PosePrior | None) -> np.ndarray:
 
 
 def _prior_jacobian(state, prior: PosePrior | None, n_cols: int) -> np.ndarray:
-    """Forward-difference Jacobian of :func:`_prior_residuals` (only 12 columns per row block
+    """Forward-difference Jacobian of :func:`prior_residuals` (only 12 columns per row block
     are non-zero: the view's pose and the gauge's; the rest of the problem is analytic)."""
     Rs, ts, w = state
-    r0 = _prior_residuals(Rs, ts, prior)
+    r0 = prior_residuals(Rs, ts, prior)
     J = np.zeros((len(r0), n_cols))
     if len(r0) == 0:
         return J
@@ -208,7 +208,7 @@ def _prior_jacobian(state, prior: PosePrior | None, n_cols: int) -> np.ndarray:
         step = np.zeros(n_cols)
         step[col] = h
         R1, t1, _ = _retract_poses(state, step)
-        J[:, col] = (_prior_residuals(R1, t1, prior) - r0) / h
+        J[:, col] = (prior_residuals(R1, t1, prior) - r0) / h
     return J
 
 
@@ -325,7 +325,7 @@ def refine_poses_on_outlines(
                     parts.append(_outline_terms(model, term, smp, V, Qall, Rs[g], ts[g], he))
                     groups.append(g)
         r = [p.residuals.ravel() for p in parts]
-        rvec = np.concatenate([*r, sqrt_lam * w, _prior_residuals(Rs, ts, prior)])
+        rvec = np.concatenate([*r, sqrt_lam * w, prior_residuals(Rs, ts, prior)])
         return rvec, ((parts, groups), sum(p.n_active for p in parts))
 
     def jacobian(state, aux):
