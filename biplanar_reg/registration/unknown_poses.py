@@ -187,9 +187,9 @@ class UnknownPosesResult:
         Seconds: ``build``, ``solve``, ``refine``, ``total``.
     candidate_object_rotations, candidate_object_translations : lists of (P, 3, 3), (P, 3)
         The other refined starts' object poses in every view's frame, lowest cost first,
-        distinct from the result's and from each other (a view rotation differing by more than 2 deg): when the
-        observations cannot tell mirror-ambiguous poses apart (e.g. 3 points per view), a
-        caller with more information (outlines) chooses among them.
+        distinct from the result's and from each other (a view rotation differing by more
+        than 2 deg): when the observations cannot tell mirror-ambiguous poses apart (e.g. 3
+        points per view), a caller with more information (outlines) chooses among them.
     """
 
     vertices: np.ndarray

@@ -75,6 +75,7 @@ def test_too_few_landmarks_for_pose_estimation_is_a_clear_error(scene):
             landmark_ids=v.landmark_ids[:3],
             landmark_uv=v.landmark_uv[:3],
             landmark_sigma_px=v.landmark_sigma_px[:3],
+            contours=[],  # with outlines 3 per view do: test_pose_modes.py
         )
         for v in views
     ]
