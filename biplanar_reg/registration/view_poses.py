@@ -27,7 +27,7 @@ from ..ssm.model import ShapeModel
 from .gsft import GsftResult
 from .observations import ViewObservations
 from .options import RegistrationOptions
-from .outline_fit import OutlineTerm, PosePrior, prior_residuals, refine_poses_on_outlines
+from .outline_fit import OutlineTerm, PosePrior, refine_poses_on_outlines
 from .problem import Problem, with_pose
 from .rays import RayObservations
 from .rotations import rotation_angle
@@ -153,15 +153,6 @@ def _joint_terms(problem: Problem) -> list[OutlineTerm]:
     ]
 
 
-#: A landmark start whose implied calibration correction exceeds this many prior sigmas in
-#: some component is not refined (``refine``): the prior would reject it anyway.
-FAR_SIGMAS = 6.0
-
-
-def _far(state, prior: PosePrior) -> bool:
-    return bool(np.max(np.abs(prior_residuals(state[0], state[1], prior))) > FAR_SIGMAS)
-
-
 def _in_front(problem: Problem, state) -> bool:
     """Whether every view sees its posed model in front of its source (a mirror candidate
     may not)."""
@@ -200,8 +191,6 @@ def refine_views_on_outlines(
     terms = _joint_terms(problem)
     for i, start in enumerate([(*tiled, result.weights), *starts]):
         if not _in_front(problem, start):
-            continue
-        if i > 0 and pose_prior is not None and _far(start, pose_prior):
             continue
         fit = refine_poses_on_outlines(
             problem.model,
