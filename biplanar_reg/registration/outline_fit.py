@@ -229,6 +229,37 @@ def _landmark_part(model, landmarks, sel, R, t, w, Qall, V) -> _Linearised:
     return _Linearised(res, Qall[ids], model.modes[:, ids], B, inv, 0)
 
 
+def _view_depths(model, outlines, pose_of_view, state) -> np.ndarray:
+    """Every outline view's nearest model depth (mm; inf for a view without a source)."""
+    Rs, ts, w = (np.asarray(a, dtype=float) for a in state)
+    Q = model.instance(w)
+    z = []
+    for term in outlines:
+        g = pose_of_view[term.index]
+        has_source = hasattr(term.view, "centre")
+        z.append(np.min(term.view.to_camera(Q @ Rs[g].T + ts[g])[:, 2]) if has_source else np.inf)
+    return np.array(z)
+
+
+def _stacked_jacobian(state, parts_groups, M: int, sqrt_lam: float, prior) -> np.ndarray:
+    """The Jacobian of :func:`refine_poses_on_outlines`' residuals: each part's pose-and-shape
+    block in its group's pose columns and the shared shape columns, the shape prior's rows
+    and the pose prior's."""
+    parts, groups = parts_groups
+    Rs = state[0]
+    G = len(Rs)
+    blocks = []
+    for p, g in zip(parts, groups, strict=True):
+        Jp = pose_shape_jacobian(Rs[g], p.points, p.modes, p.bases, p.inv_sigma, 0.0, M)
+        J = np.zeros((len(p.points) * 2, 6 * G + M))
+        J[:, 6 * g : 6 * g + 6] = Jp[: 2 * len(p.points), :6]
+        J[:, 6 * G :] = Jp[: 2 * len(p.points), 6:]
+        blocks.append(J)
+    Jw = np.zeros((M, 6 * G + M))
+    Jw[:, 6 * G :] = sqrt_lam * np.eye(M)
+    return np.vstack([*blocks, Jw, _prior_jacobian(state, prior, 6 * G + M)])
+
+
 def refine_poses_on_outlines(
     model: ShapeModel,
     start: tuple[np.ndarray, np.ndarray, np.ndarray],
@@ -283,29 +314,12 @@ def refine_poses_on_outlines(
         q = term.target.points[term.target.usable]
         samples.append((q, *term.view.rays(q)))
 
-    def depths(state):
-        """Every view's nearest model depth (mm; inf for a view without a source)."""
-        Rs, ts, w = state
-        Q = model.instance(w)
-        return np.array(
-            [
-                np.min(
-                    term.view.to_camera(
-                        Q @ Rs[pose_of_view[term.index]].T + ts[pose_of_view[term.index]]
-                    )[:, 2]
-                )
-                if hasattr(term.view, "centre")
-                else np.inf
-                for term in outlines
-            ]
-        )
-
-    z0 = depths(tuple(np.asarray(a, dtype=float) for a in start))
+    z0 = _view_depths(model, outlines, pose_of_view, start)
 
     def residuals(state):
         # a trial step that halves or doubles a view's depth (or puts the bone behind its
         # source) is rejected before its outline is computed: its projection may be huge
-        z = depths(state)
+        z = _view_depths(model, outlines, pose_of_view, state)
         if np.any(~np.isinf(z0) & ((z < 0.5 * z0) | (z > 2.0 * z0))):
             return np.array([np.inf]), None
         return _evaluate(state)
@@ -329,18 +343,7 @@ def refine_poses_on_outlines(
         return rvec, ((parts, groups), sum(p.n_active for p in parts))
 
     def jacobian(state, aux):
-        (parts, groups), _ = aux
-        Rs = state[0]
-        blocks = []
-        for p, g in zip(parts, groups, strict=True):
-            Jp = pose_shape_jacobian(Rs[g], p.points, p.modes, p.bases, p.inv_sigma, 0.0, M)
-            J = np.zeros((len(p.points) * 2, 6 * G + M))
-            J[:, 6 * g : 6 * g + 6] = Jp[: 2 * len(p.points), :6]
-            J[:, 6 * G :] = Jp[: 2 * len(p.points), 6:]
-            blocks.append(J)
-        Jw = np.zeros((M, 6 * G + M))
-        Jw[:, 6 * G :] = sqrt_lam * np.eye(M)
-        return np.vstack([*blocks, Jw, _prior_jacobian(state, prior, 6 * G + M)])
+        return _stacked_jacobian(state, aux[0], M, sqrt_lam, prior)
 
     state0 = tuple(np.array(a, dtype=float) for a in start)
     (Rs, ts, w), cost0, cost, iterations, converged = levenberg_marquardt(
