@@ -27,7 +27,7 @@ from ..ssm.model import ShapeModel
 from .gsft import GsftResult
 from .observations import ViewObservations
 from .options import RegistrationOptions
-from .outline_fit import OutlineTerm, PosePrior, refine_poses_on_outlines
+from .outline_fit import OutlineTerm, PosePrior, prior_residuals, refine_poses_on_outlines
 from .problem import Problem, with_pose
 from .rays import RayObservations
 from .rotations import rotation_angle
@@ -153,6 +153,18 @@ def _joint_terms(problem: Problem) -> list[OutlineTerm]:
     ]
 
 
+#: ``refine``: a fit from a landmark start is kept only when every component of its
+#: calibration correction is within this many prior sigmas (the fit from the registration
+#: with the given calibrations is always a candidate). The outline objective sums hundreds of
+#: correlated samples, so a wrong start's better outline fit can outweigh the prior's cost.
+MAX_CORRECTION_SIGMAS = 3.0
+
+
+def _implausible(fit, prior: PosePrior) -> bool:
+    r = prior_residuals(fit.rotations, fit.translations, prior)
+    return bool(np.max(np.abs(r)) > MAX_CORRECTION_SIGMAS)
+
+
 def _in_front(problem: Problem, state) -> bool:
     """Whether every view sees its posed model in front of its source (a mirror candidate
     may not)."""
@@ -205,6 +217,8 @@ def refine_views_on_outlines(
             max_rejected=JOINT_MAX_REJECTED,
         )
         problem.say(f"joint view refinement from start {i}: objective {fit.cost_after:.4g}")
+        if i > 0 and pose_prior is not None and _implausible(fit, pose_prior):
+            continue  # the outlines' many samples outweigh the prior: gate it
         if best is None or fit.cost_after < best.cost_after:
             best = fit
     Rg, tg = best.rotations[0], best.translations[0]
