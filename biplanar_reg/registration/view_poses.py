@@ -153,10 +153,10 @@ def _joint_terms(problem: Problem) -> list[OutlineTerm]:
     ]
 
 
-#: ``refine``: a fit from a landmark start is kept only when every component of its
-#: calibration correction is within this many prior sigmas (the fit from the registration
-#: with the given calibrations is always a candidate). The outline objective sums hundreds of
-#: correlated samples, so a wrong start's better outline fit can outweigh the prior's cost.
+#: ``refine``: a joint fit is kept only when every component of its calibration correction is
+#: within this many prior sigmas; when none is, the registration with the given calibrations
+#: stands. The outline objective sums hundreds of correlated samples, so a wrong fit's better
+#: outline fit (e.g. onto an overlapping bone) can outweigh the prior's cost.
 MAX_CORRECTION_SIGMAS = 3.0
 
 
@@ -217,10 +217,13 @@ def refine_views_on_outlines(
             max_rejected=JOINT_MAX_REJECTED,
         )
         problem.say(f"joint view refinement from start {i}: objective {fit.cost_after:.4g}")
-        if i > 0 and pose_prior is not None and _implausible(fit, pose_prior):
+        if pose_prior is not None and _implausible(fit, pose_prior):
             continue  # the outlines' many samples outweigh the prior: gate it
         if best is None or fit.cost_after < best.cost_after:
             best = fit
+    if best is None:  # no plausible correction: keep the registration with the given views
+        problem.say("joint view refinement: no correction within the calibration prior")
+        return list(views), result, np.nan
     Rg, tg = best.rotations[0], best.translations[0]
     new = []
     for x, v in enumerate(views):
