@@ -125,11 +125,12 @@ class RegistrationOptions:
     rejected_sigma_factor : float
         A rejected landmark's sigma is multiplied by this (>= 1): it no longer pulls the fit,
         and the problem keeps its size (one structure for every solve).
-    pose_sigma_deg, pose_sigma_mm : float
-        ``poses = "refine"``: the expected error of each non-gauge view's calibration, rotation
-        (degrees) and source position (mm): the standard deviations of the Gaussian prior on
-        the corrections in the joint refinement of the views on the outlines
-        (:mod:`.view_poses`).
+    pose_sigma_deg : float
+        ``poses = "refine"``: the expected rotation error (degrees) of each non-gauge view's
+        calibration: the standard deviation of the Gaussian prior on the rotation corrections
+        in the joint refinement of the views on the outlines (:mod:`.view_poses`).
+    pose_sigma_mm : float
+        ``poses = "refine"``: the same for the source positions (mm).
     """
 
     landmark_weight: float = 0.5

@@ -1,7 +1,8 @@
 """The stages of the registration pipeline, in the order :func:`.register.register_views`
 calls them:
 
-1. :func:`landmark_start`: G-SfT on the landmarks alone, with leave-one-out blunder rejection;
+1. :func:`landmark_start`: G-SfT on the landmarks alone, with leave-one-out blunder rejection
+   (or :func:`pose_start`: the mean shape at a given start pose, e.g. for outlines alone);
 2. :func:`choose_start`: when that relaxation is not tight, the rigid mean-shape start is tried
    too and the start whose short boosted fit explains the data better is kept;
 3. :func:`landmark_consensus`: a blunder that spoils the start itself is found by a consensus

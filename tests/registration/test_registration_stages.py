@@ -12,7 +12,7 @@ from registration_problems import clean_views, problem_for, with_blunder
 
 from biplanar_reg.registration import RegistrationOptions, register_views
 from biplanar_reg.registration.blunders import find_blunder, max_rejections
-from biplanar_reg.registration.problem import solve
+from biplanar_reg.registration.problem import make_problem, solve
 from biplanar_reg.registration.rays import RayObservations
 from biplanar_reg.registration.stages import (
     BoostRun,
@@ -26,7 +26,7 @@ from biplanar_reg.registration.stages import (
     rigid_mean_start,
     start_from_landmarks,
 )
-from biplanar_reg.registration.view_poses import estimate_view_poses
+from biplanar_reg.registration.view_poses import estimate_view_poses, refine_views_on_outlines
 
 NONE: frozenset[int] = frozenset()
 
@@ -293,19 +293,24 @@ def test_refine_final_takes_back_a_wrongly_rejected_landmark(model, views, clean
 def _composed(model, views, poses):
     """``register_views`` spelt out with the stages."""
     opts = RegistrationOptions()
-    if poses != "known":
-        views = estimate_view_poses(model, views, poses, opts).views
-    p = problem_for(model, views, opts)
+    posed = estimate_view_poses(model, views, poses, opts) if poses != "known" else None
+    p = problem_for(model, views if posed is None else posed.views, opts)
     start = landmark_consensus(p, landmark_start(p))
     run = boost(p, start.result, start.rejected, opts.max_iterations, detect=opts.robust)
-    return p, refine_final(p, run)
+    final = refine_final(p, run)
+    if posed is None:
+        return p, final
+    # refine/unknown: the views refined on the outlines, then the final refinement with them
+    views, res, _ = refine_views_on_outlines(p, final.result, posed.starts, final.rejected, True)
+    p = make_problem(model, views, opts, True, lambda m: None, res.vertices.mean(axis=0))
+    return p, refine_final(p, boost(p, res, final.rejected, 0, detect=False))
 
 
 @pytest.mark.parametrize(
     ("kind", "poses"), [("clean", "known"), ("blunder", "known"), ("clean", "refine")]
 )
 def test_register_views_is_the_composition_of_the_stages(model, views, kind, poses):
-    if poses == "refine":  # estimating a view pose needs >= 10 landmarks with 8 modes
+    if poses == "refine":  # 5 per view: G-SfT-P with the modes gives the landmark starts
         views = clean_views(model, 0, landmarks_per_view=5)[0]
     obs = views if kind == "clean" else with_blunder(views, 0, 0)
     p, fin = _composed(model, obs, poses)
