@@ -87,6 +87,8 @@ _KEYS = {
 }
 _OPTION_FIELDS = {f.name: f for f in dataclasses.fields(RegistrationOptions)}
 POSES = ("known", "unknown", "refine")
+#: ``[registration]`` keys that are not :class:`RegistrationOptions` fields.
+_MODE_KEYS = ("poses", "silhouettes", "start")
 
 
 @dataclass(frozen=True, eq=False)
@@ -179,6 +181,11 @@ class Case:
     ground_truth : GroundTruth or None
     warnings : list of str
         Unknown keys and other non-fatal remarks.
+    start : (R (3, 3), t (3,)) or None
+        ``[registration] start`` (extension): the start pose of the model, model -> world,
+        mm (converted from ``units``); with it the landmarks may be missing (outlines only).
+    start_path : Path or None
+        The start pose file.
     """
 
     case_dir: Path
@@ -195,6 +202,8 @@ class Case:
     options: RegistrationOptions
     ground_truth: GroundTruth | None = None
     warnings: list[str] = field(default_factory=list)
+    start: tuple[np.ndarray, np.ndarray] | None = None
+    start_path: Path | None = None
 
     @property
     def case_file(self) -> Path:
@@ -355,11 +364,11 @@ def registration_options(table: dict, ctx: _Ctx | None = None) -> RegistrationOp
     ctx = ctx or _Ctx(Path("."), True)
     values: dict[str, Any] = {}
     for key, value in table.items():
-        if key in ("poses", "silhouettes"):
+        if key in _MODE_KEYS:
             continue
         fld = _OPTION_FIELDS.get(key)
         if fld is None:
-            hint = did_you_mean(key, [*_OPTION_FIELDS, "poses", "silhouettes"])
+            hint = did_you_mean(key, [*_OPTION_FIELDS, *_MODE_KEYS])
             ctx.warn(f"[registration]: unknown key {key!r} ignored{hint}")
             continue
         default = fld.default
@@ -613,7 +622,7 @@ def _annotations_path(ctx: _Ctx, doc: dict) -> Path:
 
 
 def _load_annotations(
-    ctx: _Ctx, doc: dict, views: list[CaseView], landmarks: dict[str, int]
+    ctx: _Ctx, doc: dict, views: list[CaseView], landmarks: dict[str, int], start: bool = False
 ) -> tuple[Annotations, Path]:
     ctx.unknown_keys(ctx.table(doc, "annotations", required=True), "annotations", "[annotations]")
     path = _annotations_path(ctx, doc)
@@ -624,6 +633,8 @@ def _load_annotations(
         )
     except ValueError as exc:
         raise ctx.error("[annotations] file", f"{path.name}: {_one_line(exc)}") from None
+    if start:  # a start pose: outlines alone may register (register_views checks the total)
+        return ann, path
     n_obs = sum(len(va.landmarks) for va in ann.views.values())
     if n_obs < MIN_LANDMARK_OBSERVATIONS:
         raise ctx.error(
@@ -693,6 +704,29 @@ def _registration_mode(ctx: _Ctx, reg: dict) -> tuple[str, bool]:
     return poses, silhouettes
 
 
+def _load_start(ctx: _Ctx, reg: dict, scale: float):
+    """``[registration] start``: a JSON file ``{"R": 3x3 rotation, "t": [3]}`` (model ->
+    world, in the case's units), as ``(R, t in mm)`` and its path; ``(None, None)`` without."""
+    path = ctx.path(reg, "start", "[registration]", required=False)
+    if path is None:
+        return None, None
+    where = "[registration] start"
+    try:
+        doc = read_json(path)
+    except (ValueError, OSError) as exc:
+        raise ctx.error(where, f"{path.name}: {_one_line(exc)}") from None
+    if not isinstance(doc, dict) or "R" not in doc or "t" not in doc:
+        raise ctx.error(where, f'{path.name}: expected an object {{"R": [[3x3]], "t": [3]}}')
+    from .._validate import as_array, check_rotation
+
+    try:
+        R = check_rotation("R", doc["R"], tol=1e-4)
+        t = as_array("t", doc["t"], (3,))
+    except (TypeError, ValueError) as exc:
+        raise ctx.error(where, f"{path.name}: {_one_line(exc)}") from None
+    return (R, t * scale), path
+
+
 def load_case(case_dir: str | os.PathLike, *, allow_outside: bool = False) -> Case:
     """Read and validate a case folder.
 
@@ -720,8 +754,9 @@ def load_case(case_dir: str | os.PathLike, *, allow_outside: bool = False) -> Ca
     scale = UNIT_SCALE[units]
     model, source, landmarks = _load_model(ctx, doc, scale)
     views = _load_views(ctx, doc, scale)
-    ann, ann_path = _load_annotations(ctx, doc, views, landmarks)
     reg = ctx.table(doc, "registration", required=False)
+    start, start_path = _load_start(ctx, reg, scale)
+    ann, ann_path = _load_annotations(ctx, doc, views, landmarks, start is not None)
     poses, silhouettes = _registration_mode(ctx, reg)
     options = registration_options(reg, ctx)
     gt = _load_ground_truth(ctx, doc, scale, model)
@@ -740,6 +775,8 @@ def load_case(case_dir: str | os.PathLike, *, allow_outside: bool = False) -> Ca
         options=options,
         ground_truth=gt,
         warnings=ctx.warnings,
+        start=start,
+        start_path=start_path,
     )
 
 

@@ -269,6 +269,7 @@ def _register(
             poses=case.poses,
             options=case.options,
             progress=say,
+            start=case.start,
         )
     except SolverFailure as exc:
         raise CaseFailure(f"{case.case_file}: registration failed: {exc}") from None

@@ -146,6 +146,12 @@ class RegistrationOptions:
         Landmark weights are floored at ``1 / rejected_sigma_factor^2`` (>= 1): a landmark's
         sigma grows at most by this factor, so a rejected landmark no longer pulls the fit and
         the problem keeps its size (one structure for every solve).
+    pose_sigma_deg : float
+        ``poses = "refine"``: the expected rotation error (degrees) of each non-gauge view's
+        calibration: the standard deviation of the Gaussian prior on the rotation corrections
+        in the joint refinement of the views on the outlines (:mod:`.view_poses`).
+    pose_sigma_mm : float
+        ``poses = "refine"``: the same for the source positions (mm).
     blunder_threshold, blunder_contrast, max_rejected_fraction, consensus_trigger, \
 readmit_sigmas : None
         Deprecated (the former blunder heuristics; :data:`DEPRECATED_OPTIONS`): accepted with a
@@ -180,6 +186,8 @@ readmit_sigmas : None
     max_tangent_angle_deg: float = 45.0
     wide_gate_factor: float = 2.0
     rejected_sigma_factor: float = 1e3
+    pose_sigma_deg: float = 2.0
+    pose_sigma_mm: float = 5.0
     blunder_threshold: float | None = None
     blunder_contrast: float | None = None
     max_rejected_fraction: float | None = None

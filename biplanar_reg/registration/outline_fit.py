@@ -41,9 +41,9 @@ from .refine import (
     PoseShape,
     levenberg_marquardt,
     pose_shape_jacobian,
-    retract_pose_shape,
     tangent_bases,
 )
+from .rotations import so3_exp, so3_log
 
 __all__: list[str] = []
 
@@ -75,6 +75,7 @@ class OutlineTerm:
     sigma_mm: float
     gate_px: float
     mm_per_px: float
+    index: int = 0  # the view's index among the problem's views
 
 
 @dataclass(frozen=True)
@@ -90,6 +91,8 @@ class OutlineFitResult:
     iterations: int
     converged: bool
     n_active: int  # outline samples within their gate at the end
+    rotations: np.ndarray | None = None  # (G, 3, 3) every pose group's (multi-pose fit)
+    translations: np.ndarray | None = None  # (G, 3)
 
 
 @dataclass(frozen=True)
@@ -150,6 +153,225 @@ def _outline_terms(
     return _Linearised(res, Qc, Pc, basis, inv, int(active.sum()))
 
 
+@dataclass(frozen=True)
+class PosePrior:
+    """A Gaussian prior on every non-gauge view's extrinsic correction (calibration refinement).
+
+    The correction of view ``x`` is the rigid motion ``C_x = O_x o O_g^-1`` between the object
+    pose seen through view ``x`` and the one seen through the gauge view ``g`` (the world
+    pose); its residuals are the rotation vector of ``C_x`` over ``sigma_rad`` and the move of
+    view ``x``'s source, ``C_x^-1(c_x) - c_x``, over ``sigma_mm``.
+
+    Attributes
+    ----------
+    gauge : int
+        The view whose extrinsics are kept (no prior, it defines the world).
+    centres : (P, 3) array
+        The given source positions of the views, world, mm.
+    sigma_rad, sigma_mm : float
+        Standard deviations of the calibration's rotation (radians) and source position (mm)
+        errors; ``inf`` for none.
+    """
+
+    gauge: int
+    centres: np.ndarray
+    sigma_rad: float
+    sigma_mm: float
+
+
+def prior_residuals(Rs, ts, prior: PosePrior | None) -> np.ndarray:
+    """The residuals of :class:`PosePrior` (6 per non-gauge view), empty without one."""
+    if prior is None or len(Rs) == 1:
+        return np.zeros(0)
+    g = prior.gauge
+    out = []
+    for x in range(len(Rs)):
+        if x == g:
+            continue
+        rel = Rs[x] @ Rs[g].T
+        moved = Rs[g] @ Rs[x].T @ (prior.centres[x] - ts[x]) + ts[g]
+        out.append(so3_log(rel) / prior.sigma_rad)
+        out.append((moved - prior.centres[x]) / prior.sigma_mm)
+    return np.concatenate(out)
+
+
+def _prior_jacobian(state, prior: PosePrior | None, n_cols: int) -> np.ndarray:
+    """Forward-difference Jacobian of :func:`prior_residuals` (only 12 columns per row block
+    are non-zero: the view's pose and the gauge's; the rest of the problem is analytic)."""
+    Rs, ts, w = state
+    r0 = prior_residuals(Rs, ts, prior)
+    J = np.zeros((len(r0), n_cols))
+    if len(r0) == 0:
+        return J
+    h = 1e-6
+    for col in range(6 * len(Rs)):
+        step = np.zeros(n_cols)
+        step[col] = h
+        R1, t1, _ = _retract_poses(state, step)
+        J[:, col] = (prior_residuals(R1, t1, prior) - r0) / h
+    return J
+
+
+def _retract_poses(state, step: np.ndarray):
+    """Apply ``step`` (6 per pose: rotation vector, translation; then the weights)."""
+    Rs, ts, w = state
+    P = len(Rs)
+    rot = np.array([so3_exp(step[6 * x : 6 * x + 3]) @ Rs[x] for x in range(P)])
+    return rot, ts + step[: 6 * P].reshape(P, 6)[:, 3:], w + step[6 * P :]
+
+
+def _landmark_part(model, landmarks, sel, R, t, w, Qall, V) -> _Linearised:
+    """The landmark terms ``sel`` posed by ``(R, t)``."""
+    ids, org = landmarks.vertex_ids[sel], landmarks.origins[sel]
+    B = tangent_bases(landmarks.directions[sel]) if len(ids) else np.zeros((0, 3, 2))
+    inv = 1.0 / landmarks.sigmas[sel]
+    res = np.einsum("kia,ki->ka", B, V[ids] - org) * inv[:, None]
+    return _Linearised(res, Qall[ids], model.modes[:, ids], B, inv, 0)
+
+
+def _view_depths(model, outlines, pose_of_view, state) -> np.ndarray:
+    """Every outline view's nearest model depth (mm; inf for a view without a source)."""
+    Rs, ts, w = (np.asarray(a, dtype=float) for a in state)
+    Q = model.instance(w)
+    z = []
+    for term in outlines:
+        g = pose_of_view[term.index]
+        has_source = hasattr(term.view, "centre")
+        z.append(np.min(term.view.to_camera(Q @ Rs[g].T + ts[g])[:, 2]) if has_source else np.inf)
+    return np.array(z)
+
+
+def _stacked_jacobian(state, parts_groups, M: int, sqrt_lam: float, prior) -> np.ndarray:
+    """The Jacobian of :func:`refine_poses_on_outlines`' residuals: each part's pose-and-shape
+    block in its group's pose columns and the shared shape columns, the shape prior's rows
+    and the pose prior's."""
+    parts, groups = parts_groups
+    Rs = state[0]
+    G = len(Rs)
+    blocks = []
+    for p, g in zip(parts, groups, strict=True):
+        Jp = pose_shape_jacobian(Rs[g], p.points, p.modes, p.bases, p.inv_sigma, 0.0, M)
+        J = np.zeros((len(p.points) * 2, 6 * G + M))
+        J[:, 6 * g : 6 * g + 6] = Jp[: 2 * len(p.points), :6]
+        J[:, 6 * G :] = Jp[: 2 * len(p.points), 6:]
+        blocks.append(J)
+    Jw = np.zeros((M, 6 * G + M))
+    Jw[:, 6 * G :] = sqrt_lam * np.eye(M)
+    return np.vstack([*blocks, Jw, _prior_jacobian(state, prior, 6 * G + M)])
+
+
+def refine_poses_on_outlines(
+    model: ShapeModel,
+    start: tuple[np.ndarray, np.ndarray, np.ndarray],
+    landmarks: RayObservations,
+    outlines: list[OutlineTerm],
+    *,
+    pose_of_view: np.ndarray,
+    prior: PosePrior | None = None,
+    prior_weight: float = 1.0,
+    max_iter: int = 30,
+    tol: float = 1e-6,
+    he: object | None = None,
+    callback: Callable[[tuple, float, int], None] | None = None,
+    max_rejected: int = MAX_REJECTED,
+) -> OutlineFitResult:
+    """Minimise ``F`` with one object pose per group of views and one shared shape.
+
+    ``F`` is that of the module docstring, with view ``x``'s landmarks and outline posed by
+    pose ``pose_of_view[x]`` (each in the world frame of the views' given calibrations), plus
+    the :class:`PosePrior` when given. One pose for every view is :func:`refine_on_outlines`;
+    one pose per view refines every view's extrinsics relative to the gauge view's jointly
+    with the shape (``poses = "refine"`` and ``"unknown"``).
+
+    Parameters
+    ----------
+    start : (Rs (G, 3, 3), ts (G, 3), w (M,))
+        Starting object-to-world poses (mm) of the ``G`` pose groups and the weights.
+    landmarks : RayObservations
+        World rays (mm) with sigmas (mm) and ``view_index``.
+    outlines : list of OutlineTerm
+        Each with its view's index (``OutlineTerm.index``).
+    pose_of_view : (P,) int array
+        The pose group of every view.
+    max_rejected : int
+        Rejected trial steps in a row after which it stops (:data:`MAX_REJECTED`).
+
+    Returns
+    -------
+    OutlineFitResult
+        With ``rotations``/``translations`` of every group; ``rotation``/``translation``/
+        ``vertices`` are group 0's.
+    """
+    if landmarks.sigmas is None:
+        raise ValueError("landmarks: sigmas (mm) are needed")
+    pose_of_view = np.asarray(pose_of_view, dtype=int)
+    sqrt_lam = float(np.sqrt(prior_weight))
+    M = model.n_modes
+    G = len(start[0])
+    lm_group = pose_of_view[landmarks.view_index] if len(landmarks) else np.zeros(0, int)
+    samples = []
+    for term in outlines:
+        q = term.target.points[term.target.usable]
+        samples.append((q, *term.view.rays(q)))
+
+    z0 = _view_depths(model, outlines, pose_of_view, start)
+
+    def residuals(state):
+        # a trial step that halves or doubles a view's depth (or puts the bone behind its
+        # source) is rejected before its outline is computed: its projection may be huge
+        z = _view_depths(model, outlines, pose_of_view, state)
+        if np.any(~np.isinf(z0) & ((z < 0.5 * z0) | (z > 2.0 * z0))):
+            return np.array([np.inf]), None
+        return _evaluate(state)
+
+    def _evaluate(state):
+        Rs, ts, w = state
+        Qall = model.instance(w)
+        parts, groups = [], []
+        for g in range(G):
+            V = Qall @ Rs[g].T + ts[g]
+            sel = lm_group == g
+            if np.any(sel):
+                parts.append(_landmark_part(model, landmarks, sel, Rs[g], ts[g], w, Qall, V))
+                groups.append(g)
+            for term, smp in zip(outlines, samples, strict=True):
+                if pose_of_view[term.index] == g and len(smp[0]):
+                    parts.append(_outline_terms(model, term, smp, V, Qall, Rs[g], ts[g], he))
+                    groups.append(g)
+        r = [p.residuals.ravel() for p in parts]
+        rvec = np.concatenate([*r, sqrt_lam * w, prior_residuals(Rs, ts, prior)])
+        return rvec, ((parts, groups), sum(p.n_active for p in parts))
+
+    def jacobian(state, aux):
+        return _stacked_jacobian(state, aux[0], M, sqrt_lam, prior)
+
+    state0 = tuple(np.array(a, dtype=float) for a in start)
+    (Rs, ts, w), cost0, cost, iterations, converged = levenberg_marquardt(
+        state0,
+        residuals,
+        jacobian,
+        _retract_poses,
+        max_iter=max_iter,
+        tol=tol,
+        max_rejected=max_rejected,
+        callback=None if callback is None else lambda s, c, aux: callback(s, c, aux[1]),
+    )
+    _, (_, n_active) = residuals((Rs, ts, w))
+    return OutlineFitResult(
+        rotation=Rs[0],
+        translation=ts[0],
+        weights=w,
+        vertices=model.instance(w) @ Rs[0].T + ts[0],
+        cost_before=cost0,
+        cost_after=cost,
+        iterations=iterations,
+        converged=converged,
+        n_active=n_active,
+        rotations=Rs,
+        translations=ts,
+    )
+
+
 def refine_on_outlines(
     model: ShapeModel,
     start: PoseShape,
@@ -182,61 +404,18 @@ def refine_on_outlines(
     callback : callable, optional
         ``callback((R, t, w), F, n_active)`` after every accepted step.
     """
-    if landmarks.sigmas is None:
-        raise ValueError("landmarks: sigmas (mm) are needed")
-    ids, org = landmarks.vertex_ids, landmarks.origins
-    lm_bases = tangent_bases(landmarks.directions) if len(ids) else np.zeros((0, 3, 2))
-    lm_inv = 1.0 / landmarks.sigmas
-    sqrt_lam = float(np.sqrt(prior_weight))
-    M = model.n_modes
-    # the annotated samples and their rays are fixed: compute once
-    samples = []
-    for term in outlines:
-        q = term.target.points[term.target.usable]
-        samples.append((q, *term.view.rays(q)))
-
-    def residuals(state):
-        R, t, w = state
-        Qall = model.instance(w)
-        V = Qall @ R.T + t
-        lm = np.einsum("kia,ki->ka", lm_bases, V[ids] - org) * lm_inv[:, None]
-        parts = [_Linearised(lm, Qall[ids], model.modes[:, ids], lm_bases, lm_inv, 0)]
-        for term, smp in zip(outlines, samples, strict=True):
-            if len(smp[0]):
-                parts.append(_outline_terms(model, term, smp, V, Qall, R, t, he))
-        rvec = np.concatenate([np.concatenate([p.residuals.ravel() for p in parts]), sqrt_lam * w])
-        aux = (
-            np.vstack([p.points for p in parts]),
-            np.concatenate([p.modes for p in parts], axis=1),
-            np.concatenate([p.bases for p in parts]),
-            np.concatenate([p.inv_sigma for p in parts]),
-        )
-        return rvec, (aux, sum(p.n_active for p in parts))
-
-    def jacobian(state, aux):
-        (Q, P, B, inv), _ = aux
-        return pose_shape_jacobian(state[0], Q, P, B, inv, sqrt_lam, M)
-
-    R0, t0, w0 = (np.asarray(a, dtype=float).copy() for a in start)
-    (R, t, w), cost0, cost, iterations, converged = levenberg_marquardt(
-        (R0, t0, w0),
-        residuals,
-        jacobian,
-        retract_pose_shape,
+    R0, t0, w0 = (np.asarray(a, dtype=float) for a in start)
+    n_views = max([t.index for t in outlines] + [int(landmarks.view_index.max(initial=0))]) + 1
+    cb = None if callback is None else (lambda s, f, n: callback((s[0][0], s[1][0], s[2]), f, n))
+    return refine_poses_on_outlines(
+        model,
+        (R0[None], t0[None], w0),
+        landmarks,
+        outlines,
+        pose_of_view=np.zeros(n_views, dtype=int),
+        prior_weight=prior_weight,
         max_iter=max_iter,
         tol=tol,
-        max_rejected=MAX_REJECTED,
-        callback=None if callback is None else lambda s, c, aux: callback(s, c, aux[1]),
-    )
-    _, (_, n_active) = residuals((R, t, w))
-    return OutlineFitResult(
-        rotation=R,
-        translation=t,
-        weights=w,
-        vertices=model.instance(w) @ R.T + t,
-        cost_before=cost0,
-        cost_after=cost,
-        iterations=iterations,
-        converged=converged,
-        n_active=n_active,
+        he=he,
+        callback=cb,
     )

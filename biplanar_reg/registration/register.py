@@ -16,6 +16,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .._validate import as_array, check_rotation
 from ..outline import chain_edges
 from ..ssm.model import ShapeModel
 from .blunders import rejected_landmarks
@@ -24,9 +25,16 @@ from .observations import ViewObservations
 from .options import IterationRecord, RegistrationOptions
 from .outline_match import outline_distances
 from .problem import Problem, make_problem
-from .stages import boost, landmark_start, refine_final, robust_start
+from .rotations import project_to_so3
+from .stages import Refined, boost, landmark_start, pose_start, refine_final, robust_start
 from .uncertainty import registration_uncertainty
-from .view_poses import estimate_view_poses
+from .view_poses import (
+    PosedViews,
+    corrections,
+    enough_landmarks,
+    estimate_view_poses,
+    refine_views_on_outlines,
+)
 
 __all__ = ["RegistrationResult", "register_views"]
 
@@ -98,7 +106,30 @@ class RegistrationResult:
     vertex_sd_mm: np.ndarray | None = field(default=None, repr=False)
 
 
-def _check_views(model: ShapeModel, views: list[ViewObservations]) -> None:
+def _check_start(start: object) -> tuple[np.ndarray, np.ndarray] | None:
+    """The ``start`` argument as ``(R, t)``, checked (a rotation and a 3-vector)."""
+    if start is None:
+        return None
+    if isinstance(start, (str, bytes)) or not hasattr(start, "__len__") or len(start) != 2:
+        raise ValueError("start: expected (R, t): a 3x3 rotation and a translation [3] (mm)")
+    R = check_rotation("start: R", start[0], tol=1e-4)
+    return project_to_so3(R), as_array("start: t", start[1], (3,))
+
+
+def _check_views(
+    model: ShapeModel,
+    views: list[ViewObservations],
+    poses: str = "known",
+    outlines: bool = False,
+    start: tuple | None = None,
+) -> None:
+    """Refuse input that cannot register: bad views, or too little information in total.
+
+    With a ``start`` pose, outlines in two views suffice (no landmarks needed); otherwise the
+    landmark-only start needs 4 landmark observations. ``"unknown"`` needs 3 landmarks in
+    every view for G-SfT-P, and without outlines enough landmarks for every view's pose and
+    the modes; ``"refine"`` without outlines needs the latter too.
+    """
     if not views:
         raise ValueError("views: at least one view is needed")
     names = [v.name for v in views]
@@ -107,10 +138,25 @@ def _check_views(model: ShapeModel, views: list[ViewObservations]) -> None:
     for v in views:
         model.check_vertex_ids(v.landmark_ids, name=f"{v.name}: landmark_ids")
     n_lm = sum(len(v.landmark_ids) for v in views)
-    if n_lm < 4:
+    n_out = sum(1 for v in views if v.contours) if outlines else 0
+    if start is not None and poses == "unknown":
+        raise ValueError(
+            "start: not used with poses = 'unknown' (the result's world frame is the first "
+            "view's camera frame, estimated from the landmarks)"
+        )
+    if n_lm < 4 and not (start is not None and n_out >= 2):
         raise ValueError(
             f"landmarks: at least 4 landmark observations in total are needed to initialise "
-            f"the registration, got {n_lm}"
+            f"the registration, got {n_lm} (or give a start pose and outlines in 2 views, "
+            f"got outlines in {n_out})"
+        )
+    if poses != "known" and n_out == 0 and not enough_landmarks(model, views, model.n_modes):
+        need = (6 * len(views) + model.n_modes + 1) // 2
+        raise ValueError(
+            f"poses: {poses!r} without outlines estimates {6 * (len(views) - 1)} view-pose "
+            f"parameters from the landmarks alone and needs at least {need} landmark "
+            f"observations for {len(views)} views and {model.n_modes} modes, got {n_lm}; "
+            "add outlines or use poses = 'known'"
         )
 
 
@@ -137,6 +183,7 @@ def register_views(
     poses: str = "known",
     options: RegistrationOptions | None = None,
     progress: Callable[[str], None] | None = None,
+    start: tuple | None = None,
 ) -> RegistrationResult:
     """Register ``model`` to the annotated ``views``.
 
@@ -159,6 +206,10 @@ def register_views(
     options : RegistrationOptions, optional
     progress : callable, optional
         Called with a one-line message at each stage (for logs and progress bars).
+    start : (R (3, 3), t (3,)), optional
+        A start pose of the model (model -> world, mm; e.g. the workbench's pose aid): the
+        registration starts from the mean shape there instead of from the landmarks, so that
+        it runs on outlines alone (outlines in 2 views, no landmarks). Not with ``"unknown"``.
 
     Raises
     ------
@@ -170,26 +221,57 @@ def register_views(
     opts = options or RegistrationOptions()
     if poses not in ("known", "refine", "unknown"):
         raise ValueError(f"poses: expected 'known', 'refine' or 'unknown', got {poses!r}")
-    _check_views(model, views)
+    start_pose = _check_start(start)
+    _check_views(model, views, poses, silhouettes, start_pose)
     say = progress or (lambda msg: None)
     t0 = time.perf_counter()
     pose_info: dict = {"mode": poses}
+    posed = PosedViews(views, pose_info, [])
     if poses != "known":
         posed = estimate_view_poses(model, views, poses, opts)
-        views, pose_info = posed.views, posed.info
-        say(f"view poses ({poses}): {pose_info}")
-    problem = make_problem(model, views, opts, silhouettes, say)
-    start = robust_start(problem, landmark_start(problem))
-    run = boost(problem, start.result, start.weights, opts.max_iterations, detect=opts.robust)
-    final = refine_final(problem, run)
+        pose_info = posed.info
+        say(f"view poses ({poses}): {len(posed.starts)} start(s) from the landmarks")
+    problem, final = _register_posed(model, posed, poses, opts, silhouettes, say, start_pose)
+    if poses == "refine":
+        pose_info.update(corrections(views, problem.views))
     outlines = final.outlines
     if problem.use_outlines and not outlines:
         outlines = problem.outlines(final.result)
-    unc = registration_uncertainty(problem, final.result, outlines, final.rejected)
+    unc = registration_uncertainty(problem, final.result, outlines, _rejected(problem, final))
     return replace(
         _result(problem, final, outlines, pose_info, time.perf_counter() - t0),
         vertex_sd_mm=None if unc is None else unc.sd_mm,
     )
+
+
+def _rejected(problem: Problem, final: Refined) -> frozenset[int]:
+    """The landmarks whose final robust weight is below ``rejection_weight``."""
+    n = len(problem.landmarks)
+    return rejected_landmarks(problem, np.ones(n) if final.weights is None else final.weights)
+
+
+def _register_posed(model, posed, poses, opts, silhouettes, say, start_pose):
+    """The pipeline of :mod:`.stages` with ``posed.views``; for ``"refine"``/``"unknown"``
+    with outlines, followed by the joint refinement of the views on the outlines and a final
+    refinement with the corrected views."""
+    c = None if start_pose is None else model.mean.mean(axis=0) @ start_pose[0].T + start_pose[1]
+    problem = make_problem(model, posed.views, opts, silhouettes, say, c)
+    if start_pose is not None:
+        start = pose_start(problem, *start_pose)
+    else:
+        start = robust_start(problem, landmark_start(problem))
+    detect = opts.robust and len(problem.landmarks) > 0
+    run = boost(problem, start.result, start.weights, opts.max_iterations, detect=detect)
+    final = refine_final(problem, run)
+    if poses == "known" or not problem.use_outlines:
+        return problem, final
+    views, res, obj = refine_views_on_outlines(
+        problem, final.result, posed.starts, _rejected(problem, final), prior=poses == "refine"
+    )
+    say(f"views refined on the outlines: objective {obj:.4g}")
+    problem = make_problem(model, views, opts, silhouettes, say, res.vertices.mean(axis=0))
+    run = boost(problem, res, final.weights, 0, detect=False)
+    return problem, refine_final(problem, run)
 
 
 def relaxation_gap_px(problem: Problem, res: GsftResult) -> float:

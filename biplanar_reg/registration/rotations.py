@@ -40,3 +40,10 @@ def rotation_angle(R1: np.ndarray, R2: np.ndarray | None = None) -> float:
     c = (np.trace(R) - 1.0) / 2.0
     s = 0.5 * np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
     return float(np.arctan2(s, c))
+
+
+def so3_log(R: np.ndarray) -> np.ndarray:
+    """Axis-angle vector (radians) of the rotation ``R``: the inverse of :func:`so3_exp`."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(np.asarray(R, dtype=float)).as_rotvec()

@@ -1,7 +1,8 @@
 """The stages of the registration pipeline, in the order :func:`.register.register_views`
 calls them:
 
-1. :func:`landmark_start`: G-SfT on the landmarks alone;
+1. :func:`landmark_start`: G-SfT on the landmarks alone (or :func:`pose_start`: the mean shape
+   at a given start pose, e.g. for outlines alone);
 2. :func:`choose_start`: when that relaxation is not tight, the rigid mean-shape start is tried
    too and the start whose short boosted fit explains the data better is kept;
 3. :func:`boost`: outline boosting (match the model's outline to the annotated outlines,
@@ -43,6 +44,7 @@ __all__ = [
     "BoostRun",
     "Refined",
     "landmark_start",
+    "pose_start",
     "choose_start",
     "robust_start",
     "boost",
@@ -157,6 +159,41 @@ def choose_start(problem: Problem, start: Start) -> Start:
     return Start(res, start.weights, full)
 
 
+def pose_start(problem: Problem, rotation: np.ndarray, translation: np.ndarray) -> Start:
+    """A start from a given pose (the user's ``start``, or one the pose estimation found): the
+    mean shape posed by ``(rotation, translation)`` (model -> world, mm), as a result."""
+    model = problem.model
+    w = np.zeros(model.n_modes)
+    V = model.mean @ rotation.T + translation
+    K = len(problem.landmarks)
+    res = GsftResult(
+        rotation=rotation,
+        translation=translation,
+        weights=w,
+        vertices=V,
+        certificate=0.0,
+        objective=0.0,
+        status="start",
+        sdp_rotation=rotation,
+        sdp_translation=translation,
+        sdp_weights=w,
+        residuals=np.zeros(K),
+        sdp_residuals=np.zeros(K),
+        sigmas=np.ones(K),
+        refine_cost_before=0.0,
+        refine_cost_after=0.0,
+        refine_iterations=0,
+        refine_converged=True,
+        eps=problem.options.eps,
+        scale=model.size,
+        centre=V.mean(axis=0),
+        sdp_iterations=0,
+        backend="none",
+    )
+    problem.say("start: the given pose, mean shape")
+    return Start(res)
+
+
 def start_from_landmarks(problem: Problem, weights: np.ndarray | None) -> Start:
     """A fresh start with the landmarks weighted by ``weights``: solve, then
     :func:`choose_start`."""
@@ -244,7 +281,12 @@ def match_outlines(
     """
     opts = problem.options
     lm_err = problem.landmark_px_errors(result.vertices)
-    lm_rms = float(np.sqrt(np.mean(np.delete(lm_err, list(rejected)) ** 2)))
+    acc = np.delete(lm_err, list(rejected))
+    if acc.size:
+        lm_rms = float(np.sqrt(np.mean(acc**2)))
+    else:  # outlines only: how far apart the outlines are stands in for the landmarks' error
+        d = [outline_distances(outlines[i], t) for i, t in problem.targets.items()]
+        lm_rms = float(np.median(np.concatenate(d)))
     gate = max(opts.gate_px, opts.wide_gate_factor * lm_rms) if wide else opts.gate_px
     found = {
         i: match_outline(outlines[i], t, gate, opts.mutual, opts.max_tangent_angle_deg)
@@ -389,6 +431,25 @@ def _landmarks_only_weights(problem: Problem, result: GsftResult) -> tuple[np.nd
 # -- 4. final refinement and reweighting ---------------------------------------------------
 
 
+def outline_terms(problem: Problem, outlines: dict[int, ModelOutline]) -> list[OutlineTerm]:
+    """The annotated outlines as refinement terms; each view's gate is the adaptive threshold
+    of its current outline distances (at most ``gate_px``)."""
+    opts = problem.options
+    return [
+        OutlineTerm(
+            problem.views[i].view,
+            t,
+            problem.outline_sigma[i] * np.sqrt(opts.contour_spacing_px),
+            min(
+                opts.gate_px, adaptive_gate(outline_distances(outlines[i], t), opts.match_floor_px)
+            ),
+            problem.mm_per_px[i],
+            i,
+        )
+        for i, t in problem.targets.items()
+    ]
+
+
 def refine_once(
     problem: Problem,
     result: GsftResult,
@@ -403,18 +464,7 @@ def refine_once(
     objective) and the refinement's own output.
     """
     opts = problem.options
-    terms = [
-        OutlineTerm(
-            problem.views[i].view,
-            t,
-            problem.outline_sigma[i] * np.sqrt(opts.contour_spacing_px),
-            min(
-                opts.gate_px, adaptive_gate(outline_distances(outlines[i], t), opts.match_floor_px)
-            ),
-            problem.mm_per_px[i],
-        )
-        for i, t in problem.targets.items()
-    ]
+    terms = outline_terms(problem, outlines)
     lm = weighted_landmark_rays(problem, weights)
     fit = refine_on_outlines(
         problem.model,
@@ -476,7 +526,7 @@ def refine_final(problem: Problem, run: BoostRun) -> Refined:
     before = rejected_landmarks(
         problem, np.ones(len(problem.landmarks)) if weights is None else weights
     )
-    if problem.options.robust:
+    if problem.options.robust and len(problem.landmarks) > 0:
         weights = reweight(problem, res.vertices)
         if rejected_landmarks(problem, weights) != before:
             names = [

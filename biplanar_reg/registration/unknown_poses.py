@@ -167,7 +167,9 @@ class UnknownPosesResult:
     sigmas : list of (K_x,) arrays
         Standard deviations used by the refinement (given or estimated), per view.
     start : str
-        ``"sdp"`` or ``"prior"``: the refinement start that gave the lower cost.
+        ``"sdp"``, ``"mirror"`` or ``"prior"``: the refinement start that gave the lowest
+        cost (``"mirror"``: the rounded SDP solution with some views' mirror-ambiguous
+        rotation, see :func:`mirror_starts`).
     objective : float
         SDP objective (normalised units).
     status : str
@@ -183,6 +185,11 @@ class UnknownPosesResult:
     refine_converged : bool
     timings : dict
         Seconds: ``build``, ``solve``, ``refine``, ``total``.
+    candidate_object_rotations, candidate_object_translations : lists of (P, 3, 3), (P, 3)
+        The other refined starts' object poses in every view's frame, lowest cost first,
+        distinct from the result's and from each other (a view rotation differing by more
+        than 2 deg): when the observations cannot tell mirror-ambiguous poses apart (e.g. 3
+        points per view), a caller with more information (outlines) chooses among them.
     """
 
     vertices: np.ndarray
@@ -214,6 +221,8 @@ class UnknownPosesResult:
     refine_cost_after: float
     refine_converged: bool
     timings: dict = field(default_factory=dict)
+    candidate_object_rotations: list = field(default_factory=list)
+    candidate_object_translations: list = field(default_factory=list)
 
     # old spellings (the refinement was called 'polish'), kept readable
     polish_iterations = renamed_field("refine_iterations")
@@ -541,6 +550,68 @@ def _prior_start(views: list[UnknownPoseView], sdp: ViewPoses) -> ViewPoses | No
     return Rs, ts, w
 
 
+def _mirrored(model: ShapeModel, rays: RayObservations, R, t, w):
+    """The mirror-ambiguous pose of one view: the observed points' best-fit plane (normal
+    ``n``, object frame) reflected in depth along the line of sight ``v`` to their centroid.
+
+    ``R' = S_v R S_n`` (``S_a = I - 2 a a'``, a proper rotation) maps every point of that plane
+    to the reflection in depth of its first pose, which projects to nearly the same pixel: the
+    two-fold ambiguity of a (nearly) planar point set under perspective. With 3 points per
+    view it is exact in the affine limit, and a near-planar shape (a sheet) keeps it.
+    """
+    Q = model.instance(w)[np.unique(rays.vertex_ids)]
+    c = Q.mean(axis=0)
+    n = np.linalg.svd(Q - c)[2][-1]
+    p = R @ c + t
+    v = p - rays.origins.mean(axis=0)
+    v /= np.linalg.norm(v)
+    R2 = (np.eye(3) - 2 * np.outer(v, v)) @ R @ (np.eye(3) - 2 * np.outer(n, n))
+    return R2, p - R2 @ c
+
+
+def mirror_starts(
+    model: ShapeModel, rays: Sequence[RayObservations], state: ViewPoses
+) -> list[ViewPoses]:
+    """Refinement starts with some views' rotations replaced by their mirror-ambiguous one
+    (:func:`_mirrored`): every subset of views up to 4 views (the rounding of a relaxation
+    that is not tight may pick either of two nearly equal minima in each view), each single
+    view beyond."""
+    import itertools
+
+    Rs, ts, w = state
+    P = len(rays)
+    alt = [_mirrored(model, r, Rs[x], ts[x], w) for x, r in enumerate(rays)]
+    if P <= 4:
+        subsets = [s for s in itertools.product((False, True), repeat=P) if any(s)]
+    else:
+        subsets = [tuple(y == x for y in range(P)) for x in range(P)]
+    out = []
+    for flip in subsets:
+        R2 = np.array([alt[x][0] if f else Rs[x] for x, f in enumerate(flip)])
+        t2 = np.array([alt[x][1] if f else ts[x] for x, f in enumerate(flip)])
+        out.append((R2, t2, w))
+    return out
+
+
+def _distinct_candidates(fits: list[_JointFit], best_R: np.ndarray, tol_deg: float = 2.0):
+    """The fits' relative view poses that differ from ``best_R`` and each other by a view
+    rotation of more than ``tol_deg``, lowest cost first (at most 4)."""
+    kept_R = [best_R]
+    out = []
+    for f in fits:
+        Rs, ts, _ = f.state
+        rel = [relative_pose(Rs[0], ts[0], Rs[x], ts[x]) for x in range(len(Rs))]
+        vr = np.array([r[0] for r in rel])
+        far = all(
+            max(np.degrees(rotation_angle(a, b)) for a, b in zip(vr, k, strict=True)) > tol_deg
+            for k in kept_R
+        )
+        if far and len(out) < 4:
+            kept_R.append(vr)
+            out.append((Rs, ts))
+    return out
+
+
 def _distances(
     model: ShapeModel, rays: Sequence[RayObservations], state: ViewPoses
 ) -> list[np.ndarray]:
@@ -607,14 +678,20 @@ def _refine(
     starts: list[ViewPoses],
     prior_weight: float,
     max_iter: int,
-) -> _JointFit:
-    """Joint LM from each start; the lowest-cost result (and its start index)."""
-    best = None
-    for i, start in enumerate(starts):
-        fit = _refine_from(model, rays, start, prior_weight, max_iter)
-        if best is None or fit.cost_after < best.cost_after:
-            best = replace(fit, start=i)
-    return best
+) -> list[_JointFit]:
+    """Joint LM from each start; every result, lowest cost first (with its start index)."""
+    fits = [
+        replace(_refine_from(model, rays, start, prior_weight, max_iter), start=i)
+        for i, start in enumerate(starts)
+    ]
+    if len(fits) == 1:
+        return fits
+    # each fit estimated its own common sigma (when none was given), and its cost is then
+    # about half its degrees of freedom whatever its residuals: compare them all with the
+    # first start's sigmas
+    sig = fits[0].sigmas
+    common = [r.with_sigmas(s) for r, s in zip(rays, sig, strict=True)]
+    return sorted(fits, key=lambda f: joint_cost(model, common, f.state, prior_weight))
 
 
 def _unrefined(
@@ -706,18 +783,28 @@ def solve_gsft_unknown_poses(
 
     t0 = time.perf_counter()
     rays = [v.rays for v in checked]
+    fits: list[_JointFit] = []
     if refine:
-        starts = [rounded.state]
+        starts = [rounded.state, *mirror_starts(model, rays, rounded.state)]
         prior = _prior_start(checked, rounded.state)
         if prior is not None:
             starts.append(prior)
-        fit = _refine(model, rays, starts, prior_weight, max_refine_iter)
+        fits = _refine(model, rays, starts, prior_weight, max_refine_iter)
+        # the start's kind: 0 the rounding, 1 a mirror start, 2 the prior
+        kind = min(fits[0].start, 1) if fits[0].start < len(starts) - (prior is not None) else 2
+        fit = replace(fits[0], start=kind)
     else:
         fit = _unrefined(model, rays, rounded.state, prior_weight)
     t_refine = time.perf_counter() - t0
     timings = {"build": t_build, "solve": t_solve, "refine": t_refine}
-    return _unknown_result(
+    out = _unknown_result(
         model, rays, rounded, fit, sol, constrained, f_mm, eps, sdp_iters, timings, t_start
+    )
+    cand = _distinct_candidates(fits[1:], out.view_rotations)
+    return replace(
+        out,
+        candidate_object_rotations=[c[0] for c in cand],
+        candidate_object_translations=[c[1] for c in cand],
     )
 
 
@@ -763,7 +850,7 @@ def _unknown_result(
         sdp_weights=rounded.state[2],
         residuals=_distances(model, rays, fit.state),
         sigmas=fit.sigmas,
-        start=("sdp", "prior")[fit.start],
+        start=("sdp", "mirror", "prior")[fit.start],
         objective=sol.objective,
         status=sol.status,
         min_depths=f_mm,
@@ -912,7 +999,7 @@ def refine_view_poses(
     # starting object pose in every view frame: the known-pose solution through the extrinsics
     start = (np.einsum("xij,jk->xik", Rv, init.rotation), Rv @ init.translation + tv, init.weights)
     t0 = time.perf_counter()
-    fit = _refine(model, views, [start], prior_weight, max_refine_iter)
+    fit = _refine(model, views, [start], prior_weight, max_refine_iter)[0]
     t_refine = time.perf_counter() - t0
     timings = {"initial": t_init, "refine": t_refine}
     return _refined_result(model, rays, views, init, fit, Rv, tv, gauge, timings, t_start)

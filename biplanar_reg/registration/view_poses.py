@@ -1,10 +1,20 @@
 """View poses for the registration when the calibrations' extrinsics are rough or missing.
 
-``poses = "refine"`` corrects every view's extrinsics except the first one's jointly with the
-shape from the landmarks (:func:`.unknown_poses.refine_view_poses`); ``poses = "unknown"``
-keeps only the intrinsics and estimates every view's pose relative to the first view
-(G-SfT-P, :func:`.unknown_poses.solve_gsft_unknown_poses`), so that the result's world frame is
-the first view's camera frame. Both return the views with the poses to register with.
+``poses = "refine"`` corrects every view's extrinsics except the first one's (the gauge)
+jointly with the shape; ``poses = "unknown"`` keeps only the intrinsics and estimates every
+view's pose relative to the first view, so that the result's world frame is the first view's
+camera frame. Both run in two steps:
+
+1. a start for the views from the landmarks, when they suffice for the pose parameters and
+   the modes (:func:`.unknown_poses.refine_view_poses`, G-SfT-P
+   :func:`.unknown_poses.solve_gsft_unknown_poses`); otherwise from what they can fix: the
+   given calibrations (``refine``) or G-SfT-P on the rigid mean shape (``unknown``, 3
+   landmarks per view), whose mirror-ambiguous candidates the outline fit arbitrates;
+2. after the registration with those views, a joint refinement of every view's pose and the
+   shape on the landmarks and outlines (:func:`.outline_fit.refine_poses_on_outlines`), with,
+   for ``refine``, a Gaussian prior on the corrections (``pose_sigma_deg``,
+   ``pose_sigma_mm``): a view's depth along its own axis is hardly seen in its image, so
+   without it the bone's position in the world would drift by centimetres.
 """
 
 from __future__ import annotations
@@ -14,74 +24,86 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..ssm.model import ShapeModel
+from .gsft import GsftResult
 from .observations import ViewObservations
 from .options import RegistrationOptions
-from .problem import stack_landmarks
+from .outline_fit import OutlineTerm, PosePrior, prior_residuals, refine_poses_on_outlines
+from .problem import Problem, with_pose
 from .rays import RayObservations
-from .unknown_poses import UnknownPoseView, refine_view_poses, solve_gsft_unknown_poses
+from .rotations import rotation_angle
+from .unknown_poses import UnknownPoseView, solve_gsft_unknown_poses
 
 __all__: list[str] = []
+
+#: Rejected trial steps in a row after which the joint refinement of the views stops: it
+#: starts far from its minimum (a whole view's pose to correct), where the first steps of
+#: small damping often overshoot the re-matched outlines.
+JOINT_MAX_REJECTED = 20
 
 
 @dataclass(frozen=True)
 class PosedViews:
-    """Views with refined or estimated extrinsics and what was done (``info``: see
-    :attr:`.register.RegistrationResult.pose_info`)."""
+    """The views to register with first (``refine``: the given ones; ``unknown``: G-SfT-P's
+    estimate), what was done (``info``: see :attr:`.register.RegistrationResult.pose_info`)
+    and the per-view starts of the joint refinement that the landmarks give (object poses in
+    every view as seen through ``views``, world, mm; and the weights): G-SfT-P's result and
+    its mirror-ambiguous candidates, which the outlines decide between."""
 
     views: list[ViewObservations]
     info: dict
+    starts: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
 
 
-def _check_enough_landmarks(model: ShapeModel, views: list[ViewObservations], poses: str) -> None:
+def enough_landmarks(model: ShapeModel, views: list[ViewObservations], n_modes: int) -> bool:
+    """Whether the landmarks alone fix every view's pose (but the gauge's) and ``n_modes``."""
     n_lm = sum(len(v.landmark_ids) for v in views)
-    need = (6 * len(views) + model.n_modes + 1) // 2
-    if n_lm < need:
-        raise ValueError(
-            f"poses: {poses!r} estimates {6 * (len(views) - 1)} view-pose parameters from the "
-            f"landmarks alone and needs at least {need} landmark observations for "
-            f"{len(views)} views and {model.n_modes} modes, got {n_lm}; use poses = 'known'"
-        )
+    return n_lm >= (6 * len(views) + n_modes + 1) // 2
 
 
 def _per_view(views: list[ViewObservations], values) -> dict[str, float]:
     return {v.name: float(c) for v, c in zip(views, values, strict=True)}
 
 
-def _refined(model, views, opts):
-    """``poses = "refine"``: calibration refinement from the landmarks."""
-    rays = stack_landmarks(views, None).rays.with_sigmas(None)
-    ref = refine_view_poses(
-        model,
-        rays,
-        [v.view.R for v in views],
-        [v.view.t for v in views],
-        eps=opts.eps,
-        prior_weight=opts.prior_weight,
-    )
-    info = {
-        "mode": "refine",
-        "rotation_corrections_deg": _per_view(views, ref.rotation_corrections_deg),
-        "centre_corrections_mm": _per_view(views, ref.centre_corrections_mm),
-    }
-    return ref.view_rotations, ref.view_translations, info
-
-
-def _estimated(model, views, opts):
-    """``poses = "unknown"``: G-SfT-P on camera-frame landmark rays."""
+def _camera_rays(views: list[ViewObservations]) -> list[UnknownPoseView]:
     rays = []
     for v in views:
-        if len(v.landmark_ids) < 3:
-            raise ValueError(
-                f"{v.name}: poses = 'unknown' needs at least 3 landmarks in every view, "
-                f"got {len(v.landmark_ids)}"
-            )
         o, d = v.view.rays(v.landmark_uv)  # world rays under the given calibration ...
         # ... brought back into the camera frame, where they do not depend on extrinsics
         camera = RayObservations(v.landmark_ids, v.view.to_camera(o), d @ v.view.R.T)
         rays.append(UnknownPoseView(camera, name=v.name))
-    est = solve_gsft_unknown_poses(model, rays, eps=opts.eps, prior_weight=opts.prior_weight)
-    info = {"mode": "unknown", "certificates": _per_view(views, est.certificates)}
-    return est.view_rotations, est.view_translations, info
+    return rays
+
+
+def _gsft_p(model, views, opts):
+    """G-SfT-P on camera-frame landmark rays (the rigid mean shape when the landmarks cannot
+    fix the modes too): the result and every candidate's object poses in the view frames."""
+    rigid = not enough_landmarks(model, views, model.n_modes)
+    fit_model = ShapeModel(model.mean, model.modes[:0], faces=model.faces) if rigid else model
+    est = solve_gsft_unknown_poses(
+        fit_model, _camera_rays(views), eps=opts.eps, prior_weight=opts.prior_weight
+    )
+    w = np.zeros(model.n_modes) if rigid else est.weights
+    cands = [(est.object_rotations, est.object_translations)]
+    cands += list(
+        zip(est.candidate_object_rotations, est.candidate_object_translations, strict=True)
+    )
+    return est, [(Rs, ts, w) for Rs, ts in cands]
+
+
+def _in_world(views, state):
+    """Object poses in the view frames -> object poses in the world seen through each view's
+    extrinsics (``O_x = E_x^-1 o P_x``)."""
+    Rs, ts, w = state
+    R = np.array([v.view.R.T @ Rp for v, Rp in zip(views, Rs, strict=True)])
+    t = np.array([v.view.R.T @ (tp - v.view.t) for v, tp in zip(views, ts, strict=True)])
+    return R, t, w
+
+
+def _with_poses(views, Rs, ts) -> list[ViewObservations]:
+    return [
+        replace(v, view=replace(v.view, R=np.asarray(R), t=np.asarray(t)))
+        for v, R, t in zip(views, Rs, ts, strict=True)
+    ]
 
 
 def estimate_view_poses(
@@ -90,18 +112,135 @@ def estimate_view_poses(
     poses: str,
     options: RegistrationOptions,
 ) -> PosedViews:
-    """The views with refined (``"refine"``) or estimated (``"unknown"``) extrinsics.
+    """Step 1 of the module docstring for ``"refine"`` or ``"unknown"``."""
+    if any(len(v.landmark_ids) < 3 for v in views):
+        if poses == "unknown":
+            v = next(v for v in views if len(v.landmark_ids) < 3)
+            raise ValueError(
+                f"{v.name}: poses = 'unknown' needs at least 3 landmarks in every view, "
+                f"got {len(v.landmark_ids)}"
+            )
+        return PosedViews(views, {"mode": poses}, [])
+    est, starts = _gsft_p(model, views, options)
+    if poses == "refine":
+        return PosedViews(views, {"mode": poses}, [_in_world(views, s) for s in starts])
+    posed = _with_poses(views, est.view_rotations, est.view_translations)
+    info = {"mode": "unknown", "certificates": _per_view(views, est.certificates)}
+    return PosedViews(posed, info, [_in_world(posed, s) for s in starts])
 
-    Raises
-    ------
-    ValueError
-        Too few landmarks for the pose parameters (the message says how many are needed).
-    """
-    _check_enough_landmarks(model, views, poses)
-    solver = _refined if poses == "refine" else _estimated
-    Rs, ts, info = solver(model, views, options)
-    posed = [
-        replace(v, view=replace(v.view, R=np.asarray(R), t=np.asarray(t)))
-        for v, R, t in zip(views, Rs, ts, strict=True)
+
+def _composed(view_R, view_t, Ro, to, Rg, tg):
+    """Extrinsics seeing, at world pose ``(Rg, tg)``, what ``(view_R, view_t)`` sees at
+    ``(Ro, to)``: ``E' = E o O o G^-1``."""
+    Rc = Ro @ Rg.T
+    return view_R @ Rc, view_R @ (to - Rc @ tg) + view_t
+
+
+def _joint_terms(problem: Problem) -> list[OutlineTerm]:
+    """The outline terms with the fixed gate ``gate_px`` (so that the objectives of several
+    starts compare)."""
+    opts = problem.options
+    return [
+        OutlineTerm(
+            problem.views[i].view,
+            t,
+            problem.outline_sigma[i] * np.sqrt(opts.contour_spacing_px),
+            opts.gate_px,
+            problem.mm_per_px[i],
+            i,
+        )
+        for i, t in problem.targets.items()
     ]
-    return PosedViews(posed, info)
+
+
+#: ``refine``: a joint fit is kept only when every component of its calibration correction is
+#: within this many prior sigmas; when none is, the registration with the given calibrations
+#: stands. The outline objective sums hundreds of correlated samples, so a wrong fit's better
+#: outline fit (e.g. onto an overlapping bone) can outweigh the prior's cost.
+MAX_CORRECTION_SIGMAS = 3.0
+
+
+def _implausible(fit, prior: PosePrior) -> bool:
+    r = prior_residuals(fit.rotations, fit.translations, prior)
+    return bool(np.max(np.abs(r)) > MAX_CORRECTION_SIGMAS)
+
+
+def _in_front(problem: Problem, state) -> bool:
+    """Whether every view sees its posed model in front of its source (a mirror candidate
+    may not)."""
+    Rs, ts, w = state
+    Q = problem.model.instance(w)
+    for x, v in enumerate(problem.views):
+        if not hasattr(v.view, "centre"):
+            continue
+        if np.any(v.view.to_camera(Q @ Rs[x].T + ts[x])[:, 2] <= 0):
+            return False
+    return True
+
+
+def refine_views_on_outlines(
+    problem: Problem,
+    result: GsftResult,
+    starts: list,
+    rejected: frozenset[int],
+    prior: bool,
+) -> tuple[list[ViewObservations], GsftResult, float]:
+    """Step 2 of the module docstring: every view's pose (the first's is the gauge) and the
+    shape refined on the landmarks and outlines, from ``result`` (one pose for every view)
+    and from each of ``starts`` (per-view poses); the lowest objective is kept.
+
+    Returns the views with the corrected extrinsics, the result posed in the gauge's world and
+    the refinement's objective.
+    """
+    opts, views = problem.options, problem.views
+    P = len(views)
+    pose_prior = None
+    if prior:
+        centres = np.array([-v.view.R.T @ v.view.t for v in views])
+        pose_prior = PosePrior(0, centres, np.deg2rad(opts.pose_sigma_deg), opts.pose_sigma_mm)
+    tiled = (np.repeat(result.rotation[None], P, 0), np.repeat(result.translation[None], P, 0))
+    best = None
+    terms = _joint_terms(problem)
+    for i, start in enumerate([(*tiled, result.weights), *starts]):
+        if not _in_front(problem, start):
+            continue
+        fit = refine_poses_on_outlines(
+            problem.model,
+            start,
+            problem.landmark_rays(rejected),
+            terms,
+            pose_of_view=np.arange(P),
+            prior=pose_prior,
+            prior_weight=opts.prior_weight,
+            max_iter=max(opts.refine_iterations, 30),
+            he=problem.topology,
+            max_rejected=JOINT_MAX_REJECTED,
+        )
+        problem.say(f"joint view refinement from start {i}: objective {fit.cost_after:.4g}")
+        if pose_prior is not None and _implausible(fit, pose_prior):
+            continue  # the outlines' many samples outweigh the prior: gate it
+        if best is None or fit.cost_after < best.cost_after:
+            best = fit
+    if best is None:  # no plausible correction: keep the registration with the given views
+        problem.say("joint view refinement: no correction within the calibration prior")
+        return list(views), result, np.nan
+    Rg, tg = best.rotations[0], best.translations[0]
+    new = []
+    for x, v in enumerate(views):
+        R, t = _composed(v.view.R, v.view.t, best.rotations[x], best.translations[x], Rg, tg)
+        new.append(replace(v, view=replace(v.view, R=R, t=t)))
+    res = with_pose(result, Rg, tg, best.weights, best.vertices, refine_converged=best.converged)
+    return new, res, best.cost_after
+
+
+def corrections(given: list[ViewObservations], used: list[ViewObservations]) -> dict:
+    """Rotation (deg) and source-position (mm) corrections of every view."""
+    rot = [np.degrees(rotation_angle(u.view.R, g.view.R)) for g, u in zip(given, used, strict=True)]
+    ctr = [
+        float(np.linalg.norm(u.view.R.T @ u.view.t - g.view.R.T @ g.view.t))
+        for g, u in zip(given, used, strict=True)
+    ]
+    return {
+        "rotation_corrections_deg": _per_view(given, rot),
+        "centre_corrections_mm": _per_view(given, ctr),
+    }

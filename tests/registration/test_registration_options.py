@@ -58,6 +58,8 @@ BAD = {
     "max_tangent_angle_deg": [0.0, -10.0, 181.0, math.nan],
     "wide_gate_factor": [0.0, -2.0, math.inf],
     "rejected_sigma_factor": [0.5, 0.0, math.inf, math.nan],
+    "pose_sigma_deg": [0.0, -2.0, math.inf],
+    "pose_sigma_mm": [0.0, -5.0, math.nan],
 }
 
 
