@@ -173,7 +173,9 @@ def linearise_fit(
     bases = tangent_bases(landmarks.directions) if len(ids) else np.zeros((0, 3, 2))
     inv = 1.0 / landmarks.sigmas
     lm = np.einsum("kia,ki->ka", bases, V[ids] - landmarks.origins) * inv[:, None]
-    parts = [(_Linearised(lm, Qall[ids], model.modes[:, ids], bases, inv, 0), 0, 2)]
+    parts = []
+    if len(ids):  # an outline-only registration has no landmark rows
+        parts.append((_Linearised(lm, Qall[ids], model.modes[:, ids], bases, inv, 0), 0, 2))
     for g, term in enumerate(outlines, start=1):
         q = term.target.points[term.target.usable]
         if len(q):
