@@ -34,6 +34,29 @@ def _painter_faces(view: View, vertices: np.ndarray, faces: np.ndarray) -> tuple
     return view.project(vertices)[faces[order]], order
 
 
+#: Largest side (px) of the radiograph crop drawn under the bone: a figure panel is ~500 px wide,
+#: and drawing a full 8000 px radiograph costs matplotlib gigabytes.
+MAX_BACKGROUND_PX = 560
+
+
+def _crop(display: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, tuple]:
+    """The part of ``display`` (H, W) inside the pixel box ``lo``..``hi`` (u, v), reduced to at
+    most :data:`MAX_BACKGROUND_PX` a side, and its ``imshow`` extent in full-image pixels."""
+    import cv2
+
+    h, w = display.shape
+    u0, v0 = (max(int(np.floor(x)), 0) for x in lo)
+    u1, v1 = min(int(np.ceil(hi[0])) + 1, w), min(int(np.ceil(hi[1])) + 1, h)
+    if u1 <= u0 or v1 <= v0:  # the bone projects outside the image
+        u0, v0, u1, v1 = 0, 0, w, h
+    crop = np.asarray(display[v0:v1, u0:u1], dtype=np.float32)
+    f = MAX_BACKGROUND_PX / max(crop.shape)
+    if f < 1.0:
+        size = (max(int(crop.shape[1] * f), 1), max(int(crop.shape[0] * f), 1))
+        crop = cv2.resize(crop, size, interpolation=cv2.INTER_AREA)
+    return crop, (u0 - 0.5, u1 - 0.5, v1 - 0.5, v0 - 0.5)
+
+
 def uncertainty_figure(
     path: str | os.PathLike,
     panels: Sequence[tuple[str, View, np.ndarray | None]],
@@ -69,14 +92,15 @@ def uncertainty_figure(
     fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 5.0), squeeze=False)
     for ax, (name, view, display) in zip(axes[0], panels, strict=True):
         tri, order = _painter_faces(view, V, F)
+        lo, hi = tri.reshape(-1, 2).min(axis=0), tri.reshape(-1, 2).max(axis=0)
+        pad = 0.08 * float(np.max(hi - lo))
         if display is not None:
-            ax.imshow(display, cmap="gray", vmin=0.0, vmax=1.0)
+            crop, extent = _crop(display, lo - pad, hi + pad)
+            ax.imshow(crop, cmap="gray", vmin=0.0, vmax=1.0, extent=extent)
         coll = PolyCollection(tri, array=face_sd[order], cmap="viridis", norm=norm)
         coll.set_edgecolor("face")
         coll.set_alpha(0.85)
         ax.add_collection(coll)
-        lo, hi = tri.reshape(-1, 2).min(axis=0), tri.reshape(-1, 2).max(axis=0)
-        pad = 0.08 * float(np.max(hi - lo))
         ax.set_xlim(lo[0] - pad, hi[0] + pad)
         ax.set_ylim(hi[1] + pad, lo[1] - pad)  # image rows grow downwards
         ax.set_aspect("equal")
