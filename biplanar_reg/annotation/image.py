@@ -18,6 +18,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -223,13 +224,14 @@ def _quiet(name: str) -> Iterator[None]:
         logger.disabled = disabled
 
 
-def _load_tiff(path: Path, frame: int) -> XrayImage:
+def _tiff_page(path: Path, frame: int, decode: bool) -> tuple[tuple[int, int], int, Any]:
+    """``((W, H), n_frames, pixels or None)`` of one TIFF page, read page by page (not through
+    tifffile's series: a damaged header can make the series analysis run for minutes; a
+    multi-page stack is one frame per page); every failure is a ``ValueError`` naming ``path``."""
     import tifffile
 
     try:
         with _quiet("tifffile"), tifffile.TiffFile(path) as tif:
-            # page by page, not through tifffile's series: a damaged header can make the
-            # series analysis run for minutes; a multi-page stack is one frame per page
             n_frames = len(tif.pages)
             _check_frame(path, frame, n_frames)
             page = tif.pages[frame]
@@ -237,13 +239,18 @@ def _load_tiff(path: Path, frame: int) -> XrayImage:
             if not (len(shape) == 2 or len(shape) == 3 and shape[-1] in (3, 4)):
                 raise ValueError(f"{path}: expected a 2D grey image, got a page of shape {shape}")
             check_pixel_count(path, shape[1], shape[0])
-            arr = page.asarray()
+            arr = page.asarray() if decode else None
     except ValueError as exc:
         if str(exc).startswith(str(path)):
             raise
         raise ValueError(f"{path}: unreadable TIFF ({exc})") from None
     except Exception as exc:  # noqa: BLE001 - tifffile/imagecodecs raise anything on bad bytes
         raise ValueError(f"{path}: unreadable TIFF ({type(exc).__name__}: {exc})") from None
+    return (int(shape[1]), int(shape[0])), n_frames, arr
+
+
+def _load_tiff(path: Path, frame: int) -> XrayImage:
+    _, n_frames, arr = _tiff_page(path, frame, decode=True)
     pixels = _grey_from_planes(np.asarray(arr), path)
     lo, hi = _integer_range(np.asarray(arr).dtype, pixels)
     return XrayImage(
@@ -392,6 +399,16 @@ def _sniff(path: Path) -> str:
     return "raster"
 
 
+def _checked(path: str | Path, frame: object) -> tuple[Path, str]:
+    """The arguments of :func:`load_image`/:func:`read_image_size` checked; the loader kind."""
+    path = Path(path)
+    if isinstance(frame, bool) or not isinstance(frame, (int, np.integer)):
+        raise ValueError(f"frame: expected an integer, got {frame!r}")
+    if not path.is_file():
+        raise ValueError(f"{path}: image file not found")
+    return path, _sniff(path)
+
+
 def load_image(path: str | Path, frame: int = 0) -> XrayImage:
     """Load one frame of an X-ray image.
 
@@ -413,35 +430,12 @@ def load_image(path: str | Path, frame: int = 0) -> XrayImage:
     ValueError
         The file is missing or unreadable, the frame does not exist, or the image is not grey.
     """
-    path = Path(path)
-    if isinstance(frame, bool) or not isinstance(frame, (int, np.integer)):
-        raise ValueError(f"frame: expected an integer, got {frame!r}")
-    if not path.is_file():
-        raise ValueError(f"{path}: image file not found")
-    kind = _sniff(path)
+    path, kind = _checked(path, frame)
     if kind == "tiff":
         return _load_tiff(path, int(frame))
     if kind == "dicom":
         return _load_dicom(path, int(frame))
     return _load_raster(path, int(frame))
-
-
-def _tiff_size(path: Path, frame: int) -> tuple[int, int]:
-    import tifffile
-
-    try:
-        with _quiet("tifffile"), tifffile.TiffFile(path) as tif:
-            _check_frame(path, frame, len(tif.pages))
-            shape = tuple(tif.pages[frame].shape)
-    except ValueError as exc:
-        if str(exc).startswith(str(path)):
-            raise
-        raise ValueError(f"{path}: unreadable TIFF ({exc})") from None
-    except Exception as exc:  # noqa: BLE001 - tifffile raises anything on bad bytes
-        raise ValueError(f"{path}: unreadable TIFF ({type(exc).__name__}: {exc})") from None
-    if len(shape) < 2:
-        raise ValueError(f"{path}: expected a 2D grey image, got a page of shape {shape}")
-    return int(shape[1]), int(shape[0])
 
 
 def _dicom_size(path: Path, frame: int) -> tuple[int, int]:
@@ -470,14 +464,9 @@ def read_image_size(path: str | Path, frame: int = 0) -> tuple[int, int]:
         The file is missing, its header is unreadable, the frame does not exist, or the image
         is above :data:`MAX_IMAGE_PIXELS`.
     """
-    path = Path(path)
-    if isinstance(frame, bool) or not isinstance(frame, (int, np.integer)):
-        raise ValueError(f"frame: expected an integer, got {frame!r}")
-    if not path.is_file():
-        raise ValueError(f"{path}: image file not found")
-    kind = _sniff(path)
+    path, kind = _checked(path, frame)
     if kind == "tiff":
-        size = _tiff_size(path, int(frame))
+        size = _tiff_page(path, int(frame), decode=False)[0]
     elif kind == "dicom":
         size = _dicom_size(path, int(frame))
     else:
