@@ -3,10 +3,12 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
 import pytest
+from _browser import CHROMIUM, CHROMIUM_ARGS, SAMPLE, VIEWPORT, WAIT_MS
 
 from biplanar_reg.simulate import write_synthetic_case
 
@@ -29,3 +31,46 @@ def synthetic_case(_synthetic_master: Path, tmp_path: Path) -> Path:
 def wrist_case(tmp_path: Path) -> Path:
     """A copy of the shipped wrist case, its ``data/`` included (two 1760 x 1760 radiographs)."""
     return Path(shutil.copytree(WRIST, tmp_path / "wrist_radius"))
+
+
+# -- the browser tests (test_e2e*.py) ---------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """Debian's chromium under Playwright (imported here: the API tests need neither)."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        yield b
+        b.close()
+
+
+@pytest.fixture
+def page(browser):
+    context = browser.new_context(viewport=VIEWPORT)
+    context.set_default_timeout(WAIT_MS)
+    pg = context.new_page()
+    errors: list[str] = []
+    pg.on("pageerror", lambda exc: errors.append(str(exc)))
+    pg.errors = errors  # uncaught JavaScript exceptions, asserted empty by the scenarios
+    yield pg
+    context.close()
+
+
+@pytest.fixture
+def shipped() -> dict:
+    """The shipped annotations (never written)."""
+    return json.loads((SAMPLE / "annotations.json").read_text())
+
+
+@pytest.fixture
+def case_dir(tmp_path: Path, shipped: dict) -> Path:
+    """A copy of the wrist case (with data/) whose annotations keep the contours only."""
+    case = tmp_path / "wrist"
+    shutil.copytree(SAMPLE, case, ignore=shutil.ignore_patterns("out", ".workbench.lock"))
+    doc = json.loads(json.dumps(shipped))
+    for view in doc["views"].values():
+        view["landmarks"] = {}
+    (case / "annotations.json").write_text(json.dumps(doc, indent=1))
+    return case

@@ -18,71 +18,18 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import threading
 import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _browser import needs_chromium
 
 sync_api = pytest.importorskip("playwright.sync_api")
 
-ROOT = Path(__file__).resolve().parents[2]
-SAMPLE = ROOT / "sample_cases" / "wrist_radius"
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--enable-unsafe-swiftshader",  # WebGL without a GPU, for the 3D view
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
-VIEWPORT = {"width": 1400, "height": 900}
-WAIT_MS = 60_000
 SHOTS = os.environ.get("BIPLANAR_WB_SCREENSHOTS")
-
-pytestmark = pytest.mark.skipif(
-    not CHROMIUM.exists(), reason="needs Debian's chromium at /usr/bin/chromium"
-)
-
-
-@pytest.fixture(scope="module")
-def browser():
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
-        yield b
-        b.close()
-
-
-@pytest.fixture
-def page(browser):
-    context = browser.new_context(viewport=VIEWPORT)
-    context.set_default_timeout(WAIT_MS)
-    pg = context.new_page()
-    errors: list[str] = []
-    pg.on("pageerror", lambda exc: errors.append(str(exc)))
-    pg.errors = errors
-    yield pg
-    context.close()
-
-
-@pytest.fixture
-def shipped() -> dict:
-    return json.loads((SAMPLE / "annotations.json").read_text())
-
-
-@pytest.fixture
-def case_dir(tmp_path: Path, shipped: dict) -> Path:
-    case = tmp_path / "wrist"
-    shutil.copytree(SAMPLE, case, ignore=shutil.ignore_patterns("out", ".workbench.lock"))
-    doc = json.loads(json.dumps(shipped))
-    for view in doc["views"].values():
-        view["landmarks"] = {}
-    (case / "annotations.json").write_text(json.dumps(doc, indent=1))
-    return case
+pytestmark = needs_chromium
 
 
 @pytest.fixture
