@@ -24,69 +24,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _browser import ROOT, needs_chromium
 
 sync_api = pytest.importorskip("playwright.sync_api")
 
-ROOT = Path(__file__).resolve().parents[2]
-SAMPLE = ROOT / "sample_cases" / "wrist_radius"
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
-VIEWPORT = {"width": 1400, "height": 900}
 SERVER_START_S = 60.0
 REGISTER_TIMEOUT_MS = 180_000
-WAIT_MS = 60_000  # any other wait: generous, for a loaded shared machine
-
-pytestmark = pytest.mark.skipif(
-    not CHROMIUM.exists(), reason="needs Debian's chromium at /usr/bin/chromium"
-)
+pytestmark = needs_chromium
 
 
 # ---- fixtures ------------------------------------------------------------------------------
-
-
-@pytest.fixture(scope="module")
-def browser():
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
-        yield b
-        b.close()
-
-
-@pytest.fixture
-def page(browser):
-    context = browser.new_context(viewport=VIEWPORT)
-    context.set_default_timeout(WAIT_MS)
-    pg = context.new_page()
-    errors: list[str] = []
-    pg.on("pageerror", lambda exc: errors.append(str(exc)))
-    pg.errors = errors  # uncaught JavaScript exceptions, asserted empty by the scenario
-    yield pg
-    context.close()
-
-
-@pytest.fixture
-def shipped() -> dict:
-    """The shipped annotations (never written)."""
-    return json.loads((SAMPLE / "annotations.json").read_text())
-
-
-@pytest.fixture
-def case_dir(tmp_path: Path, shipped: dict) -> Path:
-    """A copy of the wrist case (with data/) whose annotations keep the contours only."""
-    case = tmp_path / "wrist"
-    shutil.copytree(SAMPLE, case, ignore=shutil.ignore_patterns("out", ".workbench.lock"))
-    doc = json.loads(json.dumps(shipped))
-    for view in doc["views"].values():
-        view["landmarks"] = {}
-    (case / "annotations.json").write_text(json.dumps(doc, indent=1))
-    return case
 
 
 @pytest.fixture
@@ -487,8 +434,14 @@ def _check_same_result_as_cli(case_dir: Path, tmp_path: Path, page) -> None:
     assert np.abs(wb_vertices - cli_vertices).max() < 1e-6  # mm: the same bone
     for key, value in cli_doc["metrics"].items():
         if isinstance(value, float):
-            assert workbench_doc["metrics"][key] == pytest.approx(value, rel=1e-6, abs=1e-9), key
-            assert shown[key] == pytest.approx(value, rel=1e-6, abs=1e-9), key
+            # the certificate (eigenvalue ratio of the last SDP's Gram matrix) is not
+            # bit-reproducible across threads: the workbench registers in a worker thread, and
+            # the same case registered in a thread rather than the main thread gives
+            # certificates 7e-6 (wrist case) to 3e-4 (this scenario) apart, with the same bone;
+            # every other metric must agree to 1e-6
+            rel = 1e-2 if key == "certificate" else 1e-6
+            assert workbench_doc["metrics"][key] == pytest.approx(value, rel=rel, abs=1e-9), key
+            assert shown[key] == pytest.approx(value, rel=rel, abs=1e-9), key
 
 
 # ---- the smaller interactions -------------------------------------------------------------
