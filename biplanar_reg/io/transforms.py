@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 import os
 from collections.abc import Mapping, Sequence
@@ -88,11 +87,15 @@ def _check_poses(poses: np.ndarray, what: str) -> np.ndarray:
         if np.all(np.isnan(T)):
             continue
         if not np.all(np.isfinite(T)):
-            raise ValueError(f"{what}: frame {f}: pose has NaN/inf entries (all 16 NaN = untracked)")
+            raise ValueError(
+                f"{what}: frame {f}: pose has NaN/inf entries (all 16 NaN = untracked)"
+            )
         R = T[:3, :3]
-        if np.abs(T[3] - [0, 0, 0, 1]).max() > _RIGID_TOL or np.abs(
-            R @ R.T - np.eye(3)
-        ).max() > _RIGID_TOL or np.linalg.det(R) < 0:
+        if (
+            np.abs(T[3] - [0, 0, 0, 1]).max() > _RIGID_TOL
+            or np.abs(R @ R.T - np.eye(3)).max() > _RIGID_TOL
+            or np.linalg.det(R) < 0
+        ):
             raise ValueError(f"{what}: frame {f}: not a rigid transform (rotation + translation)")
     return P
 
@@ -214,7 +217,9 @@ def _tfm_fields(path: Path) -> dict[str, tuple[int, str]]:
     with open(path, encoding="utf-8", errors="replace") as fh:
         lines = list(enumerate(fh, 1))
     if not lines or not lines[0][1].startswith("#Insight Transform File"):
-        raise ValueError(f"{path}: line 1: not an ITK transform file (no '#Insight Transform File')")
+        raise ValueError(
+            f"{path}: line 1: not an ITK transform file (no '#Insight Transform File' header)"
+        )
     for lineno, text in lines[1:]:
         if text.startswith("#") or not text.strip():
             if text.startswith("#Transform 1"):
@@ -286,15 +291,24 @@ def write_markups_json(
     if len(labels) != len(X) or not np.all(np.isfinite(X)):
         raise ValueError(f"{path}: need one finite (x, y, z) per label ({len(labels)} labels)")
     points = [
-        {"id": str(i + 1), "label": str(lab), "position": [float(v) for v in x],
-         "positionStatus": "defined"}
+        {
+            "id": str(i + 1),
+            "label": str(lab),
+            "position": [float(v) for v in x],
+            "positionStatus": "defined",
+        }
         for i, (lab, x) in enumerate(zip(labels, X, strict=True))
     ]
     doc = {
         "@schema": _MARKUPS_SCHEMA,
         "markups": [
-            {"type": "Fiducial", "name": name, "coordinateSystem": "LPS",
-             "coordinateUnits": "mm", "controlPoints": points}
+            {
+                "type": "Fiducial",
+                "name": name,
+                "coordinateSystem": "LPS",
+                "coordinateUnits": "mm",
+                "controlPoints": points,
+            }
         ],
     }
     return atomic_write_json(path, doc)
@@ -313,7 +327,9 @@ def read_markups_json(path: str | os.PathLike[str]) -> tuple[list[str], np.ndarr
     m = markups[0]
     system = m.get("coordinateSystem", "LPS")
     if system not in ("LPS", "RAS"):
-        raise ValueError(f"{path}: markups[0].coordinateSystem must be 'LPS' or 'RAS', got {system!r}")
+        raise ValueError(
+            f"{path}: markups[0].coordinateSystem must be 'LPS' or 'RAS', got {system!r}"
+        )
     points = m.get("controlPoints", [])
     if not isinstance(points, list):
         raise ValueError(f"{path}: markups[0].controlPoints must be a list")
@@ -349,8 +365,17 @@ def relative_pose(reference: np.ndarray, body: np.ndarray) -> np.ndarray:
     return Ainv @ B
 
 
-_CSV_COLUMNS = ["frame", "body", "reference", "tx_mm", "ty_mm", "tz_mm", "rx_deg", "ry_deg",
-                "rz_deg"]
+_CSV_COLUMNS = [
+    "frame",
+    "body",
+    "reference",
+    "tx_mm",
+    "ty_mm",
+    "tz_mm",
+    "rx_deg",
+    "ry_deg",
+    "rz_deg",
+]
 _CSV_HEADER = (
     "# biplanar-reg kinematics: pose of <body> in the frame of <reference> ('world' = the "
     "calibration frame) per frame\n"
