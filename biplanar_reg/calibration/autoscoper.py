@@ -102,6 +102,8 @@ def write_autoscoper_trial(
         f"CameraRootDir {_rel(Path(d), final) if d is not None else f'radiographs/{v.name}'}/"
         for v, d in zip(views, image_dirs, strict=True)
     ]
+    if None in image_dirs:
+        roots.insert(0, "# radiographs/<view>/: put each camera's TIFF frames there")
     vols = []
     for vol in volumes:
         vols += [f"# {vol.comment}"] if vol.comment else []

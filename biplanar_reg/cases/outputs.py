@@ -177,6 +177,18 @@ def write_exports(tmp: Path, out: Path, case: Any, res: Any) -> list[str]:
     return [p.relative_to(tmp).as_posix() for p in files]
 
 
+def _radiograph_dirs(case: Any) -> list[Path | None]:
+    """Each view's radiograph folder for ``CameraRootDir``: the folder of its image when that is
+    a TIFF and no other view's image shares the folder (Autoscoper reads every TIFF frame of
+    the folder), else None (``radiographs/<view>/``, for the user's TIFF sequence)."""
+    parents = [cv.image_path.parent if cv.image_path is not None else None for cv in case.views]
+    out = []
+    for cv, parent in zip(case.views, parents, strict=True):
+        tiff = cv.image_path is not None and cv.image_path.suffix.lower() in (".tif", ".tiff")
+        out.append(parent if tiff and parents.count(parent) == 1 else None)
+    return out
+
+
 def _autoscoper_exports(tmp: Path, out: Path, case: Any, pose: np.ndarray) -> list[Path]:
     """``autoscoper/``: the trial ``.cfg``, MayaCam 2.0 per view, ``Tracking/<id>_<bone>.tra``.
 
@@ -194,7 +206,7 @@ def _autoscoper_exports(tmp: Path, out: Path, case: Any, pose: np.ndarray) -> li
             return []
         views.append(v)
     folder = tmp / "autoscoper"
-    dirs = [cv.image_path.parent if cv.image_path is not None else None for cv in case.views]
+    dirs = _radiograph_dirs(case)
     files = write_autoscoper_trial(
         folder,
         _safe(case.id),

@@ -362,7 +362,10 @@ def relative_pose(reference: np.ndarray, body: np.ndarray) -> np.ndarray:
     Ainv[..., :3, :3] = Rt
     Ainv[..., :3, 3] = -(Rt @ A[..., :3, 3:4])[..., 0]
     Ainv[..., 3, 3] = 1.0
-    return Ainv @ B
+    rel = Ainv @ B
+    untracked = np.isnan(rel).any(axis=(-2, -1))
+    rel[untracked] = np.nan  # all 16 NaN, the untracked-frame form of write_tra
+    return rel
 
 
 _CSV_COLUMNS = [
