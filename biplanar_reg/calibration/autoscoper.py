@@ -150,7 +150,7 @@ def read_autoscoper_cfg(path: str | os.PathLike[str]) -> dict[str, list[str]]:
             if not value.strip():
                 raise ValueError(f"{path}: line {lineno}: {key} has no value")
             if key in _PATH_KEYS and not Path(value).is_absolute():
-                value = str((path.parent / value).resolve())
+                value = os.path.normpath(path.parent.absolute() / value)
             out.setdefault(key, []).append(value.strip())
     n_cam, n_dir = len(out.get("mayaCam_csv", [])), len(out.get("CameraRootDir", []))
     if n_cam == 0 or n_cam != n_dir:
