@@ -27,7 +27,13 @@ from ..io.atomic import atomic_write_json
 from ..registration import RegistrationResult, ViewObservations, register_views
 from .case import Case, load_case, to_view_observations
 from .metrics import contour_errors, model_outlines, summary_stats, surface_metrics
-from .outputs import atomic_output_dir, clean_stale, mesh_properties, uncertainty_summary
+from .outputs import (
+    atomic_output_dir,
+    clean_stale,
+    mesh_properties,
+    uncertainty_summary,
+    write_exports,
+)
 
 if TYPE_CHECKING:  # the report (matplotlib, VTK) is imported when a case is written
     from ..report.case_report import ReportView
@@ -427,6 +433,9 @@ def register_case(
         t2 = time.perf_counter()
         props = mesh_properties(res.vertex_sd_mm)
         write_mesh(tmp / "registered.ply", res.vertices, case.model.faces, props)
+        t_exp = time.perf_counter()
+        doc["exports"] = write_exports(tmp, out_dir, case, res)  # docs/exports.md
+        doc["timings"]["exports"] = time.perf_counter() - t_exp
         doc["report"] = None
         if report:
             from ..report import case_report  # looked up at call time (tests replace it)
