@@ -227,7 +227,9 @@ def _neighbour_fits(model, frames, rest, Rs, ts, w, opts, silhouettes, say, name
     Q = model.instance(w)
     for f in rest:
         R, t = _neighbour_pose(f, Rs, ts)
-        problem = make_problem(model, list(frames[f]), opts, silhouettes, say, (Q @ R.T + t).mean(0))
+        problem = make_problem(
+            model, list(frames[f]), opts, silhouettes, say, (Q @ R.T + t).mean(0)
+        )
         if problem.use_outlines:
             R, t = _fit_alone(model, problem, R, t, w)
         else:
@@ -346,7 +348,9 @@ def register_frames(
     w_start = w.copy()
     say(f"convex start: {len(posed)} of {len(frames)} frames" + (" (rigid mean)" if rigid else ""))
     t1 = time.perf_counter()
-    rest = sorted(set(range(len(frames))) - set(posed), key=lambda f: min(abs(f - g) for g in posed))
+    rest = sorted(
+        set(range(len(frames))) - set(posed), key=lambda f: min(abs(f - g) for g in posed)
+    )
     flags = _neighbour_fits(model, frames, rest, Rs, ts, w, opts, silhouettes, say, names)
     say(f"neighbour starts: {len(rest)} frame(s)")
     t2 = time.perf_counter()

@@ -199,8 +199,18 @@ def make_sequence(
     frames, images = [], []
     for f, pose in enumerate(poses):
         img, obs = _frame_views(
-            scene, views, shape, pose, rng, chosen, ids, landmark_noise_px, f in lm_frames,
-            outline_fraction, anchor_spacing_px, anchor_noise_px,
+            scene,
+            views,
+            shape,
+            pose,
+            rng,
+            chosen,
+            ids,
+            landmark_noise_px,
+            f in lm_frames,
+            outline_fraction,
+            anchor_spacing_px,
+            anchor_noise_px,
         )
         frames.append(obs)
         images.append(img)
