@@ -42,6 +42,7 @@ from .realistic import (
     _traceable,
     model_floor,
 )
+from .scenes import outline_stretch
 
 __all__ = ["SequenceCase", "make_sequence"]
 
@@ -129,7 +130,10 @@ def _frame_views(
         img, outline, _ = _render(scene, view, truth, second, tissue, rng, 1)
         part = _traceable(outline, True, view.project(truth[scene.cut]))
         keep = min(int(round(float(rng.uniform(*fraction)) * len(outline))), len(part))
-        pieces = _trace(img, part, keep, spacing, anchor_noise, rng)
+        if anchor_noise is None:  # the exact outline's stretch, no tracing
+            pieces = [outline_stretch(part, False, min(keep, len(part)) / len(part), rng)]
+        else:
+            pieces = _trace(img, part, keep, spacing, anchor_noise, rng)
         uv = view.project(truth[ids]) + noise_px * rng.normal(size=(len(ids), 2))
         images.append(img)
         obs.append(
@@ -158,7 +162,7 @@ def make_sequence(
     sweep_mm: float = 8.0,
     outline_fraction: tuple[float, float] = (0.6, 0.8),
     anchor_spacing_px: float = 40.0,
-    anchor_noise_px: float = 1.5,
+    anchor_noise_px: float | None = 1.5,
 ) -> SequenceCase:
     """One seeded sequence (module docstring).
 
@@ -176,7 +180,8 @@ def make_sequence(
     sweep_deg, sweep_mm : float
         Total rotation (deg) and translation (mm) of the bone over the sequence.
     outline_fraction, anchor_spacing_px, anchor_noise_px
-        As :func:`.realistic.make_realistic_case`.
+        As :func:`.realistic.make_realistic_case`; ``anchor_noise_px=None``: no livewire
+        tracing, the outline is an open stretch of the bone's exact projected outline.
     """
     if n_frames < 1:
         raise ValueError(f"n_frames: must be >= 1, got {n_frames}")
