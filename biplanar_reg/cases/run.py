@@ -506,6 +506,20 @@ def _frame_entry(name: str, f: int, res: FrameRegistrationResult, obs) -> dict[s
     }
 
 
+def _frames_metrics(res: FrameRegistrationResult) -> dict[str, Any]:
+    """``result.json["metrics"]`` of a multi-frame case: over every frame and view (px)."""
+    lm = [e for d in res.landmark_errors_px for v in d.values() for e in v.values()]
+    ct = [np.asarray(c, float) for d in res.contour_errors_px for c in d.values()]
+    ct = np.concatenate(ct) if ct else np.zeros(0)
+    ct = ct[np.isfinite(ct)]
+    out: dict[str, Any] = {
+        "landmark_rms_px": float(np.sqrt(np.mean(np.square(lm)))) if lm else None,
+        "landmark_max_px": float(np.max(lm)) if lm else None,
+    }
+    out.update({f"contour_{k}_px": v for k, v in summary_stats(ct).items()})
+    return out
+
+
 def frames_result_document(case: Case, frames, res: FrameRegistrationResult, timings) -> dict:
     """``result.json`` of a multi-frame case (docs/cases.md, "Frames")."""
     return _jsonable(
@@ -519,6 +533,7 @@ def frames_result_document(case: Case, frames, res: FrameRegistrationResult, tim
             "translation": res.translations[0],
             "weights": res.weights,
             "frames": [_frame_entry(n, f, res, frames[f]) for f, n in enumerate(res.frame_names)],
+            "metrics": _frames_metrics(res),
             "joint_objective": {"before": res.cost_before, "after": res.cost_after},
             "converged": res.converged,
             "flags": res.flags,

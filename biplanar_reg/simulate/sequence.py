@@ -44,7 +44,7 @@ from .realistic import (
 )
 from .scenes import outline_stretch
 
-__all__ = ["SequenceCase", "make_sequence"]
+__all__ = ["SequenceCase", "make_sequence", "subsequence", "write_sequence_case"]
 
 
 @dataclass(frozen=True)
@@ -245,3 +245,95 @@ def subsequence(case: SequenceCase, frames: list[int]) -> SequenceCase:
         radiographs=[case.radiographs[f] for f in frames],
         landmark_frames=[i for i, f in enumerate(frames) if f in case.landmark_frames],
     )
+
+
+_CASE_HEAD = """format = "biplanar-reg/case@1"
+id = "{case_id}"
+units = "mm"
+
+[model]
+ssm = "model/bone_ssm.npz"
+landmarks = "model/landmarks.json"
+"""
+
+_CASE_VIEW = """
+[[views]]
+name = "{name}"
+calibration = "calib/{name}.json"
+calibration_format = "json"
+image = "xray/{first}"
+"""
+
+_CASE_TAIL = """
+[registration]
+poses = "known"
+silhouettes = true
+"""
+
+
+def _png(image: np.ndarray) -> bytes:
+    import cv2
+
+    ok, buf = cv2.imencode(".png", np.round(np.clip(image, 0, 1) * 255).astype(np.uint8))
+    if not ok:  # pragma: no cover - OpenCV always encodes a uint8 image
+        raise RuntimeError("PNG encoding failed")
+    return buf.tobytes()
+
+
+def _frame_annotations(frame: list[ViewObservations]):
+    from ..annotation import Annotations, Landmark, ViewAnnotations
+
+    ann = Annotations()
+    for v in frame:
+        lms = {
+            n: Landmark(uv=uv, sigma_px=float(s))
+            for n, uv, s in zip(v.landmark_names, v.landmark_uv, v.landmark_sigma_px, strict=True)
+        }
+        ann.views[v.name] = ViewAnnotations(landmarks=lms, contours=list(v.contours))
+    return ann
+
+
+def write_sequence_case(folder, case: SequenceCase, case_id: str | None = None):
+    """Write ``case`` as a multi-frame case folder (``[[frames]]``, docs/cases.md "Frames").
+
+    Files: ``model/bone_ssm.npz`` and ``model/landmarks.json``; ``calib/<view>.json`` (the
+    shared calibrations, native JSON); ``xray/f<i>_<view>.png`` (8-bit radiographs);
+    ``frames/f<i>.json`` (each frame's annotations); ``gt/truth.json`` (the true shape in the
+    model frame and every frame's true model -> world pose, mm). Returns the folder.
+    """
+    from pathlib import Path
+
+    from ..annotation import save_annotations
+    from ..calibration import save_calibration
+    from ..io import atomic_write_bytes, atomic_write_json
+
+    root = Path(folder)
+    for sub in ("model", "calib", "xray", "frames", "gt"):
+        (root / sub).mkdir(parents=True, exist_ok=True)
+    case.model.save(root / "model" / "bone_ssm.npz")
+    atomic_write_json(root / "model" / "landmarks.json", dict(case.model.landmarks))
+    text = _CASE_HEAD.format(case_id=case_id or root.name)
+    for v in case.views:
+        save_calibration(v, root / "calib" / f"{v.name}.json", "json")
+        text += _CASE_VIEW.format(name=v.name, first=f"f0_{v.name}.png")
+    for f, (frame, images) in enumerate(zip(case.frames, case.radiographs, strict=True)):
+        for v, img in zip(frame, images, strict=True):
+            atomic_write_bytes(root / "xray" / f"f{f}_{v.name}.png", _png(img))
+        save_annotations(_frame_annotations(frame), root / "frames" / f"f{f}.json")
+        text += f'\n[[frames]]\nname = "f{f}"\nannotations = "frames/f{f}.json"\n'
+        text += "images = {" + ", ".join(f'{v.name} = "xray/f{f}_{v.name}.png"' for v in frame)
+        text += "}\n"
+    text += _CASE_TAIL
+    atomic_write_bytes(root / "case.toml", text.encode())
+    atomic_write_json(
+        root / "gt" / "truth.json",
+        {
+            "frame": "truth in frame f = shape @ poses[f][:3, :3].T + poses[f][:3, 3] (world, mm)",
+            "shape": case.truth_shape.tolist(),
+            "poses": case.truth_poses.tolist(),
+            "floor_mm": case.floor_mm,
+            "landmark_frames": case.landmark_frames,
+            "seed": case.seed,
+        },
+    )
+    return root
