@@ -39,12 +39,14 @@ from ..ssm.population import FAMILIES
 
 __all__ = [
     "Case",
+    "CaseFrame",
     "CaseSetup",
     "load_case",
     "read_case_setup",
     "read_case_views",
     "registration_options",
     "to_view_observations",
+    "to_frame_observations",
 ]
 
 log = logging.getLogger(__name__)

@@ -14,7 +14,8 @@ world, mm), ``V_f = R_f Q(w) + t_f``. :func:`register_frames` orchestrates the e
    fix ``6 F + M`` parameters, the start is the rigid mean shape (as for one frame,
    :mod:`.view_poses`);
 2. **frames without (enough) landmarks** start from their neighbouring frames' poses (the
-   interpolation of the nearest posed frames before and after, else the nearest one) and are
+   interpolation of the nearest posed frames before and after, else the constant-velocity
+   extrapolation from the two nearest on one side, else the nearest one) and are
    fitted rigidly on their outlines with the start's shape (:func:`.outline_fit.
    refine_poses_on_outlines` with one pose), outwards from the posed frames, so each starts
    from a fitted neighbour;
@@ -34,7 +35,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from ..ssm.model import ShapeModel
 from .gsft import nearest_point_to_rays
@@ -174,18 +175,27 @@ def _convex_start(model, frames, posed, names, opts):
     return Rs, ts, w, rigid
 
 
-def _neighbour_pose(f: int, Rs: dict, ts: dict) -> tuple[np.ndarray, np.ndarray]:
+def _neighbour_pose(f: int, Rs: dict, ts: dict, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Frame ``f``'s start from the posed frames: interpolated between the nearest before and
-    after (rotation by slerp), else the nearest one's."""
-    before = [g for g in Rs if g < f]
-    after = [g for g in Rs if g > f]
+    after, else extrapolated at constant velocity from the two nearest on its side, else the
+    nearest one's. Rotations by their rotation vector, the model centroid ``c`` (model frame,
+    mm) linearly: the model frame's origin may lie far from the bone."""
+    before = sorted(g for g in Rs if g < f)
+    after = sorted(g for g in Rs if g > f)
     if before and after:
-        a, b = max(before), min(after)
-        s = (f - a) / (b - a)
-        rot = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([Rs[a], Rs[b]])))([s])
-        return rot.as_matrix()[0], (1 - s) * ts[a] + s * ts[b]
-    g = max(before) if before else min(after)
-    return Rs[g].copy(), ts[g].copy()
+        a, b = before[-1], after[0]
+    elif len(before) >= 2:
+        a, b = before[-2], before[-1]
+    elif len(after) >= 2:
+        a, b = after[1], after[0]
+    else:
+        g = (before or after)[0]
+        return Rs[g].copy(), ts[g].copy()
+    s = (f - a) / (b - a)  # in (0, 1) between them, > 1 beyond b
+    rel = Rotation.from_matrix(Rs[b] @ Rs[a].T).as_rotvec()
+    R = Rotation.from_rotvec(s * rel).as_matrix() @ Rs[a]
+    ca, cb = Rs[a] @ c + ts[a], Rs[b] @ c + ts[b]
+    return R, (1 - s) * ca + s * cb - R @ c
 
 
 def _frame_terms(problem: Problem, vertices: np.ndarray, offset: int) -> list[OutlineTerm]:
@@ -226,7 +236,7 @@ def _neighbour_fits(model, frames, rest, Rs, ts, w, opts, silhouettes, say, name
     flags = []
     Q = model.instance(w)
     for f in rest:
-        R, t = _neighbour_pose(f, Rs, ts)
+        R, t = _neighbour_pose(f, Rs, ts, Q.mean(axis=0))
         problem = make_problem(
             model, list(frames[f]), opts, silhouettes, say, (Q @ R.T + t).mean(0)
         )

@@ -11,10 +11,14 @@ See ``docs/sample_cases.md``.
   :func:`vertex_landmarks` (a view's observations of model vertices), :func:`boosting_case`
   (a two-view landmarks-plus-outline problem);
 * :mod:`.case_folder`: :func:`write_synthetic_case` (a case folder with ``gt/``) and
-  :func:`synthetic_landmarks`.
+  :func:`synthetic_landmarks`;
+* :mod:`.sequence`: :func:`make_sequence` (a bone moving over F frames, from a realistic
+  scene), :func:`subsequence`, :func:`write_sequence_case` (a multi-frame case folder); see
+  ``docs/frames.md``.
 """
 
 from .case_folder import synthetic_landmarks, write_synthetic_case
+from .sequence import SequenceCase, make_sequence, subsequence, write_sequence_case
 from .scenes import (
     biplanar_views,
     boosting_case,
@@ -39,4 +43,8 @@ __all__ = [
     "synthetic_landmarks",
     "vertex_landmarks",
     "write_synthetic_case",
+    "SequenceCase",
+    "make_sequence",
+    "subsequence",
+    "write_sequence_case",
 ]

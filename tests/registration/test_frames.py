@@ -74,8 +74,11 @@ def test_frame_without_landmarks_or_outlines_is_interpolated_and_flagged():
     res = register_frames(model, frames, silhouettes=False, names=["a", "b", "c"])
     assert res.started_from == ["landmarks", "neighbours", "landmarks"]
     assert any(f.startswith("b: no landmarks") for f in res.flags)
-    # halfway between the neighbours' poses (the path is linear in the translation)
-    assert np.allclose(res.translations[1], (res.translations[0] + res.translations[2]) / 2)
+    # halfway between the neighbours' poses: the bone's centroid and rotation
+    c = [res.frame_vertices(f).mean(axis=0) for f in range(3)]
+    assert np.allclose(c[1], (c[0] + c[2]) / 2)
+    half = np.degrees(rotation_angle(res.rotations[0], res.rotations[2])) / 2
+    assert abs(np.degrees(rotation_angle(res.rotations[0], res.rotations[1])) - half) < 1e-6
     assert np.isnan(res.landmark_rms_px[1])
 
 
