@@ -18,7 +18,6 @@ See ``docs/sample_cases.md``.
 """
 
 from .case_folder import synthetic_landmarks, write_synthetic_case
-from .sequence import SequenceCase, make_sequence, subsequence, write_sequence_case
 from .scenes import (
     biplanar_views,
     boosting_case,
@@ -30,6 +29,7 @@ from .scenes import (
     synthetic_bone_model,
     vertex_landmarks,
 )
+from .sequence import SequenceCase, make_sequence, subsequence, write_sequence_case
 
 __all__ = [
     "biplanar_views",
