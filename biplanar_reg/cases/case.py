@@ -16,6 +16,7 @@ import dataclasses
 import logging
 import math
 import os
+import re
 import tomllib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -97,7 +98,12 @@ _KEYS = {
     "views": {"name", "calibration", "calibration_format", "dlt_column", "image", "image_frame"},
     "annotations": {"file"},
     "ground_truth": {"mesh", "up_to_pose", "model_from_truth"},
+    "outputs": {"mesh_formats", "bone"},
 }
+_KEYS[""].add("outputs")  # the export options (docs/exports.md)
+#: ``[outputs] mesh_formats``: extra formats of the registered mesh (``registered.ply`` is
+#: always written; docs/exports.md).
+MESH_EXPORT_FORMATS = ("stl", "obj", "vtp", "vtk")
 _OPTION_FIELDS = {f.name: f for f in dataclasses.fields(RegistrationOptions)}
 POSES = ("known", "unknown", "refine")
 #: ``[registration]`` keys that are not :class:`RegistrationOptions` fields.
@@ -232,6 +238,10 @@ class Case:
     start: tuple[np.ndarray, np.ndarray] | None = None
     start_path: Path | None = None
     frames: list[CaseFrame] = field(default_factory=list)
+    #: ``[outputs]``: extra mesh formats of the registered bone, and the bone's name in the
+    #: exported files (``docs/exports.md``)
+    mesh_formats: tuple[str, ...] = ()
+    bone: str = "bone"
 
     @property
     def case_file(self) -> Path:
@@ -892,6 +902,7 @@ def load_case(case_dir: str | os.PathLike, *, allow_outside: bool = False) -> Ca
         )
     options = registration_options(reg, ctx)
     gt = _load_ground_truth(ctx, doc, scale, model)
+    mesh_formats, bone = _load_outputs(ctx, doc)
     return Case(
         case_dir=ctx.dir,
         id=case_id,
@@ -910,7 +921,28 @@ def load_case(case_dir: str | os.PathLike, *, allow_outside: bool = False) -> Ca
         start=start,
         start_path=start_path,
         frames=frames,
+        mesh_formats=mesh_formats,
+        bone=bone,
     )
+
+
+def _load_outputs(ctx: _Ctx, doc: dict) -> tuple[tuple[str, ...], str]:
+    """``[outputs] mesh_formats`` (subset of :data:`MESH_EXPORT_FORMATS`, "ply" allowed and
+    ignored: always written) and ``bone`` (a file-name word, default "bone")."""
+    table = ctx.table(doc, "outputs", required=False)
+    ctx.unknown_keys(table, "outputs", "[outputs]")
+    fmts = table.get("mesh_formats", [])
+    allowed = ("ply", *MESH_EXPORT_FORMATS)
+    if not isinstance(fmts, list) or any(f not in allowed for f in fmts):
+        raise ctx.error(
+            "[outputs] mesh_formats", f"expected a list of {', '.join(allowed)}; got {fmts!r}"
+        )
+    bone = table.get("bone", "bone")
+    if not isinstance(bone, str) or not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", bone):
+        raise ctx.error(
+            "[outputs] bone", f"expected a name of letters, digits, '_', '-', '.'; got {bone!r}"
+        )
+    return tuple(dict.fromkeys(f for f in fmts if f != "ply")), bone
 
 
 def read_case_views(

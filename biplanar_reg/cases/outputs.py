@@ -16,13 +16,27 @@ removed by the next run). Stale hidden folders of killed runs are removed by
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+
+from ..calibration.autoscoper import AutoscoperVolume, write_autoscoper_trial
+from ..calibration.views import PerspectiveView
+from ..io.meshes import write_mesh
+from ..io.transforms import (
+    rigid_pose,
+    write_itk_tfm,
+    write_kinematics_csv,
+    write_markups_json,
+    write_tra,
+)
 
 __all__: list[str] = []
 
@@ -110,3 +124,96 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+# -- exports for Autoscoper and 3D Slicer (docs/exports.md) -------------------------------------
+def _safe(name: str) -> str:
+    """``name`` as a file-name word (the case id may hold any characters)."""
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", name).lstrip(".") or "case"
+
+
+def _autoscoper_volume(case: Any) -> AutoscoperVolume:
+    return AutoscoperVolume(
+        f"volumes/{case.bone}.tif",
+        comment="the bone's density volume (CT partial volume) in the model frame: not made by "
+        "biplanar-reg; put it here (see docs/exports.md)",
+    )
+
+
+def write_exports(tmp: Path, out: Path, case: Any, res: Any) -> list[str]:
+    """Write the pose, transform, landmark, kinematics, mesh and Autoscoper exports of a result.
+
+    Parameters
+    ----------
+    tmp : Path
+        The temporary output folder being filled (:func:`atomic_output_dir`).
+    out : Path
+        The final output folder (relative paths of the Autoscoper ``.cfg`` are computed from it).
+    case : Case
+        The case (its views, landmarks, ``mesh_formats`` and ``bone``).
+    res : RegistrationResult
+        ``rotation``, ``translation`` (model -> world, mm) and ``vertices`` (world, mm).
+
+    Returns
+    -------
+    list of str
+        The files written, relative to the output folder (``result.json["exports"]``).
+    """
+    pose = rigid_pose(res.rotation, res.translation)
+    files = [
+        write_tra(tmp / "registered.tra", pose[None]),
+        write_itk_tfm(tmp / "registered.tfm", pose),
+    ]
+    files.append(write_kinematics_csv(tmp / "kinematics.csv", {case.bone: pose[None]}))
+    if case.landmarks:
+        names = list(case.landmarks)
+        idx = [case.landmarks[n] for n in names]
+        files.append(write_markups_json(tmp / "landmarks.mrk.json", names, res.vertices[idx]))
+    for fmt in case.mesh_formats:
+        path = tmp / f"registered.{fmt}"
+        write_mesh(path, res.vertices, case.model.faces)
+        files.append(path)
+    files += _autoscoper_exports(tmp, out, case, pose)
+    return [p.relative_to(tmp).as_posix() for p in files]
+
+
+def _radiograph_dirs(case: Any) -> list[Path | None]:
+    """Each view's radiograph folder for ``CameraRootDir``: the folder of its image when that is
+    a TIFF and no other view's image shares the folder (Autoscoper reads every TIFF frame of
+    the folder), else None (``radiographs/<view>/``, for the user's TIFF sequence)."""
+    parents = [cv.image_path.parent if cv.image_path is not None else None for cv in case.views]
+    out = []
+    for cv, parent in zip(case.views, parents, strict=True):
+        tiff = cv.image_path is not None and cv.image_path.suffix.lower() in (".tif", ".tiff")
+        out.append(parent if tiff and parents.count(parent) == 1 else None)
+    return out
+
+
+def _autoscoper_exports(tmp: Path, out: Path, case: Any, pose: np.ndarray) -> list[Path]:
+    """``autoscoper/``: the trial ``.cfg``, MayaCam 2.0 per view, ``Tracking/<id>_<bone>.tra``.
+
+    Only for cases whose views are all pinhole cameras with an image size (what Autoscoper and
+    MayaCam 2.0 hold); otherwise nothing is written here.
+    """
+    views = []
+    for cv in case.views:
+        v = cv.view
+        if not isinstance(v, PerspectiveView):
+            return []
+        if v.image_size is None and cv.image_file_size is not None:
+            v = dataclasses.replace(v, image_size=tuple(cv.image_file_size))
+        if v.image_size is None:
+            return []
+        views.append(v)
+    folder = tmp / "autoscoper"
+    dirs = _radiograph_dirs(case)
+    files = write_autoscoper_trial(
+        folder,
+        _safe(case.id),
+        views,
+        dirs,
+        [_autoscoper_volume(case)],
+        final_folder=out / "autoscoper",
+    )
+    files.append(write_tra(folder / "Tracking" / f"{_safe(case.id)}_{case.bone}.tra", pose[None]))
+    return files

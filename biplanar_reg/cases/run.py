@@ -24,11 +24,18 @@ import numpy as np
 from ..errors import CaseError, CaseFailure, SolverFailure
 from ..io import write_mesh
 from ..io.atomic import atomic_write_json
+from ..io.transforms import write_tra
 from ..registration import RegistrationResult, ViewObservations, register_views
 from ..registration.frames import FrameRegistrationResult, register_frames
 from .case import Case, load_case, to_frame_observations, to_view_observations
 from .metrics import contour_errors, model_outlines, summary_stats, surface_metrics
-from .outputs import atomic_output_dir, clean_stale, mesh_properties, uncertainty_summary
+from .outputs import (
+    atomic_output_dir,
+    clean_stale,
+    mesh_properties,
+    uncertainty_summary,
+    write_exports,
+)
 
 if TYPE_CHECKING:  # the report (matplotlib, VTK) is imported when a case is written
     from ..report.case_report import ReportView
@@ -430,6 +437,9 @@ def register_case(
         t2 = time.perf_counter()
         props = mesh_properties(res.vertex_sd_mm)
         write_mesh(tmp / "registered.ply", res.vertices, case.model.faces, props)
+        t_exp = time.perf_counter()
+        doc["exports"] = write_exports(tmp, out_dir, case, res)  # docs/exports.md
+        doc["timings"]["exports"] = time.perf_counter() - t_exp
         doc["report"] = None
         if report:
             from ..report import case_report  # looked up at call time (tests replace it)
@@ -477,14 +487,6 @@ def run_case_dir(
 
 
 # -- multi-frame cases ([[frames]]) ---------------------------------------------------------
-
-
-def _write_tra(path: Path, poses: np.ndarray) -> None:
-    """Autoscoper's pose file: one line per frame, the 4x4 model -> world transform (mm)
-    row-major, 16 comma-separated values. A local writer until ``biplanar_reg.io.transforms``
-    (``write_tra``) is merged; same layout."""
-    lines = [",".join(f"{x:.17g}" for x in np.asarray(T, float).ravel()) for T in poses]
-    path.write_text("\n".join(lines) + "\n")
 
 
 def _frame_entry(name: str, f: int, res: FrameRegistrationResult, obs) -> dict[str, Any]:
@@ -590,7 +592,7 @@ def register_frames_case(
     with atomic_output_dir(out_dir) as tmp:
         write_mesh(tmp / "registered.ply", res.frame_vertices(0), case.model.faces)
         write_mesh(tmp / "registered_model.ply", res.vertices, case.model.faces)
-        _write_tra(tmp / "registered.tra", res.poses())
+        write_tra(tmp / "registered.tra", res.poses())
         doc["timings"]["total"] = load_seconds + (time.perf_counter() - t0)
         atomic_write_json(tmp / "result.json", doc)
     log.info("%s: wrote %s", case.id, out_dir)

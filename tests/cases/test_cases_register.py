@@ -191,3 +191,72 @@ def test_result_reports_the_mean_shape_baseline_and_the_model_floor(tmp_path):
     ratio = m["vertex_rms_mm"] / m["model_floor_vertex_rms_mm"]
     assert m["vertex_rms_to_floor"] == pytest.approx(ratio)
     assert doc["ground_truth"]["model_from_truth"] is False
+
+
+def test_register_writes_the_autoscoper_and_slicer_exports(registered):
+    """docs/exports.md: the pose files hold result.json's pose; the landmarks the mesh's."""
+    from biplanar_reg.calibration.autoscoper import read_autoscoper_cfg
+    from biplanar_reg.cases import load_case
+    from biplanar_reg.io import read_itk_tfm, read_kinematics_csv, read_markups_json, read_tra
+
+    case_dir, out, doc = registered
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = doc["rotation"], doc["translation"]
+    tra = read_tra(out / "registered.tra")
+    assert tra.shape == (1, 4, 4) and np.abs(tra[0] - T).max() < 1e-9
+    assert np.abs(read_itk_tfm(out / "registered.tfm") - T).max() < 1e-9
+    ((frames, P),) = read_kinematics_csv(out / "kinematics.csv").values()
+    assert frames.tolist() == [0] and np.abs(P[0] - T).max() < 1e-9
+    case = load_case(case_dir)
+    verts, _ = read_mesh(out / "registered.ply")
+    labels, X = read_markups_json(out / "landmarks.mrk.json")
+    assert labels == list(case.landmarks)
+    assert np.abs(X - verts[list(case.landmarks.values())]).max() < 1e-4  # PLY holds float32
+    cfg_files = list((out / "autoscoper").glob("*.cfg"))
+    assert len(cfg_files) == 1
+    cfg = read_autoscoper_cfg(cfg_files[0])
+    assert len(cfg["mayaCam_csv"]) == len(case.views)
+    assert all(Path(p).is_file() for p in cfg["mayaCam_csv"])
+    tracking = list((out / "autoscoper" / "Tracking").glob("*_bone.tra"))
+    assert len(tracking) == 1 and np.abs(read_tra(tracking[0])[0] - T).max() < 1e-9
+    assert sorted(doc["exports"]) == sorted(
+        p.relative_to(out).as_posix()
+        for p in out.rglob("*")
+        if p.is_file()
+        and p.name not in ("registered.ply", "result.json")
+        and p.parent.name != "figures"
+        and p.suffix not in (".html", ".png", ".svg")
+    )
+
+
+def test_outputs_table_adds_mesh_formats_and_names_the_bone(registered, tmp_path):
+    import dataclasses
+    from types import SimpleNamespace
+
+    from biplanar_reg.cases import CaseError, load_case
+    from biplanar_reg.cases.outputs import write_exports
+
+    case_dir, out, doc = registered
+    copy = tmp_path / "case"
+    shutil.copytree(case_dir, copy, ignore=shutil.ignore_patterns("out*"))
+    toml = (copy / "case.toml").read_text()
+    (copy / "case.toml").write_text(
+        toml + '\n[outputs]\nmesh_formats = ["stl", "ply"]\nbone = "radius"\n'
+    )
+    case = load_case(copy)
+    assert case.mesh_formats == ("stl",) and case.bone == "radius"
+    verts, faces = read_mesh(out / "registered.ply")
+    res = SimpleNamespace(
+        rotation=np.array(doc["rotation"]), translation=np.array(doc["translation"]), vertices=verts
+    )
+    dest = tmp_path / "exp"
+    dest.mkdir()
+    files = write_exports(dest, dest, case, res)
+    assert "registered.stl" in files and any(f.endswith("_radius.tra") for f in files)
+    v2, f2 = read_mesh(dest / "registered.stl")
+    assert len(f2) == len(faces)
+    no_landmarks = dataclasses.replace(case, landmarks={})
+    assert "landmarks.mrk.json" not in write_exports(dest, dest, no_landmarks, res)
+    (copy / "case.toml").write_text(toml + '\n[outputs]\nmesh_formats = ["step"]\n')
+    with pytest.raises(CaseError, match=r"\[outputs\] mesh_formats"):
+        load_case(copy)

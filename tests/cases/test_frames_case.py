@@ -13,6 +13,7 @@ from biplanar_reg.cases import load_case, run_case_dir
 from biplanar_reg.cases.case import to_frame_observations
 from biplanar_reg.errors import CaseError
 from biplanar_reg.io import read_mesh
+from biplanar_reg.io.transforms import read_tra
 
 CASE = Path(__file__).resolve().parents[2] / "sample_cases" / "wrist_radius_frames"
 
@@ -47,7 +48,7 @@ def test_register_writes_per_frame_poses_close_to_the_truth(registered):
     truth = json.loads((CASE / "gt" / "truth.json").read_text())
     S, P = np.array(truth["shape"]), np.array(truth["poses"])
     assert [f["started_from"] for f in doc["frames"]] == ["landmarks", "neighbours", "landmarks"]
-    rows = np.loadtxt(registered / "registered.tra", delimiter=",")
+    rows = read_tra(registered / "registered.tra").reshape(-1, 16)
     poses = np.array([f["pose"] for f in doc["frames"]])
     assert rows.shape == (3, 16)
     np.testing.assert_allclose(rows.reshape(3, 4, 4), poses, rtol=0, atol=1e-9)
