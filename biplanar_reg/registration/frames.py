@@ -18,7 +18,8 @@ world, mm), ``V_f = R_f Q(w) + t_f``. :func:`register_frames` orchestrates the e
    extrapolation from the two nearest on one side, else the nearest one) and are
    fitted rigidly on their outlines with the start's shape (:func:`.outline_fit.
    refine_poses_on_outlines` with one pose), outwards from the posed frames, so each starts
-   from a fitted neighbour;
+   from a fitted neighbour; the posed frames are first fitted so too (their landmark-only
+   start can be degrees off, which an extrapolation would amplify);
 3. **joint refinement** of ``w`` and every frame's pose on all frames' landmarks and outlines
    (:func:`.outline_fit.refine_poses_on_outlines` with one pose group per frame: the single
    frame's final objective summed over frames), twice, the outline gates re-set at the fit in
@@ -235,6 +236,13 @@ def _neighbour_fits(model, frames, rest, Rs, ts, w, opts, silhouettes, say, name
     from their neighbours' poses, fitted on their own outlines; the flags it raises."""
     flags = []
     Q = model.instance(w)
+    for f in sorted(Rs):  # the posed frames first on their own outlines: the landmark-only
+        # start is degrees off (3 landmarks per view), and the neighbours start from it
+        problem = make_problem(
+            model, list(frames[f]), opts, silhouettes, say, (Q @ Rs[f].T + ts[f]).mean(0)
+        )
+        if problem.use_outlines:
+            Rs[f], ts[f] = _fit_alone(model, problem, Rs[f], ts[f], w)
     for f in rest:
         R, t = _neighbour_pose(f, Rs, ts, Q.mean(axis=0))
         problem = make_problem(
