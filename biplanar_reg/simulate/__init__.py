@@ -11,10 +11,7 @@ See ``docs/sample_cases.md``.
   :func:`vertex_landmarks` (a view's observations of model vertices), :func:`boosting_case`
   (a two-view landmarks-plus-outline problem);
 * :mod:`.case_folder`: :func:`write_synthetic_case` (a case folder with ``gt/``) and
-  :func:`synthetic_landmarks`;
-* :mod:`.sequence`: :func:`make_sequence` (a bone moving over F frames, from a realistic
-  scene), :func:`subsequence`, :func:`write_sequence_case` (a multi-frame case folder); see
-  ``docs/frames.md``.
+  :func:`synthetic_landmarks`.
 """
 
 from .case_folder import synthetic_landmarks, write_synthetic_case
@@ -29,7 +26,6 @@ from .scenes import (
     synthetic_bone_model,
     vertex_landmarks,
 )
-from .sequence import SequenceCase, make_sequence, subsequence, write_sequence_case
 
 __all__ = [
     "biplanar_views",
@@ -43,8 +39,4 @@ __all__ = [
     "synthetic_landmarks",
     "vertex_landmarks",
     "write_synthetic_case",
-    "SequenceCase",
-    "make_sequence",
-    "subsequence",
-    "write_sequence_case",
 ]
