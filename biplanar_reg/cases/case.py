@@ -40,12 +40,14 @@ from ..ssm.population import FAMILIES
 
 __all__ = [
     "Case",
+    "CaseFrame",
     "CaseSetup",
     "load_case",
     "read_case_setup",
     "read_case_views",
     "registration_options",
     "to_view_observations",
+    "to_frame_observations",
 ]
 
 log = logging.getLogger(__name__)
@@ -80,7 +82,18 @@ MIN_LANDMARK_OBSERVATIONS = 4
 MIN_VIEWS = 2
 
 _KEYS = {
-    "": {"format", "id", "units", "model", "views", "annotations", "registration", "ground_truth"},
+    "": {
+        "format",
+        "id",
+        "units",
+        "model",
+        "views",
+        "annotations",
+        "registration",
+        "ground_truth",
+        "frames",
+    },
+    "frames": {"name", "annotations", "images", "calibrations", "image_frame"},
     "model": {"ssm", "template", "landmarks", *MODEL_DEFAULTS},
     "views": {"name", "calibration", "calibration_format", "dlt_column", "image", "image_frame"},
     "annotations": {"file"},
@@ -159,6 +172,17 @@ class GroundTruth:
 
 
 @dataclass(frozen=True, eq=False)
+class CaseFrame:
+    """One frame of a multi-frame case (``[[frames]]``): its views (the case's calibrations
+    unless the frame overrides them, the frame's images) and its annotations."""
+
+    name: str
+    views: list[CaseView]
+    annotations: Annotations
+    annotations_path: Path
+
+
+@dataclass(frozen=True, eq=False)
 class Case:
     """A validated case; every length is in mm, every pose in the calibrations' world frame.
 
@@ -192,6 +216,9 @@ class Case:
         mm (converted from ``units``); with it the landmarks may be missing (outlines only).
     start_path : Path or None
         The start pose file.
+    frames : list of CaseFrame
+        ``[[frames]]`` (extension): the frames of a multi-frame case (empty: one frame, the
+        case's ``views`` and ``annotations``); ``annotations`` is then frame 0's.
     """
 
     case_dir: Path
@@ -210,6 +237,7 @@ class Case:
     warnings: list[str] = field(default_factory=list)
     start: tuple[np.ndarray, np.ndarray] | None = None
     start_path: Path | None = None
+    frames: list[CaseFrame] = field(default_factory=list)
     #: ``[outputs]``: extra mesh formats of the registered bone, and the bone's name in the
     #: exported files (``docs/exports.md``)
     mesh_formats: tuple[str, ...] = ()
@@ -737,6 +765,100 @@ def _load_start(ctx: _Ctx, reg: dict, scale: float):
     return (R, t * scale), path
 
 
+# -- [[frames]] (extension: one bone over many frames) --------------------------------------
+
+
+def _frame_table_paths(ctx: _Ctx, table: dict, key: str, where: str, views: list[CaseView]):
+    """``[[frames]] images`` / ``calibrations``: ``{view name: path}`` (known views only)."""
+    sub = table.get(key, {})
+    if not isinstance(sub, dict):
+        raise ctx.error(f"{where} {key}", f"expected a table {{view name = path}}, got {sub!r}")
+    names = [v.name for v in views]
+    for name in sub:
+        if name not in names:
+            raise ctx.error(f"{where} {key}", f"unknown view {name!r}; the views are {names}")
+    return {name: ctx.path(sub, name, f"{where} {key}") for name in sub}
+
+
+def _frame_view(ctx: _Ctx, cv: CaseView, where: str, image, calib, page, scale) -> CaseView:
+    """The case view ``cv`` as seen in one frame: its image (a file of the frame's, or page
+    ``page`` of the view's image) and its calibration (the frame's, else the view's)."""
+    path = image if image is not None else cv.image_path
+    frame = page if page is not None else (0 if image is not None else cv.image_frame)
+    size = None
+    if path is not None:
+        try:
+            size = read_image_size(path, frame=frame)
+        except (ValueError, OSError) as exc:
+            raise ctx.error(f"{where} images {cv.name}", _one_line(exc)) from None
+    view = cv.view
+    if calib is not None:
+        fmt = cv.calibration_format
+        try:
+            view = load_calibration(calib, fmt, image_size=size, name=cv.name)
+            view = dataclasses.replace(view, name=cv.name)
+            view = view if fmt == "dicom" else _scale_view(view, scale)
+        except (ValueError, OSError) as exc:
+            raise ctx.error(f"{where} calibrations {cv.name}", _one_line(exc)) from None
+    key = f"{ctx.file}: {where} images {cv.name}"
+    return CaseView(
+        cv.name, view, calib or cv.calibration, cv.calibration_format, path, frame, size, key
+    )
+
+
+def _one_frame(ctx: _Ctx, i: int, table: object, views, landmarks, scale) -> CaseFrame:
+    where = f"[[frames]][{i}]"
+    if not isinstance(table, dict):
+        raise ctx.error(where, "expected a table")
+    ctx.unknown_keys(table, "frames", where)
+    name = ctx.string(table, "name", where, required=False) or f"frame{i}"
+    where = f"[[frames]][{i}] ({name})"
+    images = _frame_table_paths(ctx, table, "images", where, views)
+    calibs = _frame_table_paths(ctx, table, "calibrations", where, views)
+    page = ctx.number(table, "image_frame", where, int, 0) if "image_frame" in table else None
+    fviews = [
+        _frame_view(ctx, cv, where, images.get(cv.name), calibs.get(cv.name), page, scale)
+        for cv in views
+    ]
+    path = ctx.path(table, "annotations", where)
+    sizes = {v.name: v.image_size for v in fviews if v.image_size is not None}
+    try:
+        ann = load_annotations(
+            path, known_views=[v.name for v in fviews], known_landmarks=landmarks, image_sizes=sizes
+        )
+    except ValueError as exc:
+        raise ctx.error(f"{where} annotations", f"{path.name}: {_one_line(exc)}") from None
+    return CaseFrame(name, fviews, ann, path)
+
+
+def _load_frames(ctx: _Ctx, doc: dict, views, landmarks, scale) -> list[CaseFrame]:
+    """``[[frames]]`` (empty without): every frame checked; one frame at least needs the
+    landmarks of a single-frame case (the multi-frame registration starts from them)."""
+    tables = doc.get("frames")
+    if tables is None:
+        return []
+    if not isinstance(tables, list) or not tables:
+        raise ctx.error("[[frames]]", "expected at least one [[frames]] table")
+    if "annotations" in doc:
+        raise ctx.error(
+            "[annotations]", "not used with [[frames]]: give each frame its own annotations"
+        )
+    frames = [_one_frame(ctx, i, t, views, landmarks, scale) for i, t in enumerate(tables)]
+    names = [f.name for f in frames]
+    if len(set(names)) != len(names):
+        raise ctx.error("[[frames]] name", f"duplicate frame names {names}")
+    for f in frames:
+        n_obs = sum(len(va.landmarks) for va in f.annotations.views.values())
+        seen = sum(1 for va in f.annotations.views.values() if va.landmarks)
+        if n_obs >= MIN_LANDMARK_OBSERVATIONS and seen >= MIN_VIEWS:
+            return frames
+    raise ctx.error(
+        "[[frames]]",
+        f"no frame has {MIN_LANDMARK_OBSERVATIONS} landmark observations in {MIN_VIEWS} views; "
+        "the multi-frame registration starts from the frames that have",
+    )
+
+
 def load_case(case_dir: str | os.PathLike, *, allow_outside: bool = False) -> Case:
     """Read and validate a case folder.
 
@@ -766,8 +888,18 @@ def load_case(case_dir: str | os.PathLike, *, allow_outside: bool = False) -> Ca
     views = _load_views(ctx, doc, scale)
     reg = ctx.table(doc, "registration", required=False)
     start, start_path = _load_start(ctx, reg, scale)
-    ann, ann_path = _load_annotations(ctx, doc, views, landmarks, start is not None)
+    frames = _load_frames(ctx, doc, views, landmarks, scale)
+    if frames:
+        ann, ann_path = frames[0].annotations, frames[0].annotations_path
+    else:
+        ann, ann_path = _load_annotations(ctx, doc, views, landmarks, start is not None)
     poses, silhouettes = _registration_mode(ctx, reg)
+    if frames and (poses != "known" or start is not None):
+        raise ctx.error(
+            "[registration]",
+            "a case with [[frames]] is registered with poses = 'known' and no "
+            "start (the calibrations are used as given in every frame)",
+        )
     options = registration_options(reg, ctx)
     gt = _load_ground_truth(ctx, doc, scale, model)
     mesh_formats, bone = _load_outputs(ctx, doc)
@@ -788,6 +920,7 @@ def load_case(case_dir: str | os.PathLike, *, allow_outside: bool = False) -> Ca
         warnings=ctx.warnings,
         start=start,
         start_path=start_path,
+        frames=frames,
         mesh_formats=mesh_formats,
         bone=bone,
     )
@@ -962,11 +1095,23 @@ def read_case_setup(case_dir: str | os.PathLike, *, allow_outside: bool = False)
     )
 
 
+def to_frame_observations(case: Case) -> list[list[ViewObservations]]:
+    """Per frame of a multi-frame case (``case.frames``) one :class:`ViewObservations` per
+    view; ``[to_view_observations(case)]`` for a single-frame case."""
+    if not case.frames:
+        return [to_view_observations(case)]
+    return [_observations(f.views, f.annotations, case.landmarks) for f in case.frames]
+
+
 def to_view_observations(case: Case) -> list[ViewObservations]:
     """One :class:`ViewObservations` per view of the case (views without annotations included)."""
+    return _observations(case.views, case.annotations, case.landmarks)
+
+
+def _observations(views, annotations, landmarks) -> list[ViewObservations]:
     out = []
-    for cv in case.views:
-        va = case.annotations.views.get(cv.name)
+    for cv in views:
+        va = annotations.views.get(cv.name)
         names = [] if va is None else list(va.landmarks)
         lms = [] if va is None else [va.landmarks[n] for n in names]
         out.append(
@@ -974,7 +1119,7 @@ def to_view_observations(case: Case) -> list[ViewObservations]:
                 name=cv.name,
                 view=cv.view,
                 landmark_names=names,
-                landmark_ids=np.array([case.landmarks[n] for n in names], dtype=np.int64),
+                landmark_ids=np.array([landmarks[n] for n in names], dtype=np.int64),
                 landmark_uv=np.array([lm.uv for lm in lms], float).reshape(-1, 2),
                 landmark_sigma_px=np.array([lm.sigma_px for lm in lms], float),
                 contours=[] if va is None else list(va.contours),

@@ -24,8 +24,10 @@ import numpy as np
 from ..errors import CaseError, CaseFailure, SolverFailure
 from ..io import write_mesh
 from ..io.atomic import atomic_write_json
+from ..io.transforms import write_tra
 from ..registration import RegistrationResult, ViewObservations, register_views
-from .case import Case, load_case, to_view_observations
+from ..registration.frames import FrameRegistrationResult, register_frames
+from .case import Case, load_case, to_frame_observations, to_view_observations
 from .metrics import contour_errors, model_outlines, summary_stats, surface_metrics
 from .outputs import (
     atomic_output_dir,
@@ -407,6 +409,8 @@ def register_case(
     if out_dir == case.case_dir or case.case_dir.is_relative_to(out_dir):
         raise ValueError(f"--out {out_dir}: must not be the case folder or contain it")
     clean_stale(out_dir)
+    if case.frames:
+        return register_frames_case(case, out_dir, load_seconds=load_seconds, progress=progress)
     obs = to_view_observations(case)
     t0 = time.perf_counter()
     res = _register(case, obs, progress)
@@ -480,3 +484,116 @@ def run_case_dir(
         progress=progress,
         report=report,
     )
+
+
+# -- multi-frame cases ([[frames]]) ---------------------------------------------------------
+
+
+def _frame_entry(name: str, f: int, res: FrameRegistrationResult, obs) -> dict[str, Any]:
+    ct = res.contour_errors_px[f]
+    all_ct = np.concatenate([np.asarray(v, float) for v in ct.values()]) if ct else np.zeros(0)
+    return {
+        "name": name,
+        "rotation": res.rotations[f],
+        "translation": res.translations[f],
+        "pose": res.poses()[f],
+        "started_from": res.started_from[f],
+        "landmark_errors_px": res.landmark_errors_px[f],
+        "landmark_rms_px": res.landmark_rms_px[f],
+        "contour_rms_px": res.contour_rms_px[f],
+        "contour_error_stats_px": summary_stats(all_ct[np.isfinite(all_ct)]),
+        "views": {
+            o.name: {"R": o.view.R, "t": o.view.t, "centre": -o.view.R.T @ o.view.t} for o in obs
+        },
+    }
+
+
+def _frames_metrics(res: FrameRegistrationResult) -> dict[str, Any]:
+    """``result.json["metrics"]`` of a multi-frame case: over every frame and view (px)."""
+    lm = [e for d in res.landmark_errors_px for v in d.values() for e in v.values()]
+    ct = [np.asarray(c, float) for d in res.contour_errors_px for c in d.values()]
+    ct = np.concatenate(ct) if ct else np.zeros(0)
+    ct = ct[np.isfinite(ct)]
+    out: dict[str, Any] = {
+        "landmark_rms_px": float(np.sqrt(np.mean(np.square(lm)))) if lm else None,
+        "landmark_max_px": float(np.max(lm)) if lm else None,
+    }
+    out.update({f"contour_{k}_px": v for k, v in summary_stats(ct).items()})
+    return out
+
+
+def frames_result_document(case: Case, frames, res: FrameRegistrationResult, timings) -> dict:
+    """``result.json`` of a multi-frame case (docs/cases.md, "Frames")."""
+    return _jsonable(
+        {
+            "format": RESULT_FORMAT,
+            "id": case.id,
+            "units": {"length": "mm", "image": "px", "time": "s", "case_input_units": case.units},
+            "frame": "world frame of the calibrations (OpenCV: X_cam = R @ X + t)",
+            "registered_ply": "the shape posed in frame 0 (world frame)",
+            "rotation": res.rotations[0],
+            "translation": res.translations[0],
+            "weights": res.weights,
+            "frames": [_frame_entry(n, f, res, frames[f]) for f, n in enumerate(res.frame_names)],
+            "metrics": _frames_metrics(res),
+            "joint_objective": {"before": res.cost_before, "after": res.cost_after},
+            "converged": res.converged,
+            "flags": res.flags,
+            "timings": timings,
+            "registration": {
+                "poses": "known",
+                "frames": len(frames),
+                "silhouettes": case.silhouettes,
+                "options": dataclasses.asdict(case.options),
+            },
+            "model": _model_entry(case),
+            "warnings": case.warnings,
+            "report": None,
+        }
+    )
+
+
+def register_frames_case(
+    case: Case,
+    out_dir: Path,
+    *,
+    load_seconds: float = 0.0,
+    progress: Callable[[str], None] | None = None,
+) -> RunOutcome:
+    """A multi-frame case (``case.frames``): :func:`~biplanar_reg.registration.frames.
+    register_frames`, then ``registered.ply`` (frame 0's pose), ``registered_model.ply`` (the
+    model frame), ``registered.tra`` (one pose per frame) and ``result.json``, atomically.
+    No report yet."""
+
+    def say(msg: str) -> None:
+        log.info("%s: %s", case.id, msg)
+        if progress is not None:
+            progress(msg)
+
+    frames = to_frame_observations(case)
+    t0 = time.perf_counter()
+    try:
+        res = register_frames(
+            case.model,
+            frames,
+            names=[f.name for f in case.frames],
+            silhouettes=case.silhouettes,
+            options=case.options,
+            progress=say,
+        )
+    except SolverFailure as exc:
+        raise CaseFailure(f"{case.case_file}: registration failed: {exc}") from None
+    except ValueError as exc:
+        raise CaseError(f"{case.case_file}: [[frames]]: {' '.join(str(exc).split())}") from None
+    timings = {"load": load_seconds, "registration": time.perf_counter() - t0}
+    timings.update({f"registration_{k}": v for k, v in res.timings.items()})
+    doc = frames_result_document(case, frames, res, timings)
+    say("writing registered.ply, registered_model.ply, registered.tra and result.json")
+    with atomic_output_dir(out_dir) as tmp:
+        write_mesh(tmp / "registered.ply", res.frame_vertices(0), case.model.faces)
+        write_mesh(tmp / "registered_model.ply", res.vertices, case.model.faces)
+        write_tra(tmp / "registered.tra", res.poses())
+        doc["timings"]["total"] = load_seconds + (time.perf_counter() - t0)
+        atomic_write_json(tmp / "result.json", doc)
+    log.info("%s: wrote %s", case.id, out_dir)
+    return RunOutcome(out_dir, doc)

@@ -28,7 +28,8 @@ def _cmd_register(args: argparse.Namespace) -> int:
         report=not args.no_report,
     )
     doc = outcome.document
-    report = None if args.no_report else outcome.out_dir / "report.html"
+    no_report = args.no_report or doc.get("report") is None  # a multi-frame case has none yet
+    report = None if no_report else outcome.out_dir / "report.html"
     if args.json:
         print(
             json.dumps(

@@ -1,11 +1,13 @@
 """Registration: the G-SfT solvers (known, unknown and refined view poses) and the pipeline.
 
-See ``docs/registration.md``, ``docs/solver.md`` and ``docs/unknown_poses.md``; the package
+See ``docs/registration.md``, ``docs/solver.md``, ``docs/unknown_poses.md`` and
+``docs/frames.md`` (one shape over many frames); the package
 exports the names listed in ``docs/api.md``. The modules hold the stages and building blocks
 (``stages``, ``problem``, ``refine``, ``sdp``, ``ipm``, ...), documented where the docs name them.
 """
 
 from ..errors import SolverFailure
+from .frames import FrameRegistrationResult, register_frames
 from .gsft import DEFAULT_EPS, GsftResult, solve_gsft
 from .observations import ViewObservations
 from .options import IterationRecord, RegistrationOptions
@@ -37,4 +39,6 @@ __all__ = [
     "ViewRays",
     "refine_view_poses",
     "RefinedPosesResult",
+    "register_frames",
+    "FrameRegistrationResult",
 ]
