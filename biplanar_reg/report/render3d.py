@@ -244,6 +244,6 @@ def render_error_mesh(
             render_pyvista(path, vertices, faces, error_mm, title)
             return "pyvista"
         except Exception as exc:  # noqa: BLE001 - any VTK/OpenGL failure: use the fallback
-            log.warning("PyVista off-screen rendering failed (%s); using the software renderer", exc)
+            log.warning("PyVista off-screen rendering failed (%s); using software", exc)
     render_software(path, vertices, faces, error_mm, title)
     return "software"
