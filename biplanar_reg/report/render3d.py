@@ -204,7 +204,7 @@ def render_software(
     from matplotlib.cm import ScalarMappable
     from matplotlib.figure import Figure
 
-    from .figures import save_figure
+    from .figures import rgba_bytes, save_figure
 
     dpi = 100
     fig = Figure(figsize=(size[0] / dpi, size[1] / dpi), dpi=dpi)
@@ -221,7 +221,8 @@ def render_software(
     else:
         vertex_rgb = np.tile(colors.to_rgb("ivory"), (n, 1))
     w, h = round(0.86 * size[0]), round(0.94 * size[1])
-    ax.imshow(software_image(vertices, faces, vertex_rgb, (w, h)), interpolation="nearest")
+    image = rgba_bytes(software_image(vertices, faces, vertex_rgb, (w, h)))
+    ax.imshow(image, interpolation="nearest")
     fig.text(0.005, 0.985, title, fontsize=11, va="top", ha="left")
     save_figure(fig, path)
 
