@@ -18,10 +18,30 @@ from .annotations import (
 from .clean import clean_contour, cut_polyline, remove_self_intersections, resample_polyline
 from .image import XrayImage, load_image, read_image_size
 from .livewire import livewire
-from .recipe import ContourRecipe, load_recipe, run_recipe
-from .region import grabcut_outline
 from .render import Radiograph, render_radiograph
-from .snap import SnapResult, snap_landmark
+
+#: The other semi-automatic tools, imported on first use (a case's registration uses none of
+#: them; ``livewire`` imports scikit-image only when it runs).
+_LAZY = {
+    "ContourRecipe": ".recipe",
+    "load_recipe": ".recipe",
+    "run_recipe": ".recipe",
+    "grabcut_outline": ".region",
+    "SnapResult": ".snap",
+    "snap_landmark": ".snap",
+}
+
+
+def __getattr__(name: str):
+    """The lazily imported names of ``_LAZY`` (PEP 562)."""
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "AnnotationError",

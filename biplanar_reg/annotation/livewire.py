@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import ndimage
-from skimage.graph import route_through_array
 
 from .._validate import as_array
 from .features import edge_cost, edge_onset_offsets, gradient_magnitude
@@ -211,6 +210,8 @@ def _segment(cost: np.ndarray, p: np.ndarray, q: np.ndarray, margin: float) -> n
     anchors (a rounded bone end), and a path that still touches the window's edge is searched
     again in a window twice as wide, so the window does not clip the outline.
     """
+    from skimage.graph import route_through_array  # imported on use: a case run needs none
+
     h, w = cost.shape
     pad = int(np.ceil(max(margin, 0.5 * float(np.linalg.norm(q - p)))))
     while True:

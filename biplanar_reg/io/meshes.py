@@ -133,7 +133,8 @@ def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
         elif suffix in (".vtk", ".vtp"):
             vertices, faces = _read_vtk(path)
         else:
-            vertices, faces = _read_trimesh(path, suffix)
+            simple = _read_simple_ply(path) if suffix == ".ply" else None
+            vertices, faces = simple if simple else _read_trimesh(path, suffix)
     except ValueError as exc:
         msg = str(exc)
         raise ValueError(msg if msg.startswith(str(path)) else f"{path}: {msg}") from None
@@ -183,6 +184,75 @@ def _read_vtk(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
         data = data.triangulate()  # keeps the points and their order
     faces = np.asarray(data.faces).reshape(-1, 4)
     return points, faces[:, 1:]
+
+
+#: PLY scalar types -> numpy little-endian dtypes.
+_PLY_TYPES = {
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "<i2",
+    "int16": "<i2",
+    "ushort": "<u2",
+    "uint16": "<u2",
+    "int": "<i4",
+    "int32": "<i4",
+    "uint": "<u4",
+    "uint32": "<u4",
+    "float": "<f4",
+    "float32": "<f4",
+    "double": "<f8",
+    "float64": "<f8",
+}
+
+
+def _read_simple_ply(path: Path) -> tuple[np.ndarray, np.ndarray | None] | None:
+    """The common binary PLY (the one :func:`write_mesh` writes) read with numpy: little
+    endian, a ``vertex`` element of scalar properties with ``x, y, z``, then optionally a
+    ``face`` element whose only property is a ``uchar`` count list of triangles. ``None`` for
+    any other PLY (trimesh reads it); importing trimesh costs more than reading the mesh."""
+    with open(path, "rb") as fh:
+        head = fh.read(4096)
+        end = head.find(b"end_header\n")
+        if not head.startswith(b"ply\n") or end < 0:
+            return None
+        lines = [ln.split() for ln in head[:end].decode("ascii", "replace").splitlines()[1:]]
+        lines = [ln for ln in lines if ln and ln[0] not in ("comment", "obj_info")]
+        if not lines or lines[0] != ["format", "binary_little_endian", "1.0"]:
+            return None
+        elements: list[tuple[str, int, list[list[str]]]] = []
+        for ln in lines[1:]:
+            if ln[0] == "element" and len(ln) == 3 and ln[2].isdigit():
+                elements.append((ln[1], int(ln[2]), []))
+            elif ln[0] == "property" and elements:
+                elements[-1][2].append(ln[1:])
+            else:
+                return None
+        names = [e[0] for e in elements]
+        if names not in (["vertex"], ["vertex", "face"]):
+            return None
+        _, n_vertices, vprops = elements[0]
+        if any(len(p) != 2 or p[0] not in _PLY_TYPES for p in vprops):
+            return None
+        vdtype = np.dtype([(p[1], _PLY_TYPES[p[0]]) for p in vprops])
+        if not {"x", "y", "z"} <= set(vdtype.names or ()):
+            return None
+        fh.seek(end + len(b"end_header\n"))
+        vrec = np.fromfile(fh, dtype=vdtype, count=n_vertices)
+        if len(vrec) != n_vertices:
+            raise ValueError("truncated vertex data")
+        vertices = np.column_stack([vrec[k].astype(float) for k in ("x", "y", "z")])
+        if len(elements) == 1:
+            return vertices, None
+        _, n_faces, fprops = elements[1]
+        if len(fprops) != 1 or fprops[0][:2] != ["list", "uchar"] or fprops[0][2] not in _PLY_TYPES:
+            return None
+        fdtype = np.dtype([("n", "u1"), ("idx", _PLY_TYPES[fprops[0][2]], (3,))])
+        frec = np.fromfile(fh, dtype=fdtype, count=n_faces)
+        if len(frec) != n_faces or np.any(frec["n"] != 3) or fh.read(1):
+            return None  # polygons, or more data than triangles: the general reader decides
+    return vertices, frec["idx"].astype(np.int64)
 
 
 def _read_trimesh(path: Path, suffix: str) -> tuple[np.ndarray, np.ndarray | None]:

@@ -228,7 +228,16 @@ def _draw_background(
     if shaded is not None:
         sxy = (w / (edges[1] - edges[0]), h / (edges[3] - edges[2]))
         _shade_bone(rgb, (edges[0], edges[2]), sxy, *shaded)
-    ax.imshow(np.clip(rgb, 0.0, 1.0), extent=(edges[0], edges[1], edges[3], edges[2]))
+    ax.imshow(rgba_bytes(rgb), extent=(edges[0], edges[1], edges[3], edges[2]))
+
+
+def rgba_bytes(rgb: np.ndarray) -> np.ndarray:
+    """An (h, w, 3) float image in [0, 1] as opaque (h, w, 4) uint8 RGBA, the form matplotlib
+    resamples and composites without converting it first (the conversion of a float image
+    cost more than drawing it)."""
+    out = np.full(rgb.shape[:2] + (4,), 255, np.uint8)
+    out[..., :3] = np.round(np.clip(rgb, 0.0, 1.0) * 255.0)
+    return out
 
 
 def _polyline(ax: Axes, uv: np.ndarray, color: str, label: str | None) -> None:

@@ -1,12 +1,19 @@
-"""Off-screen 3D render of a surface coloured by its error, with a colour bar in mm.
+"""3D view of a surface coloured by its error, with a colour bar in mm.
 
-PyVista/VTK renders off-screen without a display: with no ``DISPLAY`` the X11 render window
-fails ("bad X server connection") and VTK >= 9.4 falls back to EGL; this module asks for the
-EGL window directly (``VTK_DEFAULT_OPENGL_WINDOW=vtkEGLRenderWindow``) so the fallback is not
-tried on every render. Measured on the project machine (VTK 9.7.2, no X server, no Xvfb):
-EGL off-screen works. Where no off-screen OpenGL exists at all (no EGL/OSMesa libraries), the
-render raises and :func:`render_error_mesh` falls back to a matplotlib 3D plot with a logged
-warning. ``BIPLANAR_REG_RENDERER=matplotlib`` forces the fallback.
+The default renderer is software (:func:`render_software`): the mesh seen from the isometric
+direction (orthographic, z up, as PyVista's ``view_isometric``), each triangle filled in
+painter's order (farthest first, back faces of a closed mesh left out) with the mean of its
+corners' colours (viridis of the error, times a Lambert shade under a light at the eye from
+area-weighted vertex normals, i.e. smooth shading), drawn at twice the size and reduced
+(anti-aliasing), then put into a matplotlib figure with the title and colour bar. It needs no
+OpenGL and imports neither PyVista nor VTK (their import alone cost more than the whole
+report's other figures).
+
+``BIPLANAR_REG_RENDERER=pyvista`` renders with PyVista off-screen instead (with no
+``DISPLAY`` the X11 render window fails, "bad X server connection", and VTK >= 9.4 falls back
+to EGL; this module asks for the EGL window directly, ``VTK_DEFAULT_OPENGL_WINDOW=
+vtkEGLRenderWindow``; a failure falls back to the software renderer with a logged warning).
+``BIPLANAR_REG_RENDERER=matplotlib`` draws a matplotlib 3D triangle plot.
 """
 
 from __future__ import annotations
@@ -17,6 +24,9 @@ import os
 import numpy as np
 
 __all__ = ["render_error_mesh"]
+
+#: Supersampling factor of the software renderer (each side), for anti-aliased edges.
+_SUPERSAMPLE = 2
 
 log = logging.getLogger(__name__)
 
@@ -105,6 +115,118 @@ def render_matplotlib(
     save_figure(fig, path)
 
 
+def _isometric_frame(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit vectors (right, up, towards the eye) (3, 3) of the isometric view (eye along
+    +(1, 1, 1), z up) and the bounding-box centre (3,), mm."""
+    eye = np.ones(3) / np.sqrt(3.0)
+    right = np.cross(np.array([0.0, 0.0, 1.0]), eye)
+    right /= np.linalg.norm(right)
+    up = np.cross(eye, right)
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    return np.stack([right, up, eye]), (lo + hi) / 2
+
+
+def _vertex_shade(V: np.ndarray, F: np.ndarray, eye: np.ndarray) -> np.ndarray:
+    """Lambert shade in [0.25, 1] of each vertex under a light at the eye: ambient 0.25 plus
+    0.75 |n . eye| with ``n`` the area-weighted vertex normal."""
+    n_face = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    n = np.zeros_like(V)
+    for k in range(3):
+        np.add.at(n, F[:, k], n_face)
+    length = np.linalg.norm(n, axis=1)
+    lit = np.abs(n @ eye) / np.where(length > 0, length, 1.0)
+    return 0.25 + 0.75 * np.where(length > 0, lit, 1.0)
+
+
+def software_image(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    vertex_rgb: np.ndarray,
+    size: tuple[int, int],
+    *,
+    background: tuple[float, float, float] = (1.0, 1.0, 1.0),
+) -> np.ndarray:
+    """The isometric software rendering (H, W, 3) in [0, 1] of a mesh with per-vertex colours.
+
+    Parameters
+    ----------
+    vertices : (N, 3) array, mm
+    faces : (F, 3) int array
+    vertex_rgb : (N, 3) array in [0, 1]
+        Unlit colour of each vertex (the shade is applied here).
+    size : (W, H)
+        Image size, pixels; the mesh fills 90 % of its smaller side.
+    """
+    import cv2
+
+    from .shading import _outward_sign
+
+    V = np.asarray(vertices, float)
+    F = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    axes, centre = _isometric_frame(V)
+    xyz = (V - centre) @ axes.T  # (right, up, towards the eye)
+    w, h = size[0] * _SUPERSAMPLE, size[1] * _SUPERSAMPLE
+    half = max(float(np.abs(xyz[:, :2]).max()), 1e-9)
+    scale = 0.45 * min(w, h) / half
+    uv = np.column_stack([w / 2 + scale * xyz[:, 0], h / 2 - scale * xyz[:, 1]])
+    rgb = np.clip(np.asarray(vertex_rgb, float), 0, 1) * _vertex_shade(V, F, axes[2])[:, None]
+    tri2 = uv[F]
+    area2 = (tri2[:, 1, 0] - tri2[:, 0, 0]) * (tri2[:, 2, 1] - tri2[:, 0, 1]) - (
+        tri2[:, 2, 0] - tri2[:, 0, 0]
+    ) * (tri2[:, 1, 1] - tri2[:, 0, 1])
+    outward = _outward_sign(F, V[F], len(V))
+    keep = np.ones(len(F), bool) if outward is None else outward * area2 <= 0.0
+    depth = xyz[F, 2].mean(axis=1)
+    order = np.flatnonzero(keep)[np.argsort(depth[keep], kind="stable")]  # farthest first
+    shift = 4  # cv2 fixed-point sub-pixel precision (1/16 px)
+    pts = np.round(tri2[order] * (1 << shift)).astype(np.int32)
+    cols = np.round(rgb[F[order]].mean(axis=1) * 255).astype(int).tolist()
+    image = np.empty((h, w, 3), np.uint8)
+    image[:] = np.round(np.asarray(background) * 255).astype(np.uint8)
+    for tri, col in zip(pts, cols, strict=True):
+        cv2.fillConvexPoly(image, tri, col, lineType=cv2.LINE_8, shift=shift)
+    image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+    return image.astype(float) / 255.0
+
+
+def render_software(
+    path: str | os.PathLike,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    error_mm: np.ndarray | None,
+    title: str,
+    *,
+    size: tuple[int, int] = (900, 700),
+) -> None:
+    """Render with :func:`software_image` into a figure of ``size`` pixels: the title top left,
+    with ``error_mm`` a viridis colour bar in mm on the right, else one ivory colour."""
+    from matplotlib import colormaps, colors
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.figure import Figure
+
+    from .figures import rgba_bytes, save_figure
+
+    dpi = 100
+    fig = Figure(figsize=(size[0] / dpi, size[1] / dpi), dpi=dpi)
+    ax = fig.add_axes((0.0, 0.0, 0.86, 0.94))
+    ax.set_axis_off()
+    n = len(vertices)
+    if error_mm is not None:
+        norm = colors.Normalize(0.0, _error_max(error_mm))
+        vertex_rgb = colormaps["viridis"](norm(np.asarray(error_mm, float)))[:, :3]
+        cax = fig.add_axes((0.90, 0.06, 0.025, 0.5))
+        cbar = fig.colorbar(ScalarMappable(norm=norm, cmap="viridis"), cax=cax)
+        cax.set_title("error (mm)", fontsize=10, loc="left")
+        cbar.ax.tick_params(labelsize=9)
+    else:
+        vertex_rgb = np.tile(colors.to_rgb("ivory"), (n, 1))
+    w, h = round(0.86 * size[0]), round(0.94 * size[1])
+    image = rgba_bytes(software_image(vertices, faces, vertex_rgb, (w, h)))
+    ax.imshow(image, interpolation="nearest")
+    fig.text(0.005, 0.985, title, fontsize=11, va="top", ha="left")
+    save_figure(fig, path)
+
+
 def render_error_mesh(
     path: str | os.PathLike,
     vertices: np.ndarray,
@@ -113,12 +235,16 @@ def render_error_mesh(
     title: str,
 ) -> str:
     """Render the mesh coloured by ``error_mm`` (per vertex) to a PNG; returns the renderer used
-    ("pyvista" or "matplotlib")."""
-    if os.environ.get("BIPLANAR_REG_RENDERER", "").lower() != "matplotlib":
+    ("software", or with ``BIPLANAR_REG_RENDERER`` set, "pyvista" or "matplotlib")."""
+    choice = os.environ.get("BIPLANAR_REG_RENDERER", "").lower()
+    if choice == "matplotlib":
+        render_matplotlib(path, vertices, faces, error_mm, title)
+        return "matplotlib"
+    if choice == "pyvista":
         try:
             render_pyvista(path, vertices, faces, error_mm, title)
             return "pyvista"
         except Exception as exc:  # noqa: BLE001 - any VTK/OpenGL failure: use the fallback
-            log.warning("PyVista off-screen rendering failed (%s); using matplotlib 3D", exc)
-    render_matplotlib(path, vertices, faces, error_mm, title)
-    return "matplotlib"
+            log.warning("PyVista off-screen rendering failed (%s); using software", exc)
+    render_software(path, vertices, faces, error_mm, title)
+    return "software"

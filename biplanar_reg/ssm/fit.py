@@ -72,13 +72,16 @@ def fit_model(
             f"the model, got shape {pts.shape}"
         )
     basis = model.modes.reshape(model.n_modes, 3 * model.n_vertices).T  # (3N, M)
+    # the least-squares solution operator, once (each iteration is then a product, not a fresh
+    # SVD of the (3N, M) basis)
+    solve = np.linalg.pinv(basis) if shape and model.n_modes else None
     w = np.zeros(model.n_modes)
     inst = model.instance(w)
     _, rot, t = _fit_transform(inst, pts, scaling=False)
     rms = _rms(inst @ rot.T + t, pts)
     for _ in range(iterations if shape and model.n_modes else 0):
         local = (pts - t) @ rot  # the points in the model frame
-        w = np.linalg.lstsq(basis, (local - model.mean).ravel(), rcond=None)[0]
+        w = solve @ (local - model.mean).ravel()
         inst = model.instance(w)
         _, rot, t = _fit_transform(inst, pts, scaling=False)
         new = _rms(inst @ rot.T + t, pts)

@@ -11,7 +11,7 @@ from biplanar_reg.annotation import Contour, Landmark, ViewAnnotations
 from biplanar_reg.report import overlay_figure, render_template
 
 
-def test_matplotlib_fallback_when_pyvista_fails(tmp_path, monkeypatch, caplog):
+def test_software_fallback_when_pyvista_fails(tmp_path, monkeypatch, caplog):
     from biplanar_reg.report import render3d
     from biplanar_reg.simulate import synthetic_bone_model
 
@@ -20,13 +20,32 @@ def test_matplotlib_fallback_when_pyvista_fails(tmp_path, monkeypatch, caplog):
     def broken(*args, **kwargs):
         raise RuntimeError("no OpenGL context")
 
+    monkeypatch.setenv("BIPLANAR_REG_RENDERER", "pyvista")
     monkeypatch.setattr(render3d, "render_pyvista", broken)
     with caplog.at_level(logging.WARNING):
         used = render3d.render_error_mesh(
             tmp_path / "e.png", m.mean, m.faces, np.linspace(0, 1, m.n_vertices), "t"
         )
-    assert used == "matplotlib" and (tmp_path / "e.png").stat().st_size > 1000
-    assert any("matplotlib 3D" in r.message for r in caplog.records)
+    assert used == "software" and (tmp_path / "e.png").stat().st_size > 1000
+    assert any("using software" in r.message for r in caplog.records)
+
+
+def test_software_render_shows_the_near_side_shaded():
+    """The isometric software image: the surface nearest the eye, lit from the eye (the
+    capsule bone is bright in the middle, darker towards its rim), background elsewhere."""
+    from biplanar_reg.report.render3d import software_image
+    from biplanar_reg.simulate import synthetic_bone_model
+
+    m = synthetic_bone_model(0, resolution=(40, 21))
+    colour = np.tile([1.0, 0.0, 0.0], (m.n_vertices, 1))  # red unlit: the shade is the red
+    img = software_image(m.mean, m.faces, colour, (200, 200))
+    red, green = img[..., 0], img[..., 1]
+    covered = (green < 0.5) & (red > 0.05)
+    assert 0.1 < covered.mean() < 0.9
+    assert np.allclose(img[~covered & (green > 0.99)], 1.0)  # white background
+    rows, cols = np.nonzero(covered)
+    centre = red[int(rows.mean()), int(cols.mean())]
+    assert centre > 0.75 and centre > np.percentile(red[covered], 10) + 0.2
 
 
 def test_overlay_on_blank_canvas(tmp_path):
