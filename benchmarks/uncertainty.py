@@ -35,6 +35,8 @@ from biplanar_reg.registration import RegistrationOptions, register_views
 from biplanar_reg.simulate import biplanar_views, outline_stretch, random_pose, vertex_landmarks
 from biplanar_reg.ssm import ShapeModel, synthesise_population
 
+WRIST_DATA = Path(__file__).resolve().parents[1] / "sample_cases" / "wrist_radius" / "data"
+
 
 def rigid_fit(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares rotation and translation ``dst ~ R src + t`` (Kabsch)."""
@@ -86,7 +88,7 @@ def simple_cases(args):
     """(model, views, truth, floor) of the ``--simple`` trials."""
     template, faces = reference.radius_template(args.vertices)
     model = reference.radius_model(template, faces)
-    for s in range(args.trials):
+    for s in range(args.seed0, args.seed0 + args.trials):
         views, X = synthetic_case(
             model, template, s, args.landmarks, args.noise, args.outline_noise
         )
@@ -96,11 +98,12 @@ def simple_cases(args):
 def realistic_cases(args):
     """(model, views, truth, floor) of :func:`biplanar_reg.simulate.realistic.make_realistic_case`
     (``--landmarks`` in total, split evenly over the two views)."""
-    from biplanar_reg.simulate.realistic import make_realistic_case
+    from biplanar_reg.simulate.realistic import make_realistic_case, wrist_scene
 
-    for s in range(args.trials):
+    scene = wrist_scene(str(WRIST_DATA), seed=args.scene_seed)
+    for s in range(args.seed0, args.seed0 + args.trials):
         c = make_realistic_case(
-            s, n_landmarks_per_view=args.landmarks // 2, landmark_noise_px=args.noise
+            s, n_landmarks_per_view=args.landmarks // 2, landmark_noise_px=args.noise, scene=scene
         )
         yield c.model, c.views, c.truth_vertices, c.floor_mm
 
@@ -127,6 +130,10 @@ def main() -> None:
     ap.add_argument("--outline-noise", type=float, default=0.5, help="px")
     ap.add_argument("--vertices", type=int, default=1000)
     ap.add_argument("--simple", action="store_true", help="exact outlines, no second bone")
+    ap.add_argument("--seed0", type=int, default=0, help="first trial seed")
+    ap.add_argument(
+        "--scene-seed", type=int, default=0, help="population seed of the realistic scene"
+    )
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
     t_start = time.process_time()

@@ -395,6 +395,21 @@ def registration_uncertainty(problem, result, outlines: dict, rejected: frozense
 
     Returns the :class:`VertexUncertainty`, or None when there is nothing to linearise.
     """
+    state, lin, est_w = registration_linearisation(problem, result, outlines, rejected)
+    if len(lin.residuals) == 0:
+        return None
+    return vertex_sd(
+        problem.model,
+        state,
+        lin,
+        prior_weight=problem.options.prior_weight,
+        estimator_weights=est_w,
+    )
+
+
+def registration_linearisation(problem, result, outlines: dict, rejected: frozenset[int]):
+    """``(state, Linearisation, estimator weights)`` of a registration at its solution (the
+    inputs of :func:`vertex_sd`; see :func:`registration_uncertainty`)."""
     opts, lm = problem.options, problem.landmarks
     accepted = np.array([i not in rejected for i in range(len(lm))], dtype=bool)
     terms = []
@@ -408,13 +423,9 @@ def registration_uncertainty(problem, result, outlines: dict, rejected: frozense
             terms.append(OutlineTerm(problem.views[i].view, t, sig, min(opts.gate_px, gate), mmpp))
     state = (result.rotation, result.translation, result.weights)
     lin = linearise_fit(problem.model, state, lm.rays.select(accepted), terms, problem.topology)
-    if len(lin.residuals) == 0:
-        return None
     # the refinement's weights relative to the stated noise (:func:`.stages.refine_once`)
     lam = opts.landmark_weight
     est_w = np.where(
         lin.group == 0, 2.0 * lam, 2.0 * max(1.0 - lam, 1e-12) / opts.contour_spacing_px
     )
-    return vertex_sd(
-        problem.model, state, lin, prior_weight=opts.prior_weight, estimator_weights=est_w
-    )
+    return state, lin, est_w
