@@ -406,7 +406,7 @@ def vertex_sd(
     dof = var**2 / np.maximum(var_d**2 / nu_d + var_t**2 / nu_t, 1e-300)
     own = 0.0 if model.truncation_modes is None else float(np.mean(model.truncation_sd**2))
     return VertexUncertainty(
-        sd_mm=np.sqrt(var / 3.0) * student_factor(dof),
+        sd_mm=np.sqrt(var / 3.0),
         parameter_sd_mm=np.sqrt(var_c / 3.0),
         truncation_mm=float(np.sqrt(own + excess2)),
         covariance=C,
@@ -416,10 +416,11 @@ def vertex_sd(
 
 
 def student_factor(dof: np.ndarray) -> np.ndarray:
-    """``t_nu(q) / z(q)`` at ``q = Phi(2)`` (97.7 %): the factor that makes two of the returned
-    sds the two-sided 95.4 % interval of a Student-t with ``nu`` degrees of freedom, the
+    """``t_nu(q) / z(q)`` at ``q = Phi(2)`` (97.7 %): ``2 student_factor(dof) sd_mm`` is the
+    two-sided 95.4 % interval of a Student-t with ``nu = dof`` degrees of freedom, the
     predictive distribution of an error whose variance was estimated with ``nu`` degrees of
-    freedom (1 for ``nu = inf``)."""
+    freedom (:attr:`VertexUncertainty.dof`); 1 for ``nu = inf``. ``sd_mm`` itself is the
+    standard deviation estimate, without this factor."""
     from scipy import stats
 
     q = stats.norm.cdf(2.0)
