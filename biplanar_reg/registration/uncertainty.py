@@ -55,6 +55,7 @@ Frames and units: world frame, mm.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -421,13 +422,13 @@ def student_factor(dof: np.ndarray) -> np.ndarray:
     predictive distribution of an error whose variance was estimated with ``nu`` degrees of
     freedom (:attr:`VertexUncertainty.dof`); 1 for ``nu = inf``. ``sd_mm`` itself is the
     standard deviation estimate, without this factor."""
-    from scipy import stats
+    from scipy.special import stdtrit  # Student-t quantile; scipy.stats costs seconds to import
 
-    q = stats.norm.cdf(2.0)
+    q = 0.5 * (1.0 + math.erf(2.0 / math.sqrt(2.0)))  # Phi(2)
     nu = np.asarray(dof, float)
     out = np.ones_like(nu)
     finite = np.isfinite(nu)
-    out[finite] = stats.t.ppf(q, np.maximum(nu[finite], 1.0)) / 2.0
+    out[finite] = stdtrit(np.maximum(nu[finite], 1.0), q) / 2.0
     return out
 
 
