@@ -34,14 +34,24 @@ vertex's 3x3 covariance is ``A_v C A_v'`` with ``A_v = dV_v / dtheta = [-[R Q_v]
 
 **Model truncation.** A model whose span does not contain the bone leaves an error no choice of
 ``theta`` removes. :func:`biplanar_reg.ssm.build_ssm` stores it as ``truncation_modes`` (the
-leave-one-out residuals of its population, ``T``): the bone is ``model(theta) + T z`` with
-``z ~ N(0, I)``, which the fit ignored. Its error is then ``G (noise + K z)`` in the parameters
+leave-one-out residuals of its population, ``T``). A left-out shape's residual lies in the
+training data's span, much of which the full model spans, so that a fit would absorb it through
+its weights: :func:`out_of_span_truncation` keeps its component orthogonal to the model's modes
+(a new shape's residual is orthogonal to them) and rescales it by one factor to the
+leave-one-out mean square. The bone is ``model(theta) + T z`` with ``z ~ N(0, I)``, which the
+fit ignored. Its error is then ``G (noise + K z)`` in the parameters
 (gain ``G = C_e J' W_e``, ``K = d rows / d z``) and ``A_v G K z - T_v z`` at vertex ``v``, which
 adds ``(A_v G K - T_v)(A_v G K - T_v)'``: the model's own error there and what it did to the fitted
 pose and weights. Any residual variance beyond the stated noise (``v_g > 1``) is added too, as
 ``tau^2 = max(0, v_g - 1) * mean(stated sigma^2)`` (mm^2, pooled over the groups by their row
 counts, counted once along the surface normal). A model without truncation modes gets the
 pose and weight part and ``tau`` only: a lower bound.
+
+**Degrees of freedom.** Both shares are estimated: the data's from the jackknife clusters,
+the truncation's from ``F`` folds. Per vertex, :attr:`VertexUncertainty.dof` is their
+Satterthwaite combination (the data's from each cluster's expected share under the working
+model, Bell-McCaffrey / Imbens-Kolesar; the truncation's ``F``); :func:`student_factor` turns
+``2 sd_mm`` into the Student-t interval of the same 95.4 % level.
 
 **The number.** ``sd_mm = sqrt((trace(Cov_v) + tau^2) / 3)``: the root mean square over the
 three axes of the vertex's position standard deviation, mm. The matching error statistic is
@@ -67,7 +77,14 @@ from .rays import RayObservations
 from .refine import PoseShape, pose_shape_jacobian, tangent_bases
 from .rotations import skew
 
-__all__ = ["Linearisation", "VertexUncertainty", "linearise_fit", "vertex_sd"]
+__all__ = [
+    "Linearisation",
+    "VertexUncertainty",
+    "linearise_fit",
+    "out_of_span_truncation",
+    "student_factor",
+    "vertex_sd",
+]
 
 #: Pseudo-rows of evidence that the stated sigmas are right (the prior of the residual scale).
 PRIOR_DOF = 4.0
@@ -404,7 +421,9 @@ def vertex_sd(
     ex2 = np.array([s["excess_mm"] ** 2 for s in stats.values()])
     excess2 = float(n @ ex2 / n.sum()) if n.sum() else 0.0
     var = var_c + var_t + excess2
-    dof = var**2 / np.maximum(var_d**2 / nu_d + var_t**2 / nu_t, 1e-300)
+    denom = var_d**2 / nu_d + var_t**2 / nu_t
+    with np.errstate(divide="ignore"):  # nothing estimated: infinitely many dof
+        dof = np.where(denom > 0, var**2 / np.where(denom > 0, denom, 1.0), np.inf)
     own = 0.0 if model.truncation_modes is None else float(np.mean(model.truncation_sd**2))
     return VertexUncertainty(
         sd_mm=np.sqrt(var / 3.0),
