@@ -1,11 +1,13 @@
 """Calibration of the registration's per-vertex uncertainty (``RegistrationResult.vertex_sd_mm``).
 
-Each trial: the sample cases' radius SSM (wrist radius CT -> ~1,000-vertex surface -> 9-member
+Each trial (default): a case of :func:`biplanar_reg.simulate.realistic.make_realistic_case` on
+the wrist scene (radius SSM of 8 members, truth a held-out member, ulna overlapping,
+livewire-traced open outlines; ``--landmarks`` split over the two views). ``--simple``: the
+sample cases' radius SSM (wrist radius CT -> ~1,000-vertex surface -> 9-member
 harmonic population -> 98 % variance), a truth drawn from *another* harmonic population (seed
 ``100 + trial``: not in the model's span), a random pose near the isocentre, two perspective
 views 75 deg apart, L landmarks at random vertices split over the views with Gaussian click
 noise, and in each view a random 80 % stretch of the exact outline (open) with outline noise.
-With ``biplanar_reg.simulate.realistic`` available (``--realistic``) its cases are used instead.
 
 Per trial: the registration error per vertex ``e_v`` (vertex correspondence, mm), its RMS over
 the axes ``|e_v| / sqrt(3)`` against ``sd_mm`` (the statistic ``sd_mm`` predicts, see
@@ -15,7 +17,11 @@ model fit of the truth, vertex RMS).
 
 Usage::
 
-    python benchmarks/uncertainty.py [--trials 12] [--noise 1.5] [--out FILE.md]
+    python benchmarks/uncertainty.py [--trials 12] [--noise 1.5] [--seed0 0] [--scene-seed 0]
+        [--simple] [--out FILE.md]
+
+``--seed0`` and ``--scene-seed`` (the realistic scene's population and model) give cases
+disjoint from the default ones, to check the calibration out of sample.
 """
 
 from __future__ import annotations
@@ -156,6 +162,8 @@ def main() -> None:
         "# Calibration of the per-vertex uncertainty (`sd_mm`)\n",
         f"`python benchmarks/uncertainty.py --trials {args.trials} --landmarks {args.landmarks} "
         f"--noise {args.noise:g}"
+        f"{' --seed0 ' + str(args.seed0) if args.seed0 else ''}"
+        f"{' --scene-seed ' + str(args.scene_seed) if args.scene_seed and not args.simple else ''}"
         f"{' --simple --outline-noise ' + format(args.outline_noise, 'g') if args.simple else ''}"
         "` on "
         f"{platform.machine()}, Python {platform.python_version()}, one BLAS thread, "
