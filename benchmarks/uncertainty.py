@@ -114,6 +114,16 @@ def realistic_cases(args):
         yield c.model, c.views, c.truth_vertices, c.floor_mm
 
 
+def in_span_fraction(model: ShapeModel) -> float:
+    """Fraction of the squared norm of ``model.truncation_modes`` in the span of its modes (the
+    part a fit absorbs; see ``registration.uncertainty.out_of_span_truncation``); nan without."""
+    if model.truncation_modes is None:
+        return float("nan")
+    T = model.truncation_modes.reshape(len(model.truncation_modes), -1).T
+    Q, _ = np.linalg.qr(model.modes.reshape(model.n_modes, -1).T)
+    return float(np.sum((Q.T @ T) ** 2) / np.sum(T**2))
+
+
 def coverage_row(res, X: np.ndarray, floor: float) -> dict:
     """Per-trial figures: error and sd statistics (mm) and the 2-sd coverage."""
     err = np.linalg.norm(res.vertices - X, axis=1) / np.sqrt(3.0)  # RMS over axes
@@ -175,7 +185,8 @@ def main() -> None:
             "ulna overlapping, livewire-traced open outlines)"
         )
         + f"; {model.n_vertices} vertices, {model.n_modes} modes; truths out of the model's "
-        f"span; {args.landmarks} landmarks, {args.noise:g} px click noise.\n",
+        f"span; {args.landmarks} landmarks, {args.noise:g} px click noise. Share of the "
+        f"truncation modes' squared norm in the model's span: {in_span_fraction(model):.0%}.\n",
         "| trial | 2-sd coverage | median sd (mm) | median error, RMS over axes (mm) | "
         "vertex RMS (mm) | model floor (mm) |",
         "|---|---|---|---|---|---|",
