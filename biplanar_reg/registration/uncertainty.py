@@ -336,11 +336,11 @@ def _cluster_dof(
     clusters: list[np.ndarray],
     row_var: np.ndarray,
     A: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Per vertex, the Satterthwaite degrees of freedom (N,) of the jackknife variance and its
-    working-model expectation (N,, mm^2), from each cluster's expected share under the working
-    model (rows independent between clusters with variances ``row_var``; Bell and McCaffrey
-    2002, Imbens and Kolesar 2016): ``nu = (sum_c q_c)^2 / sum_c q_c^2``, ``q_c =
+) -> np.ndarray:
+    """Per vertex, the Satterthwaite degrees of freedom (N,) of the jackknife variance, from
+    each cluster's expected share under the working model (rows independent between clusters
+    with variances ``row_var``; Bell and McCaffrey 2002, Imbens and Kolesar 2016):
+    ``nu = (sum_c q_c)^2 / sum_c q_c^2``, ``q_c =
     trace(A_v C_e J_c' W_c Sigma_c W_c J_c C_e A_v')``. A few clusters carrying a vertex's
     variance give a few degrees of freedom."""
     sw = np.sqrt(est_w)
@@ -351,8 +351,7 @@ def _cluster_dof(
         B = C @ J[rows].T  # (P, |c|)
         E = (B * row_var[rows]) @ B.T
         q[:, c] = np.einsum("nip,pq,niq->n", A, E, A)
-    total = q.sum(axis=1)
-    return total**2 / np.maximum(np.sum(q * q, axis=1), 1e-300), total
+    return q.sum(axis=1) ** 2 / np.maximum(np.sum(q * q, axis=1), 1e-300)
 
 
 def vertex_jacobians(model: ShapeModel, state: PoseShape) -> np.ndarray:
@@ -405,12 +404,12 @@ def vertex_sd(
     C, G = _parameter_covariance(lin.jacobian, row_var, prior, estimator_weights)
     A = vertex_jacobians(model, state)
     n_vert = model.n_vertices
-    var_d, var_p, nu_d = np.zeros(n_vert), np.zeros(n_vert), np.full(n_vert, np.inf)
+    var_p, nu_d = np.zeros(n_vert), np.full(n_vert, np.inf)
     if estimator_weights is not None:  # the data's share from the residuals themselves
         clusters = _clusters(lin, stats)
         C, prior_part = _jackknife_covariance(lin, estimator_weights, prior, clusters)
         var_p = np.einsum("nip,pq,niq->n", A, prior_part, A)
-        nu_d, _ = _cluster_dof(lin, estimator_weights, prior, clusters, row_var, A)
+        nu_d = _cluster_dof(lin, estimator_weights, prior, clusters, row_var, A)
     var_c = np.maximum(np.einsum("nip,pq,niq->n", A, C, A), 0.0)
     var_d = np.maximum(var_c - var_p, 0.0)
     var_t, nu_t = np.zeros(n_vert), np.inf
