@@ -1,11 +1,13 @@
 """Calibration of the registration's per-vertex uncertainty (``RegistrationResult.vertex_sd_mm``).
 
-Each trial: the sample cases' radius SSM (wrist radius CT -> ~1,000-vertex surface -> 9-member
+Each trial (default): a case of :func:`biplanar_reg.simulate.realistic.make_realistic_case` on
+the wrist scene (radius SSM of 8 members, truth a held-out member, ulna overlapping,
+livewire-traced open outlines; ``--landmarks`` split over the two views). ``--simple``: the
+sample cases' radius SSM (wrist radius CT -> ~1,000-vertex surface -> 9-member
 harmonic population -> 98 % variance), a truth drawn from *another* harmonic population (seed
 ``100 + trial``: not in the model's span), a random pose near the isocentre, two perspective
 views 75 deg apart, L landmarks at random vertices split over the views with Gaussian click
 noise, and in each view a random 80 % stretch of the exact outline (open) with outline noise.
-With ``biplanar_reg.simulate.realistic`` available (``--realistic``) its cases are used instead.
 
 Per trial: the registration error per vertex ``e_v`` (vertex correspondence, mm), its RMS over
 the axes ``|e_v| / sqrt(3)`` against ``sd_mm`` (the statistic ``sd_mm`` predicts, see
@@ -15,7 +17,11 @@ model fit of the truth, vertex RMS).
 
 Usage::
 
-    python benchmarks/uncertainty.py [--trials 12] [--noise 1.5] [--out FILE.md]
+    python benchmarks/uncertainty.py [--trials 12] [--noise 1.5] [--seed0 0] [--scene-seed 0]
+        [--simple] [--out FILE.md]
+
+``--seed0`` and ``--scene-seed`` (the realistic scene's population and model) give cases
+disjoint from the default ones, to check the calibration out of sample.
 """
 
 from __future__ import annotations
@@ -34,6 +40,8 @@ from biplanar_reg.outline import outline_polylines
 from biplanar_reg.registration import RegistrationOptions, register_views
 from biplanar_reg.simulate import biplanar_views, outline_stretch, random_pose, vertex_landmarks
 from biplanar_reg.ssm import ShapeModel, synthesise_population
+
+WRIST_DATA = Path(__file__).resolve().parents[1] / "sample_cases" / "wrist_radius" / "data"
 
 
 def rigid_fit(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -86,7 +94,7 @@ def simple_cases(args):
     """(model, views, truth, floor) of the ``--simple`` trials."""
     template, faces = reference.radius_template(args.vertices)
     model = reference.radius_model(template, faces)
-    for s in range(args.trials):
+    for s in range(args.seed0, args.seed0 + args.trials):
         views, X = synthetic_case(
             model, template, s, args.landmarks, args.noise, args.outline_noise
         )
@@ -96,13 +104,24 @@ def simple_cases(args):
 def realistic_cases(args):
     """(model, views, truth, floor) of :func:`biplanar_reg.simulate.realistic.make_realistic_case`
     (``--landmarks`` in total, split evenly over the two views)."""
-    from biplanar_reg.simulate.realistic import make_realistic_case
+    from biplanar_reg.simulate.realistic import make_realistic_case, wrist_scene
 
-    for s in range(args.trials):
+    scene = wrist_scene(str(WRIST_DATA), seed=args.scene_seed)
+    for s in range(args.seed0, args.seed0 + args.trials):
         c = make_realistic_case(
-            s, n_landmarks_per_view=args.landmarks // 2, landmark_noise_px=args.noise
+            s, n_landmarks_per_view=args.landmarks // 2, landmark_noise_px=args.noise, scene=scene
         )
         yield c.model, c.views, c.truth_vertices, c.floor_mm
+
+
+def in_span_fraction(model: ShapeModel) -> float:
+    """Fraction of the squared norm of ``model.truncation_modes`` in the span of its modes (the
+    part a fit absorbs; see ``registration.uncertainty.out_of_span_truncation``); nan without."""
+    if model.truncation_modes is None:
+        return float("nan")
+    T = model.truncation_modes.reshape(len(model.truncation_modes), -1).T
+    Q, _ = np.linalg.qr(model.modes.reshape(model.n_modes, -1).T)
+    return float(np.sum((Q.T @ T) ** 2) / np.sum(T**2))
 
 
 def coverage_row(res, X: np.ndarray, floor: float) -> dict:
@@ -127,6 +146,10 @@ def main() -> None:
     ap.add_argument("--outline-noise", type=float, default=0.5, help="px")
     ap.add_argument("--vertices", type=int, default=1000)
     ap.add_argument("--simple", action="store_true", help="exact outlines, no second bone")
+    ap.add_argument("--seed0", type=int, default=0, help="first trial seed")
+    ap.add_argument(
+        "--scene-seed", type=int, default=0, help="population seed of the realistic scene"
+    )
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
     t_start = time.process_time()
@@ -149,6 +172,8 @@ def main() -> None:
         "# Calibration of the per-vertex uncertainty (`sd_mm`)\n",
         f"`python benchmarks/uncertainty.py --trials {args.trials} --landmarks {args.landmarks} "
         f"--noise {args.noise:g}"
+        f"{' --seed0 ' + str(args.seed0) if args.seed0 else ''}"
+        f"{' --scene-seed ' + str(args.scene_seed) if args.scene_seed and not args.simple else ''}"
         f"{' --simple --outline-noise ' + format(args.outline_noise, 'g') if args.simple else ''}"
         "` on "
         f"{platform.machine()}, Python {platform.python_version()}, one BLAS thread, "
@@ -160,7 +185,8 @@ def main() -> None:
             "ulna overlapping, livewire-traced open outlines)"
         )
         + f"; {model.n_vertices} vertices, {model.n_modes} modes; truths out of the model's "
-        f"span; {args.landmarks} landmarks, {args.noise:g} px click noise.\n",
+        f"span; {args.landmarks} landmarks, {args.noise:g} px click noise. Share of the "
+        f"truncation modes' squared norm in the model's span: {in_span_fraction(model):.0%}.\n",
         "| trial | 2-sd coverage | median sd (mm) | median error, RMS over axes (mm) | "
         "vertex RMS (mm) | model floor (mm) |",
         "|---|---|---|---|---|---|",

@@ -8,7 +8,12 @@ import pytest
 from biplanar_reg.cases.outputs import mesh_properties, uncertainty_summary
 from biplanar_reg.io.meshes import read_mesh, read_vertex_properties, write_mesh
 from biplanar_reg.registration.refine import refine_pose_shape
-from biplanar_reg.registration.uncertainty import linearise_fit, vertex_sd
+from biplanar_reg.registration.uncertainty import (
+    linearise_fit,
+    out_of_span_truncation,
+    student_factor,
+    vertex_sd,
+)
 from biplanar_reg.simulate import biplanar_views, observe, random_pose, synthetic_bone_model
 from biplanar_reg.ssm import ShapeModel
 
@@ -108,3 +113,45 @@ def test_build_ssm_stores_leave_one_out_truncation(tmp_path):
     np.testing.assert_array_equal(
         ShapeModel.load(tmp_path / "m.npz").truncation_modes, m.truncation_modes
     )
+
+
+def test_truncation_in_the_model_span_is_projected_out(scene):
+    """A leave-one-out residual the model's modes can represent is no truncation error: it is
+    removed, the rest keeps the total size, and the rows' truncation columns follow (checked
+    against a fresh linearisation with the projected modes)."""
+    model, state, X, ids = scene
+    rng = np.random.default_rng(5)
+    in_span = 2.0 * model.modes[0] - model.modes[2]
+    outside = 0.3 * rng.normal(size=(2, model.n_vertices, 3))
+    trunc = np.stack([in_span + outside[0], outside[1]])
+    m = ShapeModel(model.mean, model.modes, faces=model.faces, truncation_modes=trunc)
+    rays = observe(biplanar_views(75.0), X, ids, noise_px=1.0, rng=np.random.default_rng(0))
+    rays = rays.with_sigmas(np.full(len(rays), 0.225))
+    lin = linearise_fit(m, state, rays, [])
+    m2, lin2 = out_of_span_truncation(m, lin)
+    P = model.modes.reshape(model.n_modes, -1)
+    T2 = m2.truncation_modes.reshape(2, -1)
+    assert np.abs(P @ T2.T).max() < 1e-8 * np.abs(P @ trunc.reshape(2, -1).T).max()
+    assert np.linalg.norm(T2) == pytest.approx(np.linalg.norm(trunc))
+    fresh = linearise_fit(m2, state, rays, [])
+    np.testing.assert_allclose(lin2.truncation_jacobian, fresh.truncation_jacobian, atol=1e-9)
+    # a model whose truncation lies wholly outside the span is left as it is
+    m3 = ShapeModel(
+        model.mean, model.modes, faces=model.faces, truncation_modes=T2.reshape(2, -1, 3)
+    )
+    assert out_of_span_truncation(m3, fresh)[0].truncation_modes == pytest.approx(
+        T2.reshape(2, -1, 3)
+    )
+
+
+def test_degrees_of_freedom_and_student_factor(scene):
+    model, state, X, ids = scene
+    u = _sd(model, state, X, ids, 1.0, jackknife=True)
+    few = _sd(model, state, X, [ids[0][:3], ids[1][:3]], 1.0, jackknife=True)
+    assert np.all(np.isfinite(u.dof)) and np.all(u.dof >= 1.0 - 1e-9)
+    # ten landmark clusters carry the variance: at most 10 dof; six landmarks: fewer
+    assert np.all(u.dof <= 10.0 + 1e-9) and np.median(few.dof) < np.median(u.dof)
+    assert student_factor(np.array([np.inf]))[0] == 1.0
+    f = student_factor(np.array([3.0, 10.0, 1e6]))
+    assert f[0] > f[1] > f[2] and f[2] == pytest.approx(1.0, abs=1e-4)
+    assert f[0] == pytest.approx(3.31 / 2.0, rel=0.02)  # t_3 at 97.7 %
