@@ -38,13 +38,10 @@ COUNT_RANGES: dict[str, tuple[int, int]] = {
 # fields that must be fractions in (0, 1]
 _FRACTIONS = ("landmark_weight", "rejection_weight", "consensus_margin")
 # fields that may be 0
-#: Allowed values of the text options.
-CHOICES: dict[str, tuple[str, ...]] = {"outline_loss": ("truncated", "geman-mcclure")}
 _NON_NEGATIVE = ("prior_weight", "end_margin_px")
 # fields with a range of their own: (low, high, low inclusive) with high inclusive
 _RANGES = {
     "max_tangent_angle_deg": (0.0, 180.0, False),
-    "refine_max_angle_deg": (0.0, 90.0, False),
     "rejected_sigma_factor": (1.0, np.inf, True),
     "gnc_factor": (1.0, np.inf, False),
 }
@@ -191,8 +188,6 @@ readmit_sigmas : None
     rejected_sigma_factor: float = 1e3
     pose_sigma_deg: float = 2.0
     pose_sigma_mm: float = 5.0
-    outline_loss: str = "truncated"
-    refine_max_angle_deg: float = 90.0
     blunder_threshold: float | None = None
     blunder_contrast: float | None = None
     max_rejected_fraction: float | None = None
@@ -222,13 +217,6 @@ readmit_sigmas : None
                 object.__setattr__(self, key, None)
         for f in fields(self):
             if f.default is None and getattr(self, f.name) is None:
-                continue
-            if f.name in CHOICES:
-                if getattr(self, f.name) not in CHOICES[f.name]:
-                    raise ValueError(
-                        f"{f.name}: expected one of {list(CHOICES[f.name])}, "
-                        f"got {getattr(self, f.name)!r}"
-                    )
                 continue
             _check_field(f.name, getattr(self, f.name), f.default)
 

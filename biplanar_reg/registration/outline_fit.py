@@ -76,8 +76,6 @@ class OutlineTerm:
     gate_px: float
     mm_per_px: float
     index: int = 0  # the view's index among the problem's views
-    loss: str = "truncated"  # or "geman-mcclure" (:func:`robust_residuals`)
-    max_angle_deg: float = 90.0  # model outline edges more oblique to the annotation: unmatched
 
 
 @dataclass(frozen=True)
@@ -133,11 +131,7 @@ def _outline_terms(
         )
     uv = outl.uv_all
     segs = Segments.build(uv[e[:, 0]], uv[e[:, 1]])
-    if term.max_angle_deg < 90.0:
-        min_cos = float(np.cos(np.deg2rad(term.max_angle_deg)))
-        _, _, s, u = segs.nearest(q, direction=term.target.tangents(q), min_cos=min_cos)
-    else:
-        _, _, s, u = segs.nearest(q)
+    _, _, s, u = segs.nearest(q)
     i, j = e[s, 0], e[s, 1]
     Qc = (1.0 - u)[:, None] * Qall[i] + u[:, None] * Qall[j]
     Pc = (1.0 - u)[None, :, None] * model.modes[:, i] + u[None, :, None] * model.modes[:, j]
@@ -151,26 +145,12 @@ def _outline_terms(
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
     off = np.einsum("ki,ki->k", n, Vc - o)
     cap = term.gate_px * term.mm_per_px
-    r, inv = robust_residuals(off, cap, term.sigma_mm, term.loss)
-    res = np.column_stack([r, np.zeros(len(q))])
+    active = np.abs(off) <= cap
+    res = np.column_stack([np.clip(off, -cap, cap), np.zeros(len(q))]) / term.sigma_mm
     basis = np.zeros((len(q), 3, 2))
     basis[:, :, 0] = n
-    return _Linearised(res, Qc, Pc, basis, inv, int(np.sum(np.abs(off) <= cap)))
-
-
-def robust_residuals(
-    off: np.ndarray, scale_mm: float, sigma_mm: float, loss: str
-) -> tuple[np.ndarray, np.ndarray]:
-    """Residuals ``r`` (``1/2 r^2`` is a term's cost) of offsets ``off`` (mm) and the factor
-    ``dr/d off`` (1/mm) their Jacobian rows are scaled by: ``"truncated"``, ``min(|off|, c)
-    / sigma`` (no gradient beyond ``c = scale_mm``), or ``"geman-mcclure"``, ``c off /
-    sqrt(c^2 + off^2) / sigma`` (bounded, its influence fading smoothly beyond ``c``)."""
-    if loss == "geman-mcclure":
-        den = np.sqrt(scale_mm**2 + off**2)
-        return scale_mm * off / den / sigma_mm, scale_mm**3 / den**3 / sigma_mm
-    active = np.abs(off) <= scale_mm
-    r = np.clip(off, -scale_mm, scale_mm) / sigma_mm
-    return r, np.where(active, 1.0 / sigma_mm, 0.0)  # capped terms: no gradient
+    inv = np.where(active, 1.0 / term.sigma_mm, 0.0)  # capped terms: no gradient
+    return _Linearised(res, Qc, Pc, basis, inv, int(active.sum()))
 
 
 @dataclass(frozen=True)

@@ -49,16 +49,12 @@ class Segments:
     def build(cls, a: np.ndarray, b: np.ndarray) -> Segments:
         return cls(a, b, cKDTree(0.5 * (a + b)))
 
-    def nearest(
-        self, p: np.ndarray, k: int = 8, direction: np.ndarray | None = None, min_cos: float = 0.0
-    ) -> tuple[np.ndarray, ...]:
+    def nearest(self, p: np.ndarray, k: int = 8) -> tuple[np.ndarray, ...]:
         """Nearest point on the segments to each of ``p`` (P, 2).
 
         Returns the foot points (P, 2), distances (P,), segment index (P,) and the position
         along that segment (P,) in [0, 1]. The candidates are the ``k`` segments with the
         nearest midpoints, exact when segments are shorter than the distances between them.
-        With ``direction`` (P, 2) unit vectors, only candidates within ``|cos| >= min_cos`` of
-        the point's direction are taken (the plain nearest when none is).
         """
         k = min(k, len(self.a))
         _, cand = self.tree.query(p, k=k)
@@ -69,13 +65,7 @@ class Segments:
         t = np.clip(np.einsum("pkc,pkc->pk", p[:, None, :] - a, ab) / ln2, 0.0, 1.0)
         foot = a + t[..., None] * ab
         dist = np.linalg.norm(foot - p[:, None, :], axis=2)
-        choose = dist
-        if direction is not None and min_cos > 0.0:
-            cos = np.abs(np.einsum("pkc,pc->pk", ab, direction)) / np.sqrt(ln2)
-            bad = cos < min_cos
-            bad &= ~np.all(bad, axis=1, keepdims=True)
-            choose = np.where(bad, np.inf, dist)
-        j = np.argmin(choose, axis=1)
+        j = np.argmin(dist, axis=1)
         r = np.arange(len(p))
         return foot[r, j], dist[r, j], cand[r, j], t[r, j]
 
@@ -91,12 +81,6 @@ class OutlineTarget:
     points: np.ndarray  # (P, 2) the resampled points (for distances)
     usable: np.ndarray  # (P,) False within end_margin_px of an open polyline's ends
     end_margin_px: float = END_MARGIN_PX
-
-    def tangents(self, q: np.ndarray) -> np.ndarray:
-        """Unit direction (Q, 2) of the annotated outline at its points ``q`` (Q, 2)."""
-        seg = self.segments.nearest(q)[2]
-        d = self.segments.b[seg] - self.segments.a[seg]
-        return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
 
     def usable_foot(self, seg: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Whether foot points (segment, position) lie away from the ends of open contours."""

@@ -445,8 +445,6 @@ def outline_terms(problem: Problem, outlines: dict[int, ModelOutline]) -> list[O
             ),
             problem.mm_per_px[i],
             i,
-            opts.outline_loss,
-            opts.refine_max_angle_deg,
         )
         for i, t in problem.targets.items()
     ]
