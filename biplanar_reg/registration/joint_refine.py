@@ -32,7 +32,7 @@ from .refine import (
     ray_offsets,
     tangent_bases,
 )
-from .rotations import so3_exp
+from .rotations import so3_exp, so3_log
 
 __all__: list[str] = []
 
@@ -184,6 +184,60 @@ def refine_views(
     )
 
 
+@dataclass(frozen=True)
+class ViewPosePrior:
+    """A Gaussian prior on every non-gauge view's calibration correction.
+
+    The correction of view ``x`` is the rigid motion ``C_x = O_g o O_x^-1`` between the object
+    pose seen through view ``x`` and the one seen through the gauge ``g`` (the world pose); its
+    residuals are the rotation vector of ``C_x`` over ``sigma_rad`` and the move of view
+    ``x``'s point ``points[x]`` (its source: the calibration's source position error) over
+    ``sigma_mm``. (The same prior as :class:`.outline_fit.PosePrior`, for
+    :func:`refine_views_in_pixels`.)
+
+    Attributes
+    ----------
+    gauge : int
+    points : (P, 3) array
+        World, mm.
+    sigma_rad, sigma_mm : float
+    """
+
+    gauge: int
+    points: np.ndarray
+    sigma_rad: float
+    sigma_mm: float
+
+
+def view_prior_residuals(Rs, ts, prior: ViewPosePrior | None) -> np.ndarray:
+    """The residuals of :class:`ViewPosePrior` (6 per non-gauge view), empty without one."""
+    if prior is None or len(Rs) == 1:
+        return np.zeros(0)
+    g = prior.gauge
+    out = []
+    for x in range(len(Rs)):
+        if x == g:
+            continue
+        p = prior.points[x]
+        moved = Rs[g] @ Rs[x].T @ (p - ts[x]) + ts[g]
+        out.append(so3_log(Rs[x] @ Rs[g].T) / prior.sigma_rad)
+        out.append((moved - p) / prior.sigma_mm)
+    return np.concatenate(out)
+
+
+def _view_prior_jacobian(state, prior: ViewPosePrior | None, n_cols: int, retract) -> np.ndarray:
+    """Forward-difference Jacobian of :func:`view_prior_residuals` (pose columns only)."""
+    Rs, ts, _ = state
+    r0 = view_prior_residuals(Rs, ts, prior)
+    J = np.zeros((len(r0), n_cols))
+    for col in range(6 * len(Rs) if len(r0) else 0):
+        step = np.zeros(n_cols)
+        step[col] = 1e-6
+        R1, t1, _ = retract(state, step)
+        J[:, col] = (view_prior_residuals(R1, t1, prior) - r0) / 1e-6
+    return J
+
+
 def _depths(model: ShapeModel, views: dict, P: int, state) -> np.ndarray:
     """Depth (mm) of the posed model's centroid in every view (nan without a source)."""
     Rs, ts, w = state
@@ -212,7 +266,7 @@ def refine_views_in_pixels(
     outlines: list,
     views: Sequence,
     *,
-    prior=None,
+    prior: ViewPosePrior | None = None,
     prior_weight: float = 1.0,
     max_iter: int = 30,
     tol: float = 1e-6,
@@ -221,7 +275,8 @@ def refine_views_in_pixels(
     depths: np.ndarray | None = None,
 ):
     """:func:`.outline_fit.refine_poses_on_outlines` with one object pose per view (view
-    ``x`` is pose group ``x``), its residuals measured in pixels rather than in mm.
+    ``x`` is pose group ``x``), its residuals measured in pixels rather than in mm, and the
+    calibration prior :class:`ViewPosePrior`.
 
     The terms of ``outline_fit`` are ray distances (mm) over sigmas (mm) fixed at the start's
     depth. When every view's pose is free, moving the whole scene towards the views' sources
@@ -245,7 +300,6 @@ def refine_views_in_pixels(
         _outline_terms,
         _retract_poses,
         _stacked_jacobian,
-        prior_residuals,
     )
     from .refine import levenberg_marquardt as lm_solve
 
@@ -256,11 +310,13 @@ def refine_views_in_pixels(
     for term in outlines:
         q = term.target.points[term.target.usable]
         samples.append((q, *term.view.rays(q)))
-    z_ref = _depths(model, lm_views, P, start) if depths is None else np.asarray(depths)
+    z0 = _depths(model, lm_views, P, start)
+    z_ref = z0 if depths is None else np.asarray(depths, dtype=float)
 
     def residuals(state):
         s = _depth_scales(model, lm_views, P, state, z_ref)
-        if np.any(~np.isfinite(s)) or np.any((s > 2.0) | (s < 0.5)):
+        moved = _depth_scales(model, lm_views, P, state, z0)
+        if np.any(~np.isfinite(moved)) or np.any((moved > 2.0) | (moved < 0.5)):
             return np.array([np.inf]), None  # behind a source, or the depth halved/doubled
         Rs, ts, w = state
         Qall = model.instance(w)
@@ -280,15 +336,21 @@ def refine_views_in_pixels(
             for p, g in zip(parts, groups, strict=True)
         ]
         r = [p.residuals.ravel() for p in parts]
-        rvec = np.concatenate([*r, sqrt_lam * w, prior_residuals(Rs, ts, prior)])
+        rvec = np.concatenate([*r, sqrt_lam * w, view_prior_residuals(Rs, ts, prior)])
         return rvec, ((parts, groups), sum(p.n_active for p in parts))
 
     def jacobian(state, aux):
-        return _stacked_jacobian(state, aux[0], M, sqrt_lam, prior)
+        J = _stacked_jacobian(state, aux[0], M, sqrt_lam, None)
+        return np.vstack([J, _view_prior_jacobian(state, prior, J.shape[1], _retract_poses)])
 
     state0 = tuple(np.array(a, dtype=float) for a in start)
     (Rs, ts, w), cost0, cost, iterations, converged = lm_solve(
-        state0, residuals, jacobian, _retract_poses, max_iter=max_iter, tol=tol,
+        state0,
+        residuals,
+        jacobian,
+        _retract_poses,
+        max_iter=max_iter,
+        tol=tol,
         max_rejected=max_rejected,
     )
     _, aux = residuals((Rs, ts, w))

@@ -27,10 +27,10 @@ import numpy as np
 
 from ..ssm.model import ShapeModel
 from .gsft import GsftResult
-from .joint_refine import refine_views_in_pixels
+from .joint_refine import ViewPosePrior, refine_views_in_pixels, view_prior_residuals
 from .observations import ViewObservations
 from .options import RegistrationOptions
-from .outline_fit import OutlineTerm, PosePrior, prior_residuals, refine_poses_on_outlines
+from .outline_fit import OutlineTerm
 from .problem import Problem, with_pose
 from .rays import RayObservations
 from .rotations import rotation_angle
@@ -210,8 +210,8 @@ def _joint_terms(problem: Problem) -> list[OutlineTerm]:
 MAX_CORRECTION_SIGMAS = 3.0
 
 
-def _implausible(fit, prior: PosePrior) -> bool:
-    r = prior_residuals(fit.rotations, fit.translations, prior)
+def _implausible(fit, prior: ViewPosePrior) -> bool:
+    r = view_prior_residuals(fit.rotations, fit.translations, prior)
     return bool(np.max(np.abs(r)) > MAX_CORRECTION_SIGMAS)
 
 
@@ -244,19 +244,18 @@ def refine_views_on_outlines(
     """
     opts, views = problem.options, problem.views
     P = len(views)
+    c = result.vertices.mean(axis=0)
     pose_prior = None
     if prior:
-        # the corrections' translations are measured at the bone (its centre in the gauge's
-        # world), where the calibration error is stated, not at the far-away sources (a 1 deg
-        # error about the bone moves a source 1 m away by 17 mm)
-        centres = np.repeat(result.vertices.mean(axis=0)[None], P, 0)
-        pose_prior = PosePrior(0, centres, np.deg2rad(opts.pose_sigma_deg), opts.pose_sigma_mm)
+        centres = np.array([-v.view.R.T @ v.view.t for v in views])
+        sig = np.deg2rad(opts.pose_sigma_deg)
+        pose_prior = ViewPosePrior(0, centres, sig, opts.pose_sigma_mm)
     tiled = (np.repeat(result.rotation[None], P, 0), np.repeat(result.translation[None], P, 0))
     best = None
     terms = _joint_terms(problem)
-    c = result.vertices.mean(axis=0)
-    depths = np.array([v.view.to_camera(c[None])[0, 2] if hasattr(v.view, "centre") else np.nan
-                       for v in views])
+    depths = np.array(
+        [v.view.to_camera(c[None])[0, 2] if hasattr(v.view, "centre") else np.nan for v in views]
+    )
     for i, start in enumerate([(*tiled, result.weights), *starts]):
         if not _in_front(problem, start):
             continue
