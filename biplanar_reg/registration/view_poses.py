@@ -9,12 +9,16 @@ camera frame. Both run in two steps:
    the modes (:func:`.unknown_poses.refine_view_poses`, G-SfT-P
    :func:`.unknown_poses.solve_gsft_unknown_poses`); otherwise from what they can fix: the
    given calibrations (``refine``) or G-SfT-P on the rigid mean shape (``unknown``, 3
-   landmarks per view), whose mirror-ambiguous candidates the outline fit arbitrates;
+   landmarks per view), whose mirror-ambiguous candidates the outline fit arbitrates, plus
+   every combination of the views' single-view poses of the mean shape (P3P with 3 landmarks,
+   :func:`_pnp_starts`);
 2. after the registration with those views, a joint refinement of every view's pose and the
-   shape on the landmarks and outlines (:func:`.outline_fit.refine_poses_on_outlines`), with,
-   for ``refine``, a Gaussian prior on the corrections (``pose_sigma_deg``,
-   ``pose_sigma_mm``): a view's depth along its own axis is hardly seen in its image, so
-   without it the bone's position in the world would drift by centimetres.
+   shape on the landmarks and outlines (:func:`.joint_refine.refine_views_in_pixels`: the
+   objective of :func:`.outline_fit.refine_poses_on_outlines` with its residuals kept in
+   pixels, so that shrinking the scene towards the sources does not pay), with, for
+   ``refine``, a Gaussian prior on the corrections (``pose_sigma_deg``, ``pose_sigma_mm``): a
+   view's depth along its own axis is hardly seen in its image, so without it the bone's
+   position in the world would drift by centimetres.
 """
 
 from __future__ import annotations
