@@ -9,25 +9,32 @@ camera frame. Both run in two steps:
    the modes (:func:`.unknown_poses.refine_view_poses`, G-SfT-P
    :func:`.unknown_poses.solve_gsft_unknown_poses`); otherwise from what they can fix: the
    given calibrations (``refine``) or G-SfT-P on the rigid mean shape (``unknown``, 3
-   landmarks per view), whose mirror-ambiguous candidates the outline fit arbitrates;
+   landmarks per view), whose mirror-ambiguous candidates the outline fit arbitrates, plus
+   every combination of the views' single-view poses of the mean shape (P3P with 3 landmarks,
+   :func:`_pnp_starts`);
 2. after the registration with those views, a joint refinement of every view's pose and the
-   shape on the landmarks and outlines (:func:`.outline_fit.refine_poses_on_outlines`), with,
-   for ``refine``, a Gaussian prior on the corrections (``pose_sigma_deg``,
-   ``pose_sigma_mm``): a view's depth along its own axis is hardly seen in its image, so
-   without it the bone's position in the world would drift by centimetres.
+   shape on the landmarks and outlines (:func:`.joint_refine.refine_views_in_pixels`: the
+   objective of :func:`.outline_fit.refine_poses_on_outlines` with its residuals kept in
+   pixels, so that shrinking the scene towards the sources does not pay), with, for
+   ``refine``, a Gaussian prior on the corrections (``pose_sigma_deg``, ``pose_sigma_mm``): a
+   view's depth along its own axis is hardly seen in its image, so without it the bone's
+   position in the world would drift by centimetres.
 """
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
 
 from ..ssm.model import ShapeModel
 from .gsft import GsftResult
+from .joint_refine import ViewPosePrior, refine_views_in_pixels, view_prior_residuals
 from .observations import ViewObservations
 from .options import RegistrationOptions
-from .outline_fit import OutlineTerm, PosePrior, prior_residuals, refine_poses_on_outlines
+from .outline_fit import OutlineTerm
 from .problem import Problem, with_pose
 from .rays import RayObservations
 from .rotations import rotation_angle
@@ -90,6 +97,52 @@ def _gsft_p(model, views, opts):
     return est, [(Rs, ts, w) for Rs, ts in cands]
 
 
+#: At most this many combinations of the views' single-view pose candidates start the joint
+#: refinement (each view's 3 landmarks fix its pose up to the up to 4 solutions of P3P).
+MAX_PNP_STARTS = 16
+
+
+def _single_view_poses(model: ShapeModel, rays: RayObservations) -> list:
+    """The mean shape's poses in one view's camera frame that reproject its landmarks (object
+    -> camera, mm): every P3P solution with exactly 3 landmarks (the pose is fixed up to that
+    ambiguity), the SQPnP solution with more. Empty for a view that is not central (its rays do
+    not meet at the frame's origin) or whose landmarks do not fix a pose."""
+    d = rays.directions
+    if len(d) < 3 or np.any(np.abs(rays.origins) > 1e-6 * model.size) or np.any(d[:, 2] <= 0):
+        return []
+    X = np.ascontiguousarray(model.mean[rays.vertex_ids], dtype=np.float64)
+    uv = np.ascontiguousarray(d[:, :2] / d[:, 2:3], dtype=np.float64)
+    if len(np.unique(rays.vertex_ids)) < 3:
+        return []
+    try:
+        if len(X) == 3:
+            _, rvecs, tvecs = cv2.solveP3P(X, uv, np.eye(3), None, flags=cv2.SOLVEPNP_P3P)
+        else:
+            _, rvecs, tvecs, _ = cv2.solvePnPGeneric(
+                X, uv, np.eye(3), None, flags=cv2.SOLVEPNP_SQPNP
+            )
+    except cv2.error:
+        return []
+    out = []
+    for r, t in zip(rvecs, tvecs, strict=True):
+        R, t = cv2.Rodrigues(r)[0], np.ravel(t)
+        if np.all((X @ R.T + t)[:, 2] > 0):  # in front of the source
+            out.append((R, t))
+    return out
+
+
+def _pnp_starts(model: ShapeModel, views: list[ViewObservations]) -> list:
+    """Starts of the joint refinement from what each view's landmarks fix on their own (its
+    pose, up to P3P's ambiguity): every combination of the views' single-view poses of the mean
+    shape (camera frames; at most :data:`MAX_PNP_STARTS`), for the outlines to arbitrate."""
+    per_view = [_single_view_poses(model, u.rays) for u in _camera_rays(views)]
+    if any(not c for c in per_view):
+        return []
+    w = np.zeros(model.n_modes)
+    combos = itertools.islice(itertools.product(*per_view), MAX_PNP_STARTS)
+    return [(np.array([R for R, _ in c]), np.array([t for _, t in c]), w) for c in combos]
+
+
 def _in_world(views, state):
     """Object poses in the view frames -> object poses in the world seen through each view's
     extrinsics (``O_x = E_x^-1 o P_x``)."""
@@ -122,6 +175,7 @@ def estimate_view_poses(
             )
         return PosedViews(views, {"mode": poses}, [])
     est, starts = _gsft_p(model, views, options)
+    starts += _pnp_starts(model, views)
     if poses == "refine":
         return PosedViews(views, {"mode": poses}, [_in_world(views, s) for s in starts])
     posed = _with_poses(views, est.view_rotations, est.view_translations)
@@ -160,8 +214,8 @@ def _joint_terms(problem: Problem) -> list[OutlineTerm]:
 MAX_CORRECTION_SIGMAS = 3.0
 
 
-def _implausible(fit, prior: PosePrior) -> bool:
-    r = prior_residuals(fit.rotations, fit.translations, prior)
+def _implausible(fit, prior: ViewPosePrior) -> bool:
+    r = view_prior_residuals(fit.rotations, fit.translations, prior)
     return bool(np.max(np.abs(r)) > MAX_CORRECTION_SIGMAS)
 
 
@@ -194,27 +248,33 @@ def refine_views_on_outlines(
     """
     opts, views = problem.options, problem.views
     P = len(views)
+    c = result.vertices.mean(axis=0)
     pose_prior = None
     if prior:
         centres = np.array([-v.view.R.T @ v.view.t for v in views])
-        pose_prior = PosePrior(0, centres, np.deg2rad(opts.pose_sigma_deg), opts.pose_sigma_mm)
+        sig = np.deg2rad(opts.pose_sigma_deg)
+        pose_prior = ViewPosePrior(0, centres, sig, opts.pose_sigma_mm)
     tiled = (np.repeat(result.rotation[None], P, 0), np.repeat(result.translation[None], P, 0))
     best = None
     terms = _joint_terms(problem)
+    depths = np.array(
+        [v.view.to_camera(c[None])[0, 2] if hasattr(v.view, "centre") else np.nan for v in views]
+    )
     for i, start in enumerate([(*tiled, result.weights), *starts]):
         if not _in_front(problem, start):
             continue
-        fit = refine_poses_on_outlines(
+        fit = refine_views_in_pixels(
             problem.model,
             start,
             problem.landmark_rays(rejected),
             terms,
-            pose_of_view=np.arange(P),
+            views,
             prior=pose_prior,
             prior_weight=opts.prior_weight,
             max_iter=max(opts.refine_iterations, 30),
             he=problem.topology,
             max_rejected=JOINT_MAX_REJECTED,
+            depths=depths,
         )
         problem.say(f"joint view refinement from start {i}: objective {fit.cost_after:.4g}")
         if pose_prior is not None and _implausible(fit, pose_prior):
