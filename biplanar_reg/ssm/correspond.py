@@ -53,19 +53,29 @@ __all__ = [
 #: Template RMS radius during the non-rigid fit (the stiffness schedule was tuned at this size).
 REFERENCE_SIZE = 25.0
 #: Non-rigid ICP schedule (stiffness, landmark weight, normal weight, iterations) at that size.
-NRICP_STEPS = ((0.05, 0.0, 0.0, 10), (0.02, 0.0, 0.0, 10), (0.007, 0.0, 0.0, 10),
-               (0.002, 0.0, 0.0, 10))
+NRICP_STEPS = (
+    (0.05, 0.0, 0.0, 10),
+    (0.02, 0.0, 0.0, 10),
+    (0.007, 0.0, 0.0, 10),
+    (0.002, 0.0, 0.0, 10),
+)
+#: Non-rigid ICP ignores template-vertex matches farther than this fraction of REFERENCE_SIZE.
+DISTANCE_THRESHOLD = 0.2
 #: Convergence: mean residual and Hausdorff distance as fractions of the bounding-box diagonal.
 MEAN_TOLERANCE = 0.005
-MAX_TOLERANCE = 0.05
+MAX_TOLERANCE = 0.025
 #: Bone-sized: the largest bounding-box side must lie in this range (mm).
 EXTENT_RANGE = (5.0, 1000.0)
 #: Largest allowed ratio between two subjects' largest bounding-box sides.
 MAX_EXTENT_RATIO = 3.0
 
 _ROLLS = np.deg2rad(np.arange(0, 360, 30))
-_SIGNS = (np.eye(3), np.diag([-1.0, -1.0, 1.0]), np.diag([-1.0, 1.0, -1.0]),
-          np.diag([1.0, -1.0, -1.0]))
+_SIGNS = (
+    np.eye(3),
+    np.diag([-1.0, -1.0, 1.0]),
+    np.diag([-1.0, 1.0, -1.0]),
+    np.diag([1.0, -1.0, -1.0]),
+)
 
 
 @dataclass(frozen=True)
@@ -169,7 +179,9 @@ def check_subjects(
 # -- geometry helpers ----------------------------------------------------------------------------
 
 
-def sample_surface(vertices: np.ndarray, faces: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
+def sample_surface(
+    vertices: np.ndarray, faces: np.ndarray, count: int, seed: int = 0
+) -> np.ndarray:
     """``count`` points uniformly by area on a triangle mesh (K, 3), deterministic."""
     tri = vertices[faces]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
@@ -204,73 +216,119 @@ def _principal_axes(points: np.ndarray) -> np.ndarray:
     return vecs
 
 
-def _similarity_icp(
-    src: np.ndarray, tree: cKDTree, target: np.ndarray, start: tuple, iters: int
-) -> tuple[tuple[float, np.ndarray, np.ndarray], float]:
-    """Similarity ICP of ``src`` onto the points of ``tree``; returns (s, R, t) and its
-    symmetric mean squared distance (source->target plus target->source), mm^2."""
-    s, rot, t = start
-    for _ in range(iters):
-        _, j = tree.query(s * src @ rot.T + t)
-        s, rot, t = _fit_transform(src, target[j], True)
-    moved = s * src @ rot.T + t
-    d1 = tree.query(moved)[0]
-    d2 = cKDTree(moved).query(target)[0]
-    return (s, rot, t), float(np.mean(d1**2) + np.mean(d2**2))
+@dataclass(frozen=True)
+class _Clouds:
+    """Surface samples for ICP: a sparse source is moved onto the dense target (``tree``);
+    the symmetric cost uses the dense source for the reverse direction, so that neither
+    direction is limited by the sparse sampling's spacing."""
+
+    src: np.ndarray  # (k, 3) sparse template samples, moved by ICP
+    src_dense: np.ndarray  # (K, 3)
+    dst: np.ndarray  # (K', 3) dense target samples
+    dst_sparse: np.ndarray  # (k', 3)
+    tree: cKDTree  # over dst
+
+    def cost(self, affine: np.ndarray) -> float:
+        """Symmetric mean squared surface distance after ``affine`` (4, 3), mm^2."""
+        forward = self.tree.query(_apply(self.src, affine))[0]
+        reverse = cKDTree(_apply(self.src_dense, affine)).query(self.dst_sparse)[0]
+        return float(np.mean(forward**2) + np.mean(reverse**2))
 
 
-def _affine_icp(src: np.ndarray, tree: cKDTree, target: np.ndarray, iters: int = 30) -> np.ndarray:
-    """Affine ICP: ``src`` (N, 3) moved by the least-squares affine map to its closest points."""
-    homog = np.c_[src, np.ones(len(src))]
-    moved = src
+def _apply(points: np.ndarray, affine: np.ndarray) -> np.ndarray:
+    return points @ affine[:3] + affine[3]
+
+
+def _as_affine(s: float, rot: np.ndarray, t: np.ndarray) -> np.ndarray:
+    return np.vstack([s * rot.T, t])
+
+
+def _similarity_icp(c: _Clouds, start: np.ndarray, iters: int) -> np.ndarray:
+    """Similarity ICP of the sparse source onto the target from ``start`` (4, 3)."""
+    a = start
     for _ in range(iters):
-        a = np.linalg.lstsq(homog, target[tree.query(moved)[1]], rcond=None)[0]
-        moved = homog @ a
-    return moved
+        _, j = c.tree.query(_apply(c.src, a))
+        a = _as_affine(*_fit_transform(c.src, c.dst[j], True))
+    return a
+
+
+def _affine_icp(c: _Clouds, start: np.ndarray, iters: int) -> np.ndarray:
+    """Affine ICP of the sparse source onto the target from ``start`` (4, 3)."""
+    homog = np.c_[c.src, np.ones(len(c.src))]
+    a = start
+    for _ in range(iters):
+        a = np.linalg.lstsq(homog, c.dst[c.tree.query(homog @ a)[1]], rcond=None)[0]
+    return a
+
+
+def _starts(src: np.ndarray, dst: np.ndarray) -> list[np.ndarray]:
+    """The 48 principal-axis starts (4 proper sign patterns x 12 rolls), as (4, 3) maps."""
+    u_s, u_t = _principal_axes(src), _principal_axes(dst)
+    c_s, c_t = src.mean(0), dst.mean(0)
+    scale = np.sqrt(np.sum(np.var(dst, axis=0)) / np.sum(np.var(src, axis=0)))
+    out = []
+    for sign in _SIGNS:
+        for roll in _ROLLS:
+            c, s_ = np.cos(roll), np.sin(roll)
+            about_long = np.array([[1, 0, 0], [0, c, -s_], [0, s_, c]])
+            rot = u_t @ about_long @ sign @ u_s.T
+            out.append(_as_affine(scale, rot, c_t - scale * c_s @ rot.T))
+    return out
 
 
 def prealign(
-    template_points: object, target_points: object, subsample: int = 600, seed: int = 0
-) -> tuple[tuple[float, np.ndarray, np.ndarray], float]:
-    """Similarity transform ``(s, R, t)`` taking template surface points onto target points.
+    template_points: object,
+    target_points: object,
+    subsample: int = 600,
+    keep: int = 3,
+    seed: int = 0,
+) -> tuple[np.ndarray, float]:
+    """Affine map taking template surface points onto target surface points.
 
     Parameters
     ----------
     template_points, target_points : (K, 3) arrays
         Area-uniform surface samples, mm, in their own frames.
     subsample : int
-        Points of each side used to score the 48 candidate starts (see the module docstring).
+        Template points moved while the 48 candidate starts are scored (each: 4 similarity
+        then 8 affine ICP steps, see the module docstring); the ``keep`` best are refined
+        on 4x as many points (20 similarity + 20 affine steps) and the lowest cost wins.
+    keep : int
+        Candidates refined.
+    seed : int
+        Subsampling seed.
 
     Returns
     -------
-    (s, R, t), cost
-        ``s * x @ R.T + t`` maps the template into the target frame; ``R`` is proper.
-        ``cost``: symmetric mean squared surface distance of the result, mm^2.
+    affine : (4, 3) array
+        ``np.c_[x, 1] @ affine`` maps template points (rows) into the target frame.
+    cost : float
+        Symmetric mean squared surface distance of the result, mm^2.
     """
     src = as_array("template_points", template_points, (None, 3))
     dst = as_array("target_points", target_points, (None, 3))
     rng = np.random.default_rng(seed)
-    src_sub = src[rng.choice(len(src), min(subsample, len(src)), replace=False)]
-    dst_sub = dst[rng.choice(len(dst), min(subsample, len(dst)), replace=False)]
-    tree_sub = cKDTree(dst_sub)
-    u_s, u_t = _principal_axes(src), _principal_axes(dst)
-    c_s, c_t = src.mean(0), dst.mean(0)
-    scale = np.sqrt(np.sum(np.var(dst, axis=0)) / np.sum(np.var(src, axis=0)))
+
+    def pick(x: np.ndarray, n: int) -> np.ndarray:
+        return x[rng.choice(len(x), min(n, len(x)), replace=False)]
+
+    tree = cKDTree(dst)
+    dense_src = pick(src, 4 * subsample)
+    coarse = _Clouds(pick(src, subsample), dense_src, dst, pick(dst, subsample), tree)
+    scored = []
+    for start in _starts(src, dst):
+        a = _affine_icp(coarse, _similarity_icp(coarse, start, 4), 8)
+        scored.append((coarse.cost(a), a))
+    scored.sort(key=lambda ca: ca[0])
+    fine = _Clouds(dense_src, src, dst, pick(dst, 4 * subsample), tree)
     best = None
-    for sign in _SIGNS:
-        for roll in _ROLLS:
-            c, s_ = np.cos(roll), np.sin(roll)
-            about_long = np.array([[1, 0, 0], [0, c, -s_], [0, s_, c]])
-            rot = u_t @ about_long @ sign @ u_s.T
-            start = (scale, rot, c_t - scale * c_s @ rot.T)
-            fit, cost = _similarity_icp(src_sub, tree_sub, dst_sub, start, iters=8)
-            if best is None or cost < best[1]:
-                best = (fit, cost)
+    for _, a in scored[:keep]:
+        a = _affine_icp(fine, a, 20)
+        cost = fine.cost(a)
+        if best is None or cost < best[1]:
+            best = (a, cost)
     assert best is not None
-    # refine the winner on more points (8x the subsample is plenty for 6 parameters)
-    src_ref = src[rng.choice(len(src), min(8 * subsample, len(src)), replace=False)]
-    dst_ref = dst[rng.choice(len(dst), min(8 * subsample, len(dst)), replace=False)]
-    return _similarity_icp(src_ref, cKDTree(dst_ref), dst_ref, best[0], iters=30)
+    return best
 
 
 # -- one subject ---------------------------------------------------------------------------------
@@ -288,7 +346,7 @@ def _nonrigid(template: np.ndarray, faces: np.ndarray, target: np.ndarray) -> np
         src,
         (target - centre) * k,
         steps=[list(s) for s in NRICP_STEPS],
-        distance_threshold=0.2 * REFERENCE_SIZE,
+        distance_threshold=DISTANCE_THRESHOLD * REFERENCE_SIZE,
         use_faces=False,  # the face-based closest point needs rtree; samples are dense enough
     )
     return np.asarray(out) / k + centre
@@ -338,9 +396,8 @@ def correspond_subject(
         fit, cost = prealign(tmpl_pts, pts, seed=seed)
         if best is None or cost < best[0]:
             best = (cost, fit, mirrored, v, f, pts)
-    _, (s, rot, t), mirrored, v, f, pts = best
-    tree = cKDTree(pts)
-    aligned = _affine_icp(s * tv @ rot.T + t, tree, pts)
+    _, affine, mirrored, v, f, pts = best
+    aligned = np.c_[tv, np.ones(len(tv))] @ affine
     placed = _nonrigid(aligned, tf, pts)
     to_subject = surface_distance(placed, v, f)
     to_template = surface_distance(pts[:: max(1, len(pts) // 5000)], placed, tf)
