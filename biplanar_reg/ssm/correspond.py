@@ -279,7 +279,7 @@ def _starts(src: np.ndarray, dst: np.ndarray) -> list[np.ndarray]:
 def prealign(
     template_points: object,
     target_points: object,
-    subsample: int = 600,
+    subsample: int = 300,
     keep: int = 3,
     seed: int = 0,
 ) -> tuple[np.ndarray, float]:

@@ -70,7 +70,6 @@ def test_correspondence_recovers_true_counterparts(population):
         # (stretched 16 % and twisted) at 0.07 / 0.22 with an unreached end (Hausdorff 5.6 mm)
         ok = err.mean() < 0.04 and np.percentile(err, 95) < 0.08
         good.append(ok)
-        print(err.mean(), np.percentile(err, 95), fit.residual_mean, fit.residual_max, fit.converged)
         assert fit.converged == ok  # the flag tells the good from the bad without the truth
         assert fit.residual_mean < 0.01 * size
     assert sum(good) >= 2
