@@ -5,7 +5,7 @@ vertices) is subdivided once (8,002 vertices, ~10k as the issue asks) and a harm
 of S members is synthesised from it (default families, seed 0): the truth, in correspondence.
 Every member is remeshed (subdivided, then decimated by a member-specific fraction: a different
 vertex count and topology), randomly rotated and shifted, and every third one mirrored across
-its y axis. :func:`biplanar_reg.ssm.correspond.correspond` then fits the 8,002-vertex template
+its y axis. :func:`biplanar_reg.ssm.correspond_meshes` then fits the 8,002-vertex template
 (``--template``) to each with ``auto_mirror`` (as ``--mirror auto``).
 
 Reported:
@@ -41,7 +41,7 @@ from biplanar_reg.io import read_mesh
 from biplanar_reg.io.atomic import atomic_write_text
 from biplanar_reg.io.meshes import to_polydata
 from biplanar_reg.ssm import build_ssm, fit_model, synthesise_population
-from biplanar_reg.ssm.correspond import correspond
+from biplanar_reg.ssm.correspond import correspond_meshes
 from biplanar_reg.ssm.mirror import mirror_mesh
 
 REPO = Path(__file__).resolve().parents[1]
@@ -74,7 +74,7 @@ def make_population(n: int) -> tuple:
 
 
 def to_truth_frame(x: np.ndarray, fit_mirrored: bool, pose: tuple) -> np.ndarray:
-    """Undo ``correspond``'s mirroring (across x of the posed frame), the pose, the y mirror."""
+    """Undo ``correspond_meshes``'s mirroring (across x of the posed frame), the pose, the y mirror."""
     rot, shift, mirrored = pose
     if fit_mirrored:
         x = x * np.array([-1.0, 1.0, 1.0])
@@ -115,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
         )
 
     t0 = time.process_time()
-    result = correspond(tv, tf, subjects, auto_mirror=True, progress=progress)
+    result = correspond_meshes(tv, tf, subjects, auto_mirror=True, progress=progress)
     total_cpu = time.process_time() - t0
     rows, errs = [], []
     for i, (fit, shape, pose) in enumerate(zip(result.fits, truth, poses, strict=True)):
@@ -138,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
         "",
         f"Template: wrist radius subdivided, {len(tv)} vertices, RMS radius {size:.2f} mm. "
         f"{args.subjects} harmonic members (seed 0), each remeshed to another vertex count, "
-        "randomly posed, every third mirrored (y); `correspond(..., auto_mirror=True)`, "
+        "randomly posed, every third mirrored (y); `correspond_meshes(..., auto_mirror=True)`, "
         "20,000 surface samples per subject, no groupwise pass.",
         "",
         "| subject | vertices | mirrored | detected | err mean mm | err p95 mm | residual mean mm "

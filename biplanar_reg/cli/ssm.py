@@ -400,7 +400,7 @@ def _correspond_inputs(args: argparse.Namespace) -> tuple[Any, Any, list[Path], 
     import numpy as np
 
     from ..io.meshes import read_mesh
-    from ..ssm.correspond import check_subjects, correspond
+    from ..ssm.correspond import check_subjects, correspond_meshes
     from ..ssm.inputs import read_meshes
     from ..ssm.mirror import mirror_mesh
 
@@ -435,7 +435,7 @@ def _correspond_inputs(args: argparse.Namespace) -> tuple[Any, Any, list[Path], 
             flush=True,
         )
 
-    result = correspond(
+    result = correspond_meshes(
         template[0],
         template[1],
         meshes,

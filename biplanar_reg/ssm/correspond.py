@@ -2,12 +2,14 @@
 
 For every subject mesh (any vertex count, pose, frame; left or right):
 
-1. **Pre-alignment** (similarity). Both surfaces are sampled uniformly by area. The template's
-   principal axes are mapped onto the subject's; the axes' sign ambiguity (4 proper sign
-   patterns) and, for near-cylindrical bones, the roll about the long axis (12 steps of 30 deg)
-   give 48 candidate starts. Each is refined by similarity ICP on a subsample and scored by the
-   symmetric mean squared surface distance; the best is refined on the full samples, then an
-   affine ICP absorbs scaling/shear differences.
+1. **Pre-alignment** (similarity, then affine). Both surfaces are sampled uniformly by area.
+   The template's principal axes are mapped onto the subject's; the axes' sign ambiguity (4
+   proper sign patterns) and, for near-cylindrical bones, the roll about the long axis (12
+   steps of 30 deg) give 48 candidate starts. Each is refined on a subsample (4 similarity-ICP
+   then 8 affine-ICP steps) and scored by the symmetric mean squared surface distance; scoring
+   after the affine steps matters: a member stretched or twisted relative to the template can
+   make a wrong similarity fit look better than the right one. The 3 best are refined on more
+   points and the lowest cost wins.
    With ``auto_mirror`` the mirrored subject is tried as well and the better fit kept (its
    vertices are then returned in the mirrored frame, so all shapes share one handedness).
 2. **Non-rigid registration** of the aligned template to the subject's surface samples:
@@ -44,7 +46,7 @@ __all__ = [
     "Correspondence",
     "SubjectFit",
     "check_subjects",
-    "correspond",
+    "correspond_meshes",
     "correspond_subject",
     "prealign",
     "surface_distance",
@@ -416,7 +418,7 @@ def correspond_subject(
 # -- a population --------------------------------------------------------------------------------
 
 
-def correspond(
+def correspond_meshes(
     template: object,
     faces: object,
     subjects: Sequence[tuple[np.ndarray, np.ndarray]],

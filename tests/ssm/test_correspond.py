@@ -17,7 +17,7 @@ from biplanar_reg.cli import main
 from biplanar_reg.io import read_mesh, write_mesh
 from biplanar_reg.io.meshes import to_polydata
 from biplanar_reg.ssm import ShapeModel, build_ssm, synthesise_population
-from biplanar_reg.ssm.correspond import check_subjects, correspond
+from biplanar_reg.ssm.correspond import check_subjects, correspond_meshes
 from biplanar_reg.ssm.mirror import mirror_mesh, mirror_model
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -59,7 +59,7 @@ def _back_to_truth_frame(x: np.ndarray, fit_mirrored: bool, pose) -> np.ndarray:
 def test_correspondence_recovers_true_counterparts(population):
     tv, tf, truth, subjects, poses = population
     assert len({len(s[0]) for s in subjects}) == len(subjects)  # all vertex counts differ
-    result = correspond(tv, tf, subjects, auto_mirror=True, samples=SAMPLES)
+    result = correspond_meshes(tv, tf, subjects, auto_mirror=True, samples=SAMPLES)
     size = np.sqrt(np.mean(np.sum((tv - tv.mean(0)) ** 2, axis=1)))  # RMS radius, mm
     assert [f.mirrored for f in result.fits] == [p[2] for p in poses]
     good = []
