@@ -74,7 +74,7 @@ def make_population(n: int) -> tuple:
 
 
 def to_truth_frame(x: np.ndarray, fit_mirrored: bool, pose: tuple) -> np.ndarray:
-    """Undo ``correspond_meshes``'s mirroring (across x of the posed frame), the pose, the y mirror."""
+    """Undo the fit's mirroring (across x of the posed frame), the pose and the y mirror."""
     rot, shift, mirrored = pose
     if fit_mirrored:
         x = x * np.array([-1.0, 1.0, 1.0])
