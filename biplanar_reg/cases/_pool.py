@@ -80,7 +80,6 @@ def worker_threads(size: int):
         for k in added:
             os.environ.pop(k, None)
 
-
 #: ``on_result(job, kind, value)``: ``kind`` "done" (``value``: the task's return value) or
 #: "error" (``value``: the one-line message of the exception the task raised).
 ResultCallback = Callable[[int, str, Any], None]

@@ -441,6 +441,7 @@ def _correspond_inputs(args: argparse.Namespace) -> tuple[Any, Any, list[Path], 
         meshes,
         groupwise=args.groupwise,
         auto_mirror=(mode == "auto"),
+        samples=args.samples,
         progress=progress,
     )
     provenance: dict = {
