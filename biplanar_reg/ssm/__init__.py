@@ -4,9 +4,11 @@ See ``docs/ssm.md``; the package exports the names listed in ``docs/api.md``.
 """
 
 from .build import affine_fractions, build_ssm, explained_fractions, procrustes_align
+from .correspond import Correspondence, correspond_meshes
 from .dense import densify
 from .fit import ModelFit, fit_model
 from .harmonic import BoxCage, box_cage, harmonic_coordinates
+from .mirror import mirror_mesh, mirror_model
 from .model import ShapeModel
 from .population import FAMILIES, Population, synthesise_population
 from .template import BoneSurface, bone_surface
@@ -15,6 +17,7 @@ __all__ = [
     "FAMILIES",
     "BoneSurface",
     "BoxCage",
+    "Correspondence",
     "ModelFit",
     "Population",
     "ShapeModel",
@@ -22,10 +25,13 @@ __all__ = [
     "bone_surface",
     "box_cage",
     "build_ssm",
+    "correspond_meshes",
     "densify",
     "explained_fractions",
     "fit_model",
     "harmonic_coordinates",
+    "mirror_mesh",
+    "mirror_model",
     "procrustes_align",
     "synthesise_population",
 ]

@@ -71,17 +71,31 @@ def read_shapes(
         if len(v) != len(first_v):
             raise ValueError(
                 f"{f}: {len(v)} vertices, but {files[0].name} has {len(first_v)}; shapes must be "
-                "in correspondence (same vertex count and order)"
+                "in correspondence (same vertex count and order); use --correspond for meshes "
+                "of different topology"
             )
         if (faces is None) != (first_f is None):
             kind = "a point set" if faces is None else "a mesh"
             raise ValueError(f"{f}: is {kind}, unlike {files[0].name}; do not mix the two")
         if faces is not None and not np.array_equal(faces, first_f):
             raise ValueError(
-                f"{f}: faces differ from {files[0].name}; meshes must share one topology"
+                f"{f}: faces differ from {files[0].name}; meshes must share one topology "
+                "(use --correspond for meshes of different topology)"
             )
         shapes.append(v)
     return np.stack(shapes), first_f, files
+
+
+def read_meshes(
+    paths: Sequence[str | os.PathLike],
+) -> tuple[list[tuple[np.ndarray, np.ndarray | None]], list[Path]]:
+    """Read meshes of any topology (for correspondence): ``[(vertices, faces)]`` and the files.
+
+    Folders contribute their mesh files (as :func:`read_shapes`); checks are left to
+    :func:`biplanar_reg.ssm.correspond.check_subjects`.
+    """
+    files = _expand_inputs(paths)
+    return [read_mesh(f) for f in files], files
 
 
 def read_landmarks(path: str | os.PathLike) -> dict[str, int]:

@@ -43,6 +43,12 @@ class ShapeModel:
         truncation_modes[f]`` with ``z_f ~ N(0, 1)`` (:func:`.build.build_ssm` stores the
         leave-one-out residuals of its population over ``sqrt(F)``). The registration's
         uncertainty marginalises over them. ``None``: unknown.
+    provenance : mapping, optional
+        How the model was built, JSON-serialisable (saved as ``provenance_json``; a file
+        without it loads as ``{}``). Keys written by the project: ``"mirrored_axis"`` (the
+        model is the mirror image of what it was built as, :func:`.mirror.mirror_model`),
+        ``"mirrored_subjects"`` (input files mirrored before correspondence, with
+        ``"mirror_axis"``) and ``"correspondence"`` (the ``ssm build --correspond`` settings).
     """
 
     def __init__(
@@ -53,6 +59,7 @@ class ShapeModel:
         variances: object | None = None,
         landmarks: Mapping[str, int] | None = None,
         truncation_modes: object | None = None,
+        provenance: Mapping[str, object] | None = None,
     ) -> None:
         self.mean = as_array("mean", mean, (None, 3))
         n = len(self.mean)
@@ -82,6 +89,7 @@ class ShapeModel:
         self.truncation_modes = None
         if truncation_modes is not None:
             self.truncation_modes = as_array("truncation_modes", truncation_modes, (None, n, 3))
+        self.provenance: dict[str, object] = dict(provenance or {})
         self.landmarks: dict[str, int] = {}
         for name, idx in dict(landmarks or {}).items():
             self.add_landmark(name, idx)
@@ -171,6 +179,8 @@ class ShapeModel:
             arrays["variances"] = self.variances
         if self.truncation_modes is not None:
             arrays["truncation_modes"] = self.truncation_modes
+        if self.provenance:
+            arrays["provenance_json"] = np.array(json.dumps(self.provenance, sort_keys=True))
         # through a file object: given a name, numpy would append ".npz" to the temporary one
         with atomic_path(path) as tmp, open(tmp, "wb") as fh:
             np.savez_compressed(fh, **arrays)
@@ -205,6 +215,7 @@ class ShapeModel:
             ) from None
         if not isinstance(landmarks, dict):
             raise ValueError(f"{path}: key 'landmarks_json': expected a JSON object")
+        provenance = _json_object(path, arrays, "provenance_json")
         try:
             return cls(
                 arrays["mean"],
@@ -213,9 +224,23 @@ class ShapeModel:
                 variances=arrays.get("variances"),
                 landmarks=landmarks,
                 truncation_modes=arrays.get("truncation_modes"),
+                provenance=provenance,
             )
         except (ValueError, TypeError) as exc:
             raise ValueError(f"{path}: {_one_line(exc)}") from None
+
+
+def _json_object(path: Path, arrays: Mapping[str, np.ndarray], key: str) -> dict:
+    """The JSON object stored under an optional string key (``{}`` when absent)."""
+    if key not in arrays:
+        return {}
+    try:
+        value = json.loads(str(arrays[key]))
+    except (json.JSONDecodeError, RecursionError) as exc:
+        raise ValueError(f"{path}: key {key!r} is not valid JSON ({_one_line(exc)})") from None
+    if not isinstance(value, dict):
+        raise ValueError(f"{path}: key {key!r}: expected a JSON object")
+    return value
 
 
 def _one_line(exc: BaseException) -> str:
