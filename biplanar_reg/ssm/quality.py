@@ -260,8 +260,9 @@ def plot_quality(quality: ModelQuality, path: str | os.PathLike, title: str = ""
 
     from ..io.atomic import atomic_path
 
-    fig = Figure(figsize=(12, 3.6), dpi=100, layout="constrained")
+    fig = Figure(figsize=(12, 3.6), dpi=100)
     axes = fig.subplots(1, 3)
+    fig.subplots_adjust(left=0.05, right=0.985, bottom=0.14, top=0.82, wspace=0.22)
     k_c = np.arange(1, len(quality.compactness) + 1)
     curves = (
         (axes[0], k_c, 100 * quality.compactness, "compactness (% of total variance)"),
