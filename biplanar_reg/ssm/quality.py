@@ -173,10 +173,14 @@ def recommended_modes(
     k_c = int(min(len(c), np.searchsorted(c, target - 1e-12) + 1))
     if general is None:
         return k_c
+    return max(k_c, _k_generalisation(general, gain), 1)
+
+
+def _k_generalisation(general: object, gain: float = GENERALISATION_GAIN) -> int:
+    """Smallest k with ``G(k) <= G_min + (1 - gain) (G(0) - G_min)``."""
     g = as_array("generalisation", general, (None,))
     g_min = g.min()
-    k_g = int(np.argmax(g <= g_min + (1.0 - gain) * (g[0] - g_min) + 1e-12))
-    return max(k_c, k_g, 1)
+    return int(np.argmax(g <= g_min + (1.0 - gain) * (g[0] - g_min) + 1e-12))
 
 
 @dataclass
@@ -213,6 +217,8 @@ class ModelQuality:
                 "seed": self.seed,
             },
             "recommended_modes": self.recommended,
+            "recommended_by_compactness": recommended_modes(self.compactness),
+            "recommended_by_generalisation": _k_generalisation(self.generalisation_mm),
             "rule": (
                 f"smallest k with compactness >= {COMPACTNESS_TARGET} and generalisation "
                 f"within {1 - GENERALISATION_GAIN:.0%} of its attainable gain"
