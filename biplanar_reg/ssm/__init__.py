@@ -9,6 +9,16 @@ from .fit import ModelFit, fit_model
 from .harmonic import BoxCage, box_cage, harmonic_coordinates
 from .model import ShapeModel
 from .population import FAMILIES, Population, synthesise_population
+from .quality import (
+    ModelQuality,
+    compactness,
+    generalisation,
+    model_quality,
+    plot_quality,
+    recommended_modes,
+    specificity,
+)
+from .statismo import read_statismo, write_statismo
 from .template import BoneSurface, bone_surface
 
 __all__ = [
@@ -16,16 +26,25 @@ __all__ = [
     "BoneSurface",
     "BoxCage",
     "ModelFit",
+    "ModelQuality",
     "Population",
     "ShapeModel",
     "affine_fractions",
     "bone_surface",
     "box_cage",
     "build_ssm",
+    "compactness",
     "densify",
     "explained_fractions",
     "fit_model",
+    "generalisation",
     "harmonic_coordinates",
+    "model_quality",
+    "plot_quality",
     "procrustes_align",
+    "read_statismo",
+    "recommended_modes",
+    "specificity",
     "synthesise_population",
+    "write_statismo",
 ]
