@@ -386,6 +386,10 @@ def _cmd_build(args: argparse.Namespace) -> int:
 
     out = _npz_path(args.output)
     shapes, faces, files = read_shapes(args.inputs)
+    if args.quality and len(files) < 3:
+        raise ValueError(
+            f"--quality: the quality measures need at least 3 shapes, got {len(files)}"
+        )
     landmarks = read_landmarks(args.landmarks) if args.landmarks else None
     try:
         model = build_ssm(
