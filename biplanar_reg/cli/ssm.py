@@ -478,7 +478,14 @@ def _cmd_info(args: argparse.Namespace) -> int:
         )
     else:
         lines.append("explained: share of the kept variance (the total is not in this file)")
-    lines.append(f"note: {_NEEDS_TRAINING}")
+    report = quality.get("build_report_data")
+    if isinstance(report, dict) and "recommended_modes" in report:
+        lines.append(
+            f"build's report {quality['build_report']}: recommended modes "
+            f"{report['recommended_modes']} (generalisation and specificity there)"
+        )
+    else:
+        lines.append(f"note: {_NEEDS_TRAINING}")
     _emit(
         args,
         {
