@@ -200,14 +200,16 @@ def write_statismo(model: ShapeModel, path: str | os.PathLike, dtype: str = "flo
         f.create_dataset("model/pcaVariance", data=var.astype(dtype))
         f.create_dataset("model/noiseVariance", data=np.array(0.0, dtype=dtype))
         rep = f.create_group("representer")
-        rep.attrs["name"] = "itkStandardMeshRepresenter" if mesh else "itkPointSetRepresenter"
-        rep.attrs["datasetType"] = "POLYGON_MESH" if mesh else "POINT_SET"
-        rep.attrs["version"] = "0.9"
+        # fixed-length strings, as statismo writes them (C_S1 of the string's length)
+        name = "itkStandardMeshRepresenter" if mesh else "itkPointSetRepresenter"
+        rep.attrs["name"] = np.bytes_(name)
+        rep.attrs["datasetType"] = np.bytes_("POLYGON_MESH" if mesh else "POINT_SET")
+        rep.attrs["version"] = np.bytes_("0.9")
         rep.create_dataset("points", data=model.mean.T.astype(dtype))
         if mesh:
             rep.create_dataset("cells", data=model.faces.T.astype(np.uint32))
         info = f.create_group("modelinfo/modelBuilder-0")
-        info.create_dataset("builderName", data="biplanar_reg ssm build (PCA)")
+        info.create_dataset("builderName", data=np.bytes_("biplanar_reg ssm build (PCA)"))
         info.create_group("parameters")
         info.create_group("dataInfo")
         _write_extras(f, model)

@@ -37,7 +37,7 @@ def test_round_trip_float64_is_exact(tmp_path) -> None:
         np.testing.assert_allclose(u.T @ u, np.eye(3), atol=1e-12)
         assert f["representer/points"].shape == (3, 4)
         assert f["representer/cells"].shape == (3, 4)
-        assert f["representer"].attrs["datasetType"] == "POLYGON_MESH"
+        assert f["representer"].attrs["datasetType"] == b"POLYGON_MESH"  # fixed-length
         assert int(f["version/minorVersion"][()]) == 9
 
 
