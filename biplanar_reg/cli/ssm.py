@@ -145,12 +145,50 @@ def _build_build(p: argparse.ArgumentParser, wanted: Wanted) -> None:
         help="with --correspond: surface samples per mesh (default 20000; at least 2x the "
         "template's vertices are used)",
     )
+    p.add_argument(
+        "--quality",
+        action="store_true",
+        help="also write <model>_quality.json and .png (compactness, generalisation, specificity)",
+    )
     p.set_defaults(func=_cmd_build)
 
 
 def _build_info(p: argparse.ArgumentParser, wanted: Wanted) -> None:
-    p.add_argument("model", help="model file (.npz)")
+    p.add_argument("model", help="model file (.npz or statismo .h5)")
     p.set_defaults(func=_cmd_info)
+
+
+def _build_quality(p: argparse.ArgumentParser, wanted: Wanted) -> None:
+    p.add_argument("inputs", nargs="+", help="mesh/point files or folders of them")
+    p.add_argument("-o", "--output", required=True, help="report file (.json); a .png beside it")
+    p.add_argument(
+        "--align",
+        choices=["rigid", "similarity", "none"],
+        default="rigid",
+        help="generalised Procrustes alignment before PCA, as in ssm build (default rigid)",
+    )
+    p.add_argument(
+        "--samples",
+        type=number(int, 1, 100_000),
+        default=100,
+        help="random model shapes per mode count for specificity (default 100)",
+    )
+    p.add_argument(
+        "--seed", type=number(int, 0, 2**32 - 1), default=0, help="random seed (default 0)"
+    )
+    p.set_defaults(func=_cmd_quality)
+
+
+def _build_export(p: argparse.ArgumentParser, wanted: Wanted) -> None:
+    p.add_argument("model", help="model file (.npz or .h5)")
+    p.add_argument("-o", "--output", required=True, help="statismo file (.h5) or model (.npz)")
+    p.add_argument(
+        "--precision",
+        choices=["float32", "float64"],
+        default="float32",
+        help="floating-point datasets of a .h5 (default float32, what statismo/scalismo read)",
+    )
+    p.set_defaults(func=_cmd_export)
 
 
 def _build_densify(p: argparse.ArgumentParser, wanted: Wanted) -> None:
@@ -188,7 +226,9 @@ _GROUPS: tuple[tuple[str, str, str, tuple[tuple[str, Builder, str], ...]], ...] 
         "ssm_command",
         (
             ("build", _build_build, "PCA shape model from shapes in correspondence"),
-            ("info", _build_info, "modes, variances and affine fractions of a model"),
+            ("info", _build_info, "modes, variances, compactness and affine fractions"),
+            ("quality", _build_quality, "compactness, generalisation, specificity of shapes"),
+            ("export", _build_export, "write a model as statismo HDF5 (.h5) or .npz"),
             ("densify", _build_densify, "add interior points that deform barycentrically"),
         ),
     ),
@@ -512,6 +552,10 @@ def _cmd_build(args: argparse.Namespace) -> int:
         shapes, faces, files, provenance = _correspond_inputs(args)
     else:
         shapes, faces, files = read_shapes(args.inputs)
+    if args.quality and len(files) < 3:
+        raise ValueError(
+            f"--quality: the quality measures need at least 3 shapes, got {len(files)}"
+        )
     landmarks = read_landmarks(args.landmarks) if args.landmarks else None
     try:
         model = build_ssm(
@@ -530,36 +574,169 @@ def _cmd_build(args: argparse.Namespace) -> int:
     if mode == "model":
         model = mirror_model(model, axis)
     model.save(out)
+    quality = None
+    if args.quality:
+        quality = _quality_report(shapes, args.align, out.with_name(out.stem + "_quality.json"))
     rows, lines = _mode_report(model)
     lines = [*_residual_table(provenance), *lines]
     header = (
         f"wrote {out}: {model.n_vertices} vertices, {model.n_modes} modes from {len(files)} "
         f"shapes ({'mesh' if faces is not None else 'points'}, align {args.align})"
     )
+    result = {
+        "output": str(out),
+        "shapes": [str(f) for f in files],
+        "n_vertices": model.n_vertices,
+        "modes": rows,
+    }
+    if quality is not None:
+        result["quality"] = quality
+        lines.extend(_quality_lines(quality))
+    _emit(args, result, [header, *lines])
+    return 0
+
+
+#: What ``ssm info`` cannot compute from a model file, and where to get it.
+_NEEDS_TRAINING = (
+    "generalisation and specificity need the training shapes: `ssm quality INPUTS...` or "
+    "`ssm build ... --quality` (writes <model>_quality.json)"
+)
+
+
+def _model_quality(model: ShapeModel, path: Path) -> dict:
+    """The quality measures computable from a model file (compactness), plus the build's
+    report ``<model>_quality.json`` beside it, if there is one."""
+    from ..io.jsonfile import read_json
+    from ..ssm.quality import compactness, recommended_modes
+
+    out: dict = {
+        "needs_training_set": ["generalisation_mm", "specificity_mm"],
+        "note": _NEEDS_TRAINING,
+    }
+    spectrum = model.population_variances
+    if spectrum is not None and spectrum.sum() > 0:
+        comp = compactness(spectrum)
+        out.update(
+            total_variance_mm2=float(spectrum.sum()),
+            compactness={"k_from": 1, "values": comp.tolist()},
+            kept_fraction=float(comp[model.n_modes - 1]) if model.n_modes else 0.0,
+            recommended_modes_by_compactness=recommended_modes(comp),
+        )
+    else:
+        out["compactness"] = None
+        out["note"] += "; compactness needs the variance of all modes, not stored in this file"
+    report = path.with_name(path.stem + "_quality.json")
+    if report.is_file():
+        out["build_report"] = str(report)
+        out["build_report_data"] = read_json(report)
+    return out
+
+
+def _cmd_info(args: argparse.Namespace) -> int:
+    from ..ssm.model import ShapeModel
+
+    path = Path(args.model)
+    model = ShapeModel.load(path)
+    rows, lines = _mode_report(model)
+    quality = _model_quality(model, path)
+    header = f"{args.model}: {model!r}, size (RMS radius) {model.size:.2f} mm"
+    if quality["compactness"] is not None:
+        lines.append(
+            f"kept modes explain {quality['kept_fraction']:.2%} of the training set's total "
+            f"variance {quality['total_variance_mm2']:.4g} mm^2; 95 % compactness at "
+            f"k = {quality['recommended_modes_by_compactness']}"
+        )
+    else:
+        lines.append("explained: share of the kept variance (the total is not in this file)")
+    report = quality.get("build_report_data")
+    if isinstance(report, dict) and "recommended_modes" in report:
+        lines.append(
+            f"build's report {quality['build_report']}: recommended modes "
+            f"{report['recommended_modes']} (generalisation and specificity there)"
+        )
+    else:
+        lines.append(f"note: {_NEEDS_TRAINING}")
     _emit(
         args,
         {
-            "output": str(out),
-            "shapes": [str(f) for f in files],
+            "model": str(args.model),
             "n_vertices": model.n_vertices,
             "modes": rows,
             "provenance": model.provenance,
+            "quality": quality,
         },
         [header, *lines],
     )
     return 0
 
 
-def _cmd_info(args: argparse.Namespace) -> int:
-    from ..ssm.model import ShapeModel
+def _quality_report(
+    shapes: object, align: str, json_path: Path, samples: int = 100, seed: int = 0
+) -> dict:
+    """Compute the three measures, write ``json_path`` and the PNG beside it; the dict."""
+    from ..io.atomic import atomic_write_json
+    from ..ssm.quality import model_quality, plot_quality
 
+    quality = model_quality(shapes, align=align, n_samples=samples, seed=seed)
+    png = json_path.with_suffix(".png")
+    plot_quality(quality, png, title=json_path.stem)
+    result = {"report": str(json_path), "plot": str(png), **quality.to_dict()}
+    atomic_write_json(json_path, result)
+    return result
+
+
+def _quality_lines(q: dict) -> list[str]:
+    comp, gen, spec = (
+        q[k]["values"] for k in ("compactness", "generalisation_mm", "specificity_mm")
+    )
+    lines = ["k  compactness  generalisation_mm  specificity_mm"]
+    for k in range(len(spec)):
+        c = f"{comp[k - 1]:11.4f}" if k >= 1 else " " * 11
+        g = f"{gen[k]:17.3f}" if k < len(gen) else " " * 17
+        lines.append(f"{k:2d}  {c}  {g}  {spec[k]:14.3f}")
+    lines.append(
+        f"recommended modes: {q['recommended_modes']} ({q['rule']}); "
+        f"wrote {q['report']} and {q['plot']}"
+    )
+    return lines
+
+
+def _cmd_quality(args: argparse.Namespace) -> int:
+    from ..ssm.inputs import read_shapes
+
+    out = Path(args.output)
+    if out.suffix.lower() != ".json":
+        raise ValueError(f"{out}: the quality report must end in .json")
+    shapes, _, files = read_shapes(args.inputs)
+    if len(files) < 3:
+        raise ValueError(
+            f"{files[-1]}: the quality measures need at least 3 shapes, got {len(files)}"
+        )
+    quality = _quality_report(shapes, args.align, out, samples=args.samples, seed=args.seed)
+    quality["shapes"] = [str(f) for f in files]
+    _emit(args, quality, _quality_lines(quality))
+    return 0
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from ..ssm.model import ShapeModel
+    from ..ssm.statismo import write_statismo
+
+    out = Path(args.output)
+    if out.suffix.lower() not in (".h5", ".hdf5", ".npz"):
+        raise ValueError(f"{out}: the output must end in .h5, .hdf5 (statismo) or .npz")
     model = ShapeModel.load(args.model)
-    rows, lines = _mode_report(model)
-    header = f"{args.model}: {model!r}, size (RMS radius) {model.size:.2f} mm"
+    if out.suffix.lower() == ".npz":
+        model.save(out)
+    else:
+        try:
+            write_statismo(model, out, dtype=args.precision)
+        except ValueError as exc:
+            raise ValueError(f"{args.model}: {exc}") from None
     _emit(
         args,
-        {"model": str(args.model), "n_vertices": model.n_vertices, "modes": rows},
-        [header, *lines],
+        {"output": str(out), "n_vertices": model.n_vertices, "n_modes": model.n_modes},
+        [f"wrote {out}: {model.n_vertices} vertices, {model.n_modes} modes"],
     )
     return 0
 

@@ -11,6 +11,16 @@ from .harmonic import BoxCage, box_cage, harmonic_coordinates
 from .mirror import mirror_mesh, mirror_model
 from .model import ShapeModel
 from .population import FAMILIES, Population, synthesise_population
+from .quality import (
+    ModelQuality,
+    compactness,
+    generalisation,
+    model_quality,
+    plot_quality,
+    recommended_modes,
+    specificity,
+)
+from .statismo import read_statismo, write_statismo
 from .template import BoneSurface, bone_surface
 
 __all__ = [
@@ -19,6 +29,7 @@ __all__ = [
     "BoxCage",
     "Correspondence",
     "ModelFit",
+    "ModelQuality",
     "Population",
     "ShapeModel",
     "affine_fractions",
@@ -26,12 +37,20 @@ __all__ = [
     "box_cage",
     "build_ssm",
     "correspond_meshes",
+    "compactness",
     "densify",
     "explained_fractions",
     "fit_model",
+    "generalisation",
     "harmonic_coordinates",
     "mirror_mesh",
     "mirror_model",
+    "model_quality",
+    "plot_quality",
     "procrustes_align",
+    "read_statismo",
+    "recommended_modes",
+    "specificity",
     "synthesise_population",
+    "write_statismo",
 ]

@@ -151,6 +151,7 @@ def build_ssm(
         variances=var[:k],
         landmarks=landmarks,
         truncation_modes=leave_one_out_residuals(data, k),
+        population_variances=var[:rank],
     )
 
 
@@ -182,9 +183,16 @@ def leave_one_out_residuals(data: np.ndarray, n_modes: int) -> np.ndarray | None
 
 
 def explained_fractions(model: ShapeModel) -> np.ndarray:
-    """Each mode's share of the kept variance (M,), from ``model.variances`` or mode norms."""
+    """Each mode's share of the training set's total variance (M,).
+
+    The total is ``sum(model.population_variances)`` (all modes) when the model knows it, so the
+    cumulative sum is the true compactness; otherwise (older files, statismo models) the share
+    of the kept variance (the cumulative sum then reaches 1 at the last kept mode).
+    """
     var = model.variances if model.variances is not None else np.sum(model.modes**2, axis=(1, 2))
     total = var.sum()
+    if model.population_variances is not None and model.population_variances.sum() > 0:
+        total = float(model.population_variances.sum())
     return var / total if total > 0 else np.zeros_like(var)
 
 

@@ -83,5 +83,6 @@ def mirror_model(model: ShapeModel, axis: str = "x") -> ShapeModel:
         variances=model.variances,
         landmarks=model.landmarks,
         truncation_modes=None if model.truncation_modes is None else model.truncation_modes * sign,
+        population_variances=model.population_variances,
         provenance=provenance,
     )

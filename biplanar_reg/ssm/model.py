@@ -49,6 +49,10 @@ class ShapeModel:
         model is the mirror image of what it was built as, :func:`.mirror.mirror_model`),
         ``"mirrored_subjects"`` (input files mirrored before correspondence, with
         ``"mirror_axis"``) and ``"correspondence"`` (the ``ssm build --correspond`` settings).
+    population_variances : (R,) array, optional
+        All PCA variances of the training set, mm^2 (the first M are ``variances``), so that
+        compactness is the true fraction of the total (:mod:`biplanar_reg.ssm.quality`).
+        ``None``: unknown.
     """
 
     def __init__(
@@ -60,6 +64,7 @@ class ShapeModel:
         landmarks: Mapping[str, int] | None = None,
         truncation_modes: object | None = None,
         provenance: Mapping[str, object] | None = None,
+        population_variances: object | None = None,
     ) -> None:
         self.mean = as_array("mean", mean, (None, 3))
         n = len(self.mean)
@@ -90,6 +95,11 @@ class ShapeModel:
         if truncation_modes is not None:
             self.truncation_modes = as_array("truncation_modes", truncation_modes, (None, n, 3))
         self.provenance: dict[str, object] = dict(provenance or {})
+        self.population_variances = None
+        if population_variances is not None:
+            self.population_variances = as_array(
+                "population_variances", population_variances, (None,)
+            )
         self.landmarks: dict[str, int] = {}
         for name, idx in dict(landmarks or {}).items():
             self.add_landmark(name, idx)
@@ -165,8 +175,14 @@ class ShapeModel:
 
     # -- I/O ------------------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> None:
-        """Write the model to ``path`` as ``.npz`` (no pickles), atomically."""
+        """Write the model to ``path`` as ``.npz`` (no pickles), atomically; a ``.h5`` path
+        writes the statismo format (:func:`biplanar_reg.ssm.statismo.write_statismo`)."""
         path = Path(path)
+        if path.suffix.lower() in (".h5", ".hdf5"):
+            from .statismo import write_statismo
+
+            write_statismo(self, path)
+            return
         arrays: dict[str, np.ndarray] = {
             "format": np.array(_FORMAT),
             "mean": self.mean,
@@ -181,6 +197,8 @@ class ShapeModel:
             arrays["truncation_modes"] = self.truncation_modes
         if self.provenance:
             arrays["provenance_json"] = np.array(json.dumps(self.provenance, sort_keys=True))
+        if self.population_variances is not None:
+            arrays["population_variances"] = self.population_variances
         # through a file object: given a name, numpy would append ".npz" to the temporary one
         with atomic_path(path) as tmp, open(tmp, "wb") as fh:
             np.savez_compressed(fh, **arrays)
@@ -188,6 +206,9 @@ class ShapeModel:
     @classmethod
     def load(cls, path: str | os.PathLike) -> ShapeModel:
         """Read a model written by :meth:`save`; errors name the file and the key.
+
+        A ``.h5``/``.hdf5`` file is read as a statismo model
+        (:func:`biplanar_reg.ssm.statismo.read_statismo`).
 
         Raises
         ------
@@ -197,6 +218,10 @@ class ShapeModel:
             invalid model; one line naming the file (and the key).
         """
         path = Path(path)
+        if path.suffix.lower() in (".h5", ".hdf5"):
+            from .statismo import read_statismo
+
+            return read_statismo(path)
         arrays = _read_npz(path)
         keys = set(arrays)
         for key in ("mean", "modes"):
@@ -225,6 +250,7 @@ class ShapeModel:
                 landmarks=landmarks,
                 truncation_modes=arrays.get("truncation_modes"),
                 provenance=provenance,
+                population_variances=arrays.get("population_variances"),
             )
         except (ValueError, TypeError) as exc:
             raise ValueError(f"{path}: {_one_line(exc)}") from None
