@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..ssm.model import ShapeModel
+from .outline_fit import PosePrior, prior_residuals
 from .rays import RayObservations
 from .refine import (
     DEFAULT_MAX_REFINE_ITER,
@@ -32,7 +33,7 @@ from .refine import (
     ray_offsets,
     tangent_bases,
 )
-from .rotations import so3_exp, so3_log
+from .rotations import so3_exp
 
 __all__: list[str] = []
 
@@ -184,57 +185,16 @@ def refine_views(
     )
 
 
-@dataclass(frozen=True)
-class ViewPosePrior:
-    """A Gaussian prior on every non-gauge view's calibration correction.
-
-    The correction of view ``x`` is the rigid motion ``C_x = O_g o O_x^-1`` between the object
-    pose seen through view ``x`` and the one seen through the gauge ``g`` (the world pose); its
-    residuals are the rotation vector of ``C_x`` over ``sigma_rad`` and the move of view
-    ``x``'s point ``points[x]`` (its source: the calibration's source position error) over
-    ``sigma_mm``. (The same prior as :class:`.outline_fit.PosePrior`, for
-    :func:`refine_views_in_pixels`.)
-
-    Attributes
-    ----------
-    gauge : int
-    points : (P, 3) array
-        World, mm.
-    sigma_rad, sigma_mm : float
-    """
-
-    gauge: int
-    points: np.ndarray
-    sigma_rad: float
-    sigma_mm: float
-
-
-def view_prior_residuals(Rs, ts, prior: ViewPosePrior | None) -> np.ndarray:
-    """The residuals of :class:`ViewPosePrior` (6 per non-gauge view), empty without one."""
-    if prior is None or len(Rs) == 1:
-        return np.zeros(0)
-    g = prior.gauge
-    out = []
-    for x in range(len(Rs)):
-        if x == g:
-            continue
-        p = prior.points[x]
-        moved = Rs[g] @ Rs[x].T @ (p - ts[x]) + ts[g]
-        out.append(so3_log(Rs[x] @ Rs[g].T) / prior.sigma_rad)
-        out.append((moved - p) / prior.sigma_mm)
-    return np.concatenate(out)
-
-
-def _view_prior_jacobian(state, prior: ViewPosePrior | None, n_cols: int, retract) -> np.ndarray:
-    """Forward-difference Jacobian of :func:`view_prior_residuals` (pose columns only)."""
+def _view_prior_jacobian(state, prior: PosePrior | None, n_cols: int, retract) -> np.ndarray:
+    """Forward-difference Jacobian of :func:`prior_residuals` (pose columns only)."""
     Rs, ts, _ = state
-    r0 = view_prior_residuals(Rs, ts, prior)
+    r0 = prior_residuals(Rs, ts, prior)
     J = np.zeros((len(r0), n_cols))
     for col in range(6 * len(Rs) if len(r0) else 0):
         step = np.zeros(n_cols)
         step[col] = 1e-6
         R1, t1, _ = retract(state, step)
-        J[:, col] = (view_prior_residuals(R1, t1, prior) - r0) / 1e-6
+        J[:, col] = (prior_residuals(R1, t1, prior) - r0) / 1e-6
     return J
 
 
@@ -266,7 +226,7 @@ def refine_views_in_pixels(
     outlines: list,
     views: Sequence,
     *,
-    prior: ViewPosePrior | None = None,
+    prior: PosePrior | None = None,
     prior_weight: float = 1.0,
     max_iter: int = 30,
     tol: float = 1e-6,
@@ -276,7 +236,7 @@ def refine_views_in_pixels(
 ):
     """:func:`.outline_fit.refine_poses_on_outlines` with one object pose per view (view
     ``x`` is pose group ``x``), its residuals measured in pixels rather than in mm, and the
-    calibration prior :class:`ViewPosePrior`.
+    calibration prior :class:`PosePrior`.
 
     The terms of ``outline_fit`` are ray distances (mm) over sigmas (mm) fixed at the start's
     depth. When every view's pose is free, moving the whole scene towards the views' sources
@@ -336,7 +296,7 @@ def refine_views_in_pixels(
             for p, g in zip(parts, groups, strict=True)
         ]
         r = [p.residuals.ravel() for p in parts]
-        rvec = np.concatenate([*r, sqrt_lam * w, view_prior_residuals(Rs, ts, prior)])
+        rvec = np.concatenate([*r, sqrt_lam * w, prior_residuals(Rs, ts, prior)])
         return rvec, ((parts, groups), sum(p.n_active for p in parts))
 
     def jacobian(state, aux):

@@ -31,10 +31,10 @@ import numpy as np
 
 from ..ssm.model import ShapeModel
 from .gsft import GsftResult
-from .joint_refine import ViewPosePrior, refine_views_in_pixels, view_prior_residuals
+from .joint_refine import refine_views_in_pixels
 from .observations import ViewObservations
 from .options import RegistrationOptions
-from .outline_fit import OutlineTerm
+from .outline_fit import OutlineTerm, PosePrior, prior_residuals
 from .problem import Problem, with_pose
 from .rays import RayObservations
 from .rotations import rotation_angle
@@ -214,8 +214,8 @@ def _joint_terms(problem: Problem) -> list[OutlineTerm]:
 MAX_CORRECTION_SIGMAS = 3.0
 
 
-def _implausible(fit, prior: ViewPosePrior) -> bool:
-    r = view_prior_residuals(fit.rotations, fit.translations, prior)
+def _implausible(fit, prior: PosePrior) -> bool:
+    r = prior_residuals(fit.rotations, fit.translations, prior)
     return bool(np.max(np.abs(r)) > MAX_CORRECTION_SIGMAS)
 
 
@@ -253,7 +253,7 @@ def refine_views_on_outlines(
     if prior:
         centres = np.array([-v.view.R.T @ v.view.t for v in views])
         sig = np.deg2rad(opts.pose_sigma_deg)
-        pose_prior = ViewPosePrior(0, centres, sig, opts.pose_sigma_mm)
+        pose_prior = PosePrior(0, centres, sig, opts.pose_sigma_mm)
     tiled = (np.repeat(result.rotation[None], P, 0), np.repeat(result.translation[None], P, 0))
     best = None
     terms = _joint_terms(problem)
