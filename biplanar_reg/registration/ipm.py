@@ -30,6 +30,7 @@ import numpy as np
 import scipy.linalg as sla
 from scipy.linalg.lapack import dpotrf as _potrf
 from scipy.linalg.lapack import dpotrs as _potrs
+from scipy.linalg.lapack import dtrtrs as _trtrs
 
 __all__: list[str] = []
 
@@ -173,6 +174,9 @@ class _Scaling:
     R: list[np.ndarray]  # PSD: W'(X) = R X R'
     Rti: list[np.ndarray]  # PSD: R^-T
     lam_psd: list[np.ndarray]  # PSD: eigenvalues of the scaled point (diagonal)
+    w_inv: np.ndarray  # LP: 1 / w
+    d_lp: np.ndarray  # LP: w^-2, the diagonal of (W'W)^-1
+    T: list[np.ndarray]  # PSD: (W'W)^-1 (X) = T X T, T = R^-T R^-1
 
 
 def _nt_scaling(cones: _Cones, s: np.ndarray, z: np.ndarray) -> _Scaling:
@@ -188,7 +192,8 @@ def _nt_scaling(cones: _Cones, s: np.ndarray, z: np.ndarray) -> _Scaling:
         Rs.append(Ls @ Vt.T * isq)
         Rtis.append(Lz @ U * isq)
         lams.append(lmb)
-    return _Scaling(w, lam, Rs, Rtis, lams)
+    w_inv = 1.0 / w
+    return _Scaling(w, lam, Rs, Rtis, lams, w_inv, w_inv * w_inv, [Ri @ Ri.T for Ri in Rtis])
 
 
 def _apply(cones: _Cones, sc: _Scaling, u: np.ndarray, kind: str) -> np.ndarray:
@@ -198,10 +203,9 @@ def _apply(cones: _Cones, sc: _Scaling, u: np.ndarray, kind: str) -> np.ndarray:
     """
     m = cones.n_lp
     out = np.empty_like(u)
-    lp = u[:m]
-    scale = {"Wt": sc.w, "W": sc.w, "Winvt": 1.0 / sc.w, "D": sc.w**-2.0}[kind]
-    out[:m] = scale * lp
-    for n, sl, R, Rti in zip(cones.sizes, cones.slices, sc.R, sc.Rti, strict=True):
+    scale = sc.w if kind in ("Wt", "W") else sc.w_inv if kind == "Winvt" else sc.d_lp
+    np.multiply(scale, u[:m], out=out[:m])
+    for n, sl, R, Rti, T in zip(cones.sizes, cones.slices, sc.R, sc.Rti, sc.T, strict=True):
         X = smat(u[sl], n)
         if kind == "Wt":
             Y = R @ X @ R.T
@@ -210,7 +214,6 @@ def _apply(cones: _Cones, sc: _Scaling, u: np.ndarray, kind: str) -> np.ndarray:
         elif kind == "Winvt":
             Y = Rti.T @ X @ Rti
         else:
-            T = Rti @ Rti.T
             Y = T @ X @ T
         out[sl] = svec(Y)
     return out
@@ -266,8 +269,9 @@ def _kkt3(prob, cones, sc, solve, rhs):
     factorisation ``solve`` of ``[G'(W'W)^-1 G  A'; A  0]``."""
     bx, by, bz = rhs
     dx, dy = solve(bx + prob.Gt(_apply(cones, sc, bz, "D")), by)
-    dz = _apply(cones, sc, prob.G(dx) - bz, "D")
-    return dx, dy, dz
+    Gdx = prob.G(dx)
+    dz = _apply(cones, sc, Gdx - bz, "D")
+    return dx, dy, dz, Gdx
 
 
 def _newton(prob, cones, sc, solve, res, rs):
@@ -278,9 +282,8 @@ def _newton(prob, cones, sc, solve, res, rs):
     """
     rx, ry, rz = res
     rhs = (-rx, -ry, -rz - _apply(cones, sc, _lam_prod(cones, sc, rs, divide=True), "Wt"))
-    d = _kkt3(prob, cones, sc, solve, rhs)
-    dx, dy, dz = d
-    ds = -rz - prob.G(dx)
+    dx, dy, dz, Gdx = _kkt3(prob, cones, sc, solve, rhs)
+    ds = -rz - Gdx
     return dx, dy, ds, dz
 
 
@@ -342,10 +345,10 @@ def _stats(prob: ConicProblem, p: _Point, norms: tuple[float, float, float]) -> 
 
 def _step(prob, cones, p: _Point, st: _Stats, step_fraction, verbose):
     """Mehrotra predictor-corrector direction at ``p`` and its step length."""
-    e = cones.identity()
+    e = cones._e
     mu = st.gap / cones.degree
     sc = _nt_scaling(cones, p.s, p.z)
-    solve = prob.kkt_factor(sc.w ** (-2.0), [Rti @ Rti.T for Rti in sc.Rti])
+    solve = prob.kkt_factor(sc.d_lp, sc.T)
     lam2 = _lam_sq(cones, sc)
     res = (st.rx, st.ry, st.rz)
     dx, dy, ds, dz = _newton(prob, cones, sc, solve, res, -lam2)
@@ -463,18 +466,22 @@ def dense_kkt_factor(H: np.ndarray, A: np.ndarray):
     Hs = H * dsc[:, None]
     Hs *= dsc[None, :]
     As = A * dsc[None, :]
-    # LAPACK directly: scipy's cho_factor / cho_solve wrappers cost more than the work here
+    # LAPACK directly: scipy's cho_factor / cho_solve wrappers cost more than the work here.
+    # With Hs = L L' and Y = L^-1 As', the Schur complement is Y'Y (one triangular solve
+    # with the m right-hand sides instead of two, and positive semidefinite by construction).
     L, info = _potrf(Hs, lower=1, clean=0, overwrite_a=1)
     if info == 0:
-        HiA, _ = _potrs(L, As.T, lower=1)
-        S, info = _potrf(As @ HiA, lower=1, clean=0, overwrite_a=1)
+        Y, info = _trtrs(L, As.T, lower=1)
+        if info == 0:
+            S, info = _potrf(Y.T @ Y, lower=1, clean=0, overwrite_a=1)
     if info != 0:  # not numerically positive definite
         return _lu_kkt_factor(H, A, dsc)
 
     def solve(bx: np.ndarray, by: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        u, _ = _potrs(L, dsc * bx, lower=1)
-        y, _ = _potrs(S, As @ u - by, lower=1)
-        return dsc * (u - HiA @ y), y
+        w, _ = _trtrs(L, dsc * bx, lower=1)
+        y, _ = _potrs(S, Y.T @ w - by, lower=1)
+        u, _ = _trtrs(L, w - Y @ y, lower=1, trans=1)
+        return dsc * u, y
 
     return solve
 

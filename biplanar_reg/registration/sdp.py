@@ -98,6 +98,11 @@ class SdpSolution:
     solve_time: float  # seconds (wall clock)
 
 
+#: Largest size (bytes) of the per-observation products kept by :class:`KnownPoseIPM` (M = 8:
+#: 3.2 kB per observation; M = 32: 40 kB, so kept up to K = 1600).
+_OUTER_BYTES = 64 * 2**20
+
+
 def _cross_rows() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Row k of ``[d]_x`` has two entries: ``(col_a, sign_a * d[idx_a]), (col_b, ...)``."""
     # [d]_x = [[0, -d2, d1], [d2, 0, -d0], [-d1, d0, 0]]
@@ -342,9 +347,21 @@ class KnownPoseIPM:
         self.d = directions
         self.skew = skew(directions)
         self.kpat, self.cpat = point_map_pattern(n_modes)
-        self._pairs, self._h_index, self._h_coef, self._h_take = _data_block_layout(
-            self.kpat, self.cpat, nt
+        # coordinate r of V_j = Dt_j . (cv_r * z[idx_r]): all three as one take of z
+        p = self.Dt.shape[1]
+        self._zidx = np.concatenate([np.append(self.kpat[r], nt + r) for r in range(3)])
+        self._zcoef = np.concatenate([np.append(self.cpat[r], 1.0) for r in range(3)])
+        self._h_index, self._h_coef, self._h_take = _data_block_layout(
+            self._zidx, self._zcoef, nt
         )
+        # products Dt_ja Dt_jb (a <= b) of every observation, so that the data part of the
+        # reduced matrix is one (6, K) x (K, p(p+1)/2) product per iteration; above the memory
+        # cap they are formed per iteration instead (the same numbers, more work)
+        ia, ib = np.triu_indices(p)
+        self._outer = None
+        if K * len(ia) * 8 <= _OUTER_BYTES:
+            self._outer = self.Dt[:, ia] * self.Dt[:, ib]
+        self._tri = (ia, ib)
         A_rot, self.b = rotation_constraints(n)
         self.A_eq = A_rot.toarray()
         self.A_full = np.hstack([self.A_eq, np.zeros((len(self.b), 3))])
@@ -382,8 +399,8 @@ class KnownPoseIPM:
     # -- the linear map z = (Delta, t) -> r = V x d (without the constant) -----------------------
     def points(self, z: np.ndarray) -> np.ndarray:
         """World points ``V_j`` (K, 3) for ``z = (svec Delta, t)``."""
-        Y = self.cpat * z[self.kpat]  # (3, S): row r maps D_j to coordinate r
-        return self.D @ Y.T + z[self.nt : self.nt + 3]
+        Y = (z.take(self._zidx) * self._zcoef).reshape(3, -1)  # row r maps Dt_j to coordinate r
+        return self.Dt @ Y.T
 
     def _B(self, z: np.ndarray) -> np.ndarray:
         return _cross(self.points(z), self.d).ravel()
@@ -391,9 +408,7 @@ class KnownPoseIPM:
     def _Vt(self, gV: np.ndarray) -> np.ndarray:
         """Adjoint of :meth:`points`: gradient (K, 3) on the points -> gradient on ``z``."""
         out = np.zeros(self.nz)
-        for r in range(3):
-            out[self.kpat[r]] += self.cpat[r] * (self.D.T @ gV[:, r])
-        out[self.nt :] = gV.sum(axis=0)
+        out[self._zidx] = (self.Dt.T @ gV).T.ravel() * self._zcoef  # the indices are distinct
         return out
 
     def _Bt(self, v: np.ndarray) -> np.ndarray:
@@ -432,9 +447,14 @@ class KnownPoseIPM:
         d1, d2, d4 = d_lp[:m], d_lp[m : 2 * m], d_lp[2 * m :]
         dsum = d1 + d2
         omega = (4.0 * d1 * d2 / dsum).reshape(self.K, 3)
-        # sum_j W_j[r, r2] Dt_j Dt_j' for the 6 pairs r <= r2: one (p, K) x (K, 6p) product
+        # upper triangles of sum_j W_j[r, r2] Dt_j Dt_j' for the 6 pairs r <= r2, (6, p(p+1)/2)
         Wp = _ray_weights(self.d, omega, d4)
-        blocks = self.Dt.T @ (Wp[:, :, None] * self.Dt[:, None, :]).reshape(self.K, -1)
+        if self._outer is not None:
+            blocks = Wp.T @ self._outer
+        else:  # one (p, K) x (K, 6p) product, then the triangles
+            full = self.Dt.T @ (Wp[:, :, None] * self.Dt[:, None, :]).reshape(self.K, -1)
+            p = self.Dt.shape[1]
+            blocks = full.reshape(p, 6, p).transpose(1, 0, 2)[:, self._tri[0], self._tri[1]]
         H = np.zeros((self.nz, self.nz))
         H[: self.nt, : self.nt] = skron(psd_T[0])
         H.reshape(-1)[self._h_index] += blocks.reshape(-1).take(self._h_take) * self._h_coef
@@ -469,35 +489,39 @@ def _ray_weights(d: np.ndarray, omega: np.ndarray, d_depth: np.ndarray) -> np.nd
 
 
 def _data_block_layout(
-    kpat: np.ndarray, cpat: np.ndarray, nt: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    zidx: np.ndarray, zcoef: np.ndarray, nt: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where the data blocks of :meth:`KnownPoseIPM.kkt_factor` go in the reduced matrix.
 
-    Coordinate ``r`` of a point reads the entries ``idx_r = (kpat[r], nt + r)`` of ``z`` with
-    coefficients ``cv_r = (cpat[r], 1)`` times ``Dt_j``, so block ``(r, r2)`` of
-    ``sum_j W_j[r, r2] Dt_j Dt_j'`` adds ``cv_r cv_r2' *`` it at ``(idx_r, idx_r2)`` (and its
-    transpose at ``(idx_r2, idx_r)``). The ``idx_r`` are disjoint, so every target is hit once.
+    Coordinate ``r`` of a point reads the entries ``idx_r = zidx[r p : (r + 1) p]`` of ``z``
+    (coefficients ``cv_r = zcoef[r p : (r + 1) p]``) times ``Dt_j``, so block ``(r, r2)`` of ``sum_j W_j[r, r2] Dt_j
+    Dt_j'`` adds ``cv_r cv_r2' *`` it at ``(idx_r, idx_r2)`` and its transpose at ``(idx_r2,
+    idx_r)``. The ``idx_r`` are disjoint, so every target is hit once. The blocks are symmetric
+    and stored as upper triangles: row ``q`` of a ``(6, p(p+1)/2)`` array for the pair ``q``
+    of ``np.triu_indices(3)``, entry ``(a, b)``, ``a <= b``, at the ``np.triu_indices(p)``
+    position.
 
-    Returns the 6 pairs ``r <= r2`` as flat indices into a 3 x 3, the flat target indices into
-    the ``(nt + 3)^2`` matrix and, per target, the coefficient and the entry of the ``(p, 6p)``
-    block product it takes.
+    Returns the flat target indices into the ``(nt + 3)^2`` matrix and, per target, the
+    coefficient and the entry of the flattened ``(6, p(p+1)/2)`` triangle array it takes.
     """
     nz = nt + 3
-    p = kpat.shape[1] + 1
-    idx = [np.concatenate([kpat[r], [nt + r]]) for r in range(3)]
-    cv = [np.concatenate([cpat[r], [1.0]]) for r in range(3)]
-    pairs = np.triu_indices(3)  # (r, r2) with r <= r2; flat index 3 r + r2 in a 3 x 3
-    targets, coefs, takes = [], [], []
+    p = len(zidx) // 3
+    ntri = p * (p + 1) // 2
+    tri = np.full((p, p), -1)
+    tri[np.triu_indices(p)] = np.arange(ntri)
+    tri = np.where(tri < 0, tri.T, tri)  # symmetric: (a, b) and (b, a) share an entry
+    idx, cv = zidx.reshape(3, p), zcoef.reshape(3, p)
+    pairs = np.triu_indices(3)
+    targets, takes, coefs = [], [], []
     a, b = np.meshgrid(np.arange(p), np.arange(p), indexing="ij")
     for q, (r, r2) in enumerate(zip(*pairs, strict=True)):
-        src = a * 6 * p + q * p + b  # entry (a, b) of block q in the (p, 6p) product
-        coef = cv[r][:, None] * cv[r2][None, :]
+        src = (q * ntri + tri[a, b]).ravel()
         targets.append((idx[r][:, None] * nz + idx[r2][None, :]).ravel())
-        coefs.append(coef.ravel())
-        takes.append(src.ravel())
+        takes.append(src)
+        coef = (cv[r][:, None] * cv[r2][None, :]).ravel()
+        coefs.append(coef)
         if r != r2:
             targets.append((idx[r2][None, :] * nz + idx[r][:, None]).ravel())
-            coefs.append(coef.ravel())
-            takes.append(src.ravel())
-    flat_pairs = 3 * pairs[0] + pairs[1]
-    return flat_pairs, np.concatenate(targets), np.concatenate(coefs), np.concatenate(takes)
+            takes.append(src)
+            coefs.append(coef)
+    return np.concatenate(targets), np.concatenate(coefs), np.concatenate(takes)
