@@ -31,7 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import SolverFailure
-from .ipm import dense_kkt_factor, skron, smat, svec
+from .ipm import dense_kkt_factor, skron_triu, smat, svec
 from .lifting import (
     gram_size,
     point_map_pattern,
@@ -313,13 +313,7 @@ def depth_reward(directions: np.ndarray, weights: np.ndarray, reward: float) -> 
     return -reward * rate * m
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cross product of (K, 3) arrays (``np.cross`` has a large per-call overhead)."""
-    out = np.empty_like(a)
-    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
-    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
-    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-    return out
+_P120, _P201 = [1, 2, 0], [2, 0, 1]
 
 
 class KnownPoseIPM:
@@ -345,6 +339,9 @@ class KnownPoseIPM:
         self.D = D
         self.Dt = np.column_stack([D, np.ones(K)])
         self.d = directions
+        # V x d = V[:, (1, 2, 0)] * d[:, (2, 0, 1)] - V[:, (2, 0, 1)] * d[:, (1, 2, 0)]
+        self._d201 = directions[:, [2, 0, 1]]
+        self._d120 = directions[:, [1, 2, 0]]
         self.skew = skew(directions)
         self.kpat, self.cpat = point_map_pattern(n_modes)
         # coordinate r of V_j = Dt_j . (cv_r * z[idx_r]): all three as one take of z
@@ -362,6 +359,8 @@ class KnownPoseIPM:
         if K * len(ia) * 8 <= _OUTER_BYTES:
             self._outer = self.Dt[:, ia] * self.Dt[:, ib]
         self._tri = (ia, ib)
+        rows, cols = np.triu_indices(nt)
+        self._svec_triu = rows * self.nz + cols  # the PSD block's upper triangle, flat
         A_rot, self.b = rotation_constraints(n)
         self.A_eq = A_rot.toarray()
         self.A_full = np.hstack([self.A_eq, np.zeros((len(self.b), 3))])
@@ -402,8 +401,12 @@ class KnownPoseIPM:
         Y = (z.take(self._zidx) * self._zcoef).reshape(3, -1)  # row r maps Dt_j to coordinate r
         return self.Dt @ Y.T
 
+    def _xd(self, V: np.ndarray) -> np.ndarray:
+        """Row-wise ``V_j x d_j`` (K, 3)."""
+        return V[:, _P120] * self._d201 - V[:, _P201] * self._d120
+
     def _B(self, z: np.ndarray) -> np.ndarray:
-        return _cross(self.points(z), self.d).ravel()
+        return self._xd(self.points(z)).ravel()
 
     def _Vt(self, gV: np.ndarray) -> np.ndarray:
         """Adjoint of :meth:`points`: gradient (K, 3) on the points -> gradient on ``z``."""
@@ -412,13 +415,13 @@ class KnownPoseIPM:
         return out
 
     def _Bt(self, v: np.ndarray) -> np.ndarray:
-        return self._Vt(_cross(self.d, v.reshape(self.K, 3)))  # d/dV of sum v . (V x d)
+        return self._Vt(-self._xd(v.reshape(self.K, 3)))  # d/dV of sum v . (V x d)
 
     # -- ConicProblem -----------------------------------------------------------------------------
     def G(self, x: np.ndarray) -> np.ndarray:
         z = x[: self.nz]
         V = self.points(z)
-        Bz = _cross(V, self.d).ravel()
+        Bz = self._xd(V).ravel()
         e = x[self.nz :]
         depth = np.einsum("ki,ki->k", V, self.d)
         return np.concatenate([Bz - e, -Bz - e, -depth, -x[: self.nt]])
@@ -428,7 +431,7 @@ class KnownPoseIPM:
         u1, u2 = u[:m], u[m : 2 * m]
         u4, u3 = u[2 * m : 2 * m + self.K], u[2 * m + self.K :]
         out = np.empty(self.nz + m)
-        gV = _cross(self.d, (u1 - u2).reshape(self.K, 3)) - u4[:, None] * self.d
+        gV = self._xd((u2 - u1).reshape(self.K, 3)) - u4[:, None] * self.d
         out[: self.nz] = self._Vt(gV)
         out[: self.nt] -= u3
         out[self.nz :] = -(u1 + u2)
@@ -455,10 +458,13 @@ class KnownPoseIPM:
             full = self.Dt.T @ (Wp[:, :, None] * self.Dt[:, None, :]).reshape(self.K, -1)
             p = self.Dt.shape[1]
             blocks = full.reshape(p, 6, p).transpose(1, 0, 2)[:, self._tri[0], self._tri[1]]
-        H = np.zeros((self.nz, self.nz))
-        H[: self.nt, : self.nt] = skron(psd_T[0])
-        H.reshape(-1)[self._h_index] += blocks.reshape(-1).take(self._h_take) * self._h_coef
-        fac = dense_kkt_factor(H, self.A_full)
+        # the upper triangle of H, C order: its transpose is H's lower triangle in Fortran order,
+        # what the Cholesky reads (half of the assembly work, no copy)
+        Hu = np.zeros((self.nz, self.nz))
+        flat = Hu.reshape(-1)
+        flat[self._svec_triu] = skron_triu(psd_T[0])
+        flat[self._h_index] += blocks.reshape(-1).take(self._h_take) * self._h_coef
+        fac = dense_kkt_factor(Hu.T, self.A_full)
         ratio = (d2 - d1) / dsum
 
         def solve(bx: np.ndarray, by: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -501,8 +507,9 @@ def _data_block_layout(
     of ``np.triu_indices(3)``, entry ``(a, b)``, ``a <= b``, at the ``np.triu_indices(p)``
     position.
 
-    Returns the flat target indices into the ``(nt + 3)^2`` matrix and, per target, the
-    coefficient and the entry of the flattened ``(6, p(p+1)/2)`` triangle array it takes.
+    Returns the flat target indices into the upper triangle of the ``(nt + 3)^2`` matrix and,
+    per target, the coefficient and the entry of the flattened ``(6, p(p+1)/2)`` triangle array
+    it takes.
     """
     nz = nt + 3
     p = len(zidx) // 3
@@ -524,4 +531,6 @@ def _data_block_layout(
             targets.append((idx[r2][None, :] * nz + idx[r][:, None]).ravel())
             takes.append(src)
             coefs.append(coef)
-    return np.concatenate(targets), np.concatenate(coefs), np.concatenate(takes)
+    targets, coefs, takes = (np.concatenate(a) for a in (targets, coefs, takes))
+    upper = targets // nz <= targets % nz  # the upper triangle only (H is symmetric)
+    return targets[upper], coefs[upper], takes[upper]
