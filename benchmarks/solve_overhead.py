@@ -35,7 +35,7 @@ def _cvxpy_parts(D, o_n, d, eps, M):
     straightforward_problem(D, o_n, d, eps, M)[0].get_problem_data(cp.CLARABEL)
     compile_s = time.process_time() - t0
     t0 = time.process_time()
-    prob, _ = straightforward_problem(D, o_n, d, eps, M)
+    prob = straightforward_problem(D, o_n, d, eps, M)[0]
     build_s = time.process_time() - t0
     t0 = time.process_time()
     prob.solve(solver=cp.CLARABEL)

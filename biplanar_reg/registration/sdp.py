@@ -500,12 +500,12 @@ def _data_block_layout(
     """Where the data blocks of :meth:`KnownPoseIPM.kkt_factor` go in the reduced matrix.
 
     Coordinate ``r`` of a point reads the entries ``idx_r = zidx[r p : (r + 1) p]`` of ``z``
-    (coefficients ``cv_r = zcoef[r p : (r + 1) p]``) times ``Dt_j``, so block ``(r, r2)`` of ``sum_j W_j[r, r2] Dt_j
-    Dt_j'`` adds ``cv_r cv_r2' *`` it at ``(idx_r, idx_r2)`` and its transpose at ``(idx_r2,
-    idx_r)``. The ``idx_r`` are disjoint, so every target is hit once. The blocks are symmetric
-    and stored as upper triangles: row ``q`` of a ``(6, p(p+1)/2)`` array for the pair ``q``
-    of ``np.triu_indices(3)``, entry ``(a, b)``, ``a <= b``, at the ``np.triu_indices(p)``
-    position.
+    (coefficients ``cv_r = zcoef[r p : (r + 1) p]``) times ``Dt_j``, so block ``(r, r2)`` of
+    ``sum_j W_j[r, r2] Dt_j Dt_j'`` adds ``cv_r cv_r2' *`` it at ``(idx_r, idx_r2)`` and its
+    transpose at ``(idx_r2, idx_r)``. The ``idx_r`` are disjoint, so every target is hit
+    once. The blocks are symmetric and stored as upper triangles: row ``q`` of a
+    ``(6, p(p+1)/2)`` array for the pair ``q`` of ``np.triu_indices(3)``, entry ``(a, b)``,
+    ``a <= b``, at the ``np.triu_indices(p)`` position.
 
     Returns the flat target indices into the upper triangle of the ``(nt + 3)^2`` matrix and,
     per target, the coefficient and the entry of the flattened ``(6, p(p+1)/2)`` triangle array
