@@ -41,7 +41,6 @@ from .lifting import (
     svec_to_matrix,
 )
 from .rays import RayObservations
-from .rotations import skew
 
 __all__ = ["KnownPoseData", "KnownPoseSDP", "KnownPoseIPM"]
 
@@ -96,11 +95,6 @@ class SdpSolution:
     status: str
     iterations: int
     solve_time: float  # seconds (wall clock)
-
-
-#: Largest size (bytes) of the per-observation products kept by :class:`KnownPoseIPM` (M = 8:
-#: 3.2 kB per observation; M = 32: 40 kB, so kept up to K = 1600).
-_OUTER_BYTES = 64 * 2**20
 
 
 def _cross_rows() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -342,28 +336,10 @@ class KnownPoseIPM:
         # V x d = V[:, (1, 2, 0)] * d[:, (2, 0, 1)] - V[:, (2, 0, 1)] * d[:, (1, 2, 0)]
         self._d201 = directions[:, [2, 0, 1]]
         self._d120 = directions[:, [1, 2, 0]]
-        self.skew = skew(directions)
-        self.kpat, self.cpat = point_map_pattern(n_modes)
-        # coordinate r of V_j = Dt_j . (cv_r * z[idx_r]): all three as one take of z
-        p = self.Dt.shape[1]
-        self._zidx = np.concatenate([np.append(self.kpat[r], nt + r) for r in range(3)])
-        self._zcoef = np.concatenate([np.append(self.cpat[r], 1.0) for r in range(3)])
-        self._h_index, self._h_coef, self._h_take = _data_block_layout(
-            self._zidx, self._zcoef, nt
-        )
-        # products Dt_ja Dt_jb (a <= b) of every observation, so that the data part of the
-        # reduced matrix is one (6, K) x (K, p(p+1)/2) product per iteration; above the memory
-        # cap they are formed per iteration instead (the same numbers, more work)
-        ia, ib = np.triu_indices(p)
-        self._outer = None
-        if K * len(ia) * 8 <= _OUTER_BYTES:
-            self._outer = self.Dt[:, ia] * self.Dt[:, ib]
-        self._tri = (ia, ib)
-        rows, cols = np.triu_indices(nt)
-        self._svec_triu = rows * self.nz + cols  # the PSD block's upper triangle, flat
-        A_rot, self.b = rotation_constraints(n)
-        self.A_eq = A_rot.toarray()
-        self.A_full = np.hstack([self.A_eq, np.zeros((len(self.b), 3))])
+        lay = _layout(n_modes)
+        self.kpat, self.cpat, self.A_eq, self.b = lay.kpat, lay.cpat, lay.A_eq, lay.b
+        self.A_full = lay.A_full
+        self._lay = lay
         self.n_lp = 7 * K
         self.psd_sizes = (n,)
         self.c = np.zeros(self.nz + 3 * K)
@@ -398,7 +374,8 @@ class KnownPoseIPM:
     # -- the linear map z = (Delta, t) -> r = V x d (without the constant) -----------------------
     def points(self, z: np.ndarray) -> np.ndarray:
         """World points ``V_j`` (K, 3) for ``z = (svec Delta, t)``."""
-        Y = (z.take(self._zidx) * self._zcoef).reshape(3, -1)  # row r maps Dt_j to coordinate r
+        # row r maps Dt_j to coordinate r
+        Y = (z.take(self._lay.zidx) * self._lay.zcoef).reshape(3, -1)
         return self.Dt @ Y.T
 
     def _xd(self, V: np.ndarray) -> np.ndarray:
@@ -411,7 +388,7 @@ class KnownPoseIPM:
     def _Vt(self, gV: np.ndarray) -> np.ndarray:
         """Adjoint of :meth:`points`: gradient (K, 3) on the points -> gradient on ``z``."""
         out = np.zeros(self.nz)
-        out[self._zidx] = (self.Dt.T @ gV).T.ravel() * self._zcoef  # the indices are distinct
+        out[self._lay.zidx] = (self.Dt.T @ gV).T.ravel() * self._lay.zcoef  # distinct indices
         return out
 
     def _Bt(self, v: np.ndarray) -> np.ndarray:
@@ -450,20 +427,18 @@ class KnownPoseIPM:
         d1, d2, d4 = d_lp[:m], d_lp[m : 2 * m], d_lp[2 * m :]
         dsum = d1 + d2
         omega = (4.0 * d1 * d2 / dsum).reshape(self.K, 3)
-        # upper triangles of sum_j W_j[r, r2] Dt_j Dt_j' for the 6 pairs r <= r2, (6, p(p+1)/2)
+        # sum_j W_j[r, r2] Dt_j Dt_j' for the 6 pairs r <= r2
         Wp = _ray_weights(self.d, omega, d4)
-        if self._outer is not None:
-            blocks = Wp.T @ self._outer
-        else:  # one (p, K) x (K, 6p) product, then the triangles
-            full = self.Dt.T @ (Wp[:, :, None] * self.Dt[:, None, :]).reshape(self.K, -1)
-            p = self.Dt.shape[1]
-            blocks = full.reshape(p, 6, p).transpose(1, 0, 2)[:, self._tri[0], self._tri[1]]
+        # one (p, K) x (K, 6p) product (measured faster than a (6, K) x (K, p(p+1)/2) product
+        # with precomputed Dt_ja Dt_jb: a 6-row product streams the larger matrix at a poor rate)
+        blocks = self.Dt.T @ (Wp[:, :, None] * self.Dt[:, None, :]).reshape(self.K, -1)
+        lay = self._lay
         # the upper triangle of H, C order: its transpose is H's lower triangle in Fortran order,
         # what the Cholesky reads (half of the assembly work, no copy)
         Hu = np.zeros((self.nz, self.nz))
         flat = Hu.reshape(-1)
-        flat[self._svec_triu] = skron_triu(psd_T[0])
-        flat[self._h_index] += blocks.reshape(-1).take(self._h_take) * self._h_coef
+        flat[lay.svec_triu] = skron_triu(psd_T[0])
+        flat[lay.h_index] += blocks.reshape(-1).take(lay.h_take) * lay.h_coef
         fac = dense_kkt_factor(Hu.T, self.A_full)
         ratio = (d2 - d1) / dsum
 
@@ -494,6 +469,53 @@ def _ray_weights(d: np.ndarray, omega: np.ndarray, d_depth: np.ndarray) -> np.nd
     return W
 
 
+@dataclass(frozen=True)
+class _Layout:
+    """What :class:`KnownPoseIPM` needs that depends on the number of modes only."""
+
+    kpat: np.ndarray
+    cpat: np.ndarray
+    zidx: np.ndarray  # coordinate r of V_j = Dt_j . (cv_r * z[idx_r]), the three in one
+    zcoef: np.ndarray
+    A_eq: np.ndarray  # rotation rows on svec(Delta)
+    A_full: np.ndarray  # the same on z = (svec Delta, t)
+    b: np.ndarray
+    svec_triu: np.ndarray  # flat indices of the PSD block's upper triangle in the (nz, nz) H
+    h_index: np.ndarray  # see _data_block_layout
+    h_coef: np.ndarray
+    h_take: np.ndarray
+
+
+_LAYOUTS: dict[int, _Layout] = {}
+
+
+def _layout(n_modes: int) -> _Layout:
+    """The :class:`_Layout` of ``n_modes`` (a memo: a pure function of ``n_modes``; building
+    it costs ~1 ms, the registration builds a problem per solve)."""
+    if n_modes not in _LAYOUTS:
+        n = gram_size(n_modes)
+        nt = svec_size(n)
+        nz = nt + 3
+        kpat, cpat = point_map_pattern(n_modes)
+        zidx = np.concatenate([np.append(kpat[r], nt + r) for r in range(3)])
+        zcoef = np.concatenate([np.append(cpat[r], 1.0) for r in range(3)])
+        A_rot, b = rotation_constraints(n)
+        A_eq = A_rot.toarray()
+        rows, cols = np.triu_indices(nt)
+        _LAYOUTS[n_modes] = _Layout(
+            kpat,
+            cpat,
+            zidx,
+            zcoef,
+            A_eq,
+            np.hstack([A_eq, np.zeros((len(b), 3))]),
+            b,
+            rows * nz + cols,
+            *_data_block_layout(zidx, zcoef, nt),
+        )
+    return _LAYOUTS[n_modes]
+
+
 def _data_block_layout(
     zidx: np.ndarray, zcoef: np.ndarray, nt: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -503,26 +525,20 @@ def _data_block_layout(
     (coefficients ``cv_r = zcoef[r p : (r + 1) p]``) times ``Dt_j``, so block ``(r, r2)`` of
     ``sum_j W_j[r, r2] Dt_j Dt_j'`` adds ``cv_r cv_r2' *`` it at ``(idx_r, idx_r2)`` and its
     transpose at ``(idx_r2, idx_r)``. The ``idx_r`` are disjoint, so every target is hit
-    once. The blocks are symmetric and stored as upper triangles: row ``q`` of a
-    ``(6, p(p+1)/2)`` array for the pair ``q`` of ``np.triu_indices(3)``, entry ``(a, b)``,
-    ``a <= b``, at the ``np.triu_indices(p)`` position.
+    once. Block ``q`` (the pairs of ``np.triu_indices(3)``) is columns ``q p : (q + 1) p`` of
+    the ``(p, 6p)`` product.
 
     Returns the flat target indices into the upper triangle of the ``(nt + 3)^2`` matrix and,
-    per target, the coefficient and the entry of the flattened ``(6, p(p+1)/2)`` triangle array
-    it takes.
+    per target, the coefficient and the entry of the flattened ``(p, 6p)`` product it takes.
     """
     nz = nt + 3
     p = len(zidx) // 3
-    ntri = p * (p + 1) // 2
-    tri = np.full((p, p), -1)
-    tri[np.triu_indices(p)] = np.arange(ntri)
-    tri = np.where(tri < 0, tri.T, tri)  # symmetric: (a, b) and (b, a) share an entry
     idx, cv = zidx.reshape(3, p), zcoef.reshape(3, p)
     pairs = np.triu_indices(3)
     targets, takes, coefs = [], [], []
     a, b = np.meshgrid(np.arange(p), np.arange(p), indexing="ij")
     for q, (r, r2) in enumerate(zip(*pairs, strict=True)):
-        src = (q * ntri + tri[a, b]).ravel()
+        src = (a * 6 * p + q * p + b).ravel()  # entry (a, b) of block q
         targets.append((idx[r][:, None] * nz + idx[r2][None, :]).ravel())
         takes.append(src)
         coef = (cv[r][:, None] * cv[r2][None, :]).ravel()
