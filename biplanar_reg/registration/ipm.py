@@ -23,6 +23,7 @@ off-diagonal entries scaled by ``sqrt(2)`` (Clarabel's ``PSDTriangleConeT`` layo
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -268,9 +269,10 @@ def _lam_prod(cones: _Cones, sc: _Scaling, u: np.ndarray, divide: bool) -> np.nd
     out = np.empty_like(u)
     out[:m] = u[:m] / sc.lam_lp if divide else u[:m] * sc.lam_lp
     for n, sl, lam in zip(cones.sizes, cones.slices, sc.lam_psd, strict=True):
-        half = 0.5 * (lam[:, None] + lam[None, :])
-        X = smat(u[sl], n)
-        out[sl] = svec(X / half if divide else X * half)
+        # elementwise with (lam_i + lam_j) / 2: the same in svec coordinates, no smat/svec
+        i, j = _triu(n)[:2]
+        half = 0.5 * (lam.take(i) + lam.take(j))
+        out[sl] = u[sl] / half if divide else u[sl] * half
     return out
 
 
@@ -289,8 +291,9 @@ def _sprod(cones: _Cones, a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _lam_sq(cones: _Cones, sc: _Scaling) -> np.ndarray:
     out = np.empty(cones.dim)
     out[: cones.n_lp] = sc.lam_lp**2
-    for sl, lam in zip(cones.slices, sc.lam_psd, strict=True):
-        out[sl] = svec(np.diag(lam**2))
+    for n, sl, lam in zip(cones.sizes, cones.slices, sc.lam_psd, strict=True):
+        i, j = _triu(n)[:2]
+        out[sl] = np.where(i == j, lam.take(i) ** 2, 0.0)  # svec(diag(lam^2))
     return out
 
 
@@ -380,8 +383,8 @@ def _stats(prob: ConicProblem, p: _Point, norms: tuple[float, float, float]) -> 
     rx = prob.c + prob.At(p.y) + prob.Gt(p.z)
     ry = prob.A(p.x) - prob.b
     rz = prob.G(p.x) + p.s - prob.h
-    pres = max(float(np.linalg.norm(ry)) / nrm_b, float(np.linalg.norm(rz)) / nrm_h)
-    dres = float(np.linalg.norm(rx)) / nrm_c
+    pres = max(math.sqrt(ry @ ry) / nrm_b, math.sqrt(rz @ rz) / nrm_h)
+    dres = math.sqrt(rx @ rx) / nrm_c
     pcost, dcost = float(prob.c @ p.x), float(-prob.b @ p.y - prob.h @ p.z)
     return _Stats(rx, ry, rz, float(p.s @ p.z), pcost, dcost, pres, dres)
 

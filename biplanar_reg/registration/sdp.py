@@ -307,7 +307,7 @@ def depth_reward(directions: np.ndarray, weights: np.ndarray, reward: float) -> 
     return -reward * rate * m
 
 
-_P120, _P201 = [1, 2, 0], [2, 0, 1]
+_P120, _P201 = np.array([1, 2, 0]), np.array([2, 0, 1])  # arrays: take is 3x faster
 
 
 class KnownPoseIPM:
@@ -380,7 +380,7 @@ class KnownPoseIPM:
 
     def _xd(self, V: np.ndarray) -> np.ndarray:
         """Row-wise ``V_j x d_j`` (K, 3)."""
-        return V[:, _P120] * self._d201 - V[:, _P201] * self._d120
+        return V.take(_P120, axis=1) * self._d201 - V.take(_P201, axis=1) * self._d120
 
     def _B(self, z: np.ndarray) -> np.ndarray:
         return self._xd(self.points(z)).ravel()
