@@ -7,9 +7,16 @@ import numpy as np
 import pytest
 
 from biplanar_reg.registration import RayObservations, SolverFailure, solve_gsft
-from biplanar_reg.registration.ipm import _lu_kkt_factor, dense_kkt_factor, skron, smat, svec
+from biplanar_reg.registration.ipm import (
+    _lu_kkt_factor,
+    dense_kkt_factor,
+    skron,
+    skron_triu,
+    smat,
+    svec,
+)
 from biplanar_reg.registration.lifting import rotation_constraints
-from biplanar_reg.registration.sdp import KnownPoseData, KnownPoseSDP
+from biplanar_reg.registration.sdp import KnownPoseData, KnownPoseIPM, KnownPoseSDP
 from biplanar_reg.simulate import biplanar_views, observe, random_pose, synthetic_bone_model
 
 
@@ -22,6 +29,8 @@ def test_skron_is_the_congruence_in_svec_coordinates(n):
     X = X + X.T
     assert np.allclose(skron(T) @ svec(X), svec(T @ X @ T), rtol=1e-12, atol=1e-12 * n * n)
     assert np.allclose(smat(svec(X), n), X)
+    nt = n * (n + 1) // 2
+    assert np.array_equal(skron_triu(T), skron(T)[np.triu_indices(nt)])
 
 
 def test_cholesky_kkt_solve_matches_lu_on_a_badly_scaled_system():
@@ -40,6 +49,50 @@ def test_cholesky_kkt_solve_matches_lu_on_a_badly_scaled_system():
     assert np.allclose(A_eq @ x, by, atol=1e-9)
     assert np.allclose(x, x_lu, rtol=1e-6, atol=1e-9 * np.abs(x_lu).max())
     assert np.allclose(y, y_lu, rtol=1e-6, atol=1e-9 * np.abs(y_lu).max())
+
+
+def test_the_kkt_solve_reads_only_the_lower_triangle():
+    """``dense_kkt_factor`` is handed one triangle of H (the other is never assembled): what
+    is in the other does not change the solution, also in the LU fallback."""
+    rng = np.random.default_rng(1)
+    n = 12
+    A_eq = rng.normal(size=(3, n))
+    B = rng.normal(size=(n, n))
+    H = B.T @ B + np.eye(n)
+    bx, by = rng.normal(size=n), rng.normal(size=3)
+    x, y = dense_kkt_factor(H, A_eq)(bx, by)
+    junk = np.tril(H) + np.triu(rng.normal(size=(n, n)), 1)
+    x2, y2 = dense_kkt_factor(np.asfortranarray(junk), A_eq)(bx, by)
+    x3, y3 = _lu_kkt_factor(junk, A_eq, 1.0 / np.sqrt(np.diag(H)))(bx, by)
+    assert np.allclose(x2, x, rtol=1e-10, atol=1e-12) and np.allclose(y2, y, rtol=1e-10)
+    assert np.allclose(x3, x, rtol=1e-8, atol=1e-10) and np.allclose(y3, y, rtol=1e-8)
+
+
+def test_the_structured_kkt_solve_is_the_dense_one():
+    """``KnownPoseIPM.kkt_factor`` (e eliminated, the reduced matrix assembled from the data
+    blocks and one triangle of skron) solves ``[G'DG A'; A 0] (x, y) = (bx, by)`` with G and A
+    taken column by column from the operators, D = diag(d) (+) (X -> T X T)."""
+    model = synthetic_bone_model(2, seed=0)
+    rays = _rays(model, 6, seed=4)
+    D = np.random.default_rng(5).normal(size=(6, 9))
+    ipm = KnownPoseIPM(KnownPoseData(D, rays, np.ones(6), 0.01, t_cost=np.ones(3)))
+    rng = np.random.default_rng(6)
+    nx = len(ipm.c)
+    G = np.column_stack([ipm.G(e) for e in np.eye(nx)])
+    A = np.column_stack([ipm.A(e) for e in np.eye(nx)])
+    u = rng.normal(size=G.shape[0])
+    assert np.allclose(G.T @ u, ipm.Gt(u)) and np.allclose(ipm.At(u[: len(A)]), A.T @ u[: len(A)])
+    d_lp = rng.uniform(0.01, 100.0, ipm.n_lp)
+    L = rng.normal(size=(ipm.n, ipm.n))
+    T = L @ L.T + 0.1 * np.eye(ipm.n)
+    Dm = np.zeros((G.shape[0], G.shape[0]))
+    Dm[: ipm.n_lp, : ipm.n_lp] = np.diag(d_lp)
+    Dm[ipm.n_lp :, ipm.n_lp :] = skron(T)
+    kkt = np.block([[G.T @ Dm @ G, A.T], [A, np.zeros((len(A), len(A)))]])
+    bx, by = rng.normal(size=nx), rng.normal(size=len(A))
+    ref = np.linalg.solve(kkt, np.concatenate([bx, by]))
+    x, y = ipm.kkt_factor(d_lp, [T])(bx, by)
+    assert np.allclose(np.concatenate([x, y]), ref, rtol=1e-7, atol=1e-8 * np.abs(ref).max())
 
 
 def _rays(model, n_obs, seed):
