@@ -49,6 +49,7 @@ from .rays import RayObservations
 from .register import landmark_errors
 from .stages import outline_terms
 from .unknown_poses import UnknownPoseView, solve_gsft_unknown_poses
+from .frames_uncertainty import frame_linearisations, frames_vertex_sd, shape_sd
 from .view_poses import JOINT_MAX_REJECTED
 
 __all__ = ["FrameRegistrationResult", "register_frames"]
@@ -63,6 +64,9 @@ except ImportError:  # pragma: no cover - optional
 MIN_FRAME_LANDMARKS = 4
 #: Rounds of the joint refinement (the outline gates are re-set at the fit between rounds).
 JOINT_ROUNDS = 2
+#: Frame counts of :attr:`FrameRegistrationResult.uncertainty_by_frames` beyond which only
+#: about this many counts (log-spaced, the last one included) are evaluated.
+MAX_UNCERTAINTY_COUNTS = 12
 
 
 @dataclass(frozen=True)
@@ -96,6 +100,18 @@ class FrameRegistrationResult:
         Seconds: ``start``, ``neighbours``, ``joint``, ``total``.
     start_weights : (M,) array
         The convex start's weights (before the joint refinement).
+    vertex_sd_mm : (F, N) array or None
+        Per frame the posterior sd of every vertex of the shape posed in that frame (world,
+        mm, RMS over the three axes; :func:`.frames_uncertainty.frames_vertex_sd`: all frames'
+        information, the other frames' poses eliminated); a row of NaN for a frame whose pose
+        its own data cannot determine; None when not computed (``uncertainty=False``).
+    uncertainty_by_frames : list of dict
+        The shape's uncertainty as frames are added: per ``n`` (``n_frames``) the same sd from
+        the first ``n`` frames' information alone (at the all-frame solution), for the
+        shape posed in frame ``frame`` (the first with data): ``sd_median_mm``, ``sd_p95_mm``
+        (pose, weights and model truncation), ``shape_sd_median_mm``, ``shape_sd_p95_mm``
+        (the weights alone, model frame: :func:`.frames_uncertainty.shape_sd`),
+        ``truncation_mm``.
     """
 
     weights: np.ndarray
@@ -114,6 +130,8 @@ class FrameRegistrationResult:
     flags: list[str] = field(default_factory=list)
     timings: dict = field(default_factory=dict)
     start_weights: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    vertex_sd_mm: np.ndarray | None = field(default=None, repr=False)
+    uncertainty_by_frames: list[dict] = field(default_factory=list)
 
     @property
     def n_frames(self) -> int:
@@ -301,17 +319,20 @@ def _joint(model, problems: list[Problem], Rs, ts, w, opts):
 
 
 def _residuals(model, problems, frames, Rs, ts, w, gate_px):
-    """Per frame landmark and contour errors (px) and their RMS."""
+    """Per frame landmark and contour errors (px), their RMS, and the model's outlines
+    (``{view index: ModelOutline}``) at the solution."""
     Q = model.instance(w)
-    lm_err, ct_err = [], []
+    lm_err, ct_err, outlines = [], [], []
     lm_rms, ct_rms = np.full(len(frames), np.nan), np.full(len(frames), np.nan)
     topology = mesh_topology(model)
     for f, (p, views) in enumerate(zip(problems, frames, strict=True)):
         V = Q @ Rs[f].T + ts[f]
         lm = landmark_errors(list(views), V)
         ct = {v.name: np.zeros(0) for v in views}
+        outlines.append({})
         for i, target in p.targets.items():
             o = model_outline(V, model, views[i].view, p.options.silhouette_points, topology)
+            outlines[f][i] = o
             ct[views[i].name] = outline_distances(o, target)
         e = [x for d in lm.values() for x in d.values()]
         c = np.concatenate(list(ct.values()))
@@ -319,7 +340,45 @@ def _residuals(model, problems, frames, Rs, ts, w, gate_px):
         ct_rms[f] = np.sqrt(np.mean(np.minimum(c, gate_px) ** 2)) if c.size else np.nan
         lm_err.append(lm)
         ct_err.append(ct)
-    return lm_err, ct_err, lm_rms, ct_rms
+    return lm_err, ct_err, lm_rms, ct_rms, outlines
+
+
+def _frame_counts(F: int) -> list[int]:
+    """The ``n`` of :attr:`FrameRegistrationResult.uncertainty_by_frames`: 1..F, or about
+    :data:`MAX_UNCERTAINTY_COUNTS` log-spaced counts for long sequences."""
+    if F <= MAX_UNCERTAINTY_COUNTS:
+        return list(range(1, F + 1))
+    return sorted({int(round(x)) for x in np.geomspace(1, F, MAX_UNCERTAINTY_COUNTS)} | {F})
+
+
+def _uncertainty(model, problems, Rs, ts, w, outlines, prior_weight):
+    """Per frame the posed vertex sd (F, N) and the sd as frames are added (result fields
+    ``vertex_sd_mm`` and ``uncertainty_by_frames``)."""
+    lins = frame_linearisations(problems, Rs, ts, w, outlines)
+    sd = np.full((len(problems), model.n_vertices), np.nan)
+    for f in range(len(problems)):
+        unc = frames_vertex_sd(model, lins, f, prior_weight=prior_weight)
+        if unc is not None:
+            sd[f] = unc.sd_mm
+    target = next((f for f in range(len(lins)) if np.isfinite(sd[f]).all()), None)
+    by_frames = []
+    for n in _frame_counts(len(problems)) if target is not None else []:
+        if n <= target:
+            continue
+        unc = frames_vertex_sd(model, lins[:n], target, prior_weight=prior_weight)
+        shape = shape_sd(model, unc.covariance)
+        by_frames.append(
+            {
+                "n_frames": n,
+                "frame": target,
+                "sd_median_mm": float(np.median(unc.sd_mm)),
+                "sd_p95_mm": float(np.percentile(unc.sd_mm, 95)),
+                "shape_sd_median_mm": float(np.median(shape)),
+                "shape_sd_p95_mm": float(np.percentile(shape, 95)),
+                "truncation_mm": unc.truncation_mm,
+            }
+        )
+    return sd, by_frames
 
 
 def register_frames(
@@ -330,6 +389,7 @@ def register_frames(
     silhouettes: bool = True,
     options: RegistrationOptions | None = None,
     progress: Callable[[str], None] | None = None,
+    uncertainty: bool = True,
 ) -> FrameRegistrationResult:
     """Register one shape to a bone seen in several frames (module docstring).
 
@@ -348,6 +408,8 @@ def register_frames(
         The single-frame options (weights, sigmas, gates, iterations) apply per frame.
     progress : callable, optional
         Called with a one-line message at each stage.
+    uncertainty : bool
+        Compute ``vertex_sd_mm`` and ``uncertainty_by_frames`` (default; False skips them).
 
     Raises
     ------
@@ -361,13 +423,15 @@ def register_frames(
     # times faster than two fighting over a shared machine (measured on the sample case)
     limits = threadpool_limits(1) if threadpool_limits is not None else None
     try:
-        return _register(model, frames, names, silhouettes, options, progress)
+        return _register(model, frames, names, silhouettes, options, progress, uncertainty)
     finally:
         if limits is not None:
             limits.unregister()
 
 
-def _register(model, frames, names, silhouettes, options, progress) -> FrameRegistrationResult:
+def _register(
+    model, frames, names, silhouettes, options, progress, uncertainty
+) -> FrameRegistrationResult:
     """:func:`register_frames` (its BLAS thread limit set)."""
     t0 = time.perf_counter()
     opts = options or RegistrationOptions()
@@ -397,8 +461,14 @@ def _register(model, frames, names, silhouettes, options, progress) -> FrameRegi
     say(f"joint refinement: objective {cost0:.4g} -> {fit.cost_after:.4g}")
     if not fit.converged:
         flags.append("joint refinement did not converge")
-    lm, ct, lm_rms, ct_rms = _residuals(model, problems, frames, R_all, t_all, w, opts.gate_px)
+    lm, ct, lm_rms, ct_rms, outlines = _residuals(
+        model, problems, frames, R_all, t_all, w, opts.gate_px
+    )
     t3 = time.perf_counter()
+    sd, by_frames = None, []
+    if uncertainty:
+        sd, by_frames = _uncertainty(model, problems, R_all, t_all, w, outlines, opts.prior_weight)
+    t4 = time.perf_counter()
     return FrameRegistrationResult(
         weights=w,
         vertices=model.instance(w),
@@ -414,6 +484,14 @@ def _register(model, frames, names, silhouettes, options, progress) -> FrameRegi
         cost_after=float(fit.cost_after),
         converged=bool(fit.converged),
         flags=flags,
-        timings={"start": t1 - t0, "neighbours": t2 - t1, "joint": t3 - t2, "total": t3 - t0},
+        timings={
+            "start": t1 - t0,
+            "neighbours": t2 - t1,
+            "joint": t3 - t2,
+            "uncertainty": t4 - t3,
+            "total": t4 - t0,
+        },
         start_weights=w_start,
+        vertex_sd_mm=sd,
+        uncertainty_by_frames=by_frames,
     )
