@@ -77,9 +77,20 @@ def frame_linearisations(
     out = []
     for f, p in enumerate(problems):
         res = SimpleNamespace(rotation=rotations[f], translation=translations[f], weights=weights)
+        if len(p.landmarks) == 0 and not (p.use_outlines and outlines[f]):
+            out.append(_no_rows(p.model, (rotations[f], translations[f], weights)))
+            continue
         state, lin, est_w = registration_linearisation(p, res, outlines[f], frozenset())
         out.append(FrameLinearisation(lin, est_w, state))
     return out
+
+
+def _no_rows(model, state) -> FrameLinearisation:
+    """The linearisation of a frame without landmarks and outlines (no rows)."""
+    T = 0 if model.truncation_modes is None else len(model.truncation_modes)
+    z = np.zeros(0)
+    lin = Linearisation(np.zeros((0, 6 + model.n_modes)), z, z, np.zeros(0, int), np.zeros((0, T)))
+    return FrameLinearisation(lin, z, state)
 
 
 def _eliminate_pose(fl: FrameLinearisation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
