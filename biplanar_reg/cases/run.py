@@ -547,7 +547,9 @@ def _frame_entry(
         "landmark_max_px": float(np.max(lm)) if lm else None,
         "contour_rms_px": res.contour_rms_px[f],
         "contour_error_stats_px": summary_stats(all_ct[np.isfinite(all_ct)]),
-        "uncertainty": uncertainty_summary(sd) if sd is not None and np.isfinite(sd).all() else None,
+        "uncertainty": uncertainty_summary(sd)
+        if sd is not None and np.isfinite(sd).all()
+        else None,
         "ground_truth_metrics": gt_metrics,
         "views": _frame_views(res, f, obs),
     }
@@ -648,8 +650,10 @@ def _frames_ground_truth_entry(case: Case) -> dict[str, Any] | None:
 
 def _frames_ground_truth(case: Case, res: FrameRegistrationResult):
     """Per frame the ground-truth metrics of the bone posed there (mm; None without a truth)
-    and the pooled ones: the shape's vertex RMS in the model frame after the best rigid
-    alignment to a truth in vertex correspondence, and the model floor (mm)."""
+    and the pooled ones (mm): ``vertex_rms_mm``/``surface_rms_mm`` the RMS over the frames with
+    a truth, ``*_max_mm`` the max; ``shape_vertex_rms_mm`` the shape's vertex RMS in the model
+    frame after the best rigid alignment to a truth in vertex correspondence, the model floor
+    and their ratio."""
     truths = _frame_truths(case)
     if not any(truths):
         return None
@@ -675,6 +679,15 @@ def _frames_ground_truth(case: Case, res: FrameRegistrationResult):
                 m["vertex_rms_to_floor"] = m["vertex_rms_mm"] / floor
         per_frame.append(m)
     pooled: dict[str, float] = {}
+    have = [m for m in per_frame if m is not None]
+    for key in ("vertex_rms_mm", "surface_rms_mm"):  # every frame has as many vertices/samples
+        vals = [m[key] for m in have if key in m]
+        if vals:
+            pooled[key] = float(np.sqrt(np.mean(np.square(vals))))
+    for key in ("vertex_max_mm", "surface_max_mm"):
+        vals = [m[key] for m in have if key in m]
+        if vals:
+            pooled[key] = float(np.max(vals))
     ref = next((g for g in truths if g is not None and len(g.vertices) == len(res.vertices)), None)
     if ref is not None:
         R, t = kabsch(res.vertices, ref.vertices)
@@ -695,7 +708,9 @@ def _frames_report_views(case: Case, frames, res: FrameRegistrationResult, indic
     for f in indices:
         V = res.frame_vertices(f)
         for o, cv in zip(frames[f], case.frames[f].views, strict=True):
-            outlines = [] if case.model.faces is None else model_outlines(V, case.model.faces, o.view)
+            outlines = (
+                [] if case.model.faces is None else model_outlines(V, case.model.faces, o.view)
+            )
             out[f].append(
                 ReportView.from_observations(
                     o,

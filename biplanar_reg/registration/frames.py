@@ -39,6 +39,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..ssm.model import ShapeModel
+from .frames_uncertainty import frame_linearisations, frames_vertex_sd, shape_sd
 from .gsft import nearest_point_to_rays
 from .observations import ViewObservations, landmark_rays
 from .options import RegistrationOptions
@@ -49,7 +50,6 @@ from .rays import RayObservations
 from .register import landmark_errors
 from .stages import outline_terms
 from .unknown_poses import UnknownPoseView, solve_gsft_unknown_poses
-from .frames_uncertainty import frame_linearisations, frames_vertex_sd, shape_sd
 from .view_poses import JOINT_MAX_REJECTED
 
 __all__ = ["FrameRegistrationResult", "register_frames"]
@@ -64,6 +64,13 @@ except ImportError:  # pragma: no cover - optional
 MIN_FRAME_LANDMARKS = 4
 #: Rounds of the joint refinement (the outline gates are re-set at the fit between rounds).
 JOINT_ROUNDS = 2
+#: A frame without landmarks whose outline RMS after its fit from the neighbours' pose exceeds
+#: this factor times the landmark frames' median is re-fitted from rotated starts.
+RETRY_FACTOR = 1.5
+#: ... and exceeds this (px): exact outlines fit to a fraction of a pixel.
+RETRY_FLOOR_PX = 0.25
+#: Rotation (deg) of those starts about each world axis, either way.
+RETRY_DEG = 15.0
 #: Frame counts of :attr:`FrameRegistrationResult.uncertainty_by_frames` beyond which only
 #: about this many counts (log-spaced, the last one included) are evaluated.
 MAX_UNCERTAINTY_COUNTS = 12
@@ -254,10 +261,63 @@ def _fit_alone(model, problem: Problem, R, t, w) -> tuple[np.ndarray, np.ndarray
     return fit.rotations[0], fit.translations[0]
 
 
+def _outline_rms(problem: Problem, Q: np.ndarray, R: np.ndarray, t: np.ndarray) -> float:
+    """RMS (px) of the frame's annotated outline points' distances to the outline of the shape
+    ``Q`` (model frame, mm) posed by ``(R, t)``, each capped at ``gate_px``: comparable
+    between poses (unlike the refinement's cost, whose gates adapt to its start)."""
+    V = Q @ R.T + t
+    opts = problem.options
+    d = [
+        outline_distances(
+            model_outline(
+                V, problem.model, problem.views[i].view, opts.silhouette_points, problem.topology
+            ),
+            target,
+        )
+        for i, target in problem.targets.items()
+    ]
+    d = np.concatenate(d) if d else np.zeros(0)
+    return float(np.sqrt(np.mean(np.minimum(d, opts.gate_px) ** 2))) if d.size else np.nan
+
+
+def _rotated_starts(R, t, c) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``(R, t)`` turned by +-:data:`RETRY_DEG` about each world axis through the bone's
+    centroid (``c``: model frame, mm)."""
+    centre = R @ c + t
+    out = []
+    for rv in np.vstack([np.eye(3), -np.eye(3)]) * np.deg2rad(RETRY_DEG):
+        Rs = Rotation.from_rotvec(rv).as_matrix() @ R
+        out.append((Rs, centre - Rs @ c))
+    return out
+
+
+def _fit_from_neighbours(model, problem, R, t, w, limit_px: float, say, name: str):
+    """A frame without landmarks fitted on its outlines from its neighbours' pose; when its
+    outline RMS stays above ``limit_px`` (a start too far off, e.g. extrapolated from one
+    frame: measured 7 mm off after its fit from 15 deg), re-fitted from the
+    :func:`_rotated_starts` and the pose with the lowest outline RMS kept."""
+    Q = model.instance(w)
+    best = _fit_alone(model, problem, R, t, w)
+    rms = _outline_rms(problem, Q, *best)
+    if not rms > limit_px:
+        return best
+    first = rms
+    for Rs, ts in _rotated_starts(R, t, Q.mean(axis=0)):
+        fit = _fit_alone(model, problem, Rs, ts, w)
+        r = _outline_rms(problem, Q, *fit)
+        if r < rms:
+            best, rms = fit, r
+    say(
+        f"{name}: outline RMS {first:.2f} px from the neighbours' pose; {rms:.2f} px after "
+        f"{2 * 3} rotated starts"
+    )
+    return best
+
+
 def _neighbour_fits(model, frames, rest, Rs, ts, w, opts, silhouettes, say, names) -> list[str]:
     """Step 2, in place on ``Rs``/``ts``: the frames ``rest`` (nearest to a posed frame first)
     from their neighbours' poses, fitted on their own outlines; the flags it raises."""
-    flags = []
+    flags, ref = [], []
     Q = model.instance(w)
     for f in sorted(Rs):  # the posed frames first on their own outlines: the landmark-only
         # start is degrees off (3 landmarks per view), and the neighbours start from it
@@ -266,13 +326,17 @@ def _neighbour_fits(model, frames, rest, Rs, ts, w, opts, silhouettes, say, name
         )
         if problem.use_outlines:
             Rs[f], ts[f] = _fit_alone(model, problem, Rs[f], ts[f], w)
+            ref.append(_outline_rms(problem, Q, Rs[f], ts[f]))
+    limit = np.inf
+    if np.isfinite(ref).any():
+        limit = max(RETRY_FACTOR * float(np.nanmedian(ref)), RETRY_FLOOR_PX)
     for f in rest:
         R, t = _neighbour_pose(f, Rs, ts, Q.mean(axis=0))
         problem = make_problem(
             model, list(frames[f]), opts, silhouettes, say, (Q @ R.T + t).mean(0)
         )
         if problem.use_outlines:
-            R, t = _fit_alone(model, problem, R, t, w)
+            R, t = _fit_from_neighbours(model, problem, R, t, w, limit, say, names[f])
         else:
             flags.append(f"{names[f]}: no landmarks and no outlines: pose interpolated")
         Rs[f], ts[f] = R, t

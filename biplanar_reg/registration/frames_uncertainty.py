@@ -130,7 +130,10 @@ def _joint_linearisation(
         offset += int(lin.group.max(initial=0))
         est_w.append(fl.weights)
     lin = Linearisation(
-        np.vstack(jac), np.concatenate(res), np.concatenate(sig), np.concatenate(grp),
+        np.vstack(jac),
+        np.concatenate(res),
+        np.concatenate(sig),
+        np.concatenate(grp),
         np.vstack(trunc),
     )
     return lin, np.concatenate(est_w)

@@ -127,7 +127,9 @@ def _pose_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> None:
         ((angles, "deg", ("rx", "ry", "rz")), (trans, "mm", ("tx", "ty", "tz")))
     ):
         ax = fig.add_subplot(2, 1, k + 1)
-        for j, (key, colour) in enumerate(zip(keys, ("tab:red", "tab:green", "tab:blue"))):
+        for j, (key, colour) in enumerate(
+            zip(keys, ("tab:red", "tab:green", "tab:blue"), strict=True)
+        ):
             ax.plot(idx, vals[:, j], "o-", color=colour, ms=3, lw=1.0, label=f"{key} ({unit})")
         ax.set_ylabel("rotation (deg)" if unit == "deg" else "translation (mm)")
         _frame_axis(ax, names)
@@ -288,9 +290,7 @@ def _plots(folder: Path, doc: Mapping[str, Any]) -> list[dict[str, str]]:
             }
         )
     if _gt_figure(folder / "frames_gt.png", frames):
-        out.append(
-            {"src": "frames_gt.png", "caption": "Error to the ground truth per frame, mm."}
-        )
+        out.append({"src": "frames_gt.png", "caption": "Error to the ground truth per frame, mm."})
     return out
 
 
@@ -353,7 +353,8 @@ def write_frames_report(
                 )
     figures = {"views": overlays, "plots": plots, "surface": surface}
     embedded = {
-        g: [{**x, "data": _data_uri(folder / x["src"])} for x in figs] for g, figs in figures.items()
+        g: [{**x, "data": _data_uri(folder / x["src"])} for x in figs]
+        for g, figs in figures.items()
     }
     options = doc["registration"].get("options") or {}
     write_page(
@@ -386,6 +387,10 @@ _POOLED = (
     ("contour_rms_px", "contour reprojection error, RMS", "px"),
     ("contour_p95_px", "contour reprojection error, 95th percentile", "px"),
     ("contour_max_px", "contour reprojection error, max", "px"),
+    ("vertex_rms_mm", "vertex RMS error to the ground truth, over the frames (world)", "mm"),
+    ("vertex_max_mm", "vertex max error, over the frames", "mm"),
+    ("surface_rms_mm", "surface distance RMS, over the frames", "mm"),
+    ("surface_max_mm", "surface distance max, over the frames", "mm"),
     ("shape_vertex_rms_mm", "shape vs ground truth, vertex RMS (model frame, aligned)", "mm"),
     ("model_floor_vertex_rms_mm", "model floor: best rigid + model fit of the truth", "mm"),
     ("shape_vertex_rms_to_floor", "shape vertex RMS / model floor", "x"),
