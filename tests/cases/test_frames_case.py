@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from biplanar_reg.cases import load_case
-from biplanar_reg.cases.outputs import is_complete
 from biplanar_reg.cases.case import to_frame_observations
+from biplanar_reg.cases.outputs import is_complete
 from biplanar_reg.cli import main
 from biplanar_reg.errors import CaseError
 from biplanar_reg.io import read_mesh
