@@ -83,6 +83,7 @@ def _frame_axis(ax, names: Sequence[str]) -> None:
     """Frame index on x, with the frame names as tick labels when there are few."""
     idx = np.arange(len(names))
     ax.set_xlabel("frame index")
+    ax.set_xlim(-0.3, len(names) - 0.7)  # the end frames' markers inside the axes
     if len(names) <= 12:
         ax.set_xticks(idx)
         ax.set_xticklabels([f"{i}\n{n}" for i, n in enumerate(names)], fontsize=7)
@@ -111,7 +112,7 @@ def _residuals_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> None:
     top = np.nanmax(np.concatenate([lm, ct, [1.0]]))
     ax.set_ylim(0, 1.2 * top)
     _frame_axis(ax, names)
-    ax.legend(fontsize=7, loc="upper right")
+    ax.legend(fontsize=7, loc="lower right")
     ax.set_title("residuals per frame (hollow: pose started from the neighbours)", fontsize=9)
     fig.subplots_adjust(left=0.09, right=0.98, bottom=0.2, top=0.9)
     save_figure(fig, path)
