@@ -19,11 +19,15 @@ world, mm), ``V_f = R_f Q(w) + t_f``. :func:`register_frames` orchestrates the e
    fitted rigidly on their outlines with the start's shape (:func:`.outline_fit.
    refine_poses_on_outlines` with one pose), outwards from the posed frames, so each starts
    from a fitted neighbour; the posed frames are first fitted so too (their landmark-only
-   start can be degrees off, which an extrapolation would amplify);
+   start can be degrees off, which an extrapolation would amplify). A frame whose outline
+   RMS stays above :data:`RETRY_FACTOR` times the posed frames' median is fitted again from
+   its start turned by +-:data:`RETRY_DEG` about each axis, the best outline RMS kept;
 3. **joint refinement** of ``w`` and every frame's pose on all frames' landmarks and outlines
    (:func:`.outline_fit.refine_poses_on_outlines` with one pose group per frame: the single
    frame's final objective summed over frames), twice, the outline gates re-set at the fit in
-   between (:func:`.stages.outline_terms`).
+   between (:func:`.stages.outline_terms`);
+4. **uncertainty** (:mod:`.frames_uncertainty`): per frame the posterior sd of the posed
+   vertices, and the shape's sd from the first ``n`` frames' information.
 
 No blunder rejection across frames yet (every landmark counts with its stated sigma). World
 frame, mm; image quantities in pixels.
@@ -71,8 +75,8 @@ RETRY_FACTOR = 1.5
 RETRY_FLOOR_PX = 0.25
 #: Rotation (deg) of those starts about each world axis, either way.
 RETRY_DEG = 15.0
-#: Frame counts of :attr:`FrameRegistrationResult.uncertainty_by_frames` beyond which only
-#: about this many counts (log-spaced, the last one included) are evaluated.
+#: Sequences longer than this get the posed sd of this many evenly spaced frames only, and
+#: ``uncertainty_by_frames`` at about this many log-spaced frame counts (the last included).
 MAX_UNCERTAINTY_COUNTS = 12
 
 
@@ -104,14 +108,17 @@ class FrameRegistrationResult:
     converged : bool
     flags : list of str
     timings : dict
-        Seconds: ``start``, ``neighbours``, ``joint``, ``total``.
+        Seconds: ``start``, ``neighbours``, ``joint``, ``uncertainty``, ``total``.
     start_weights : (M,) array
         The convex start's weights (before the joint refinement).
     vertex_sd_mm : (F, N) array or None
         Per frame the posterior sd of every vertex of the shape posed in that frame (world,
         mm, RMS over the three axes; :func:`.frames_uncertainty.frames_vertex_sd`: all frames'
         information, the other frames' poses eliminated); a row of NaN for a frame whose pose
-        its own data cannot determine; None when not computed (``uncertainty=False``).
+        its own data cannot determine, and, in sequences of more than
+        :data:`MAX_UNCERTAINTY_COUNTS` frames, for all but that many evenly spaced frames (the
+        cost grows with the square of the frame count); None when not computed
+        (``uncertainty=False``).
     uncertainty_by_frames : list of dict
         The shape's uncertainty as frames are added: per ``n`` (``n_frames``) the same sd from
         the first ``n`` frames' information alone (at the all-frame solution), for the
@@ -301,15 +308,15 @@ def _fit_from_neighbours(model, problem, R, t, w, limit_px: float, say, name: st
     rms = _outline_rms(problem, Q, *best)
     if not rms > limit_px:
         return best
-    first = rms
-    for Rs, ts in _rotated_starts(R, t, Q.mean(axis=0)):
+    first, starts = rms, _rotated_starts(R, t, Q.mean(axis=0))
+    for Rs, ts in starts:
         fit = _fit_alone(model, problem, Rs, ts, w)
         r = _outline_rms(problem, Q, *fit)
         if r < rms:
             best, rms = fit, r
     say(
         f"{name}: outline RMS {first:.2f} px from the neighbours' pose; {rms:.2f} px after "
-        f"{2 * 3} rotated starts"
+        f"{len(starts)} rotated starts"
     )
     return best
 
@@ -415,33 +422,52 @@ def _frame_counts(F: int) -> list[int]:
     return sorted({int(round(x)) for x in np.geomspace(1, F, MAX_UNCERTAINTY_COUNTS)} | {F})
 
 
+def _sd_frames(F: int) -> list[int]:
+    """The frames whose posed sd is computed: all, or :data:`MAX_UNCERTAINTY_COUNTS` evenly
+    spaced ones (first and last included) for long sequences (each is a pass over every
+    frame's rows: all of them would cost F^2)."""
+    if F <= MAX_UNCERTAINTY_COUNTS:
+        return list(range(F))
+    return sorted({int(round(x)) for x in np.linspace(0, F - 1, MAX_UNCERTAINTY_COUNTS)})
+
+
+def _by_frames_entry(model, unc, n: int, target: int) -> dict:
+    """One entry of :attr:`FrameRegistrationResult.uncertainty_by_frames`."""
+    shape = shape_sd(model, unc.covariance)
+    return {
+        "n_frames": n,
+        "frame": target,
+        "sd_median_mm": float(np.median(unc.sd_mm)),
+        "sd_p95_mm": float(np.percentile(unc.sd_mm, 95)),
+        "shape_sd_median_mm": float(np.median(shape)),
+        "shape_sd_p95_mm": float(np.percentile(shape, 95)),
+        "truncation_mm": unc.truncation_mm,
+    }
+
+
 def _uncertainty(model, problems, Rs, ts, w, outlines, prior_weight):
-    """Per frame the posed vertex sd (F, N) and the sd as frames are added (result fields
-    ``vertex_sd_mm`` and ``uncertainty_by_frames``)."""
+    """Per frame the posed vertex sd (F, N; NaN rows for the frames :func:`_sd_frames`
+    leaves out or whose pose their data cannot determine) and the sd as frames are added
+    (result fields ``vertex_sd_mm`` and ``uncertainty_by_frames``)."""
+    F = len(problems)
     lins = frame_linearisations(problems, Rs, ts, w, outlines)
-    sd = np.full((len(problems), model.n_vertices), np.nan)
-    for f in range(len(problems)):
-        unc = frames_vertex_sd(model, lins, f, prior_weight=prior_weight)
-        if unc is not None:
-            sd[f] = unc.sd_mm
-    target = next((f for f in range(len(lins)) if np.isfinite(sd[f]).all()), None)
+    sd = np.full((F, model.n_vertices), np.nan)
+    full = {}
+    for f in _sd_frames(F):
+        full[f] = frames_vertex_sd(model, lins, f, prior_weight=prior_weight)
+        if full[f] is not None:
+            sd[f] = full[f].sd_mm
+    target = next((f for f in sorted(full) if full[f] is not None), None)
     by_frames = []
-    for n in _frame_counts(len(problems)) if target is not None else []:
+    for n in _frame_counts(F) if target is not None else []:
         if n <= target:
             continue
-        unc = frames_vertex_sd(model, lins[:n], target, prior_weight=prior_weight)
-        shape = shape_sd(model, unc.covariance)
-        by_frames.append(
-            {
-                "n_frames": n,
-                "frame": target,
-                "sd_median_mm": float(np.median(unc.sd_mm)),
-                "sd_p95_mm": float(np.percentile(unc.sd_mm, 95)),
-                "shape_sd_median_mm": float(np.median(shape)),
-                "shape_sd_p95_mm": float(np.percentile(shape, 95)),
-                "truncation_mm": unc.truncation_mm,
-            }
+        unc = (
+            full[target]
+            if n == F
+            else frames_vertex_sd(model, lins[:n], target, prior_weight=prior_weight)
         )
+        by_frames.append(_by_frames_entry(model, unc, n, target))
     return sd, by_frames
 
 

@@ -134,3 +134,16 @@ def test_middle_frames_without_landmarks_register_on_outlines_from_their_neighbo
     shape_sd = [b["shape_sd_median_mm"] for b in res.uncertainty_by_frames]
     assert [b["n_frames"] for b in res.uncertainty_by_frames] == [1, 2, 3, 4]
     assert all(b < a for a, b in zip(shape_sd, shape_sd[1:], strict=False))
+
+
+def test_long_sequences_bound_the_uncertainty_passes():
+    from biplanar_reg.registration.frames import (
+        MAX_UNCERTAINTY_COUNTS,
+        _frame_counts,
+        _sd_frames,
+    )
+
+    assert _frame_counts(5) == [1, 2, 3, 4, 5] and _sd_frames(5) == [0, 1, 2, 3, 4]
+    counts, frames = _frame_counts(300), _sd_frames(300)
+    assert counts[0] == 1 and counts[-1] == 300 and len(counts) <= MAX_UNCERTAINTY_COUNTS + 1
+    assert frames[0] == 0 and frames[-1] == 299 and len(frames) == MAX_UNCERTAINTY_COUNTS
