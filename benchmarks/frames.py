@@ -9,8 +9,13 @@ by 30 deg and moving by 8 mm along a smooth path. Conditions (``--conditions``):
 * ``traced``: as above (the realistic one);
 * ``exact-outlines``: the outlines are open stretches of the exact projected outline (no
   livewire, so no tracing error: what the model's span allows);
-* ``landmarks-only``: landmarks in every frame, no outlines (``silhouettes=False``).
- For ``n`` in 1, 2, 5, 10 the first ``n``
+* ``landmarks-only``: landmarks in every frame, no outlines (``silhouettes=False``);
+* ``ends-only``: traced outlines in every frame, landmarks in frames 0 and 9 only: the middle
+  frames have none and start from their neighbours' poses (interpolated in the 10-frame run;
+  in the 2- and 5-frame runs every frame after 0 is extrapolated from frame 0 and the frames
+  fitted before it).
+
+For ``n`` in 1, 2, 5, 10 the first ``n``
 frames are registered jointly (:func:`biplanar_reg.registration.frames.register_frames`); the
 single-frame pipeline (:func:`biplanar_reg.registration.register_views`) on frame 0 is the
 reference row ``1 (register_views)``.
@@ -23,8 +28,8 @@ the truth centroid's displacement mm; median / max over all frames and seeds); w
 RMS per frame (registered shape posed in the frame vs the truth there, mm); CPU seconds of the
 registration (median over seeds). One BLAS thread.
 
-    python benchmarks/frames.py [--seeds 5] [--conditions traced,exact-outlines,landmarks-only]
-        [--out benchmarks/results/frames.md] [--from-json]
+    python benchmarks/frames.py [--seeds 5] [--conditions traced,exact-outlines,landmarks-only,
+        ends-only] [--out benchmarks/results/frames.md] [--from-json] [--merge A.json B.json]
 """
 
 from __future__ import annotations
@@ -56,7 +61,17 @@ CONDITIONS = {
     "traced": ({}, True),
     "exact-outlines": ({"anchor_noise_px": None}, True),
     "landmarks-only": ({"landmark_frames": list(range(10))}, False),
+    "ends-only": ({"landmark_frames": [0, 9]}, True),
 }
+
+
+def _sd_ratio(case, weights, rotations, translations, sd) -> float | None:
+    """Frame 0's world error RMS over vertices and axes / RMS of its posterior sd."""
+    if sd is None or not np.isfinite(sd).all():
+        return None
+    V = case.model.instance(weights) @ rotations[0].T + translations[0]
+    err = np.sqrt(np.mean((V - case.truth_vertices(0)) ** 2))  # over vertices and axes
+    return float(err / np.sqrt(np.mean(sd**2)))
 
 
 def _errors(case, weights, rotations, translations) -> dict:
@@ -86,6 +101,8 @@ def run_seed(scene, seed: int, condition: str) -> dict:
     single = register_views(case.model, case.frames[0], silhouettes=silhouettes)
     R0, t0 = single.rotation, single.translation
     row = _errors(case, single.weights, R0[None], t0[None])
+    row["sd_ratio"] = _sd_ratio(case, single.weights, R0[None], t0[None], single.vertex_sd_mm)
+    row["lm_frames"] = [0] if 0 in case.landmark_frames else []
     out["rows"]["1 (register_views)"] = {**row, "cpu_s": time.process_time() - t}
     for n in COUNTS:
         sub = subsequence(case, list(range(n)))
@@ -93,6 +110,10 @@ def run_seed(scene, seed: int, condition: str) -> dict:
         res = register_frames(case.model, sub.frames, silhouettes=silhouettes)
         cpu = time.process_time() - t
         row = _errors(sub, res.weights, res.rotations, res.translations)
+        sd0 = None if res.vertex_sd_mm is None else res.vertex_sd_mm[0]
+        row["sd_ratio"] = _sd_ratio(sub, res.weights, res.rotations, res.translations, sd0)
+        row["lm_frames"] = list(sub.landmark_frames)
+        row["uncertainty_s"] = res.timings.get("uncertainty")
         out["rows"][str(n)] = {**row, "cpu_s": cpu, "with_landmarks": len(sub.landmark_frames)}
         print(
             f"{condition} seed {seed} n={n}: shape {row['shape_mm']:.3f} mm, cpu {cpu:.1f} s",
@@ -110,6 +131,18 @@ def _cat(rows: list[dict], key: str) -> list[float]:
     return [v for x in rows for v in x[key]]
 
 
+def _unlandmarked(rows: list[dict], key: str) -> list[float]:
+    """``key`` of the frames without landmarks (rows without ``lm_frames``: none known)."""
+    return [
+        v for x in rows if "lm_frames" in x for f, v in enumerate(x[key]) if f not in x["lm_frames"]
+    ]
+
+
+def _fmt_or_dash(values, digits=2) -> str:
+    v = [x for x in values if x is not None]
+    return _fmt(v, digits) if v else "-"
+
+
 def _table(results: list[dict], condition: str) -> list[str]:
     results = [r for r in results if r["condition"] == condition]
     lines = [
@@ -117,8 +150,10 @@ def _table(results: list[dict], condition: str) -> list[str]:
         "",
         "| frames used | with landmarks | shape RMS mm (med / max) | / floor (med / max) "
         "| / 1-frame joint (med / max) | pose rot deg (med / max) | pose trans mm (med / max) "
-        "| world RMS mm (med / max) | CPU s (med) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| world RMS mm (med / max) | no-landmark frames: rot deg (med / max) "
+        "| no-landmark frames: trans mm (med / max) | frame-0 error / sd (med / max) "
+        "| CPU s (med) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for key in ["1 (register_views)", *map(str, COUNTS)]:
         rows = [r["rows"][key] for r in results]
@@ -132,6 +167,9 @@ def _table(results: list[dict], condition: str) -> list[str]:
             f"| {key} | {lm} | {_fmt(shape)} | {_fmt(ratio, 2)} | {_fmt(rel, 2)} "
             f"| {_fmt(_cat(rows, 'rot_deg'), 2)} | {_fmt(_cat(rows, 'trans_mm'), 2)} "
             f"| {_fmt(_cat(rows, 'world_mm'))} "
+            f"| {_fmt_or_dash(_unlandmarked(rows, 'rot_deg'))} "
+            f"| {_fmt_or_dash(_unlandmarked(rows, 'trans_mm'))} "
+            f"| {_fmt_or_dash([x.get('sd_ratio') for x in rows])} "
             f"| {np.median([x['cpu_s'] for x in rows]):.1f} |"
         )
     return [*lines, ""]
@@ -165,9 +203,22 @@ def main() -> None:
     ap.add_argument("--conditions", default=",".join(CONDITIONS))
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "frames.md"))
     ap.add_argument("--from-json", action="store_true", help="re-render the .json beside --out")
+    ap.add_argument(
+        "--merge", nargs="+", help="write --out from these runs' .json files (run side by side)"
+    )
     args = ap.parse_args()
     out = Path(args.out)
     command = f"python benchmarks/frames.py --seeds {args.seeds} --conditions {args.conditions}"
+    if args.merge:
+        docs = [json.loads(Path(p).read_text()) for p in args.merge]
+        doc = {
+            "command": " and, side by side, ".join(d["command"] for d in docs),
+            "seconds": max(d["seconds"] for d in docs),
+            "results": [r for d in docs for r in d["results"]],
+        }
+        out.with_suffix(".json").write_text(json.dumps(doc, indent=1))
+        out.write_text(render(doc["results"], doc["command"], doc["seconds"]))
+        return
     if args.from_json:
         doc = json.loads(out.with_suffix(".json").read_text())
         out.write_text(render(doc["results"], doc["command"], doc["seconds"]))

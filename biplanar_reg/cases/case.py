@@ -93,7 +93,7 @@ _KEYS = {
         "ground_truth",
         "frames",
     },
-    "frames": {"name", "annotations", "images", "calibrations", "image_frame"},
+    "frames": {"name", "annotations", "images", "calibrations", "image_frame", "ground_truth"},
     "model": {"ssm", "template", "landmarks", *MODEL_DEFAULTS},
     "views": {"name", "calibration", "calibration_format", "dlt_column", "image", "image_frame"},
     "annotations": {"file"},
@@ -180,6 +180,8 @@ class CaseFrame:
     views: list[CaseView]
     annotations: Annotations
     annotations_path: Path
+    #: ``[[frames]] ground_truth`` (extension): the bone's surface in this frame (world, mm)
+    ground_truth: GroundTruth | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -806,7 +808,26 @@ def _frame_view(ctx: _Ctx, cv: CaseView, where: str, image, calib, page, scale) 
     )
 
 
-def _one_frame(ctx: _Ctx, i: int, table: object, views, landmarks, scale) -> CaseFrame:
+def _frame_ground_truth(ctx: _Ctx, table: dict, where: str, scale: float, model):
+    """``[[frames]] ground_truth``: a mesh of the bone in this frame, world frame."""
+    path = ctx.path(table, "ground_truth", where, required=False)
+    if path is None:
+        return None
+    try:
+        verts, faces = read_mesh(path)
+    except (ValueError, OSError) as exc:
+        raise ctx.error(f"{where} ground_truth", _one_line(exc)) from None
+    verts = verts * scale
+    ratio = np.linalg.norm(np.ptp(verts, axis=0)) / np.linalg.norm(np.ptp(model.mean, axis=0))
+    if not 0.2 <= ratio <= 5.0:
+        raise ctx.error(
+            f"{where} ground_truth",
+            f"{path.name} is {ratio:.3g} times the model's size: units contradict the model's",
+        )
+    return GroundTruth(path, verts, faces)
+
+
+def _one_frame(ctx: _Ctx, i: int, table: object, views, landmarks, scale, model) -> CaseFrame:
     where = f"[[frames]][{i}]"
     if not isinstance(table, dict):
         raise ctx.error(where, "expected a table")
@@ -828,10 +849,11 @@ def _one_frame(ctx: _Ctx, i: int, table: object, views, landmarks, scale) -> Cas
         )
     except ValueError as exc:
         raise ctx.error(f"{where} annotations", f"{path.name}: {_one_line(exc)}") from None
-    return CaseFrame(name, fviews, ann, path)
+    gt = _frame_ground_truth(ctx, table, where, scale, model)
+    return CaseFrame(name, fviews, ann, path, gt)
 
 
-def _load_frames(ctx: _Ctx, doc: dict, views, landmarks, scale) -> list[CaseFrame]:
+def _load_frames(ctx: _Ctx, doc: dict, views, landmarks, scale, model) -> list[CaseFrame]:
     """``[[frames]]`` (empty without): every frame checked; one frame at least needs the
     landmarks of a single-frame case (the multi-frame registration starts from them)."""
     tables = doc.get("frames")
@@ -843,7 +865,7 @@ def _load_frames(ctx: _Ctx, doc: dict, views, landmarks, scale) -> list[CaseFram
         raise ctx.error(
             "[annotations]", "not used with [[frames]]: give each frame its own annotations"
         )
-    frames = [_one_frame(ctx, i, t, views, landmarks, scale) for i, t in enumerate(tables)]
+    frames = [_one_frame(ctx, i, t, views, landmarks, scale, model) for i, t in enumerate(tables)]
     names = [f.name for f in frames]
     if len(set(names)) != len(names):
         raise ctx.error("[[frames]] name", f"duplicate frame names {names}")
@@ -888,7 +910,7 @@ def load_case(case_dir: str | os.PathLike, *, allow_outside: bool = False) -> Ca
     views = _load_views(ctx, doc, scale)
     reg = ctx.table(doc, "registration", required=False)
     start, start_path = _load_start(ctx, reg, scale)
-    frames = _load_frames(ctx, doc, views, landmarks, scale)
+    frames = _load_frames(ctx, doc, views, landmarks, scale, model)
     if frames:
         ann, ann_path = frames[0].annotations, frames[0].annotations_path
     else:

@@ -19,11 +19,15 @@ world, mm), ``V_f = R_f Q(w) + t_f``. :func:`register_frames` orchestrates the e
    fitted rigidly on their outlines with the start's shape (:func:`.outline_fit.
    refine_poses_on_outlines` with one pose), outwards from the posed frames, so each starts
    from a fitted neighbour; the posed frames are first fitted so too (their landmark-only
-   start can be degrees off, which an extrapolation would amplify);
+   start can be degrees off, which an extrapolation would amplify). A frame whose outline
+   RMS stays above :data:`RETRY_FACTOR` times the posed frames' median is fitted again from
+   its start turned by +-:data:`RETRY_DEG` about each axis, the best outline RMS kept;
 3. **joint refinement** of ``w`` and every frame's pose on all frames' landmarks and outlines
    (:func:`.outline_fit.refine_poses_on_outlines` with one pose group per frame: the single
    frame's final objective summed over frames), twice, the outline gates re-set at the fit in
-   between (:func:`.stages.outline_terms`).
+   between (:func:`.stages.outline_terms`);
+4. **uncertainty** (:mod:`.frames_uncertainty`): per frame the posterior sd of the posed
+   vertices, and the shape's sd from the first ``n`` frames' information.
 
 No blunder rejection across frames yet (every landmark counts with its stated sigma). World
 frame, mm; image quantities in pixels.
@@ -39,6 +43,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..ssm.model import ShapeModel
+from .frames_uncertainty import frame_linearisations, frames_vertex_sd, shape_sd
 from .gsft import nearest_point_to_rays
 from .observations import ViewObservations, landmark_rays
 from .options import RegistrationOptions
@@ -63,6 +68,16 @@ except ImportError:  # pragma: no cover - optional
 MIN_FRAME_LANDMARKS = 4
 #: Rounds of the joint refinement (the outline gates are re-set at the fit between rounds).
 JOINT_ROUNDS = 2
+#: A frame without landmarks whose outline RMS after its fit from the neighbours' pose exceeds
+#: this factor times the landmark frames' median is re-fitted from rotated starts.
+RETRY_FACTOR = 1.5
+#: ... and exceeds this (px): exact outlines fit to a fraction of a pixel.
+RETRY_FLOOR_PX = 0.25
+#: Rotation (deg) of those starts about each world axis, either way.
+RETRY_DEG = 15.0
+#: Sequences longer than this get the posed sd of this many evenly spaced frames only, and
+#: ``uncertainty_by_frames`` at about this many log-spaced frame counts (the last included).
+MAX_UNCERTAINTY_COUNTS = 12
 
 
 @dataclass(frozen=True)
@@ -93,9 +108,24 @@ class FrameRegistrationResult:
     converged : bool
     flags : list of str
     timings : dict
-        Seconds: ``start``, ``neighbours``, ``joint``, ``total``.
+        Seconds: ``start``, ``neighbours``, ``joint``, ``uncertainty``, ``total``.
     start_weights : (M,) array
         The convex start's weights (before the joint refinement).
+    vertex_sd_mm : (F, N) array or None
+        Per frame the posterior sd of every vertex of the shape posed in that frame (world,
+        mm, RMS over the three axes; :func:`.frames_uncertainty.frames_vertex_sd`: all frames'
+        information, the other frames' poses eliminated); a row of NaN for a frame whose pose
+        its own data cannot determine, and, in sequences of more than
+        :data:`MAX_UNCERTAINTY_COUNTS` frames, for all but that many evenly spaced frames (the
+        cost grows with the square of the frame count); None when not computed
+        (``uncertainty=False``).
+    uncertainty_by_frames : list of dict
+        The shape's uncertainty as frames are added: per ``n`` (``n_frames``) the same sd from
+        the first ``n`` frames' information alone (at the all-frame solution), for the
+        shape posed in frame ``frame`` (the first with data): ``sd_median_mm``, ``sd_p95_mm``
+        (pose, weights and model truncation), ``shape_sd_median_mm``, ``shape_sd_p95_mm``
+        (the weights alone, model frame: :func:`.frames_uncertainty.shape_sd`),
+        ``truncation_mm``.
     """
 
     weights: np.ndarray
@@ -114,6 +144,8 @@ class FrameRegistrationResult:
     flags: list[str] = field(default_factory=list)
     timings: dict = field(default_factory=dict)
     start_weights: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    vertex_sd_mm: np.ndarray | None = field(default=None, repr=False)
+    uncertainty_by_frames: list[dict] = field(default_factory=list)
 
     @property
     def n_frames(self) -> int:
@@ -236,10 +268,63 @@ def _fit_alone(model, problem: Problem, R, t, w) -> tuple[np.ndarray, np.ndarray
     return fit.rotations[0], fit.translations[0]
 
 
+def _outline_rms(problem: Problem, Q: np.ndarray, R: np.ndarray, t: np.ndarray) -> float:
+    """RMS (px) of the frame's annotated outline points' distances to the outline of the shape
+    ``Q`` (model frame, mm) posed by ``(R, t)``, each capped at ``gate_px``: comparable
+    between poses (unlike the refinement's cost, whose gates adapt to its start)."""
+    V = Q @ R.T + t
+    opts = problem.options
+    d = [
+        outline_distances(
+            model_outline(
+                V, problem.model, problem.views[i].view, opts.silhouette_points, problem.topology
+            ),
+            target,
+        )
+        for i, target in problem.targets.items()
+    ]
+    d = np.concatenate(d) if d else np.zeros(0)
+    return float(np.sqrt(np.mean(np.minimum(d, opts.gate_px) ** 2))) if d.size else np.nan
+
+
+def _rotated_starts(R, t, c) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``(R, t)`` turned by +-:data:`RETRY_DEG` about each world axis through the bone's
+    centroid (``c``: model frame, mm)."""
+    centre = R @ c + t
+    out = []
+    for rv in np.vstack([np.eye(3), -np.eye(3)]) * np.deg2rad(RETRY_DEG):
+        Rs = Rotation.from_rotvec(rv).as_matrix() @ R
+        out.append((Rs, centre - Rs @ c))
+    return out
+
+
+def _fit_from_neighbours(model, problem, R, t, w, limit_px: float, say, name: str):
+    """A frame without landmarks fitted on its outlines from its neighbours' pose; when its
+    outline RMS stays above ``limit_px`` (a start too far off, e.g. extrapolated from one
+    frame: measured 7 mm off after its fit from 15 deg), re-fitted from the
+    :func:`_rotated_starts` and the pose with the lowest outline RMS kept."""
+    Q = model.instance(w)
+    best = _fit_alone(model, problem, R, t, w)
+    rms = _outline_rms(problem, Q, *best)
+    if not rms > limit_px:
+        return best
+    first, starts = rms, _rotated_starts(R, t, Q.mean(axis=0))
+    for Rs, ts in starts:
+        fit = _fit_alone(model, problem, Rs, ts, w)
+        r = _outline_rms(problem, Q, *fit)
+        if r < rms:
+            best, rms = fit, r
+    say(
+        f"{name}: outline RMS {first:.2f} px from the neighbours' pose; {rms:.2f} px after "
+        f"{len(starts)} rotated starts"
+    )
+    return best
+
+
 def _neighbour_fits(model, frames, rest, Rs, ts, w, opts, silhouettes, say, names) -> list[str]:
     """Step 2, in place on ``Rs``/``ts``: the frames ``rest`` (nearest to a posed frame first)
     from their neighbours' poses, fitted on their own outlines; the flags it raises."""
-    flags = []
+    flags, ref = [], []
     Q = model.instance(w)
     for f in sorted(Rs):  # the posed frames first on their own outlines: the landmark-only
         # start is degrees off (3 landmarks per view), and the neighbours start from it
@@ -248,13 +333,17 @@ def _neighbour_fits(model, frames, rest, Rs, ts, w, opts, silhouettes, say, name
         )
         if problem.use_outlines:
             Rs[f], ts[f] = _fit_alone(model, problem, Rs[f], ts[f], w)
+            ref.append(_outline_rms(problem, Q, Rs[f], ts[f]))
+    limit = np.inf
+    if np.isfinite(ref).any():
+        limit = max(RETRY_FACTOR * float(np.nanmedian(ref)), RETRY_FLOOR_PX)
     for f in rest:
         R, t = _neighbour_pose(f, Rs, ts, Q.mean(axis=0))
         problem = make_problem(
             model, list(frames[f]), opts, silhouettes, say, (Q @ R.T + t).mean(0)
         )
         if problem.use_outlines:
-            R, t = _fit_alone(model, problem, R, t, w)
+            R, t = _fit_from_neighbours(model, problem, R, t, w, limit, say, names[f])
         else:
             flags.append(f"{names[f]}: no landmarks and no outlines: pose interpolated")
         Rs[f], ts[f] = R, t
@@ -301,17 +390,20 @@ def _joint(model, problems: list[Problem], Rs, ts, w, opts):
 
 
 def _residuals(model, problems, frames, Rs, ts, w, gate_px):
-    """Per frame landmark and contour errors (px) and their RMS."""
+    """Per frame landmark and contour errors (px), their RMS, and the model's outlines
+    (``{view index: ModelOutline}``) at the solution."""
     Q = model.instance(w)
-    lm_err, ct_err = [], []
+    lm_err, ct_err, outlines = [], [], []
     lm_rms, ct_rms = np.full(len(frames), np.nan), np.full(len(frames), np.nan)
     topology = mesh_topology(model)
     for f, (p, views) in enumerate(zip(problems, frames, strict=True)):
         V = Q @ Rs[f].T + ts[f]
         lm = landmark_errors(list(views), V)
         ct = {v.name: np.zeros(0) for v in views}
+        outlines.append({})
         for i, target in p.targets.items():
             o = model_outline(V, model, views[i].view, p.options.silhouette_points, topology)
+            outlines[f][i] = o
             ct[views[i].name] = outline_distances(o, target)
         e = [x for d in lm.values() for x in d.values()]
         c = np.concatenate(list(ct.values()))
@@ -319,7 +411,64 @@ def _residuals(model, problems, frames, Rs, ts, w, gate_px):
         ct_rms[f] = np.sqrt(np.mean(np.minimum(c, gate_px) ** 2)) if c.size else np.nan
         lm_err.append(lm)
         ct_err.append(ct)
-    return lm_err, ct_err, lm_rms, ct_rms
+    return lm_err, ct_err, lm_rms, ct_rms, outlines
+
+
+def _frame_counts(F: int) -> list[int]:
+    """The ``n`` of :attr:`FrameRegistrationResult.uncertainty_by_frames`: 1..F, or about
+    :data:`MAX_UNCERTAINTY_COUNTS` log-spaced counts for long sequences."""
+    if F <= MAX_UNCERTAINTY_COUNTS:
+        return list(range(1, F + 1))
+    return sorted({int(round(x)) for x in np.geomspace(1, F, MAX_UNCERTAINTY_COUNTS)} | {F})
+
+
+def _sd_frames(F: int) -> list[int]:
+    """The frames whose posed sd is computed: all, or :data:`MAX_UNCERTAINTY_COUNTS` evenly
+    spaced ones (first and last included) for long sequences (each is a pass over every
+    frame's rows: all of them would cost F^2)."""
+    if F <= MAX_UNCERTAINTY_COUNTS:
+        return list(range(F))
+    return sorted({int(round(x)) for x in np.linspace(0, F - 1, MAX_UNCERTAINTY_COUNTS)})
+
+
+def _by_frames_entry(model, unc, n: int, target: int) -> dict:
+    """One entry of :attr:`FrameRegistrationResult.uncertainty_by_frames`."""
+    shape = shape_sd(model, unc.covariance)
+    return {
+        "n_frames": n,
+        "frame": target,
+        "sd_median_mm": float(np.median(unc.sd_mm)),
+        "sd_p95_mm": float(np.percentile(unc.sd_mm, 95)),
+        "shape_sd_median_mm": float(np.median(shape)),
+        "shape_sd_p95_mm": float(np.percentile(shape, 95)),
+        "truncation_mm": unc.truncation_mm,
+    }
+
+
+def _uncertainty(model, problems, Rs, ts, w, outlines, prior_weight):
+    """Per frame the posed vertex sd (F, N; NaN rows for the frames :func:`_sd_frames`
+    leaves out or whose pose their data cannot determine) and the sd as frames are added
+    (result fields ``vertex_sd_mm`` and ``uncertainty_by_frames``)."""
+    F = len(problems)
+    lins = frame_linearisations(problems, Rs, ts, w, outlines)
+    sd = np.full((F, model.n_vertices), np.nan)
+    full = {}
+    for f in _sd_frames(F):
+        full[f] = frames_vertex_sd(model, lins, f, prior_weight=prior_weight)
+        if full[f] is not None:
+            sd[f] = full[f].sd_mm
+    target = next((f for f in sorted(full) if full[f] is not None), None)
+    by_frames = []
+    for n in _frame_counts(F) if target is not None else []:
+        if n <= target:
+            continue
+        unc = (
+            full[target]
+            if n == F
+            else frames_vertex_sd(model, lins[:n], target, prior_weight=prior_weight)
+        )
+        by_frames.append(_by_frames_entry(model, unc, n, target))
+    return sd, by_frames
 
 
 def register_frames(
@@ -330,6 +479,7 @@ def register_frames(
     silhouettes: bool = True,
     options: RegistrationOptions | None = None,
     progress: Callable[[str], None] | None = None,
+    uncertainty: bool = True,
 ) -> FrameRegistrationResult:
     """Register one shape to a bone seen in several frames (module docstring).
 
@@ -348,6 +498,8 @@ def register_frames(
         The single-frame options (weights, sigmas, gates, iterations) apply per frame.
     progress : callable, optional
         Called with a one-line message at each stage.
+    uncertainty : bool
+        Compute ``vertex_sd_mm`` and ``uncertainty_by_frames`` (default; False skips them).
 
     Raises
     ------
@@ -361,13 +513,15 @@ def register_frames(
     # times faster than two fighting over a shared machine (measured on the sample case)
     limits = threadpool_limits(1) if threadpool_limits is not None else None
     try:
-        return _register(model, frames, names, silhouettes, options, progress)
+        return _register(model, frames, names, silhouettes, options, progress, uncertainty)
     finally:
         if limits is not None:
             limits.unregister()
 
 
-def _register(model, frames, names, silhouettes, options, progress) -> FrameRegistrationResult:
+def _register(
+    model, frames, names, silhouettes, options, progress, uncertainty
+) -> FrameRegistrationResult:
     """:func:`register_frames` (its BLAS thread limit set)."""
     t0 = time.perf_counter()
     opts = options or RegistrationOptions()
@@ -397,8 +551,14 @@ def _register(model, frames, names, silhouettes, options, progress) -> FrameRegi
     say(f"joint refinement: objective {cost0:.4g} -> {fit.cost_after:.4g}")
     if not fit.converged:
         flags.append("joint refinement did not converge")
-    lm, ct, lm_rms, ct_rms = _residuals(model, problems, frames, R_all, t_all, w, opts.gate_px)
+    lm, ct, lm_rms, ct_rms, outlines = _residuals(
+        model, problems, frames, R_all, t_all, w, opts.gate_px
+    )
     t3 = time.perf_counter()
+    sd, by_frames = None, []
+    if uncertainty:
+        sd, by_frames = _uncertainty(model, problems, R_all, t_all, w, outlines, opts.prior_weight)
+    t4 = time.perf_counter()
     return FrameRegistrationResult(
         weights=w,
         vertices=model.instance(w),
@@ -414,6 +574,14 @@ def _register(model, frames, names, silhouettes, options, progress) -> FrameRegi
         cost_after=float(fit.cost_after),
         converged=bool(fit.converged),
         flags=flags,
-        timings={"start": t1 - t0, "neighbours": t2 - t1, "joint": t3 - t2, "total": t3 - t0},
+        timings={
+            "start": t1 - t0,
+            "neighbours": t2 - t1,
+            "joint": t3 - t2,
+            "uncertainty": t4 - t3,
+            "total": t4 - t0,
+        },
         start_weights=w_start,
+        vertex_sd_mm=sd,
+        uncertainty_by_frames=by_frames,
     )

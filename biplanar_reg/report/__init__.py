@@ -3,6 +3,7 @@
 from .advice import FLAG_ADVICE, flag_advice
 from .case_report import ReportView, write_case_report
 from .figures import convergence_figure, histogram_figure, overlay_figure
+from .frames import write_frames_report
 from .html import render_template, write_page
 from .render3d import render_error_mesh
 from .residuals import ContourResidual, contour_residuals
@@ -21,5 +22,6 @@ __all__ = [
     "render_template",
     "shaded_faces",
     "write_case_report",
+    "write_frames_report",
     "write_page",
 ]

@@ -299,13 +299,15 @@ def write_sequence_case(folder, case: SequenceCase, case_id: str | None = None):
     Files: ``model/bone_ssm.npz`` and ``model/landmarks.json``; ``calib/<view>.json`` (the
     shared calibrations, native JSON); ``xray/f<i>_<view>.png`` (8-bit radiographs);
     ``frames/f<i>.json`` (each frame's annotations); ``gt/truth.json`` (the true shape in the
-    model frame and every frame's true model -> world pose, mm). Returns the folder.
+    model frame and every frame's true model -> world pose, mm); ``gt/f<i>.ply`` (the true bone
+    in frame ``i``, world, mm, the model's faces: ``[[frames]] ground_truth``). Returns the
+    folder.
     """
     from pathlib import Path
 
     from ..annotation import save_annotations
     from ..calibration import save_calibration
-    from ..io import atomic_write_bytes, atomic_write_json
+    from ..io import atomic_write_bytes, atomic_write_json, write_mesh
 
     root = Path(folder)
     for sub in ("model", "calib", "xray", "frames", "gt"):
@@ -320,7 +322,9 @@ def write_sequence_case(folder, case: SequenceCase, case_id: str | None = None):
         for v, img in zip(frame, images, strict=True):
             atomic_write_bytes(root / "xray" / f"f{f}_{v.name}.png", _png(img))
         save_annotations(_frame_annotations(frame), root / "frames" / f"f{f}.json")
+        write_mesh(root / "gt" / f"f{f}.ply", case.truth_vertices(f), case.model.faces)
         text += f'\n[[frames]]\nname = "f{f}"\nannotations = "frames/f{f}.json"\n'
+        text += f'ground_truth = "gt/f{f}.ply"\n'
         text += "images = {" + ", ".join(f'{v.name} = "xray/f{f}_{v.name}.png"' for v in frame)
         text += "}\n"
     text += _CASE_TAIL

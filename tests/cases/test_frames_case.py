@@ -1,4 +1,5 @@
-"""Multi-frame cases ([[frames]]): parsing, errors, and `register` on the sample case."""
+"""Multi-frame cases ([[frames]]): parsing, errors, and `batch` (with the report) on the sample
+case: one registration serves every test here."""
 
 from __future__ import annotations
 
@@ -9,10 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from biplanar_reg.cases import load_case, run_case_dir
+from biplanar_reg.cases import load_case
 from biplanar_reg.cases.case import to_frame_observations
+from biplanar_reg.cases.outputs import is_complete
+from biplanar_reg.cli import main
 from biplanar_reg.errors import CaseError
 from biplanar_reg.io import read_mesh
+from biplanar_reg.io.meshes import read_vertex_properties
 from biplanar_reg.io.transforms import read_tra
 
 CASE = Path(__file__).resolve().parents[2] / "sample_cases" / "wrist_radius_frames"
@@ -27,9 +31,32 @@ def _kabsch(src, dst):
 
 
 @pytest.fixture(scope="module")
-def registered(tmp_path_factory):
-    out = tmp_path_factory.mktemp("frames") / "out"
-    return run_case_dir(CASE, out).out_dir
+def batch(tmp_path_factory):
+    """``biplanar-reg batch`` over a study folder holding the sample case (one worker)."""
+    root = tmp_path_factory.mktemp("frames")
+    case = root / "study" / CASE.name
+    shutil.copytree(CASE, case, ignore=shutil.ignore_patterns("out"))
+    out = root / "out"
+    code = main(["batch", str(case), "--out", str(out), "--workers", "1"])
+    return code, case, out
+
+
+@pytest.fixture(scope="module")
+def registered(batch):
+    return batch[2] / CASE.name
+
+
+def test_batch_registers_the_multi_frame_case(batch, capsys):
+    code, case, out = batch
+    summary = json.loads((out / "summary.json").read_text())
+    row = summary["rows"][0]
+    assert code == 0 and row["status"] == "done", row
+    assert row["report"] == f"{CASE.name}/report.html"
+    # the summary's columns from the frames' result.json: pooled over the 3 frames
+    assert 0.5 < row["vertex_rms_mm"] < 1.3 and row["landmark_rms_px"] > 0
+    assert is_complete(out / CASE.name)
+    assert main(["--json", "batch", str(case), "--out", str(out), "--no-report"]) == 0
+    assert json.loads(capsys.readouterr().out.splitlines()[-1])["counts"]["skipped"] == 1
 
 
 def test_the_sample_case_loads_its_frames():
@@ -62,6 +89,35 @@ def test_register_writes_per_frame_poses_close_to_the_truth(registered):
         W = V @ poses[f, :3, :3].T + poses[f, :3, 3]
         T = S @ P[f, :3, :3].T + P[f, :3, 3]
         assert np.sqrt(np.mean(np.sum((W - T) ** 2, 1))) < 1.3
+
+
+def test_register_writes_the_report_uncertainty_and_ground_truth_per_frame(registered):
+    doc = json.loads((registered / "result.json").read_text())
+    assert doc["report"]["html"] == "report.html"
+    html = (registered / "report.html").read_text()
+    for name in ("frames_residuals.png", "frames_pose.png", "frames_uncertainty.png"):
+        assert name in doc["report"]["figures"] and (registered / name).is_file()
+    assert "overlay_f1_cam02.png" in doc["report"]["figures"] and html.count("data:image/png") >= 10
+    assert "Shape uncertainty as frames are added" in html and "f1" in html
+    # uncertainty: frame 0's summary (the bone of registered.ply, whose sd_mm it is) and the
+    # shape's sd from the first n frames, which the frames' information must shrink
+    unc = doc["uncertainty"]
+    props = read_vertex_properties(registered / "registered.ply")
+    assert np.isclose(np.median(props["sd_mm"]), unc["median_mm"], rtol=1e-6)
+    by = unc["by_frames"]
+    assert [b["n_frames"] for b in by] == [1, 2, 3]
+    assert by[2]["shape_sd_median_mm"] < by[1]["shape_sd_median_mm"] < by[0]["shape_sd_median_mm"]
+    for fr in doc["frames"]:
+        assert 0.0 < fr["uncertainty"]["median_mm"] < fr["uncertainty"]["p95_mm"] < 3.0
+        assert set(fr["views"]) == {"cam01", "cam02"}
+        assert fr["views"]["cam01"]["contour_error_stats_px"]["rms"] > 0
+        # [[frames]] ground_truth: measured 0.90, 0.84, 0.75 mm vertex RMS per frame
+        assert fr["ground_truth_metrics"]["vertex_rms_mm"] < 1.3
+    m = doc["metrics"]  # shape in the model frame: measured 0.66 mm, floor 0.34 mm
+    assert m["shape_vertex_rms_mm"] < 1.0 and m["model_floor_vertex_rms_mm"] < 0.4
+    assert m["vertex_rms_mm"] == pytest.approx(
+        np.sqrt(np.mean([f["ground_truth_metrics"]["vertex_rms_mm"] ** 2 for f in doc["frames"]]))
+    )
 
 
 def _copy(tmp_path: Path, edit) -> Path:

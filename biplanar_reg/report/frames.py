@@ -1,0 +1,407 @@
+"""The report of one registered multi-frame case (``[[frames]]``): ``report.html``.
+
+Drawn from the result document (``result.json`` of a multi-frame case,
+:func:`biplanar_reg.cases.run.frames_result_document`) and, per frame, the
+:class:`~.case_report.ReportView` of each view (radiograph, annotations, the registered
+outline and landmarks, pixels). It knows nothing of case folders.
+
+Figures (PNG beside the page, embedded in it as ``data:`` URIs):
+
+* ``frames_residuals.png``: every frame's landmark and contour reprojection RMS (px) over the
+  frame index (frames that started from their neighbours drawn hollow);
+* ``frames_pose.png``: the bone's pose over time as in the kinematics CSV
+  (:func:`biplanar_reg.io.transforms.write_kinematics_csv`): intrinsic X-Y'-Z'' Cardan angles
+  (degrees, ``ANGLE_SEQUENCE``, unwrapped over frames) and the translation (mm) of the model ->
+  world pose;
+* ``frames_uncertainty.png``: the shape's posterior sd as frames are added
+  (``result.json["uncertainty"]["by_frames"]``, :mod:`biplanar_reg.registration.
+  frames_uncertainty`);
+* ``frames_gt.png`` when the frames have a ground truth: per frame vertex RMS error (mm);
+* ``overlay_<frame>_<view>.png`` for every frame up to :data:`ALL_FRAMES_UP_TO` frames, else
+  the first, middle and last: the registered bone shaded, its outline and landmarks against the
+  annotations (:func:`.figures.overlay_figure`);
+* ``uncertainty.png``: frame 0's bone coloured by its per-vertex sd
+  (:func:`.uncertainty.uncertainty_figure`).
+
+Every figure has a fixed layout (no ``tight_layout``); radiographs are cropped and resampled to
+the panel size by :func:`.figures.overlay_figure`.
+"""
+
+from __future__ import annotations
+
+import base64
+import logging
+import os
+import re
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+from scipy.spatial.transform import Rotation
+
+from ..io.transforms import ANGLE_SEQUENCE
+from .advice import flag_advice
+from .case_report import ReportView
+from .figures import overlay_figure, save_figure
+from .html import write_page
+from .shading import shaded_faces
+
+__all__ = ["frame_overlay_indices", "kinematics_components", "write_frames_report"]
+
+log = logging.getLogger(__name__)
+
+#: Sequences up to this many frames get an overlay of every frame; longer ones the first, the
+#: middle and the last frame.
+ALL_FRAMES_UP_TO = 4
+
+
+def _safe(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", name) or "x"
+
+
+def frame_overlay_indices(n_frames: int) -> list[int]:
+    """The frames drawn as overlays: all up to :data:`ALL_FRAMES_UP_TO`, else first, middle,
+    last."""
+    if n_frames <= ALL_FRAMES_UP_TO:
+        return list(range(n_frames))
+    return sorted({0, n_frames // 2, n_frames - 1})
+
+
+def kinematics_components(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Angles (F, 3) in degrees (intrinsic X-Y'-Z'' Cardan, :data:`~biplanar_reg.io.
+    transforms.ANGLE_SEQUENCE`, as in the kinematics CSV; unwrapped over the frames so a
+    rotation through 180 deg does not jump by 360) and translations (F, 3) mm of (F, 4, 4)
+    model -> world poses."""
+    P = np.asarray(poses, float)
+    angles = Rotation.from_matrix(P[:, :3, :3]).as_euler(ANGLE_SEQUENCE, degrees=True)
+    return np.unwrap(angles, period=360.0, axis=0), P[:, :3, 3].copy()
+
+
+def _frame_axis(ax, names: Sequence[str]) -> None:
+    """Frame index on x, with the frame names as tick labels when there are few."""
+    idx = np.arange(len(names))
+    ax.set_xlabel("frame index")
+    ax.set_xlim(-0.3, len(names) - 0.7)  # the end frames' markers inside the axes
+    if len(names) <= 12:
+        ax.set_xticks(idx)
+        ax.set_xticklabels([f"{i}\n{n}" for i, n in enumerate(names)], fontsize=7)
+    ax.grid(True, alpha=0.3)
+
+
+def _nan(x: Any) -> float:
+    return float("nan") if x is None else float(x)
+
+
+def _residuals_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> None:
+    """``frames_residuals.png``: landmark and contour RMS (px) per frame."""
+    names = [f["name"] for f in frames]
+    idx = np.arange(len(frames))
+    lm = np.array([_nan(f["landmark_rms_px"]) for f in frames])
+    ct = np.array([_nan(f["contour_rms_px"]) for f in frames])
+    nb = np.array([f["started_from"] != "landmarks" for f in frames])
+    fig = Figure(figsize=(7.0, 3.2))
+    ax = fig.add_subplot(1, 1, 1)
+    for y, colour, label in ((lm, "tab:green", "landmarks"), (ct, "tab:red", "contours")):
+        ax.plot(idx, y, "-", color=colour, lw=1.0)
+        ax.plot(idx[~nb], y[~nb], "o", color=colour, label=f"{label} RMS")
+        if nb.any():
+            ax.plot(idx[nb], y[nb], "o", color=colour, mfc="white")
+    ax.set_ylabel("reprojection RMS (px)")
+    top = np.nanmax(np.concatenate([lm, ct, [1.0]]))
+    ax.set_ylim(0, 1.2 * top)
+    _frame_axis(ax, names)
+    ax.legend(fontsize=7, loc="lower right")
+    ax.set_title("residuals per frame (hollow: pose started from the neighbours)", fontsize=9)
+    fig.subplots_adjust(left=0.09, right=0.98, bottom=0.2, top=0.9)
+    save_figure(fig, path)
+
+
+def _pose_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> None:
+    """``frames_pose.png``: the kinematics angles (deg) and translations (mm) per frame."""
+    names = [f["name"] for f in frames]
+    angles, trans = kinematics_components(np.array([f["pose"] for f in frames], float))
+    idx = np.arange(len(frames))
+    fig = Figure(figsize=(7.0, 5.6))
+    for k, (vals, unit, keys) in enumerate(
+        ((angles, "deg", ("rx", "ry", "rz")), (trans, "mm", ("tx", "ty", "tz")))
+    ):
+        ax = fig.add_subplot(2, 1, k + 1)
+        for j, (key, colour) in enumerate(
+            zip(keys, ("tab:red", "tab:green", "tab:blue"), strict=True)
+        ):
+            ax.plot(idx, vals[:, j], "o-", color=colour, ms=3, lw=1.0, label=f"{key} ({unit})")
+        ax.set_ylabel("rotation (deg)" if unit == "deg" else "translation (mm)")
+        _frame_axis(ax, names)
+        ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    fig.suptitle(
+        "pose of the bone (model -> world) per frame, as in the kinematics CSV\n"
+        "(intrinsic X-Y'-Z'' Cardan angles; translation of the model frame's origin)",
+        fontsize=9,
+    )
+    fig.subplots_adjust(left=0.11, right=0.82, bottom=0.1, top=0.89, hspace=0.45)
+    save_figure(fig, path)
+
+
+def _uncertainty_figure(path: Path, by_frames: Sequence[Mapping[str, Any]]) -> None:
+    """``frames_uncertainty.png``: the shape's sd (mm) against the number of frames used."""
+    n = np.array([b["n_frames"] for b in by_frames])
+    fig = Figure(figsize=(7.0, 3.4))
+    ax = fig.add_subplot(1, 1, 1)
+    series = (
+        ("sd_median_mm", "tab:blue", "-", "posed vertex sd, median"),
+        ("sd_p95_mm", "tab:blue", "--", "posed vertex sd, 95th pct"),
+        ("shape_sd_median_mm", "tab:orange", "-", "shape weights only, median"),
+        ("shape_sd_p95_mm", "tab:orange", "--", "shape weights only, 95th pct"),
+    )
+    for key, colour, ls, label in series:
+        ax.plot(n, [b[key] for b in by_frames], ls, marker="o", ms=3, color=colour, label=label)
+    trunc = [b["truncation_mm"] for b in by_frames]
+    ax.plot(n, trunc, ":", color="grey", label="model truncation (does not shrink)")
+    ax.set_xlabel("frames used (the first n)")
+    ax.set_ylabel("sd (mm, RMS over axes)")
+    ax.set_xticks(n if len(n) <= 12 else n[:: max(1, len(n) // 10)])
+    ax.set_ylim(bottom=0)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    frame = by_frames[0]["frame"] if by_frames else 0
+    ax.set_title(f"shape uncertainty as frames are added (bone posed in frame {frame})", fontsize=9)
+    fig.subplots_adjust(left=0.1, right=0.64, bottom=0.15, top=0.9)
+    save_figure(fig, path)
+
+
+def _gt_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> bool:
+    """``frames_gt.png``: per frame vertex RMS and surface RMS to the ground truth (mm);
+    False when no frame has a ground truth."""
+    gt = [f.get("ground_truth_metrics") or {} for f in frames]
+    if not any(gt):
+        return False
+    idx = np.arange(len(frames))
+    fig = Figure(figsize=(7.0, 3.2))
+    ax = fig.add_subplot(1, 1, 1)
+    for key, colour, label in (
+        ("vertex_rms_mm", "tab:purple", "vertex RMS"),
+        ("surface_rms_mm", "tab:brown", "surface distance RMS"),
+        ("model_floor_vertex_rms_mm", "grey", "model floor (vertex RMS)"),
+    ):
+        y = np.array([_nan(g.get(key)) for g in gt])
+        if np.isfinite(y).any():
+            ax.plot(idx, y, "o-", color=colour, ms=4, lw=1.0, label=label)
+    ax.set_ylabel("error to ground truth (mm)")
+    ax.set_ylim(bottom=0)
+    _frame_axis(ax, [f["name"] for f in frames])
+    ax.legend(fontsize=7, loc="best")
+    ax.set_title("registered bone vs ground truth per frame", fontsize=9)
+    fig.subplots_adjust(left=0.09, right=0.98, bottom=0.2, top=0.9)
+    save_figure(fig, path)
+    return True
+
+
+def _overlay(folder: Path, frame: str, v: ReportView, vertices, faces) -> dict[str, str]:
+    """``overlay_<frame>_<view>.png``: one view of one frame (bone shaded when it can be)."""
+    fname = f"overlay_{_safe(frame)}_{_safe(v.name)}.png"
+    shaded = None
+    if v.view is not None and vertices is not None and faces is not None:
+        try:
+            shaded = shaded_faces(v.view, vertices, faces)
+        except ValueError as exc:  # e.g. a vertex behind the source: the outline still shows
+            log.warning("%s %s: no shaded bone (%s)", frame, v.name, exc)
+    overlay_figure(
+        folder / fname,
+        f"{frame} / {v.name}: registered (cyan/blue) vs annotated (red/green)",
+        display=v.display,
+        image_size=v.image_size,
+        annotations=v.annotations,
+        outlines=list(v.outlines),
+        landmarks_px=dict(v.landmarks_px),
+        shaded=shaded,
+    )
+    return {"src": fname, "caption": f"Frame {frame}, view {v.name}."}
+
+
+def _data_uri(path: Path) -> str:
+    return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
+
+
+def _fmt(x: Any, digits: int = 2) -> str:
+    return "-" if x is None or not np.isfinite(float(x)) else f"{float(x):.{digits}f}"
+
+
+def _frame_rows(doc: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """One row per frame for the table: residuals (px), pose, uncertainty (mm), ground truth."""
+    frames = doc["frames"]
+    angles, trans = kinematics_components(np.array([f["pose"] for f in frames], float))
+    rows = []
+    for f, fr in enumerate(frames):
+        ct = fr.get("contour_error_stats_px") or {}
+        unc = fr.get("uncertainty") or {}
+        gt = fr.get("ground_truth_metrics") or {}
+        rows.append(
+            {
+                "index": f,
+                "name": fr["name"],
+                "started_from": fr["started_from"],
+                "n_landmarks": sum(len(v) for v in fr["landmark_errors_px"].values()),
+                "landmark_rms": _fmt(fr["landmark_rms_px"]),
+                "landmark_max": _fmt(fr.get("landmark_max_px")),
+                "contour_rms": _fmt(fr["contour_rms_px"]),
+                "contour_p95": _fmt(ct.get("p95")),
+                "contour_max": _fmt(ct.get("max")),
+                "angles": ", ".join(f"{a:.2f}" for a in angles[f]),
+                "translation": ", ".join(f"{t:.2f}" for t in trans[f]),
+                "sd_median": _fmt(unc.get("median_mm")),
+                "sd_p95": _fmt(unc.get("p95_mm")),
+                "gt_vertex_rms": _fmt(gt.get("vertex_rms_mm")),
+                "gt_surface_rms": _fmt(gt.get("surface_rms_mm")),
+                "gt_to_floor": _fmt(gt.get("vertex_rms_to_floor")),
+            }
+        )
+    return rows
+
+
+def _plots(folder: Path, doc: Mapping[str, Any]) -> list[dict[str, str]]:
+    """The plots over frames (residuals, pose, uncertainty, ground truth)."""
+    frames = doc["frames"]
+    _residuals_figure(folder / "frames_residuals.png", frames)
+    _pose_figure(folder / "frames_pose.png", frames)
+    out = [
+        {
+            "src": "frames_residuals.png",
+            "caption": "Landmark and contour reprojection RMS per frame, px (contour distances "
+            "capped at gate_px).",
+        },
+        {
+            "src": "frames_pose.png",
+            "caption": "The bone's pose per frame (model -> world): angles in degrees "
+            f"(intrinsic {'-'.join(ANGLE_SEQUENCE)} Cardan, R = Rx Ry Rz, unwrapped), "
+            "translation of the model frame's origin in mm, as in the kinematics CSV.",
+        },
+    ]
+    by_frames = (doc.get("uncertainty") or {}).get("by_frames") or []
+    if by_frames:
+        _uncertainty_figure(folder / "frames_uncertainty.png", by_frames)
+        out.append(
+            {
+                "src": "frames_uncertainty.png",
+                "caption": "Posterior sd (mm) of the shape from the first n frames' information "
+                "(Laplace approximation at the all-frame fit, other frames' poses eliminated): "
+                "blue, every vertex of the bone posed in the frame (pose, weights, model "
+                "truncation); orange, the shape weights alone (model frame).",
+            }
+        )
+    if _gt_figure(folder / "frames_gt.png", frames):
+        out.append({"src": "frames_gt.png", "caption": "Error to the ground truth per frame, mm."})
+    return out
+
+
+def write_frames_report(
+    folder: str | os.PathLike,
+    doc: Mapping[str, Any],
+    frame_views: Sequence[Sequence[ReportView]],
+    *,
+    frame_vertices: Sequence[np.ndarray] | None = None,
+    faces: np.ndarray | None = None,
+    vertex_sd: np.ndarray | None = None,
+) -> dict[str, Any]:
+    """Write the figures and ``report.html`` of a multi-frame case into ``folder``.
+
+    Parameters
+    ----------
+    folder : path
+        An existing folder; the files are written into it.
+    doc : mapping
+        The multi-frame result document (``frames``, ``metrics``, ``uncertainty``, ``flags``,
+        ``registration``; docs/frames.md).
+    frame_views : sequence (F) of sequences of ReportView
+        Per frame its views (only the drawn frames' are used:
+        :func:`frame_overlay_indices`).
+    frame_vertices : sequence (F) of (N, 3) arrays, optional
+        The registered bone posed in each frame (world, mm): the shaded bone in the overlays.
+    faces : (T, 3) int array, optional
+    vertex_sd : (N,) array, optional
+        Frame 0's per-vertex sd (mm): ``uncertainty.png`` over frame 0's views.
+
+    Returns
+    -------
+    dict
+        ``html`` and ``figures`` (file names), for ``result.json["report"]``.
+    """
+    folder = Path(folder)
+    frames = doc["frames"]
+    overlays = []
+    for f in frame_overlay_indices(len(frames)):
+        V = None if frame_vertices is None else frame_vertices[f]
+        overlays += [_overlay(folder, frames[f]["name"], v, V, faces) for v in frame_views[f]]
+    plots = _plots(folder, doc)
+    surface = []
+    if vertex_sd is not None and faces is not None and frame_vertices is not None:
+        if np.all(np.isfinite(vertex_sd)):
+            from .uncertainty import uncertainty_figure
+
+            panels = [(v.name, v.view, v.display) for v in frame_views[0] if v.view is not None]
+            if panels:
+                uncertainty_figure(
+                    folder / "uncertainty.png", panels, frame_vertices[0], faces, vertex_sd
+                )
+                surface.append(
+                    {
+                        "src": "uncertainty.png",
+                        "caption": f"Frame {frames[0]['name']}: the registered bone coloured "
+                        "by its posterior sd per vertex (mm, RMS over the three axes; all "
+                        "frames' information), projected into each view, pixels.",
+                    }
+                )
+    figures = {"views": overlays, "plots": plots, "surface": surface}
+    embedded = {
+        g: [{**x, "data": _data_uri(folder / x["src"])} for x in figs]
+        for g, figs in figures.items()
+    }
+    options = doc["registration"].get("options") or {}
+    write_page(
+        folder / "report.html",
+        "frames.html",
+        case_id=doc["id"],
+        frame=doc.get("frame", "world frame of the calibrations"),
+        silhouettes=doc["registration"]["silhouettes"],
+        n_frames=len(frames),
+        flags=[(f, flag_advice(f)) for f in doc["flags"]],
+        warnings=doc.get("warnings", []),
+        metrics=_metric_rows(doc),
+        figures=embedded,
+        frame_rows=_frame_rows(doc),
+        by_frames=(doc.get("uncertainty") or {}).get("by_frames") or [],
+        uncertainty=doc.get("uncertainty"),
+        has_gt=any(f.get("ground_truth_metrics") for f in frames),
+        gate_px=options.get("gate_px"),
+        timings=doc.get("timings", {}),
+    )
+    names = [x["src"] for g in ("surface", "plots", "views") for x in figures[g]]
+    return {"html": "report.html", "figures": names, "renderer": None}
+
+
+#: (key in doc["metrics"], label, unit) of the pooled metrics table.
+_POOLED = (
+    ("landmark_rms_px", "landmark reprojection error, RMS over all frames", "px"),
+    ("landmark_max_px", "landmark reprojection error, max", "px"),
+    ("contour_mean_px", "contour reprojection error, mean", "px"),
+    ("contour_rms_px", "contour reprojection error, RMS", "px"),
+    ("contour_p95_px", "contour reprojection error, 95th percentile", "px"),
+    ("contour_max_px", "contour reprojection error, max", "px"),
+    ("vertex_rms_mm", "vertex RMS error to the ground truth, over the frames (world)", "mm"),
+    ("vertex_max_mm", "vertex max error, over the frames", "mm"),
+    ("surface_rms_mm", "surface distance RMS, over the frames", "mm"),
+    ("surface_max_mm", "surface distance max, over the frames", "mm"),
+    ("shape_vertex_rms_mm", "shape vs ground truth, vertex RMS (model frame, aligned)", "mm"),
+    ("model_floor_vertex_rms_mm", "model floor: best rigid + model fit of the truth", "mm"),
+    ("shape_vertex_rms_to_floor", "shape vertex RMS / model floor", "x"),
+)
+
+
+def _metric_rows(doc: Mapping[str, Any]) -> list[tuple[str, str, str]]:
+    m = doc.get("metrics", {})
+    rows = [(label, f"{m[k]:.4g}", unit) for k, label, unit in _POOLED if m.get(k) is not None]
+    for key in ("load", "registration", "registration_uncertainty"):
+        if key in doc.get("timings", {}):
+            rows.append((f"time: {key}", f"{doc['timings'][key]:.2f}", "s"))
+    return rows
