@@ -4,9 +4,9 @@ shape model and annotations, seen together (overlapping) in one biplanar pair.
     python sample_cases/wrist_radius_ulna/make_case.py [--out DIR] [--seed 0]
 
 The scene is the realistic wrist scene of ``biplanar_reg.simulate.realistic.wrist_scene``
-(radius template from the shipped CT, 400 vertices; its 18-member harmonic population, the
+(radius template from the shipped CT, 300 vertices; its 18-member harmonic population, the
 6-mode model built from the first 8 members, the truth a held-out member: out of the model's
-span). The ulna gets the same treatment here: its CT surface (placed beside the radius as in
+span). The ulna gets the same treatment here: its CT surface (300 vertices, placed beside the radius as in
 the scene, 1.5 mm apart) is the template of an 18-member harmonic population, its 6-mode model
 is built from the first 8 members and its truth is held-out member 8 + seed % 10. The radius is
 posed near the real radius's pose (rotation perturbed by up to 10 deg, translation by up to 3 mm);
@@ -30,9 +30,10 @@ from scipy.spatial.transform import Rotation
 from biplanar_reg.annotation import Annotations, Contour, Landmark, ViewAnnotations
 from biplanar_reg.annotation import save_annotations
 from biplanar_reg.calibration import save_calibration
-from biplanar_reg.io import atomic_write_bytes, atomic_write_json, write_mesh
+from biplanar_reg.io import atomic_write_bytes, atomic_write_json, read_volume, write_mesh
 from biplanar_reg.simulate import synthetic_landmarks
 from biplanar_reg.simulate.realistic import (
+    WRIST_CT_VOXEL_MM,
     _crop,
     _mask_outline,
     _render,
@@ -41,10 +42,13 @@ from biplanar_reg.simulate.realistic import (
     model_floor,
     wrist_scene,
 )
-from biplanar_reg.ssm import ShapeModel, build_ssm, synthesise_population
+from biplanar_reg.ssm import ShapeModel, bone_surface, build_ssm, synthesise_population
 
 HERE = Path(__file__).resolve().parent
+DATA = HERE.parent / "wrist_radius" / "data"
 N_POP, N_TRAIN, N_MODES, N_LANDMARKS, NOISE_PX = 18, 8, 6, 3, 1.5
+#: Vertex counts of the two surfaces (small: the case is registered in the test suite).
+N_RADIUS, N_ULNA = 300, 300
 
 CASE_TOML = """format = "biplanar-reg/case@1"
 id = "wrist_radius_ulna"
@@ -83,10 +87,21 @@ silhouettes = true
 """
 
 
+def _ulna_template(scene):
+    """The ulna's CT surface with N_ULNA vertices, placed where the scene put its own ulna
+    (template frame: the scene's ulna is the 600-vertex surface of the same CT, translated)."""
+    vol = read_volume(DATA / "ulna_ct.tif", voxel_size=WRIST_CT_VOXEL_MM)
+    full = bone_surface(vol, target_vertices=600)
+    shift = scene.second[0][0] - full.vertices[0]
+    assert np.allclose(scene.second[0] - full.vertices, shift)  # a pure translation
+    small = bone_surface(vol, target_vertices=N_ULNA)
+    return small.vertices + shift, np.asarray(small.faces)
+
+
 def _ulna_model(scene, seed):
     """The ulna's population (template = the scene's ulna, template frame), its model from the
     first N_TRAIN members with landmarks off the crop's cut, and the cut mask."""
-    verts, faces = scene.second
+    verts, faces = _ulna_template(scene)
     pop = synthesise_population(verts, N_POP, seed=seed + 1, resolution=40)
     model = build_ssm(pop.shapes[:N_TRAIN], faces=faces, n_modes=N_MODES)
     cut = verts[:, 2] > verts[:, 2].max() - 4.0
@@ -99,7 +114,7 @@ def _ulna_model(scene, seed):
         landmarks={k: i for k, i in marks.items() if not cut[i]},
         truncation_modes=model.truncation_modes,
     )
-    return model, pop.shapes, cut
+    return model, pop.shapes, cut, faces
 
 
 def _landmarks(model, truth, view, rng):
@@ -118,8 +133,8 @@ def _png(image):
 
 
 def make(out: Path, seed: int = 0) -> Path:
-    scene = wrist_scene(str(HERE.parent / "wrist_radius" / "data"), n_vertices=400)
-    ulna_model, ulna_pop, ulna_cut = _ulna_model(scene, seed)
+    scene = wrist_scene(str(DATA), n_vertices=N_RADIUS)
+    ulna_model, ulna_pop, ulna_cut, ulna_faces = _ulna_model(scene, seed)
     rng = np.random.default_rng([seed, 30])
     member = N_TRAIN + seed % (N_POP - N_TRAIN)
     radius_shape, ulna_shape = scene.population[member], ulna_pop[member]
@@ -133,7 +148,7 @@ def make(out: Path, seed: int = 0) -> Path:
     uc = ulna_shape.mean(axis=0)
     own = Rotation.from_rotvec(np.deg2rad(1.0) * rng.uniform(-1, 1, 3) / np.sqrt(3)).as_matrix()
     ulna = ((ulna_shape - uc) @ own.T + uc + rng.uniform(-0.5, 0.5, 3)) @ R.T + t
-    scene2 = dataclasses.replace(scene, second=(ulna_shape, scene.second[1]))
+    scene2 = dataclasses.replace(scene, second=(ulna_shape, ulna_faces))
     tissue = (R @ scene.tissue[0] + t, R[:, 2])
     views = [_crop(v, np.vstack([radius, ulna])) for v in scene.views]
     ann = {"radius": Annotations(), "ulna": Annotations()}
