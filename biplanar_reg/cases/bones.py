@@ -174,9 +174,7 @@ def _document(case: Case, docs, poses, contact, relative, frame_names) -> dict[s
             "metrics_note": "per-bone metrics: the largest over the bones (each bone's own in "
             "bones[name].metrics)",
             "flags": flags,
-            "rejected": sorted(
-                [n, *r] for n, d in docs.items() for r in d.get("rejected", [])
-            ),
+            "rejected": sorted([n, *r] for n, d in docs.items() for r in d.get("rejected", [])),
             "certificate": metrics.get("certificate"),
             "warnings": case.warnings,
         }
@@ -192,9 +190,11 @@ def _index_html(doc: dict[str, Any]) -> str:
     rows = []
     for n, b in doc["bones"].items():
         link = f'<a href="{e(b["out"])}/report.html">{e(n)}</a>'
-        rows.append(f"<tr><td>{link}</td>" + "".join(
-            f"<td>{num(b['metrics'].get(k))}</td>" for k in keys
-        ) + "</tr>")
+        rows.append(
+            f"<tr><td>{link}</td>"
+            + "".join(f"<td>{num(b['metrics'].get(k))}</td>" for k in keys)
+            + "</tr>"
+        )
     contact = [
         f"<tr><td>{e(p['a'])} / {e(p['b'])}</td><td>{f['frame']}</td><td>{f['depth_mm']:.2f}"
         f"</td><td>{f['a_in_b']} / {f['b_in_a']}</td><td>{num(f['clearance_mm'])}</td></tr>"
@@ -212,19 +212,19 @@ def _index_html(doc: dict[str, Any]) -> str:
     ]
     flags = "".join(f"<li>{e(f)}</li>" for f in doc["flags"]) or "<li>none</li>"
     return f"""<!doctype html><html><head><meta charset="utf-8">
-<title>{e(doc['id'])}: bones</title>
+<title>{e(doc["id"])}: bones</title>
 <style>body{{font-family:sans-serif;margin:2em}}td,th{{padding:2px 10px;text-align:right}}
-</style></head><body><h1>{e(doc['id'])}: {len(doc['bones'])} bones</h1>
-<h2>Bones</h2><table><tr><th>bone (report)</th>{''.join(f'<th>{k}</th>' for k in keys)}</tr>
-{''.join(rows)}</table>
-<h2>Non-penetration check</h2><p>{e(doc['contact']['method'])}; warning above
-{doc['contact']['warn_depth_mm']:g} mm.</p>
+</style></head><body><h1>{e(doc["id"])}: {len(doc["bones"])} bones</h1>
+<h2>Bones</h2><table><tr><th>bone (report)</th>{"".join(f"<th>{k}</th>" for k in keys)}</tr>
+{"".join(rows)}</table>
+<h2>Non-penetration check</h2><p>{e(doc["contact"]["method"])}; warning above
+{doc["contact"]["warn_depth_mm"]:g} mm.</p>
 <table><tr><th>pair</th><th>frame</th><th>depth (mm)</th><th>vertices inside (a in b / b in a)
-</th><th>clearance (mm)</th></tr>{''.join(contact)}</table>
+</th><th>clearance (mm)</th></tr>{"".join(contact)}</table>
 <h2>Relative poses</h2><p>x_reference = R x_body + t; R = Rx Ry Rz (intrinsic X-Y'-Z'',
 degrees); also in kinematics.csv.</p>
 <table><tr><th>body in reference</th><th>frame</th><th>t (mm)</th><th>rx, ry, rz (deg)</th>
-</tr>{''.join(rel)}</table><h2>Flags</h2><ul>{flags}</ul></body></html>
+</tr>{"".join(rel)}</table><h2>Flags</h2><ul>{flags}</ul></body></html>
 """
 
 
@@ -263,7 +263,10 @@ def register_bones_case(
             if progress is not None:
                 progress(f"bone {bone.bone}")
             sub = register_case(
-                bone, tmp / BONES_DIR / bone.bone, include_phi=include_phi, progress=progress,
+                bone,
+                tmp / BONES_DIR / bone.bone,
+                include_phi=include_phi,
+                progress=progress,
                 report=report,
             )
             docs[bone.bone] = sub.document
@@ -280,7 +283,8 @@ def register_bones_case(
         doc["report"] = None
         if report:
             atomic_write_text(tmp / "report.html", _index_html(doc))
-            doc["report"] = {"html": "report.html", "bones": [f"{b['out']}/report.html" for b in doc["bones"].values()]}
+            pages = [f"{b['out']}/report.html" for b in doc["bones"].values()]
+            doc["report"] = {"html": "report.html", "bones": pages}
         doc["timings"]["total"] = load_seconds + time.perf_counter() - t0
         atomic_write_json(tmp / "result.json", doc)
     log.info("%s: wrote %s", case.id, out_dir)

@@ -58,9 +58,7 @@ def _one_way(va: np.ndarray, vb: np.ndarray, fb: np.ndarray) -> tuple[np.ndarray
     return inside_surface(va, vb, fb), point_to_surface(va, vb, fb)
 
 
-def penetration(
-    va: np.ndarray, fa: np.ndarray, vb: np.ndarray, fb: np.ndarray
-) -> dict[str, Any]:
+def penetration(va: np.ndarray, fa: np.ndarray, vb: np.ndarray, fb: np.ndarray) -> dict[str, Any]:
     """The interpenetration of surfaces A and B (world frame, mm).
 
     Parameters

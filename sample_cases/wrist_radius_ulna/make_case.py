@@ -6,9 +6,10 @@ shape model and annotations, seen together (overlapping) in one biplanar pair.
 The scene is the realistic wrist scene of ``biplanar_reg.simulate.realistic.wrist_scene``
 (radius template from the shipped CT, 300 vertices; its 18-member harmonic population, the
 6-mode model built from the first 8 members, the truth a held-out member: out of the model's
-span). The ulna gets the same treatment here: its CT surface (300 vertices, placed beside the radius as in
-the scene, 1.5 mm apart) is the template of an 18-member harmonic population, its 6-mode model
-is built from the first 8 members and its truth is held-out member 8 + seed % 10. The radius is
+span). The ulna gets the same treatment here: its CT surface (300 vertices, placed beside the
+radius as in the scene, 1.5 mm apart) is the template of an 18-member harmonic population,
+its 6-mode model is built from the first 8 members and its truth is held-out member
+8 + seed % 10. The radius is
 posed near the real radius's pose (rotation perturbed by up to 10 deg, translation by up to 3 mm);
 the ulna moves with it plus up to 1 deg / 0.5 mm of its own (so the true bones do not touch).
 
@@ -27,8 +28,13 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from biplanar_reg.annotation import Annotations, Contour, Landmark, ViewAnnotations
-from biplanar_reg.annotation import save_annotations
+from biplanar_reg.annotation import (
+    Annotations,
+    Contour,
+    Landmark,
+    ViewAnnotations,
+    save_annotations,
+)
 from biplanar_reg.calibration import save_calibration
 from biplanar_reg.io import atomic_write_bytes, atomic_write_json, read_volume, write_mesh
 from biplanar_reg.simulate import synthetic_landmarks
