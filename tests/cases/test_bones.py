@@ -170,7 +170,8 @@ def _check_outputs(out: Path) -> dict:
     assert pair["max_depth_mm"] == doc["metrics"]["penetration_max_mm"] == 0.0
     assert 2.0 < pair["frames"][0]["clearance_mm"] < 8.0
     cfg = read_autoscoper_cfg(out / "autoscoper/wrist_radius_ulna.cfg")
-    assert cfg["VolumeFile"] == ["volumes/radius.tif", "volumes/ulna.tif"]
+    vols = [Path(v).relative_to(out / "autoscoper").as_posix() for v in cfg["VolumeFile"]]
+    assert vols == ["volumes/radius.tif", "volumes/ulna.tif"]
     assert set(doc["exports"]) >= {"radius.tra", "ulna.tra", "kinematics.csv"}
     return doc
 
