@@ -189,7 +189,7 @@ def test_two_bone_batch_end_to_end(case, tmp_path, capsys):
     doc = _check_outputs(out / "two_bones")
     assert is_complete(out / "two_bones", report=False)
     assert not (out / "two_bones/report.html").exists() and doc["report"] is None
-    row = json.loads((out / "summary.json").read_text())["cases"][0]
+    (row,) = json.loads((out / "summary.json").read_text())["rows"]
     assert row["status"] == "done" and row["landmark_rms_px"] == doc["metrics"]["landmark_rms_px"]
     # a rerun skips the complete two-bone output
     assert main(["batch", str(case), "--out", str(out), "--no-report", "--workers", "1"]) == 0
