@@ -20,7 +20,7 @@ from biplanar_reg.cases import CaseError, CaseFailure, load_case
 from biplanar_reg.cases.contact import inside_surface, penetration, winding_number
 from biplanar_reg.cases.outputs import is_complete
 from biplanar_reg.cli import main
-from biplanar_reg.io import read_mesh
+from biplanar_reg.io import read_mesh, write_mesh
 from biplanar_reg.io.transforms import read_kinematics_csv, read_tra, relative_pose
 
 CASE = Path(__file__).resolve().parents[2] / "sample_cases" / "wrist_radius_ulna"
@@ -209,9 +209,10 @@ def test_a_failing_bone_leaves_the_previous_outputs(case, tmp_path, monkeypatch)
     def fake(bone, bone_out, **kw):
         calls.append(bone.bone)
         Path(bone_out).mkdir(parents=True)
-        (Path(bone_out) / "registered.ply").write_text("partial")
+        write_mesh(Path(bone_out) / "registered.ply", bone.model.mean, bone.model.faces)
         if bone.bone == "ulna":
             raise CaseFailure("ulna: registration failed")
+        return run.RunOutcome(Path(bone_out), {"rotation": np.eye(3), "translation": [0, 0, 0]})
 
     monkeypatch.setattr(run, "register_case", fake)
     with pytest.raises(CaseFailure):
