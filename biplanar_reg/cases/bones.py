@@ -132,6 +132,7 @@ def _bone_entry(name: str, doc: dict[str, Any], poses: np.ndarray) -> dict[str, 
     keep = ("metrics", "flags", "rejected", "weights", "ground_truth", "model", "uncertainty")
     return {
         "out": f"{BONES_DIR}/{name}",
+        "report": f"{BONES_DIR}/{name}/report.html" if doc.get("report") else None,
         "rotation": doc["rotation"],
         "translation": doc["translation"],
         "poses": poses,
@@ -189,20 +190,20 @@ def _index_html(doc: dict[str, Any]) -> str:
     keys = [k for k in ("landmark_rms_px", "contour_rms_px", "vertex_rms_mm", "surface_rms_mm")]
     rows = []
     for n, b in doc["bones"].items():
-        link = f'<a href="{e(b["out"])}/report.html">{e(n)}</a>'
+        link = f'<a href="{e(b["report"])}">{e(n)}</a>' if b["report"] else e(n)
         rows.append(
             f"<tr><td>{link}</td>"
             + "".join(f"<td>{num(b['metrics'].get(k))}</td>" for k in keys)
             + "</tr>"
         )
     contact = [
-        f"<tr><td>{e(p['a'])} / {e(p['b'])}</td><td>{f['frame']}</td><td>{f['depth_mm']:.2f}"
+        f"<tr><td>{e(p['a'])} / {e(p['b'])}</td><td>{e(str(f['frame']))}</td><td>{f['depth_mm']:.2f}"
         f"</td><td>{f['a_in_b']} / {f['b_in_a']}</td><td>{num(f['clearance_mm'])}</td></tr>"
         for p in doc["contact"]["pairs"]
         for f in p["frames"]
     ]
     rel = [
-        f"<tr><td>{e(r['body'])} in {e(r['reference'])}</td><td>{f['frame']}</td><td>"
+        f"<tr><td>{e(r['body'])} in {e(r['reference'])}</td><td>{e(str(f['frame']))}</td><td>"
         + ", ".join(f"{v:.2f}" for v in f["translation_mm"])
         + "</td><td>"
         + ", ".join(f"{v:.2f}" for v in f["angles_deg"])
@@ -283,7 +284,7 @@ def register_bones_case(
         doc["report"] = None
         if report:
             atomic_write_text(tmp / "report.html", _index_html(doc))
-            pages = [f"{b['out']}/report.html" for b in doc["bones"].values()]
+            pages = [b["report"] for b in doc["bones"].values() if b["report"]]
             doc["report"] = {"html": "report.html", "bones": pages}
         doc["timings"]["total"] = load_seconds + time.perf_counter() - t0
         atomic_write_json(tmp / "result.json", doc)
