@@ -197,8 +197,9 @@ def _index_html(doc: dict[str, Any]) -> str:
             + "</tr>"
         )
     contact = [
-        f"<tr><td>{e(p['a'])} / {e(p['b'])}</td><td>{e(str(f['frame']))}</td><td>{f['depth_mm']:.2f}"
-        f"</td><td>{f['a_in_b']} / {f['b_in_a']}</td><td>{num(f['clearance_mm'])}</td></tr>"
+        f"<tr><td>{e(p['a'])} / {e(p['b'])}</td><td>{e(str(f['frame']))}</td>"
+        f"<td>{f['depth_mm']:.2f}</td><td>{f['a_in_b']} / {f['b_in_a']}</td>"
+        f"<td>{num(f['clearance_mm'])}</td></tr>"
         for p in doc["contact"]["pairs"]
         for f in p["frames"]
     ]
