@@ -18,7 +18,7 @@ import numpy as np
 
 from .metrics import point_to_surface
 
-__all__ = ["inside_surface", "penetration", "PENETRATION_WARN_MM"]
+__all__ = ["inside_surface", "penetration", "winding_number", "PENETRATION_WARN_MM"]
 
 #: Depth (mm) above which the registered bones are reported as interpenetrating (a warning
 #: and a quality flag): bones do not interpenetrate, and 1 mm is about the vertex error of a
