@@ -994,7 +994,8 @@ def _load_bones(ctx: _Ctx, doc: dict, case_id: str, units: str, scale: float) ->
             "a case with [[bones]] is registered with poses = 'known' and no start (the bones "
             "share the calibrations' world frame, in which their relative poses are measured)",
         )
-    for i, t in enumerate(doc.get("frames") or []):
+    frame_tables = doc.get("frames")
+    for i, t in enumerate(frame_tables if isinstance(frame_tables, list) else []):
         if isinstance(t, dict) and "annotations" in t:
             raise ctx.error(
                 f"[[frames]][{i}] annotations",

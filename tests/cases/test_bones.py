@@ -69,6 +69,12 @@ BAD = [
         'name = "ulna"\nregistration = {poses = "refine"}',
         "(ulna) [registration] poses",
     ),
+    (
+        '\n[[bones]]\nname = "radius"',
+        '\nframes = 5\n[[bones]]\nname = "radius"',
+        "(radius) [[frames]]",
+    ),
+    ('name = "ulna"', 'name = "ulna"\nregistration = 7', "(ulna) [registration]: expected a table"),
     ("\n[registration]\n", '\n[outputs]\nbone = "x"\n[registration]\n', "[outputs] bone: not used"),
 ]
 
@@ -99,6 +105,37 @@ def test_bones_with_frames_take_one_annotation_file_per_frame(case):
     _edit(case, 'b = "ulna_annotations.json"', 'c = "ulna_annotations.json"')
     with pytest.raises(CaseError, match=r"\(ulna\) annotations c: unknown frame"):
         load_case(case)
+
+
+def test_bones_must_be_tables(case):
+    text = (case / "case.toml").read_text()
+    head, _, views = text.partition("[[views]]")
+    (case / "case.toml").write_text(
+        'format = "biplanar-reg/case@1"\nbones = [1]\n[[views]]' + views
+    )
+    with pytest.raises(CaseError, match=r"\[\[bones\]\]\[0\]: expected a table"):
+        load_case(case)
+
+
+def test_interpenetrating_bones_are_flagged():
+    from biplanar_reg.cases.bones import _document
+
+    bone = {"metrics": {"vertex_rms_mm": 1.0}, "flags": ["f"], "rotation": np.eye(3)}
+    bone["translation"] = np.zeros(3)
+    docs = {"a": bone, "b": {**bone, "metrics": {"vertex_rms_mm": 2.0}}}
+    poses = {"a": np.eye(4)[None], "b": np.eye(4)[None]}
+    pair = {"a": "a", "b": "b", "max_depth_mm": 1.5, "worst_frame": "0", "frames": []}
+
+    class _Case:
+        id, units, warnings = "c", "mm", []
+
+    doc = _document(_Case, docs, poses, [pair], [], ["0"])
+    assert doc["flags"][:2] == ["f [bone a]", "f [bone b]"]
+    assert "bones interpenetrate: a and b by 1.50 mm" in doc["flags"][2]
+    assert doc["metrics"] == {"vertex_rms_mm": 2.0, "penetration_max_mm": 1.5}
+    assert not _document(_Case, docs, poses, [{**pair, "max_depth_mm": 0.9}], [], ["0"])["flags"][
+        2:
+    ]
 
 
 # -- the contact check -------------------------------------------------------------------------
