@@ -92,8 +92,10 @@ _KEYS = {
         "registration",
         "ground_truth",
         "frames",
+        "bones",
     },
     "frames": {"name", "annotations", "images", "calibrations", "image_frame", "ground_truth"},
+    "bones": {"name", "model", "annotations", "ground_truth", "registration"},
     "model": {"ssm", "template", "landmarks", *MODEL_DEFAULTS},
     "views": {"name", "calibration", "calibration_format", "dlt_column", "image", "image_frame"},
     "annotations": {"file"},
@@ -108,6 +110,10 @@ _OPTION_FIELDS = {f.name: f for f in dataclasses.fields(RegistrationOptions)}
 POSES = ("known", "unknown", "refine")
 #: ``[registration]`` keys that are not :class:`RegistrationOptions` fields.
 _MODE_KEYS = ("poses", "silhouettes", "start")
+#: ``[[bones]] name`` (and ``[outputs] bone``): a file-name word, it names ``out/bones/<name>/``.
+BONE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
+#: Top-level sections of the single-bone form, which ``[[bones]]`` replaces.
+_SINGLE_BONE_SECTIONS = ("model", "annotations", "ground_truth")
 
 
 @dataclass(frozen=True, eq=False)
@@ -221,6 +227,8 @@ class Case:
     frames : list of CaseFrame
         ``[[frames]]`` (extension): the frames of a multi-frame case (empty: one frame, the
         case's ``views`` and ``annotations``); ``annotations`` is then frame 0's.
+    bones : list of Case
+        ``[[bones]]`` (extension): the bones of a multi-bone case, each a single-bone case.
     """
 
     case_dir: Path
@@ -244,6 +252,10 @@ class Case:
     #: exported files (``docs/exports.md``)
     mesh_formats: tuple[str, ...] = ()
     bone: str = "bone"
+    #: ``[[bones]]`` (extension, docs/bones.md): one single-bone :class:`Case` per bone (its
+    #: model, annotations, frames, options, ground truth; ``bone`` = its name), the views
+    #: shared; empty for a single-bone case. The fields above are then the first bone's.
+    bones: list[Case] = field(default_factory=list)
 
     @property
     def case_file(self) -> Path:
@@ -372,6 +384,22 @@ class _Ctx:
                 f"{where} {key}", f"must be in {bracket}{low:g}, {top}], got {value!r}"
             )
         return value
+
+
+class _Scoped(_Ctx):
+    """The error context of one ``[[bones]]`` table: its keys are named after the bone, e.g.
+    ``case.toml: [[bones]][1] (ulna) [model] ssm: model/u.npz: file not found``."""
+
+    def __init__(self, parent: _Ctx, prefix: str):
+        super().__init__(parent.dir, parent.allow_outside)
+        self.warnings = parent.warnings  # one list of remarks for the whole case
+        self.prefix = prefix
+
+    def error(self, key: str, what: str) -> CaseError:
+        return super().error(f"{self.prefix} {key}", what)
+
+    def warn(self, text: str) -> None:
+        super().warn(f"{self.prefix} {text}")
 
 
 def _scale_view(view: View, scale: float) -> View:
@@ -827,12 +855,27 @@ def _frame_ground_truth(ctx: _Ctx, table: dict, where: str, scale: float, model)
     return GroundTruth(path, verts, faces)
 
 
-def _one_frame(ctx: _Ctx, i: int, table: object, views, landmarks, scale, model) -> CaseFrame:
-    where = f"[[frames]][{i}]"
+def _frame_name(ctx: _Ctx, i: int, table: object) -> str:
+    """``[[frames]][i] name`` (default ``frame<i>``), the table checked to be one."""
     if not isinstance(table, dict):
-        raise ctx.error(where, "expected a table")
-    ctx.unknown_keys(table, "frames", where)
-    name = ctx.string(table, "name", where, required=False) or f"frame{i}"
+        raise ctx.error(f"[[frames]][{i}]", "expected a table")
+    return ctx.string(table, "name", f"[[frames]][{i}]", required=False) or f"frame{i}"
+
+
+def _one_frame(
+    ctx: _Ctx,
+    i: int,
+    table: object,
+    views,
+    landmarks,
+    scale,
+    model,
+    annotations: Path | None = None,
+) -> CaseFrame:
+    """Frame ``i``; its annotations are ``annotations`` when given (a bone's, ``[[bones]]``),
+    else the table's ``annotations`` file."""
+    name = _frame_name(ctx, i, table)
+    ctx.unknown_keys(table, "frames", f"[[frames]][{i}]")
     where = f"[[frames]][{i}] ({name})"
     images = _frame_table_paths(ctx, table, "images", where, views)
     calibs = _frame_table_paths(ctx, table, "calibrations", where, views)
@@ -841,7 +884,7 @@ def _one_frame(ctx: _Ctx, i: int, table: object, views, landmarks, scale, model)
         _frame_view(ctx, cv, where, images.get(cv.name), calibs.get(cv.name), page, scale)
         for cv in views
     ]
-    path = ctx.path(table, "annotations", where)
+    path = annotations if annotations is not None else ctx.path(table, "annotations", where)
     sizes = {v.name: v.image_size for v in fviews if v.image_size is not None}
     try:
         ann = load_annotations(
@@ -853,9 +896,18 @@ def _one_frame(ctx: _Ctx, i: int, table: object, views, landmarks, scale, model)
     return CaseFrame(name, fviews, ann, path, gt)
 
 
-def _load_frames(ctx: _Ctx, doc: dict, views, landmarks, scale, model) -> list[CaseFrame]:
+def _load_frames(
+    ctx: _Ctx,
+    doc: dict,
+    views,
+    landmarks,
+    scale,
+    model,
+    annotations: list[Path] | None = None,
+) -> list[CaseFrame]:
     """``[[frames]]`` (empty without): every frame checked; one frame at least needs the
-    landmarks of a single-frame case (the multi-frame registration starts from them)."""
+    landmarks of a single-frame case (the multi-frame registration starts from them).
+    ``annotations``: a bone's file per frame (``[[bones]]``) instead of the frames' own."""
     tables = doc.get("frames")
     if tables is None:
         return []
@@ -865,7 +917,11 @@ def _load_frames(ctx: _Ctx, doc: dict, views, landmarks, scale, model) -> list[C
         raise ctx.error(
             "[annotations]", "not used with [[frames]]: give each frame its own annotations"
         )
-    frames = [_one_frame(ctx, i, t, views, landmarks, scale, model) for i, t in enumerate(tables)]
+    paths = annotations or [None] * len(tables)
+    frames = [
+        _one_frame(ctx, i, t, views, landmarks, scale, model, p)
+        for i, (t, p) in enumerate(zip(tables, paths, strict=True))
+    ]
     names = [f.name for f in frames]
     if len(set(names)) != len(names):
         raise ctx.error("[[frames]] name", f"duplicate frame names {names}")
@@ -906,6 +962,8 @@ def load_case(case_dir: str | os.PathLike, *, allow_outside: bool = False) -> Ca
     ctx.unknown_keys(doc, "", "top level")
     case_id, units = _header(ctx, doc)
     scale = UNIT_SCALE[units]
+    if "bones" in doc:
+        return _load_bones(ctx, doc, case_id, units, scale)
     model, source, landmarks = _load_model(ctx, doc, scale)
     views = _load_views(ctx, doc, scale)
     reg = ctx.table(doc, "registration", required=False)
@@ -946,6 +1004,122 @@ def load_case(case_dir: str | os.PathLike, *, allow_outside: bool = False) -> Ca
         mesh_formats=mesh_formats,
         bone=bone,
     )
+
+
+# -- [[bones]] (extension: several bones, each with its own model and annotations) -----------
+
+
+def _load_bones(ctx: _Ctx, doc: dict, case_id: str, units: str, scale: float) -> Case:
+    """A multi-bone case (docs/bones.md): the shared views, frames and options, and one
+    single-bone :class:`Case` per ``[[bones]]`` table in ``Case.bones``."""
+    for key in _SINGLE_BONE_SECTIONS:
+        if key in doc:
+            raise ctx.error(
+                f"[{key}]", "not used with [[bones]]: give each bone its own (docs/bones.md)"
+            )
+    tables = doc["bones"]
+    if not isinstance(tables, list) or not tables:
+        raise ctx.error("[[bones]]", "expected at least one [[bones]] table")
+    views = _load_views(ctx, doc, scale)
+    reg = ctx.table(doc, "registration", required=False)
+    poses, silhouettes = _registration_mode(ctx, reg)
+    if poses != "known" or "start" in reg:
+        raise ctx.error(
+            "[registration]",
+            "a case with [[bones]] is registered with poses = 'known' and no start (the bones "
+            "share the calibrations' world frame, in which their relative poses are measured)",
+        )
+    frame_tables = doc.get("frames")
+    for i, t in enumerate(frame_tables if isinstance(frame_tables, list) else []):
+        if isinstance(t, dict) and "annotations" in t:
+            raise ctx.error(
+                f"[[frames]][{i}] annotations",
+                "not used with [[bones]]: give each bone a table {frame name = file}",
+            )
+    registration_options(reg, ctx)  # the case-wide keys checked (and warned about) once
+    if "bone" in ctx.table(doc, "outputs", required=False):
+        raise ctx.error("[outputs] bone", "not used with [[bones]]: each bone has its name")
+    mesh_formats, _ = _load_outputs(ctx, doc)
+    common = {"case_dir": ctx.dir, "id": case_id, "units": units, "views": views}
+    common.update(poses=poses, silhouettes=silhouettes, warnings=ctx.warnings)
+    common["mesh_formats"] = mesh_formats
+    bones = [
+        Case(**common, **_one_bone(ctx, i, t, doc, views, reg, scale))
+        for i, t in enumerate(tables)
+    ]
+    names = [b.bone for b in bones]
+    if len(set(names)) != len(names):
+        dup = next(n for n in names if names.count(n) > 1)
+        raise ctx.error("[[bones]] name", f"duplicate bone name {dup!r} (names: {names})")
+    return dataclasses.replace(bones[0], bones=bones, bone=bones[0].bone)
+
+
+def _one_bone(ctx: _Ctx, i: int, table: object, doc: dict, views, reg: dict, scale: float):
+    """The single-bone fields of ``[[bones]][i]``: ``name``, ``model`` (the ``[model]`` keys),
+    ``annotations``, optional ``ground_truth`` (the ``[ground_truth]`` keys) and
+    ``registration`` (overrides of the case's options)."""
+    where = f"[[bones]][{i}]"
+    if not isinstance(table, dict):
+        raise ctx.error(where, "expected a table")
+    name = ctx.string(table, "name", where)
+    if not BONE_NAME.fullmatch(name):
+        raise ctx.error(
+            f"{where} name",
+            f"expected a name of letters, digits, '_', '-', '.' (it names out/bones/<name>/); "
+            f"got {name!r}",
+        )
+    where = f"[[bones]][{i}] ({name})"
+    ctx.unknown_keys(table, "bones", where)
+    sub = _Scoped(ctx, where)
+    model, source, landmarks = _load_model(sub, table, scale)
+    frames, ann, ann_path = _bone_annotations(sub, table, doc, views, landmarks, scale, model)
+    own = sub.table(table, "registration", required=False)
+    for key in own:
+        if key in _MODE_KEYS:
+            raise sub.error(f"[registration] {key}", "set it for the whole case in [registration]")
+    merged = {k: v for k, v in reg.items() if k in _OPTION_FIELDS} | own
+    return {
+        "model": model,
+        "model_source": source,
+        "landmarks": landmarks,
+        "annotations": ann,
+        "annotations_path": ann_path,
+        "options": registration_options(merged, sub),
+        "ground_truth": _load_ground_truth(sub, table, scale, model),
+        "frames": frames,
+        "bone": name,
+    }
+
+
+def _bone_annotations(sub: _Scoped, table: dict, doc: dict, views, landmarks, scale, model):
+    """``(frames, annotations, path)`` of a bone: ``annotations`` is a file (or ``{file =
+    ...}``), or with ``[[frames]]`` a table ``{frame name = file}`` naming every frame."""
+    value = table.get("annotations")
+    if value is None:
+        raise sub.error("annotations", "missing")
+    tables = doc.get("frames")
+    if tables is None:
+        value = {"file": value} if isinstance(value, str) else value
+        ann, path = _load_annotations(sub, {"annotations": value}, views, landmarks)
+        return [], ann, path
+    if not isinstance(tables, list) or not tables:
+        raise sub.error("[[frames]]", "expected at least one [[frames]] table")
+    if not isinstance(value, dict):
+        raise sub.error("annotations", "expected a table {frame name = file} (the case has frames)")
+    names = [_frame_name(sub, i, t) for i, t in enumerate(tables)]
+    for key in value:
+        if key not in names:
+            raise sub.error(f"annotations {key}", f"unknown frame; the frames are {names}")
+    missing = [n for n in names if n not in value]
+    if missing:
+        raise sub.error("annotations", f"no file for frame {missing[0]!r}")
+    if any(isinstance(t, dict) and "ground_truth" in t for t in tables):
+        raise sub.error(
+            "[[frames]] ground_truth", "not used with [[bones]]: which bone's would it be?"
+        )
+    paths = [sub.path(value, n, "annotations") for n in names]
+    frames = _load_frames(sub, {"frames": tables}, views, landmarks, scale, model, paths)
+    return frames, frames[0].annotations, frames[0].annotations_path
 
 
 def _load_outputs(ctx: _Ctx, doc: dict) -> tuple[tuple[str, ...], str]:

@@ -42,6 +42,9 @@ __all__: list[str] = []
 
 #: Files whose presence marks a complete case output folder.
 REQUIRED_OUTPUTS = ("registered.ply", "result.json", "report.html")
+#: The folder of a multi-bone case's per-bone outputs (``out/bones/<name>/``, docs/bones.md);
+#: such an output has no top-level ``registered.ply``.
+BONES_DIR = "bones"
 
 
 def uncertainty_summary(sd_mm: np.ndarray | None) -> dict[str, float] | None:
@@ -68,6 +71,8 @@ def is_complete(out: Path, report: bool = True) -> bool:
     """True when ``out`` is a complete case output folder (``report=False``: without
     ``report.html``, as ``--no-report`` writes it)."""
     need = REQUIRED_OUTPUTS if report else tuple(f for f in REQUIRED_OUTPUTS if f != "report.html")
+    if (out / BONES_DIR).is_dir():  # a multi-bone case: the meshes are in bones/<name>/
+        need = tuple(f for f in need if f != "registered.ply")
     return out.is_dir() and all((out / f).is_file() for f in need)
 
 
@@ -132,9 +137,9 @@ def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]", "_", name).lstrip(".") or "case"
 
 
-def _autoscoper_volume(case: Any) -> AutoscoperVolume:
+def _autoscoper_volume(bone: str) -> AutoscoperVolume:
     return AutoscoperVolume(
-        f"volumes/{case.bone}.tif",
+        f"volumes/{bone}.tif",
         comment="the bone's density volume (CT partial volume) in the model frame: not made by "
         "biplanar-reg; put it here (see docs/exports.md)",
     )
@@ -173,7 +178,7 @@ def write_exports(tmp: Path, out: Path, case: Any, res: Any) -> list[str]:
         path = tmp / f"registered.{fmt}"
         write_mesh(path, res.vertices, case.model.faces)
         files.append(path)
-    files += _autoscoper_exports(tmp, out, case, pose)
+    files += autoscoper_exports(tmp, out, case, {case.bone: pose[None]})
     return [p.relative_to(tmp).as_posix() for p in files]
 
 
@@ -189,8 +194,11 @@ def _radiograph_dirs(case: Any) -> list[Path | None]:
     return out
 
 
-def _autoscoper_exports(tmp: Path, out: Path, case: Any, pose: np.ndarray) -> list[Path]:
-    """``autoscoper/``: the trial ``.cfg``, MayaCam 2.0 per view, ``Tracking/<id>_<bone>.tra``.
+def autoscoper_exports(
+    tmp: Path, out: Path, case: Any, poses: dict[str, np.ndarray]
+) -> list[Path]:
+    """``autoscoper/``: the trial ``.cfg`` (one volume per bone), MayaCam 2.0 per view, and
+    ``Tracking/<id>_<bone>.tra`` per bone (``poses``: bone name -> (F, 4, 4) model -> world).
 
     Only for cases whose views are all pinhole cameras with an image size (what Autoscoper and
     MayaCam 2.0 hold); otherwise nothing is written here.
@@ -212,8 +220,9 @@ def _autoscoper_exports(tmp: Path, out: Path, case: Any, pose: np.ndarray) -> li
         _safe(case.id),
         views,
         dirs,
-        [_autoscoper_volume(case)],
+        [_autoscoper_volume(bone) for bone in poses],
         final_folder=out / "autoscoper",
     )
-    files.append(write_tra(folder / "Tracking" / f"{_safe(case.id)}_{case.bone}.tra", pose[None]))
+    for bone, P in poses.items():
+        files.append(write_tra(folder / "Tracking" / f"{_safe(case.id)}_{bone}.tra", P))
     return files

@@ -409,6 +409,13 @@ def register_case(
     if out_dir == case.case_dir or case.case_dir.is_relative_to(out_dir):
         raise ValueError(f"--out {out_dir}: must not be the case folder or contain it")
     clean_stale(out_dir)
+    if case.bones:  # [[bones]]: each bone through this function, into out/bones/<name>/
+        from .bones import register_bones_case
+
+        return register_bones_case(
+            case, out_dir, include_phi=include_phi, load_seconds=load_seconds,
+            progress=progress, report=report,
+        )
     if case.frames:
         return register_frames_case(
             case, out_dir, load_seconds=load_seconds, progress=progress, report=report
