@@ -165,20 +165,43 @@ def write_exports(tmp: Path, out: Path, case: Any, res: Any) -> list[str]:
         The files written, relative to the output folder (``result.json["exports"]``).
     """
     pose = rigid_pose(res.rotation, res.translation)
+    return write_pose_exports(tmp, out, case, pose[None], res.vertices)
+
+
+def write_pose_exports(
+    tmp: Path, out: Path, case: Any, poses: np.ndarray, vertices: np.ndarray
+) -> list[str]:
+    """The exports of :func:`write_exports` from poses per frame (a multi-frame case too).
+
+    Parameters
+    ----------
+    tmp, out, case
+        As for :func:`write_exports`.
+    poses : (F, 4, 4) array
+        Model -> world rigid transforms per frame, mm (NaN rows: untracked frames).
+    vertices : (N, 3) array
+        The registered bone in frame 0, world frame, mm (landmark markups and extra mesh
+        formats; ``registered.tfm`` holds frame 0's pose too).
+
+    Returns
+    -------
+    list of str
+        The files written, relative to the output folder.
+    """
     files = [
-        write_tra(tmp / "registered.tra", pose[None]),
-        write_itk_tfm(tmp / "registered.tfm", pose),
+        write_tra(tmp / "registered.tra", poses),
+        write_itk_tfm(tmp / "registered.tfm", poses[0]),
     ]
-    files.append(write_kinematics_csv(tmp / "kinematics.csv", {case.bone: pose[None]}))
+    files.append(write_kinematics_csv(tmp / "kinematics.csv", {case.bone: poses}))
     if case.landmarks:
         names = list(case.landmarks)
         idx = [case.landmarks[n] for n in names]
-        files.append(write_markups_json(tmp / "landmarks.mrk.json", names, res.vertices[idx]))
+        files.append(write_markups_json(tmp / "landmarks.mrk.json", names, vertices[idx]))
     for fmt in case.mesh_formats:
         path = tmp / f"registered.{fmt}"
-        write_mesh(path, res.vertices, case.model.faces)
+        write_mesh(path, vertices, case.model.faces)
         files.append(path)
-    files += autoscoper_exports(tmp, out, case, {case.bone: pose[None]})
+    files += autoscoper_exports(tmp, out, case, {case.bone: poses})
     return [p.relative_to(tmp).as_posix() for p in files]
 
 

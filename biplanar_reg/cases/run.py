@@ -24,7 +24,6 @@ import numpy as np
 from ..errors import CaseError, CaseFailure, SolverFailure
 from ..io import write_mesh
 from ..io.atomic import atomic_write_json
-from ..io.transforms import write_tra
 from ..registration import RegistrationResult, ViewObservations, register_views
 from ..registration.frames import FrameRegistrationResult, register_frames
 from .case import Case, load_case, to_frame_observations, to_view_observations
@@ -35,6 +34,7 @@ from .outputs import (
     mesh_properties,
     uncertainty_summary,
     write_exports,
+    write_pose_exports,
 )
 
 if TYPE_CHECKING:  # the report (matplotlib, VTK) is imported when a case is written
@@ -777,7 +777,9 @@ def register_frames_case(
 ) -> RunOutcome:
     """A multi-frame case (``case.frames``): :func:`~biplanar_reg.registration.frames.
     register_frames`, then ``registered.ply`` (frame 0's pose, vertex property ``sd_mm``),
-    ``registered_model.ply`` (the model frame), ``registered.tra`` (one pose per frame),
+    ``registered_model.ply`` (the model frame), ``registered.tra`` (one pose per frame) and
+    the other pose exports (:func:`~biplanar_reg.cases.outputs.write_pose_exports`: frame 0's
+    ``.tfm`` and markups, ``kinematics.csv`` and the Autoscoper trial over all frames),
     ``result.json`` and (unless ``report`` is False) ``report.html`` with its figures
     (:func:`biplanar_reg.report.frames.write_frames_report`), atomically."""
 
@@ -796,7 +798,7 @@ def register_frames_case(
     timings["metrics"] = time.perf_counter() - t1
     doc = frames_result_document(case, frames, res, timings, ground_truth=gt)
     say(
-        "writing registered.ply, registered_model.ply, registered.tra, result.json"
+        "writing registered.ply, registered_model.ply, the pose exports, result.json"
         + (" and the report" if report else "")
     )
     with atomic_output_dir(out_dir) as tmp:
@@ -804,7 +806,9 @@ def register_frames_case(
         props = mesh_properties(sd0 if sd0 is not None and np.isfinite(sd0).all() else None)
         write_mesh(tmp / "registered.ply", res.frame_vertices(0), case.model.faces, props)
         write_mesh(tmp / "registered_model.ply", res.vertices, case.model.faces)
-        write_tra(tmp / "registered.tra", res.poses())
+        doc["exports"] = write_pose_exports(
+            tmp, out_dir, case, res.poses(), res.frame_vertices(0)
+        )
         if report:
             t2 = time.perf_counter()
             doc["report"] = _write_frames_report(tmp, case, frames, res, doc)

@@ -166,3 +166,22 @@ def test_a_frame_set_without_any_landmark_frame_is_refused(tmp_path):
 
     with pytest.raises(CaseError, match=r"\[\[frames\]\]: no frame has 4 landmark observations"):
         load_case(_copy(tmp_path, edit))
+
+
+def test_register_writes_the_pose_exports_over_all_frames(registered):
+    """A multi-frame case gets the single-frame case's exports: kinematics per frame, frame 0's
+    ITK transform and markups, and the Autoscoper trial tracking every frame."""
+    from biplanar_reg.io.transforms import read_itk_tfm, read_kinematics_csv, read_markups_json
+
+    doc = json.loads((registered / "result.json").read_text())
+    poses = np.array([f["pose"] for f in doc["frames"]])
+    assert "kinematics.csv" in doc["exports"] and "registered.tfm" in doc["exports"]
+    np.testing.assert_allclose(read_itk_tfm(registered / "registered.tfm"), poses[0], atol=1e-9)
+    frames, kin = read_kinematics_csv(registered / "kinematics.csv")[("world", "bone")]
+    assert list(frames) == [0, 1, 2]
+    np.testing.assert_allclose(kin, poses, atol=1e-6)
+    names, points = read_markups_json(registered / "landmarks.mrk.json")
+    assert len(names) == len(points) > 0
+    tracked = [p for p in doc["exports"] if p.startswith("autoscoper/Tracking/")]
+    assert len(tracked) == 1
+    np.testing.assert_allclose(read_tra(registered / tracked[0]), poses, atol=1e-9)
