@@ -30,6 +30,7 @@ from .blunders import (
     rejected_landmarks,
     reweight,
     robust_cost,
+    suspicious_landmarks,
     weighted_landmark_rays,
 )
 from .gsft import GsftResult
@@ -220,20 +221,24 @@ def _short_fit(problem: Problem, start: Start) -> Iterate:
 
 
 def robust_start(problem: Problem, start: Start) -> Start:
-    """The start of the robust fit: the lowest robust cost over several starts.
+    """The start of the robust fit: the lowest robust cost over a few starts.
 
     The robust objective is not convex, and with few landmarks a blunder spoils the
     landmark-only start so that the outline fit converges in the wrong basin, where every
     landmark is a few pixels off and none stands out. So the starts are (a) the landmark-only
     start with robust weights from the landmarks alone (:func:`.blunders.gnc_weights`) and,
-    with outlines and at least 5 landmarks, (b) each landmark-only start without one landmark;
-    each gets a short boosted fit (``consensus_iterations``). A start without a landmark is
-    taken when its robust cost (:func:`.blunders.robust_cost`: truncated landmark terms plus
-    the outline term) is below ``consensus_margin`` times that of (a) and the lowest: short
-    fits are not converged, and without the margin a start without a good landmark wins by
-    chance (measured: one out-of-span trial then rejected a good landmark and missed the
-    blunder). No landmark is rejected here: the boosting's reweighting decides that from the
-    chosen start.
+    with outlines and at least 5 landmarks, (b) the landmark-only start without one landmark,
+    for each landmark the others contradict (:func:`.blunders.suspicious_landmarks`: deleted
+    residual above the robust loss's width, at most ``robust_candidates``, most suspicious
+    first; a screen of landmark-only refits that costs a fraction of one outline iteration).
+    With redundant landmarks none is contradicted unless it is a blunder, and no short fit
+    runs at all. Each start gets a short boosted fit (``consensus_iterations``). A start
+    without a landmark is taken when its robust cost (:func:`.blunders.robust_cost`: truncated
+    landmark terms plus the outline term) is below ``consensus_margin`` times that of (a) and
+    the lowest: short fits are not converged, and without the margin a start without a good
+    landmark wins by chance (measured: one out-of-span trial then rejected a good landmark and
+    missed the blunder). No landmark is rejected here: the boosting's reweighting decides that
+    from the chosen start.
     """
     if not problem.options.robust:
         return choose_start(problem, start)
@@ -241,10 +246,14 @@ def robust_start(problem: Problem, start: Start) -> Start:
     n_lm = len(problem.landmarks)
     if not (problem.use_outlines and n_lm >= 5):
         return chosen
+    candidates = suspicious_landmarks(problem, start.result)
+    if not candidates:
+        return chosen
     fit = _short_fit(problem, chosen)
+    chosen = Start(chosen.result, chosen.weights, fit)
     base_cost = robust_cost(problem, fit.result, fit.outlines)
     best, best_cost, left_out = chosen, problem.options.consensus_margin * base_cost, None
-    for i in range(n_lm):
+    for i in candidates:
         w = np.ones(n_lm)
         w[i] = 0.0
         alt = start_from_landmarks(problem, w)
@@ -252,6 +261,8 @@ def robust_start(problem: Problem, start: Start) -> Start:
         cost = robust_cost(problem, fit.result, fit.outlines)
         if cost < best_cost:
             best, best_cost, left_out = alt, cost, i
+    names = [problem.landmarks.names[i] for i in candidates]
+    problem.say(f"robust start: starts without {names} tried")
     if left_out is not None:
         problem.say(f"robust start: the start without {problem.landmarks.names[left_out]}")
     return Start(best.result, best.weights, best.short_fit)
