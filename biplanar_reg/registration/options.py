@@ -163,6 +163,10 @@ readmit_sigmas : None
         The robust start tries a start without one landmark only for the landmarks the others
         contradict (deleted residual above the robust loss's width), at most this many, most
         suspicious first (:func:`.blunders.suspicious_landmarks`; 0 to 1000, 0: none).
+    rigid_start_observations : float
+        The rigid mean-shape start is tried (when the relaxation is not tight) only while the
+        weighted landmark observations are fewer than this many times the pose and shape
+        parameters, 6 + modes (:func:`.stages.choose_start`).
     """
 
     landmark_weight: float = 0.5
@@ -200,6 +204,7 @@ readmit_sigmas : None
     readmit_sigmas: float | None = None
     certificate_flag: float | None = None
     robust_candidates: int = 3
+    rigid_start_observations: float = 1.0
 
     def __post_init__(self) -> None:
         for key, new in DEPRECATED_OPTIONS.items():

@@ -61,6 +61,7 @@ BAD = {
     "pose_sigma_deg": [0.0, -2.0, math.inf],
     "pose_sigma_mm": [0.0, -5.0, math.nan],
     "robust_candidates": [-1, 1001, 1.5],
+    "rigid_start_observations": [0.0, -1.0, math.inf, math.nan],
 }
 
 
