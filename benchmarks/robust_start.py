@@ -14,7 +14,8 @@ starts of :func:`.stages.robust_start` (``L - 1`` observations).
 
 Usage::
 
-    python benchmarks/robust_start.py [--seeds 6] [--modes 4] [--out benchmarks/results/robust_start.md]
+    python benchmarks/robust_start.py [--seeds 6] [--modes 4]
+        [--out benchmarks/results/robust_start.md]
 """
 
 from __future__ import annotations
@@ -48,7 +49,8 @@ def _spy(original):
         n = len(problem.landmarks)
         if start.weights is not None:
             n = int(np.sum(np.asarray(start.weights) >= opts.rejection_weight))
-        if problem.use_outlines and problem.model.n_modes and res.certificate > opts.start_certificate:
+        loose = res.certificate > opts.start_certificate
+        if problem.use_outlines and problem.model.n_modes and loose:
             k = opts.consensus_iterations
             alt = stages.rigid_mean_start(problem, res, start.weights)
             full = stages.boost(problem, res, start.weights, k, detect=False).best.cost
@@ -65,7 +67,11 @@ def synthetic(seeds: int, modes: int, opts) -> None:
     for per_view in (3, 4, 5, 6, 8):
         for seed in range(seeds):
             views, _ = boosting_case(
-                full, seed, fraction=0.8, noise_px=1.5, outline_noise_px=0.5,
+                full,
+                seed,
+                fraction=0.8,
+                noise_px=1.5,
+                outline_noise_px=0.5,
                 landmarks_per_view=per_view,
             )
             register_views(model, views, options=opts)
@@ -117,7 +123,8 @@ def main() -> None:
         "Every comparison of `choose_start` (relaxation not tight) with the observation rule off. "
         "L = landmark observations weighted; P = pose + shape parameters.",
         "",
-        "| cases | L | P | L / P | comparisons | rigid start won | min cost ratio rigid / landmark-only |",
+        "| cases | L | P | L / P | comparisons | rigid start won "
+        "| min cost ratio rigid / landmark-only |",
         "|---|---|---|---|---|---|---|",
     ]
     for name, p, log in rows:
@@ -127,7 +134,8 @@ def main() -> None:
         for n in sorted(by):
             r = np.asarray(by[n])
             lines.append(
-                f"| {name} | {n} | {p} | {n / p:.2f} | {r.size} | {int(np.sum(r < 1))} | {r.min():.2f} |"
+                f"| {name} | {n} | {p} | {n / p:.2f} | {r.size} | {int(np.sum(r < 1))} "
+                f"| {r.min():.2f} |"
             )
     lines += [
         "",
