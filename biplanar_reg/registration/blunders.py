@@ -30,6 +30,13 @@ while the robust scale grows with the residuals and only a landmark far outside 
 blunder of tens of pixels) loses its weight. The outline matches need no weights here: the
 boosting's matching gates them (:mod:`.outline_match`).
 
+Where the GNC starts matters (the loss is not convex): with few landmarks a blunder spoils the
+landmark-only start. :func:`suspicious_landmarks` screens which landmarks a start without them
+is worth trying for (:func:`.stages.robust_start`): those the others contradict, by
+:func:`deleted_residuals` (each landmark's error at a landmark-only fit of the others) above the
+loss's width ``c``. One principle again: a landmark is suspect when it lies outside the loss's
+width of what the rest of the data predicts; no separate threshold.
+
 Weights enter the solvers as sigmas: ``sigma / sqrt(w)``, with ``w`` floored at
 ``rejected_sigma_factor ** -2`` so every ray stays finite and the problem keeps its size.
 """
