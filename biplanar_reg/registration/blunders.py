@@ -196,17 +196,16 @@ def deleted_residuals(problem: Problem, result: GsftResult) -> np.ndarray:
 
 
 def suspicious_landmarks(problem: Problem, result: GsftResult) -> list[int]:
-    """The landmarks the others contradict, most suspicious first: at most
-    ``robust_candidates`` of those whose :func:`deleted_residuals` exceeds the width ``c`` of
-    the robust loss at ``result`` (:func:`robust_width` of its landmark errors: where the
-    Geman-McClure loss would weigh the landmark 1/4 if the others were right)."""
-    lm, k = problem.landmarks, problem.options.robust_candidates
-    if k == 0 or len(lm) < MIN_LANDMARKS:
+    """The landmarks the others contradict, most suspicious first: those whose
+    :func:`deleted_residuals` exceeds the width ``c`` of the robust loss at ``result``
+    (:func:`robust_width` of its landmark errors: where the Geman-McClure loss would weigh the
+    landmark 1/4 if the others were right). Empty with fewer than :data:`MIN_LANDMARKS`."""
+    lm = problem.landmarks
+    if len(lm) < MIN_LANDMARKS:
         return []
     c = robust_width(problem, problem.landmark_px_errors(result.vertices) / lm.sigma_px)
     d = deleted_residuals(problem, result)
-    order = [int(i) for i in np.argsort(-d, kind="stable") if d[i] > c]
-    return order[:k]
+    return [int(i) for i in np.argsort(-d, kind="stable") if d[i] > c]
 
 
 def gnc_weights(

@@ -34,7 +34,6 @@ COUNT_RANGES: dict[str, tuple[int, int]] = {
     "silhouette_points": (3, 100_000),
     "consensus_iterations": (1, 1000),
     "blunder_refine_iterations": (1, 10_000),
-    "robust_candidates": (0, 1000),
 }
 # fields that must be fractions in (0, 1]
 _FRACTIONS = ("landmark_weight", "rejection_weight", "consensus_margin")
@@ -159,10 +158,6 @@ readmit_sigmas : None
         DeprecationWarning and ignored.
     certificate_flag : None
         Deprecated spelling of ``start_certificate`` (sets it, with a DeprecationWarning).
-    robust_candidates : int
-        The robust start tries a start without one landmark only for the landmarks the others
-        contradict (deleted residual above the robust loss's width), at most this many, most
-        suspicious first (:func:`.blunders.suspicious_landmarks`; 0 to 1000, 0: none).
     rigid_start_observations : float
         The rigid mean-shape start is tried (when the relaxation is not tight) only while the
         weighted landmark observations are fewer than this many times the pose and shape
@@ -203,7 +198,6 @@ readmit_sigmas : None
     consensus_trigger: float | None = None
     readmit_sigmas: float | None = None
     certificate_flag: float | None = None
-    robust_candidates: int = 3
     rigid_start_observations: float = 1.0
 
     def __post_init__(self) -> None:

@@ -240,8 +240,8 @@ def robust_start(problem: Problem, start: Start) -> Start:
     start with robust weights from the landmarks alone (:func:`.blunders.gnc_weights`) and,
     with outlines and at least 5 landmarks, (b) the landmark-only start without one landmark,
     for each landmark the others contradict (:func:`.blunders.suspicious_landmarks`: deleted
-    residual above the robust loss's width, at most ``robust_candidates``, most suspicious
-    first; a screen of landmark-only refits that costs a fraction of one outline iteration).
+    residual above the robust loss's width; a screen of landmark-only refits that costs a
+    fraction of one outline iteration).
     With redundant landmarks none is contradicted unless it is a blunder, and no short fit
     runs at all. Each start gets a short boosted fit (``consensus_iterations``). A start
     without a landmark is taken when its robust cost (:func:`.blunders.robust_cost`: truncated

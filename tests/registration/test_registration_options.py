@@ -60,7 +60,6 @@ BAD = {
     "rejected_sigma_factor": [0.5, 0.0, math.inf, math.nan],
     "pose_sigma_deg": [0.0, -2.0, math.inf],
     "pose_sigma_mm": [0.0, -5.0, math.nan],
-    "robust_candidates": [-1, 1001, 1.5],
     "rigid_start_observations": [0.0, -1.0, math.inf, math.nan],
 }
 
@@ -99,7 +98,6 @@ COUNT_RANGES = {
     "silhouette_points": (3, 100_000),
     "blunder_refine_iterations": (1, 10_000),
     "consensus_iterations": (1, 1000),
-    "robust_candidates": (0, 1000),
 }
 
 
