@@ -3,11 +3,12 @@
 :func:`biplanar_reg.registration.stages.choose_start` compares the landmark-only start with the
 mean shape posed by the landmarks (each by a short boosted fit) when the landmark-only
 relaxation is not tight. Here every such comparison is recorded with the observation rule off
-(``rigid_start_observations`` huge), on the out-of-span synthetic cases of
+(``rigid_start_redundancy`` huge), on the out-of-span synthetic cases of
 ``benchmarks/robust_landmarks.py`` (truth: the 8-mode synthetic bone; model: its first
 ``--modes``; two views, 80 % outlines, 1.5 px click noise) with 3 to 8 landmarks per view,
 clean and with one 40 px blunder, and on the knee-sized case of ``benchmarks/case_time.py``.
-Per number of landmark observations ``L`` (over the parameters ``6 + modes``): comparisons
+Per number of landmark observations ``L`` (parameters ``P = 6 + modes``, redundancy
+``2 L - P``): comparisons
 made, how often the rigid start's short fit had the lower cost, and the smallest cost ratio
 rigid / landmark-only (below 1: the rigid start won). Comparisons include the leave-one-out
 starts of :func:`.stages.robust_start` (``L - 1`` observations).
@@ -104,7 +105,7 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
     stages.choose_start = _spy(stages.choose_start)
-    opts = RegistrationOptions(rigid_start_observations=1e9)
+    opts = RegistrationOptions(rigid_start_redundancy=10_000)
     t0 = time.perf_counter()
     rows = []
     with threadpool_limits(1):
@@ -123,9 +124,9 @@ def main() -> None:
         "Every comparison of `choose_start` (relaxation not tight) with the observation rule off. "
         "L = landmark observations weighted; P = pose + shape parameters.",
         "",
-        "| cases | L | P | L / P | comparisons | rigid start won "
+        "| cases | L | P | L / P | 2 L - P | comparisons | rigid start won "
         "| min cost ratio rigid / landmark-only |",
-        "|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for name, p, log in rows:
         by = defaultdict(list)
@@ -134,12 +135,12 @@ def main() -> None:
         for n in sorted(by):
             r = np.asarray(by[n])
             lines.append(
-                f"| {name} | {n} | {p} | {n / p:.2f} | {r.size} | {int(np.sum(r < 1))} "
-                f"| {r.min():.2f} |"
+                f"| {name} | {n} | {p} | {n / p:.2f} | {2 * n - p} | {r.size} "
+                f"| {int(np.sum(r < 1))} | {r.min():.2f} |"
             )
     lines += [
         "",
-        "Default `rigid_start_observations` = 1.0: the rigid start is tried only for L / P < 1.",
+        "Default `rigid_start_redundancy` = 14: the rigid start is tried only for 2 L - P < 14.",
     ]
     text = "\n".join(lines) + "\n"
     print(text)

@@ -144,10 +144,12 @@ def choose_start(problem: Problem, start: Start) -> Start:
 
     The landmark-only start counts as unreliable when its relaxation is not tight (certificate
     above ``start_certificate``: the rounded solution can be 10 mm off) *and* the landmarks it
-    weighs (weight at least ``rejection_weight``) are fewer than ``rigid_start_observations``
-    times the pose and shape parameters (6 + modes): with more, the landmarks pin the rounded
-    solution down (measured, ``benchmarks/results/robust_start.md``: the rigid start never won
-    with 10 observations for 12 parameters or 16 for 14, and won 16 of 47 times with 6 for 12).
+    weighs (weight at least ``rejection_weight``), ``L`` of them, give fewer than
+    ``rigid_start_redundancy`` coordinates beyond the pose and shape parameters:
+    ``2 L - (6 + modes) < rigid_start_redundancy``. With more, the landmarks pin the rounded
+    solution down: measured (``benchmarks/results/robust_start.md``, every comparison with the
+    rule off), the rigid start won up to a redundancy of 12 (5 of 30 comparisons there) and
+    never from 14 on (0 of 55, including the knee-sized case at 18).
     """
     opts = problem.options
     res = start.result
@@ -158,7 +160,7 @@ def choose_start(problem: Problem, start: Start) -> Start:
         not problem.use_outlines
         or problem.model.n_modes == 0
         or res.certificate <= opts.start_certificate
-        or n_lm >= opts.rigid_start_observations * (6 + problem.model.n_modes)
+        or 2 * n_lm - (6 + problem.model.n_modes) >= opts.rigid_start_redundancy
     ):
         return start
     alt = rigid_mean_start(problem, res, start.weights)

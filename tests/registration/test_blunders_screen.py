@@ -1,5 +1,5 @@
 """The robust start's screen (``blunders.deleted_residuals``, ``suspicious_landmarks``) and the
-start choice's observation rule (``stages.choose_start``, ``rigid_start_observations``).
+start choice's redundancy rule (``stages.choose_start``, ``rigid_start_redundancy``).
 
 Set-up of ``registration_problems.py`` (synthetic bone, 8 modes, truth in the span, two views,
 0.5 px noise, 80 % outlines) with 8 landmarks per view: 16 observations for 14 pose and shape
@@ -74,13 +74,13 @@ def test_robust_start_tries_no_leave_one_out_start_when_none_is_contradicted(
     assert calls == [] and out.result is start.result and out.weights is None
 
 
-def test_choose_start_tries_the_rigid_start_only_with_few_observations(model, redundant):
-    """16 observations for 14 parameters: the landmark-only start is kept without a short fit,
-    though its relaxation is not tight."""
+def test_choose_start_tries_the_rigid_start_only_with_little_redundancy(model, redundant):
+    """16 observations for 14 parameters (redundancy 18): the landmark-only start is kept
+    without a short fit, though its relaxation is not tight."""
     p, start, *_ = redundant
     assert start.result.certificate > p.options.start_certificate
     assert choose_start(p, start) is start
-    # rejected landmarks do not count: with 4 of 16 weighing 0, 12 < 14 and both are compared
+    # rejected landmarks do not count: with 4 of 16 weighing 0 the redundancy is 10 < 14
     w = np.ones(2 * PER_VIEW)
     w[:4] = 0.0
     assert choose_start(p, Start(start.result, w)).short_fit is not None
