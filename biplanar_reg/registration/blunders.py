@@ -30,6 +30,13 @@ while the robust scale grows with the residuals and only a landmark far outside 
 blunder of tens of pixels) loses its weight. The outline matches need no weights here: the
 boosting's matching gates them (:mod:`.outline_match`).
 
+Where the GNC starts matters (the loss is not convex): with few landmarks a blunder spoils the
+landmark-only start. :func:`suspicious_landmarks` screens which landmarks a start without them
+is worth trying for (:func:`.stages.robust_start`): those the others contradict, by
+:func:`deleted_residuals` (each landmark's error at a landmark-only fit of the others) above the
+loss's width ``c``. One principle again: a landmark is suspect when it lies outside the loss's
+width of what the rest of the data predicts; no separate threshold.
+
 Weights enter the solvers as sigmas: ``sigma / sqrt(w)``, with ``w`` floored at
 ``rejected_sigma_factor ** -2`` so every ray stays finite and the problem keeps its size.
 """
@@ -142,6 +149,63 @@ def weighted_landmark_rays(problem: Problem, weights: np.ndarray | None) -> RayO
         return rays
     floor = problem.options.rejected_sigma_factor**-2.0
     return rays.with_sigmas(rays.sigmas / np.sqrt(np.maximum(weights, floor)))
+
+
+def deleted_residuals(problem: Problem, result: GsftResult) -> np.ndarray:
+    """Each landmark's deleted residual: its error (annotated sigmas) at the landmark-only fit
+    of the *other* landmarks, all weighing 1.
+
+    Parameters
+    ----------
+    problem : Problem
+    result : GsftResult
+        The landmark-only solve of all the landmarks: every leave-one-out fit starts from its
+        pose and shape.
+
+    Returns
+    -------
+    (L,) array
+        Each fit runs ``blunder_refine_iterations`` Levenberg-Marquardt iterations
+        (:func:`.refine.refine_pose_shape`, landmarks only: no SDP, no outlines), so the
+        whole screen costs a fraction of one outline iteration.
+
+    Notes
+    -----
+    Unlike the residual at the fit of all the landmarks (a blunder the shape absorbs leaves a
+    small one), the deleted residual is what the other landmarks predict, so a blunder stands
+    out in its own; a good landmark of a 3-D point whose other observation is the blunder has a
+    large one too (the two are confounded with few landmarks).
+    """
+    lm, opts = problem.landmarks, problem.options
+    n = len(lm)
+    state = (result.rotation, result.translation, result.weights)
+    out = np.zeros(n)
+    for i in range(n):
+        w = np.ones(n)
+        w[i] = 0.0
+        fit = refine_pose_shape(
+            problem.model,
+            weighted_landmark_rays(problem, w),
+            state,
+            prior_weight=opts.prior_weight,
+            max_iter=opts.blunder_refine_iterations,
+        )
+        vertices = problem.model.instance(fit.weights) @ fit.rotation.T + fit.translation
+        out[i] = (problem.landmark_px_errors(vertices) / lm.sigma_px)[i]
+    return out
+
+
+def suspicious_landmarks(problem: Problem, result: GsftResult) -> list[int]:
+    """The landmarks the others contradict, most suspicious first: those whose
+    :func:`deleted_residuals` exceeds the width ``c`` of the robust loss at ``result``
+    (:func:`robust_width` of its landmark errors: where the Geman-McClure loss would weigh the
+    landmark 1/4 if the others were right). Empty with fewer than :data:`MIN_LANDMARKS`."""
+    lm = problem.landmarks
+    if len(lm) < MIN_LANDMARKS:
+        return []
+    c = robust_width(problem, problem.landmark_px_errors(result.vertices) / lm.sigma_px)
+    d = deleted_residuals(problem, result)
+    return [int(i) for i in np.argsort(-d, kind="stable") if d[i] > c]
 
 
 def gnc_weights(

@@ -34,6 +34,7 @@ COUNT_RANGES: dict[str, tuple[int, int]] = {
     "silhouette_points": (3, 100_000),
     "consensus_iterations": (1, 1000),
     "blunder_refine_iterations": (1, 10_000),
+    "rigid_start_redundancy": (0, 10_000),
 }
 # fields that must be fractions in (0, 1]
 _FRACTIONS = ("landmark_weight", "rejection_weight", "consensus_margin")
@@ -158,6 +159,11 @@ readmit_sigmas : None
         DeprecationWarning and ignored.
     certificate_flag : None
         Deprecated spelling of ``start_certificate`` (sets it, with a DeprecationWarning).
+    rigid_start_redundancy : int
+        The rigid mean-shape start is tried (when the relaxation is not tight) only while the
+        weighted landmarks' coordinates exceed the pose and shape parameters by less than this:
+        ``2 L - (6 + modes) < rigid_start_redundancy`` (:func:`.stages.choose_start`;
+        0 to 10000, 0: never).
     """
 
     landmark_weight: float = 0.5
@@ -194,6 +200,7 @@ readmit_sigmas : None
     consensus_trigger: float | None = None
     readmit_sigmas: float | None = None
     certificate_flag: float | None = None
+    rigid_start_redundancy: int = 14
 
     def __post_init__(self) -> None:
         for key, new in DEPRECATED_OPTIONS.items():

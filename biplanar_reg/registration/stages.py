@@ -30,6 +30,7 @@ from .blunders import (
     rejected_landmarks,
     reweight,
     robust_cost,
+    suspicious_landmarks,
     weighted_landmark_rays,
 )
 from .gsft import GsftResult
@@ -137,16 +138,29 @@ def rigid_mean_start(
 
 
 def choose_start(problem: Problem, start: Start) -> Start:
-    """Keep ``start``, or, when its relaxation is not tight (certificate above
-    ``start_certificate``: few landmarks for the pose and all the modes make the rounded
-    solution unreliable), the rigid mean-shape start if its short boosted fit explains the
-    outlines and landmarks better. The short fit of the start kept is returned with it."""
+    """Keep ``start``, or, when it is unreliable, the rigid mean-shape start if its short
+    boosted fit explains the outlines and landmarks better. The short fit of the start kept is
+    returned with it.
+
+    The landmark-only start counts as unreliable when its relaxation is not tight (certificate
+    above ``start_certificate``: the rounded solution can be 10 mm off) *and* the landmarks it
+    weighs (weight at least ``rejection_weight``), ``L`` of them, give fewer than
+    ``rigid_start_redundancy`` coordinates beyond the pose and shape parameters:
+    ``2 L - (6 + modes) < rigid_start_redundancy``. With more, the landmarks pin the rounded
+    solution down: measured (``benchmarks/results/robust_start.md``, every comparison with the
+    rule off), the rigid start won up to a redundancy of 12 (5 of 30 comparisons there) and
+    never from 14 on (0 of 55, including the knee-sized case at 18).
+    """
     opts = problem.options
     res = start.result
+    n_lm = len(problem.landmarks)
+    if start.weights is not None:
+        n_lm = int(np.sum(np.asarray(start.weights) >= opts.rejection_weight))
     if (
         not problem.use_outlines
         or problem.model.n_modes == 0
         or res.certificate <= opts.start_certificate
+        or 2 * n_lm - (6 + problem.model.n_modes) >= opts.rigid_start_redundancy
     ):
         return start
     alt = rigid_mean_start(problem, res, start.weights)
@@ -220,20 +234,25 @@ def _short_fit(problem: Problem, start: Start) -> Iterate:
 
 
 def robust_start(problem: Problem, start: Start) -> Start:
-    """The start of the robust fit: the lowest robust cost over several starts.
+    """The start of the robust fit: the lowest robust cost over a few starts.
 
     The robust objective is not convex, and with few landmarks a blunder spoils the
     landmark-only start so that the outline fit converges in the wrong basin, where every
     landmark is a few pixels off and none stands out. So the starts are (a) the landmark-only
     start with robust weights from the landmarks alone (:func:`.blunders.gnc_weights`) and,
-    with outlines and at least 5 landmarks, (b) each landmark-only start without one landmark;
-    each gets a short boosted fit (``consensus_iterations``). A start without a landmark is
-    taken when its robust cost (:func:`.blunders.robust_cost`: truncated landmark terms plus
-    the outline term) is below ``consensus_margin`` times that of (a) and the lowest: short
-    fits are not converged, and without the margin a start without a good landmark wins by
-    chance (measured: one out-of-span trial then rejected a good landmark and missed the
-    blunder). No landmark is rejected here: the boosting's reweighting decides that from the
-    chosen start.
+    with outlines and at least 5 landmarks, (b) the landmark-only start without one landmark,
+    for each landmark the others contradict (:func:`.blunders.suspicious_landmarks`: deleted
+    residual above the robust loss's width; a screen of landmark-only refits that costs a
+    fraction of one outline iteration).
+    With redundant landmarks few are (none in the knee-sized case of
+    ``benchmarks/case_time.py``: no short fit runs at all). Each start gets a short boosted
+    fit (``consensus_iterations``). A start
+    without a landmark is taken when its robust cost (:func:`.blunders.robust_cost`: truncated
+    landmark terms plus the outline term) is below ``consensus_margin`` times that of (a) and
+    the lowest: short fits are not converged, and without the margin a start without a good
+    landmark wins by chance (measured: one out-of-span trial then rejected a good landmark and
+    missed the blunder). No landmark is rejected here: the boosting's reweighting decides that
+    from the chosen start.
     """
     if not problem.options.robust:
         return choose_start(problem, start)
@@ -241,10 +260,14 @@ def robust_start(problem: Problem, start: Start) -> Start:
     n_lm = len(problem.landmarks)
     if not (problem.use_outlines and n_lm >= 5):
         return chosen
+    candidates = suspicious_landmarks(problem, start.result)
+    if not candidates:
+        return chosen
     fit = _short_fit(problem, chosen)
+    chosen = Start(chosen.result, chosen.weights, fit)
     base_cost = robust_cost(problem, fit.result, fit.outlines)
     best, best_cost, left_out = chosen, problem.options.consensus_margin * base_cost, None
-    for i in range(n_lm):
+    for i in candidates:
         w = np.ones(n_lm)
         w[i] = 0.0
         alt = start_from_landmarks(problem, w)
@@ -252,6 +275,8 @@ def robust_start(problem: Problem, start: Start) -> Start:
         cost = robust_cost(problem, fit.result, fit.outlines)
         if cost < best_cost:
             best, best_cost, left_out = alt, cost, i
+    names = [problem.landmarks.names[i] for i in candidates]
+    problem.say(f"robust start: starts without {names} tried")
     if left_out is not None:
         problem.say(f"robust start: the start without {problem.landmarks.names[left_out]}")
     return Start(best.result, best.weights, best.short_fit)

@@ -60,6 +60,7 @@ BAD = {
     "rejected_sigma_factor": [0.5, 0.0, math.inf, math.nan],
     "pose_sigma_deg": [0.0, -2.0, math.inf],
     "pose_sigma_mm": [0.0, -5.0, math.nan],
+    "rigid_start_redundancy": [-1, 10_001, 1.5],
 }
 
 
@@ -97,6 +98,7 @@ COUNT_RANGES = {
     "silhouette_points": (3, 100_000),
     "blunder_refine_iterations": (1, 10_000),
     "consensus_iterations": (1, 1000),
+    "rigid_start_redundancy": (0, 10_000),
 }
 
 
