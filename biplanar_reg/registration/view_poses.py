@@ -13,9 +13,9 @@ camera frame. Both run in two steps:
    every combination of the views' single-view poses of the mean shape (P3P with 3 landmarks,
    :func:`_pnp_starts`);
 2. after the registration with those views, a joint refinement of every view's pose and the
-   shape on the landmarks and outlines (:func:`.joint_refine.refine_views_in_pixels`: the
-   objective of :func:`.outline_fit.refine_poses_on_outlines` with its residuals kept in
-   pixels, so that shrinking the scene towards the sources does not pay), with, for
+   shape on the landmarks and outlines (:func:`.outline_fit.refine_poses_on_outlines` with
+   one pose per view and its residuals kept in pixels, so that shrinking the scene towards
+   the sources does not pay), with, for
    ``refine``, a Gaussian prior on the corrections (``pose_sigma_deg``, ``pose_sigma_mm``): a
    view's depth along its own axis is hardly seen in its image, so without it the bone's
    position in the world would drift by centimetres.
@@ -31,10 +31,9 @@ import numpy as np
 
 from ..ssm.model import ShapeModel
 from .gsft import GsftResult
-from .joint_refine import refine_views_in_pixels
 from .observations import ViewObservations
 from .options import RegistrationOptions
-from .outline_fit import OutlineTerm, PosePrior, prior_residuals
+from .outline_fit import OutlineTerm, PosePrior, prior_residuals, refine_poses_on_outlines
 from .problem import Problem, with_pose
 from .rays import RayObservations
 from .rotations import rotation_angle
@@ -263,12 +262,13 @@ def refine_views_on_outlines(
     for i, start in enumerate([(*tiled, result.weights), *starts]):
         if not _in_front(problem, start):
             continue
-        fit = refine_views_in_pixels(
+        fit = refine_poses_on_outlines(
             problem.model,
             start,
             problem.landmark_rays(rejected),
             terms,
-            views,
+            pose_of_view=np.arange(P),
+            pixels=[v.view for v in views],
             prior=pose_prior,
             prior_weight=opts.prior_weight,
             max_iter=max(opts.refine_iterations, 30),
