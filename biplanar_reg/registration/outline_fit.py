@@ -160,14 +160,16 @@ class PosePrior:
     The correction of view ``x`` is the rigid motion ``C_x = O_x o O_g^-1`` between the object
     pose seen through view ``x`` and the one seen through the gauge view ``g`` (the world
     pose); its residuals are the rotation vector of ``C_x`` over ``sigma_rad`` and the move of
-    view ``x``'s source, ``C_x^-1(c_x) - c_x``, over ``sigma_mm``.
+    a point ``c_x`` (view ``x``'s source, or the bone), ``C_x^-1(c_x) - c_x``, over
+    ``sigma_mm``.
 
     Attributes
     ----------
     gauge : int
         The view whose extrinsics are kept (no prior, it defines the world).
     centres : (P, 3) array
-        The given source positions of the views, world, mm.
+        The points ``c_x`` whose move is penalised (the given source positions of the views,
+        or the bone's centre for each), world, mm.
     sigma_rad, sigma_mm : float
         Standard deviations of the calibration's rotation (radians) and source position (mm)
         errors; ``inf`` for none.

@@ -53,7 +53,14 @@ def test_refine_corrects_a_perturbed_calibration(scene):
     known = register_views(model, [views[0], bad])
     # the extrinsics are rotated about the world origin: the source moves by 42 mm, so the
     # calibration prior is set to that size (the default, 2 deg / 5 mm, would hold it back)
-    opts = RegistrationOptions(pose_sigma_deg=5.0, pose_sigma_mm=100.0)
+    # (about the source: the prior is put there; the outlines are exact, of a bone in the
+    # model's span: full weight)
+    opts = RegistrationOptions(
+        pose_sigma_deg=5.0,
+        pose_sigma_mm=100.0,
+        pose_prior_at_bone=False,
+        joint_outline_sigma_factor=1.0,
+    )
     refined = register_views(model, [views[0], bad], poses="refine", options=opts)
     assert _rms(refined.vertices, X) < 0.05 < _rms(known.vertices, X)
     assert abs(refined.pose_info["rotation_corrections_deg"]["cam2"] - 3.0) < 0.01
