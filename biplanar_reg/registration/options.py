@@ -168,14 +168,17 @@ readmit_sigmas : None
         along directions the images hardly see (a view's depth, the scene's scale), where the
         hundreds of outline samples outweigh the landmarks, the shape prior and the
         calibration prior (measured: ``benchmarks/results/realistic_poses.md``). The fit's own
-        residuals do not show it (they stay near the click noise), so it is a fixed factor;
-        set 1 for exact outlines of a bone inside the model's span.
+        residuals do not show it (they stay near the click noise), so it is a fixed factor.
+        5 was measured to help on realistic cases but to hurt on exact outlines of a bone
+        inside the span (``benchmarks/pose_modes.py``), hence the default 1.
     pose_prior_at_bone : bool
         ``poses = "refine"``: the calibration prior's position term is the move of the bone
         (the centre of the first registration) through each view's correction, rather than
         the move of the view's source. A calibration made with an object in the imaging volume
         (e.g. a calibration cube) is most accurate there: its errors are small at the bone and
         largest at the source (a 1 deg turn about the bone moves a source 1 m away by 17 mm).
+        Default false: ``benchmarks/pose_modes.py`` (errors turning about the source) needs the
+        prior on the sources.
     """
 
     landmark_weight: float = 0.5
@@ -212,8 +215,8 @@ readmit_sigmas : None
     consensus_trigger: float | None = None
     readmit_sigmas: float | None = None
     certificate_flag: float | None = None
-    joint_outline_sigma_factor: float = 5.0
-    pose_prior_at_bone: bool = True
+    joint_outline_sigma_factor: float = 1.0
+    pose_prior_at_bone: bool = False
 
     def __post_init__(self) -> None:
         for key, new in DEPRECATED_OPTIONS.items():

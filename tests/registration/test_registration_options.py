@@ -60,6 +60,7 @@ BAD = {
     "rejected_sigma_factor": [0.5, 0.0, math.inf, math.nan],
     "pose_sigma_deg": [0.0, -2.0, math.inf],
     "pose_sigma_mm": [0.0, -5.0, math.nan],
+    "joint_outline_sigma_factor": [0.5, 0.0, math.inf, math.nan],
 }
 
 
