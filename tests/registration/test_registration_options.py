@@ -172,7 +172,8 @@ def _other_value(key, default):
         return not default
     if isinstance(default, int):
         return default + 1
-    return default * (2.0 if key == "gnc_factor" else 0.5)  # gnc_factor must stay above 1
+    # these must stay at or above 1
+    return default * (2.0 if key in ("gnc_factor", "joint_outline_sigma_factor") else 0.5)
 
 
 def _toml(value) -> str:
