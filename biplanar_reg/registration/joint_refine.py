@@ -19,12 +19,11 @@ with sigmas (mm).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..ssm.model import ShapeModel
-from .outline_fit import PosePrior, prior_residuals
 from .rays import RayObservations
 from .refine import (
     DEFAULT_MAX_REFINE_ITER,
@@ -182,148 +181,4 @@ def refine_views(
         cost_after=cost,
         iterations=iterations,
         converged=converged,
-    )
-
-
-def _view_prior_jacobian(state, prior: PosePrior | None, n_cols: int, retract) -> np.ndarray:
-    """Forward-difference Jacobian of :func:`prior_residuals` (pose columns only)."""
-    Rs, ts, _ = state
-    r0 = prior_residuals(Rs, ts, prior)
-    J = np.zeros((len(r0), n_cols))
-    for col in range(6 * len(Rs) if len(r0) else 0):
-        step = np.zeros(n_cols)
-        step[col] = 1e-6
-        R1, t1, _ = retract(state, step)
-        J[:, col] = (prior_residuals(R1, t1, prior) - r0) / 1e-6
-    return J
-
-
-def _depths(model: ShapeModel, views: dict, P: int, state) -> np.ndarray:
-    """Depth (mm) of the posed model's centroid in every view (nan without a source)."""
-    Rs, ts, w = state
-    c = model.instance(w).mean(axis=0)
-    return np.array(
-        [
-            float(views[x].to_camera((c @ Rs[x].T + ts[x])[None])[0, 2])
-            if hasattr(views[x], "centre")
-            else np.nan
-            for x in range(P)
-        ]
-    )
-
-
-def _depth_scales(model: ShapeModel, views: dict, P: int, state, z_ref) -> np.ndarray:
-    """Per view ``z_ref / z`` (1 for a view without a source; inf behind its source)."""
-    z = _depths(model, views, P, state)
-    s = np.where(np.isnan(z), 1.0, z_ref / np.where(z > 0, z, np.nan))
-    return np.where(np.isnan(s), np.where(np.isnan(z), 1.0, np.inf), s)
-
-
-def refine_views_in_pixels(
-    model: ShapeModel,
-    start: ViewPoses,
-    landmarks: RayObservations,
-    outlines: list,
-    views: Sequence,
-    *,
-    prior: PosePrior | None = None,
-    prior_weight: float = 1.0,
-    max_iter: int = 30,
-    tol: float = 1e-6,
-    he: object | None = None,
-    max_rejected: int = 20,
-    depths: np.ndarray | None = None,
-):
-    """:func:`.outline_fit.refine_poses_on_outlines` with one object pose per view (view
-    ``x`` is pose group ``x``), its residuals measured in pixels rather than in mm, and the
-    calibration prior :class:`PosePrior`.
-
-    The terms of ``outline_fit`` are ray distances (mm) over sigmas (mm) fixed at the start's
-    depth. When every view's pose is free, moving the whole scene towards the views' sources
-    and shrinking the shape with it (the perspective scale ambiguity) leaves every image
-    unchanged but shrinks every ray distance: the mm objective rewards it, and the fits shrink
-    the bone by 30-40 % (measured on ``benchmarks/realistic.py`` unknown-3). Here each view's
-    residual rows (and Jacobian rows) are multiplied by ``z_ref / z``: the depth of the model's
-    centroid in that view at the start over its depth now, so a residual stays the same
-    fraction of a pixel whatever the depth, and only the shape prior sets the scene's scale.
-    The scale factor's own derivative is left out of the Jacobian (a Gauss-Newton
-    approximation); Levenberg-Marquardt accepts a step only when it lowers the objective.
-
-    ``views`` are the P views (``.view``) the landmarks' ``view_index`` refers to; ``depths``
-    (P,) the depths (mm) at which the terms' sigmas were converted from pixels (default: the
-    start's centroid depths). Returns an
-    :class:`.outline_fit.OutlineFitResult`.
-    """
-    from .outline_fit import (
-        OutlineFitResult,
-        _landmark_part,
-        _outline_terms,
-        _retract_poses,
-        _stacked_jacobian,
-    )
-    from .refine import levenberg_marquardt as lm_solve
-
-    P, M = len(views), model.n_modes
-    sqrt_lam = float(np.sqrt(prior_weight))
-    lm_views = {x: v.view for x, v in enumerate(views)}
-    samples = []
-    for term in outlines:
-        q = term.target.points[term.target.usable]
-        samples.append((q, *term.view.rays(q)))
-    z0 = _depths(model, lm_views, P, start)
-    z_ref = z0 if depths is None else np.asarray(depths, dtype=float)
-
-    def residuals(state):
-        s = _depth_scales(model, lm_views, P, state, z_ref)
-        moved = _depth_scales(model, lm_views, P, state, z0)
-        if np.any(~np.isfinite(moved)) or np.any((moved > 2.0) | (moved < 0.5)):
-            return np.array([np.inf]), None  # behind a source, or the depth halved/doubled
-        Rs, ts, w = state
-        Qall = model.instance(w)
-        parts, groups = [], []
-        for x in range(P):
-            V = Qall @ Rs[x].T + ts[x]
-            sel = landmarks.view_index == x
-            if np.any(sel):
-                parts.append(_landmark_part(model, landmarks, sel, Rs[x], ts[x], w, Qall, V))
-                groups.append(x)
-            for term, smp in zip(outlines, samples, strict=True):
-                if term.index == x and len(smp[0]):
-                    parts.append(_outline_terms(model, term, smp, V, Qall, Rs[x], ts[x], he))
-                    groups.append(x)
-        parts = [
-            replace(p, residuals=p.residuals * s[g], inv_sigma=p.inv_sigma * s[g])
-            for p, g in zip(parts, groups, strict=True)
-        ]
-        r = [p.residuals.ravel() for p in parts]
-        rvec = np.concatenate([*r, sqrt_lam * w, prior_residuals(Rs, ts, prior)])
-        return rvec, ((parts, groups), sum(p.n_active for p in parts))
-
-    def jacobian(state, aux):
-        J = _stacked_jacobian(state, aux[0], M, sqrt_lam, None)
-        return np.vstack([J, _view_prior_jacobian(state, prior, J.shape[1], _retract_poses)])
-
-    state0 = tuple(np.array(a, dtype=float) for a in start)
-    (Rs, ts, w), cost0, cost, iterations, converged = lm_solve(
-        state0,
-        residuals,
-        jacobian,
-        _retract_poses,
-        max_iter=max_iter,
-        tol=tol,
-        max_rejected=max_rejected,
-    )
-    _, aux = residuals((Rs, ts, w))
-    return OutlineFitResult(
-        rotation=Rs[0],
-        translation=ts[0],
-        weights=w,
-        vertices=model.instance(w) @ Rs[0].T + ts[0],
-        cost_before=cost0,
-        cost_after=cost,
-        iterations=iterations,
-        converged=converged,
-        n_active=0 if aux is None else aux[1],
-        rotations=Rs,
-        translations=ts,
     )

@@ -45,6 +45,7 @@ _RANGES = {
     "max_tangent_angle_deg": (0.0, 180.0, False),
     "rejected_sigma_factor": (1.0, np.inf, True),
     "gnc_factor": (1.0, np.inf, False),
+    "joint_outline_sigma_factor": (1.0, np.inf, True),
 }
 
 #: Options of the former heuristic blunder handling (leave-one-out tests, consensus, cap,
@@ -152,7 +153,8 @@ class RegistrationOptions:
         calibration: the standard deviation of the Gaussian prior on the rotation corrections
         in the joint refinement of the views on the outlines (:mod:`.view_poses`).
     pose_sigma_mm : float
-        ``poses = "refine"``: the same for the source positions (mm).
+        ``poses = "refine"``: the same for the positions (mm): of the bone as seen through each
+        view (``pose_prior_at_bone``) or of each view's source.
     blunder_threshold, blunder_contrast, max_rejected_fraction, consensus_trigger, \
 readmit_sigmas : None
         Deprecated (the former blunder heuristics; :data:`DEPRECATED_OPTIONS`): accepted with a
@@ -164,6 +166,25 @@ readmit_sigmas : None
         weighted landmarks' coordinates exceed the pose and shape parameters by less than this:
         ``2 L - (6 + modes) < rigid_start_redundancy`` (:func:`.stages.choose_start`;
         0 to 10000, 0: never).
+    joint_outline_sigma_factor : float
+        ``poses = "refine"``/``"unknown"``: the outline sigma of the joint refinement of the
+        views on the outlines is this multiple of the other stages' (>= 1). With every view's
+        pose free, the outlines' systematic errors (a bone outside the model's span, an
+        overlapping bone, samples correlated along the outline) are absorbed by the view poses
+        along directions the images hardly see (a view's depth, the scene's scale), where the
+        hundreds of outline samples outweigh the landmarks, the shape prior and the
+        calibration prior (measured: ``benchmarks/results/realistic_poses.md``). The fit's own
+        residuals do not show it (they stay near the click noise), so it is a fixed factor.
+        5 was measured to help on realistic cases but to hurt on exact outlines of a bone
+        inside the span (``benchmarks/pose_modes.py``), hence the default 1.
+    pose_prior_at_bone : bool
+        ``poses = "refine"``: the calibration prior's position term is the move of the bone
+        (the centre of the first registration) through each view's correction, rather than
+        the move of the view's source. A calibration made with an object in the imaging volume
+        (e.g. a calibration cube) is most accurate there: its errors are small at the bone and
+        largest at the source (a 1 deg turn about the bone moves a source 1 m away by 17 mm).
+        Default false: ``benchmarks/pose_modes.py`` (errors turning about the source) needs the
+        prior on the sources.
     """
 
     landmark_weight: float = 0.5
@@ -201,6 +222,8 @@ readmit_sigmas : None
     readmit_sigmas: float | None = None
     certificate_flag: float | None = None
     rigid_start_redundancy: int = 14
+    joint_outline_sigma_factor: float = 1.0
+    pose_prior_at_bone: bool = False
 
     def __post_init__(self) -> None:
         for key, new in DEPRECATED_OPTIONS.items():

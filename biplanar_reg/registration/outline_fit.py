@@ -28,7 +28,7 @@ matching; world frame.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -160,14 +160,16 @@ class PosePrior:
     The correction of view ``x`` is the rigid motion ``C_x = O_x o O_g^-1`` between the object
     pose seen through view ``x`` and the one seen through the gauge view ``g`` (the world
     pose); its residuals are the rotation vector of ``C_x`` over ``sigma_rad`` and the move of
-    view ``x``'s source, ``C_x^-1(c_x) - c_x``, over ``sigma_mm``.
+    a point ``c_x`` (view ``x``'s source, or the bone), ``C_x^-1(c_x) - c_x``, over
+    ``sigma_mm``.
 
     Attributes
     ----------
     gauge : int
         The view whose extrinsics are kept (no prior, it defines the world).
     centres : (P, 3) array
-        The given source positions of the views, world, mm.
+        The points ``c_x`` whose move is penalised (the given source positions of the views,
+        or the bone's centre for each), world, mm.
     sigma_rad, sigma_mm : float
         Standard deviations of the calibration's rotation (radians) and source position (mm)
         errors; ``inf`` for none.
@@ -260,6 +262,92 @@ def _stacked_jacobian(state, parts_groups, M: int, sqrt_lam: float, prior) -> np
     return np.vstack([*blocks, Jw, _prior_jacobian(state, prior, 6 * G + M)])
 
 
+def _centroid_depths(model, views, state) -> np.ndarray:
+    """Depth (mm) of the posed model's centroid in every pose group's view ``views[g]`` (nan
+    for a view without a source)."""
+    Rs, ts, w = state
+    c = model.instance(w).mean(axis=0)
+    return np.array(
+        [
+            float(v.to_camera((c @ Rs[g].T + ts[g])[None])[0, 2])
+            if hasattr(v, "centre")
+            else np.nan
+            for g, v in enumerate(views)
+        ]
+    )
+
+
+def _depth_scales(z: np.ndarray, z_ref: np.ndarray) -> np.ndarray:
+    """Per group ``z_ref / z`` (1 for a view without a source; inf behind its source)."""
+    s = np.where(np.isnan(z), 1.0, z_ref / np.where(z > 0, z, np.nan))
+    return np.where(np.isnan(s), np.where(np.isnan(z), 1.0, np.inf), s)
+
+
+class _PoseFit:
+    """The residuals and Jacobian of :func:`refine_poses_on_outlines` (one object, built once
+    per refinement; ``residuals(state) -> (r, aux)``, ``jacobian(state, aux) -> J``)."""
+
+    def __init__(self, model, landmarks, outlines, pose_of_view, prior, prior_weight, he, px):
+        self.model, self.landmarks, self.outlines, self.he = model, landmarks, outlines, he
+        self.z0 = np.zeros(0)  # the start's nearest depths of the outline views (mm guard)
+        self.pose_of_view, self.prior = pose_of_view, prior
+        self.sqrt_lam = float(np.sqrt(prior_weight))
+        self.lm_group = pose_of_view[landmarks.view_index] if len(landmarks) else np.zeros(0, int)
+        self.samples = []
+        for term in outlines:
+            q = term.target.points[term.target.usable]
+            self.samples.append((q, *term.view.rays(q)))
+        self.px = px  # None (mm) or (views per group, z at the start, z of the sigmas)
+
+    def _scales(self, state) -> np.ndarray | None:
+        """Per-group pixel scales; None when a trial step halves or doubles a view's depth
+        (or puts the bone behind its source): its projection may be huge."""
+        if self.px is None:
+            z = _view_depths(self.model, self.outlines, self.pose_of_view, state)
+            z0 = self.z0
+            if np.any(~np.isinf(z0) & ((z < 0.5 * z0) | (z > 2.0 * z0))):
+                return None
+            return np.ones(len(state[0]))
+        views, z0, z_ref = self.px
+        z = _centroid_depths(self.model, views, state)
+        moved = _depth_scales(z, z0)
+        if np.any(~np.isfinite(moved)) or np.any((moved > 2.0) | (moved < 0.5)):
+            return None
+        return _depth_scales(z, z_ref)
+
+    def residuals(self, state):
+        s = self._scales(state)
+        if s is None:
+            return np.array([np.inf]), None
+        model, Rs, ts, w = self.model, *state
+        Qall = model.instance(w)
+        parts, groups = [], []
+        for g in range(len(Rs)):
+            V = Qall @ Rs[g].T + ts[g]
+            sel = self.lm_group == g
+            if np.any(sel):
+                parts.append(_landmark_part(model, self.landmarks, sel, Rs[g], ts[g], w, Qall, V))
+                groups.append(g)
+            for term, smp in zip(self.outlines, self.samples, strict=True):
+                if self.pose_of_view[term.index] == g and len(smp[0]):
+                    parts.append(_outline_terms(model, term, smp, V, Qall, Rs[g], ts[g], self.he))
+                    groups.append(g)
+        if self.px is not None:  # the Jacobian rows scale with them (the scale's own
+            # derivative is left out: a Gauss-Newton approximation)
+            parts = [
+                _Linearised(
+                    p.residuals * s[g], p.points, p.modes, p.bases, p.inv_sigma * s[g], p.n_active
+                )
+                for p, g in zip(parts, groups, strict=True)
+            ]
+        r = [p.residuals.ravel() for p in parts]
+        rvec = np.concatenate([*r, self.sqrt_lam * w, prior_residuals(Rs, ts, self.prior)])
+        return rvec, ((parts, groups), sum(p.n_active for p in parts))
+
+    def jacobian(self, state, aux):
+        return _stacked_jacobian(state, aux[0], self.model.n_modes, self.sqrt_lam, self.prior)
+
+
 def refine_poses_on_outlines(
     model: ShapeModel,
     start: tuple[np.ndarray, np.ndarray, np.ndarray],
@@ -274,6 +362,8 @@ def refine_poses_on_outlines(
     he: object | None = None,
     callback: Callable[[tuple, float, int], None] | None = None,
     max_rejected: int = MAX_REJECTED,
+    pixels: Sequence[View] | None = None,
+    depths: np.ndarray | None = None,
 ) -> OutlineFitResult:
     """Minimise ``F`` with one object pose per group of views and one shared shape.
 
@@ -281,7 +371,7 @@ def refine_poses_on_outlines(
     pose ``pose_of_view[x]`` (each in the world frame of the views' given calibrations), plus
     the :class:`PosePrior` when given. One pose for every view is :func:`refine_on_outlines`;
     one pose per view refines every view's extrinsics relative to the gauge view's jointly
-    with the shape (``poses = "refine"`` and ``"unknown"``).
+    with the shape (``poses = "refine"`` and ``"unknown"``, with ``pixels``).
 
     Parameters
     ----------
@@ -295,6 +385,20 @@ def refine_poses_on_outlines(
         The pose group of every view.
     max_rejected : int
         Rejected trial steps in a row after which it stops (:data:`MAX_REJECTED`).
+    pixels : sequence of View, optional
+        One view per pose group (``pixels[g]`` sees group ``g``): measure the residuals in
+        pixels rather than in mm. The terms are ray distances (mm) over sigmas (mm) fixed at
+        the start's depth; when every view's pose is free, moving the scene towards the
+        sources and shrinking the shape with it (the perspective scale ambiguity) leaves every
+        image unchanged but shrinks every ray distance, so the mm objective rewards it (the
+        fits shrank the bone by 30-40 % on ``benchmarks/realistic.py`` unknown-3). With
+        ``pixels`` every group's residual rows (and Jacobian rows) are multiplied by
+        ``z_ref / z``, the depth of the model's centroid in its view at ``depths`` over its
+        depth now, so that a residual stays the same fraction of a pixel whatever the depth.
+        The trial-step depth guard is then on the centroid's depth.
+    depths : (G,) array, optional
+        With ``pixels``: the depths (mm) at which the terms' sigmas were converted from pixels
+        (default: the start's centroid depths).
 
     Returns
     -------
@@ -305,58 +409,24 @@ def refine_poses_on_outlines(
     if landmarks.sigmas is None:
         raise ValueError("landmarks: sigmas (mm) are needed")
     pose_of_view = np.asarray(pose_of_view, dtype=int)
-    sqrt_lam = float(np.sqrt(prior_weight))
-    M = model.n_modes
-    G = len(start[0])
-    lm_group = pose_of_view[landmarks.view_index] if len(landmarks) else np.zeros(0, int)
-    samples = []
-    for term in outlines:
-        q = term.target.points[term.target.usable]
-        samples.append((q, *term.view.rays(q)))
-
-    z0 = _view_depths(model, outlines, pose_of_view, start)
-
-    def residuals(state):
-        # a trial step that halves or doubles a view's depth (or puts the bone behind its
-        # source) is rejected before its outline is computed: its projection may be huge
-        z = _view_depths(model, outlines, pose_of_view, state)
-        if np.any(~np.isinf(z0) & ((z < 0.5 * z0) | (z > 2.0 * z0))):
-            return np.array([np.inf]), None
-        return _evaluate(state)
-
-    def _evaluate(state):
-        Rs, ts, w = state
-        Qall = model.instance(w)
-        parts, groups = [], []
-        for g in range(G):
-            V = Qall @ Rs[g].T + ts[g]
-            sel = lm_group == g
-            if np.any(sel):
-                parts.append(_landmark_part(model, landmarks, sel, Rs[g], ts[g], w, Qall, V))
-                groups.append(g)
-            for term, smp in zip(outlines, samples, strict=True):
-                if pose_of_view[term.index] == g and len(smp[0]):
-                    parts.append(_outline_terms(model, term, smp, V, Qall, Rs[g], ts[g], he))
-                    groups.append(g)
-        r = [p.residuals.ravel() for p in parts]
-        rvec = np.concatenate([*r, sqrt_lam * w, prior_residuals(Rs, ts, prior)])
-        return rvec, ((parts, groups), sum(p.n_active for p in parts))
-
-    def jacobian(state, aux):
-        return _stacked_jacobian(state, aux[0], M, sqrt_lam, prior)
-
     state0 = tuple(np.array(a, dtype=float) for a in start)
+    px = None
+    if pixels is not None:
+        z0 = _centroid_depths(model, pixels, state0)
+        px = (pixels, z0, z0 if depths is None else np.asarray(depths, dtype=float))
+    fit = _PoseFit(model, landmarks, outlines, pose_of_view, prior, prior_weight, he, px)
+    fit.z0 = _view_depths(model, outlines, pose_of_view, state0)  # the mm depth guard's reference
     (Rs, ts, w), cost0, cost, iterations, converged = levenberg_marquardt(
         state0,
-        residuals,
-        jacobian,
+        fit.residuals,
+        fit.jacobian,
         _retract_poses,
         max_iter=max_iter,
         tol=tol,
         max_rejected=max_rejected,
         callback=None if callback is None else lambda s, c, aux: callback(s, c, aux[1]),
     )
-    _, (_, n_active) = residuals((Rs, ts, w))
+    _, aux = fit.residuals((Rs, ts, w))
     return OutlineFitResult(
         rotation=Rs[0],
         translation=ts[0],
@@ -366,7 +436,7 @@ def refine_poses_on_outlines(
         cost_after=cost,
         iterations=iterations,
         converged=converged,
-        n_active=n_active,
+        n_active=0 if aux is None else aux[1],
         rotations=Rs,
         translations=ts,
     )

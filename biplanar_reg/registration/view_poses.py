@@ -13,9 +13,9 @@ camera frame. Both run in two steps:
    every combination of the views' single-view poses of the mean shape (P3P with 3 landmarks,
    :func:`_pnp_starts`);
 2. after the registration with those views, a joint refinement of every view's pose and the
-   shape on the landmarks and outlines (:func:`.joint_refine.refine_views_in_pixels`: the
-   objective of :func:`.outline_fit.refine_poses_on_outlines` with its residuals kept in
-   pixels, so that shrinking the scene towards the sources does not pay), with, for
+   shape on the landmarks and outlines (:func:`.outline_fit.refine_poses_on_outlines` with
+   one pose per view and its residuals kept in pixels, so that shrinking the scene towards
+   the sources does not pay), with, for
    ``refine``, a Gaussian prior on the corrections (``pose_sigma_deg``, ``pose_sigma_mm``): a
    view's depth along its own axis is hardly seen in its image, so without it the bone's
    position in the world would drift by centimetres.
@@ -31,10 +31,14 @@ import numpy as np
 
 from ..ssm.model import ShapeModel
 from .gsft import GsftResult
-from .joint_refine import refine_views_in_pixels
 from .observations import ViewObservations
 from .options import RegistrationOptions
-from .outline_fit import OutlineTerm, PosePrior, prior_residuals
+from .outline_fit import (
+    OutlineTerm,
+    PosePrior,
+    prior_residuals,
+    refine_poses_on_outlines,
+)
 from .problem import Problem, with_pose
 from .rays import RayObservations
 from .rotations import rotation_angle
@@ -192,13 +196,14 @@ def _composed(view_R, view_t, Ro, to, Rg, tg):
 
 def _joint_terms(problem: Problem) -> list[OutlineTerm]:
     """The outline terms with the fixed gate ``gate_px`` (so that the objectives of several
-    starts compare)."""
+    starts compare), their sigmas ``joint_outline_sigma_factor`` times the registration's."""
     opts = problem.options
+    k = opts.joint_outline_sigma_factor
     return [
         OutlineTerm(
             problem.views[i].view,
             t,
-            problem.outline_sigma[i] * np.sqrt(opts.contour_spacing_px),
+            k * problem.outline_sigma[i] * np.sqrt(opts.contour_spacing_px),
             opts.gate_px,
             problem.mm_per_px[i],
             i,
@@ -232,6 +237,42 @@ def _in_front(problem: Problem, state) -> bool:
     return True
 
 
+def _same_state(a, b) -> bool:
+    return all(np.allclose(x, y, rtol=0.0, atol=1e-9) for x, y in zip(a, b, strict=True))
+
+
+def _best_joint_fit(fit_args, terms: list[OutlineTerm], starts: list):
+    """The lowest-objective joint fit from ``starts`` that the calibration prior's gate lets
+    through (None when none does)."""
+    problem, rejected, pose_prior, depths = fit_args
+    opts, P = problem.options, len(problem.views)
+    best, done = None, []
+    for i, start in enumerate(starts):
+        if not _in_front(problem, start) or any(_same_state(start, s) for s in done):
+            continue  # behind a source, or a start already fitted (candidates repeat)
+        done.append(start)
+        fit = refine_poses_on_outlines(
+            problem.model,
+            start,
+            problem.landmark_rays(rejected),
+            terms,
+            pose_of_view=np.arange(P),
+            pixels=[v.view for v in problem.views],
+            prior=pose_prior,
+            prior_weight=opts.prior_weight,
+            max_iter=max(opts.refine_iterations, 30),
+            he=problem.topology,
+            max_rejected=JOINT_MAX_REJECTED,
+            depths=depths,
+        )
+        problem.say(f"joint view refinement from start {i}: objective {fit.cost_after:.4g}")
+        if pose_prior is not None and _implausible(fit, pose_prior):
+            continue  # the outlines' many samples outweigh the prior: gate it
+        if best is None or fit.cost_after < best.cost_after:
+            best = fit
+    return best
+
+
 def refine_views_on_outlines(
     problem: Problem,
     result: GsftResult,
@@ -253,34 +294,15 @@ def refine_views_on_outlines(
     if prior:
         centres = np.array([-v.view.R.T @ v.view.t for v in views])
         sig = np.deg2rad(opts.pose_sigma_deg)
+        if opts.pose_prior_at_bone:
+            centres = np.repeat(c[None], P, 0)
         pose_prior = PosePrior(0, centres, sig, opts.pose_sigma_mm)
     tiled = (np.repeat(result.rotation[None], P, 0), np.repeat(result.translation[None], P, 0))
-    best = None
-    terms = _joint_terms(problem)
     depths = np.array(
         [v.view.to_camera(c[None])[0, 2] if hasattr(v.view, "centre") else np.nan for v in views]
     )
-    for i, start in enumerate([(*tiled, result.weights), *starts]):
-        if not _in_front(problem, start):
-            continue
-        fit = refine_views_in_pixels(
-            problem.model,
-            start,
-            problem.landmark_rays(rejected),
-            terms,
-            views,
-            prior=pose_prior,
-            prior_weight=opts.prior_weight,
-            max_iter=max(opts.refine_iterations, 30),
-            he=problem.topology,
-            max_rejected=JOINT_MAX_REJECTED,
-            depths=depths,
-        )
-        problem.say(f"joint view refinement from start {i}: objective {fit.cost_after:.4g}")
-        if pose_prior is not None and _implausible(fit, pose_prior):
-            continue  # the outlines' many samples outweigh the prior: gate it
-        if best is None or fit.cost_after < best.cost_after:
-            best = fit
+    fit_args = (problem, rejected, pose_prior, depths)
+    best = _best_joint_fit(fit_args, _joint_terms(problem), [(*tiled, result.weights), *starts])
     if best is None:  # no plausible correction: keep the registration with the given views
         problem.say("joint view refinement: no correction within the calibration prior")
         return list(views), result, np.nan

@@ -1,14 +1,14 @@
-"""The joint view refinement measures its residuals in pixels (``joint_refine.py``): moving
-the scene towards the sources and shrinking the bone with it (the perspective scale ambiguity
-of free view poses) changes no image and must not lower the objective, as a ray distance in mm
-would."""
+"""The joint view refinement measures its residuals in pixels
+(``outline_fit.refine_poses_on_outlines(pixels=...)``): moving the scene towards the sources
+and shrinking the bone with it (the perspective scale ambiguity of free view poses) changes no
+image and must not lower the objective, as a ray distance in mm would."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from biplanar_reg.registration.joint_refine import refine_views_in_pixels
 from biplanar_reg.registration.options import RegistrationOptions
+from biplanar_reg.registration.outline_fit import refine_poses_on_outlines
 from biplanar_reg.registration.problem import make_problem
 from biplanar_reg.simulate import boosting_case
 from biplanar_reg.ssm import ShapeModel
@@ -33,8 +33,11 @@ def test_shrinking_the_scene_towards_the_sources_does_not_pay(model):
             src = v.view.centre
             out.append(src + k * (R @ c + t - src) - R @ c)
         state = (np.array([R, R]), np.array(out), np.array([s]))
-        px = refine_views_in_pixels(scaled, state, lm, [], views, max_iter=0, depths=depths)
-        mm = refine_views_in_pixels(scaled, state, lm, [], views, max_iter=0)
+        kw = {"pose_of_view": np.arange(2), "max_iter": 0}
+        px = refine_poses_on_outlines(
+            scaled, state, lm, [], pixels=[v.view for v in views], depths=depths, **kw
+        )
+        mm = refine_poses_on_outlines(scaled, state, lm, [], **kw)
         return px.cost_before - 0.5 * s**2, mm.cost_before - 0.5 * s**2
 
     px1, mm1 = costs(1.0)

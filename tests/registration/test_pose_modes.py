@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from biplanar_reg.registration import register_views
+from biplanar_reg.registration import RegistrationOptions, register_views
 from biplanar_reg.registration.rotations import rotation_angle, so3_exp
 from biplanar_reg.registration.unknown_poses import solve_gsft_unknown_poses
 from biplanar_reg.simulate import boosting_case
@@ -27,14 +27,20 @@ def _miscalibrated(view, deg, axis, mm, direction):
 
 def test_refine_with_three_landmarks_per_view_and_outlines(model):
     """2 deg / 4 mm off in the second view: with the given calibration the bone is 64 mm off
-    in the world; refining the views on the outlines brings it within a few mm."""
+    in the world; refining the views on the outlines brings it within a few mm. The error is
+    a turn about the second view's source, so the calibration prior is put on the sources."""
     views, (*_, X) = boosting_case(model, 1, fraction=0.8, noise_px=0.5)
     bad = [
         views[0],
         replace(views[1], view=_miscalibrated(views[1].view, 2.0, [1, 2, 0], 4.0, [0, 1, 1])),
     ]
     as_given = register_views(model, bad)
-    refined = register_views(model, bad, poses="refine")
+    # (and the outlines are exact, of a bone in the model's span: full weight; no blunder to
+    # catch, so no robust start's leave-one-out restarts)
+    opts = RegistrationOptions(
+        pose_prior_at_bone=False, joint_outline_sigma_factor=1.0, robust=False
+    )
+    refined = register_views(model, bad, poses="refine", options=opts)
     assert _rms(as_given.vertices, X) > 20.0
     assert _rms(refined.vertices, X) < 0.1 * _rms(as_given.vertices, X)
     assert refined.pose_info["rotation_corrections_deg"]["cam1"] == pytest.approx(0.0, abs=1e-9)

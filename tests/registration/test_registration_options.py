@@ -61,6 +61,7 @@ BAD = {
     "pose_sigma_deg": [0.0, -2.0, math.inf],
     "pose_sigma_mm": [0.0, -5.0, math.nan],
     "rigid_start_redundancy": [-1, 10_001, 1.5],
+    "joint_outline_sigma_factor": [0.5, 0.0, math.inf, math.nan],
 }
 
 
@@ -173,7 +174,8 @@ def _other_value(key, default):
         return not default
     if isinstance(default, int):
         return default + 1
-    return default * (2.0 if key == "gnc_factor" else 0.5)  # gnc_factor must stay above 1
+    # these must stay at or above 1
+    return default * (2.0 if key in ("gnc_factor", "joint_outline_sigma_factor") else 0.5)
 
 
 def _toml(value) -> str:
