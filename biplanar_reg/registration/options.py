@@ -158,6 +158,12 @@ readmit_sigmas : None
         DeprecationWarning and ignored.
     certificate_flag : None
         Deprecated spelling of ``start_certificate`` (sets it, with a DeprecationWarning).
+    refine_landmark_weight : float
+        In the final refinement (:func:`.stages.refine_once`) the landmarks' weight
+        (``1 / sigma^2``) is multiplied by this (> 0). The landmarks carry what the outlines of
+        a shaft-like bone barely show (its rotation about its long axis); with the outlines'
+        weight per sample unchanged, 4 lowered the known-pose error on the realistic cases
+        (benchmarks/results/realistic_known_levers.md).
     """
 
     landmark_weight: float = 0.5
@@ -194,6 +200,7 @@ readmit_sigmas : None
     consensus_trigger: float | None = None
     readmit_sigmas: float | None = None
     certificate_flag: float | None = None
+    refine_landmark_weight: float = 4.0
 
     def __post_init__(self) -> None:
         for key, new in DEPRECATED_OPTIONS.items():
