@@ -485,12 +485,14 @@ def refine_once(
     """The local refinement (:func:`.outline_fit.refine_on_outlines`) from ``result``.
 
     Each view's gate is the adaptive threshold of the current outline distances (at most
-    ``gate_px``). Returns the refined result (``result`` itself when no step lowered the
-    objective) and the refinement's own output.
+    ``gate_px``); the landmarks' weight is multiplied by ``refine_landmark_weight``. Returns
+    the refined result (``result`` itself when no step lowered the objective) and the
+    refinement's own output.
     """
     opts = problem.options
     terms = outline_terms(problem, outlines)
     lm = weighted_landmark_rays(problem, weights)
+    lm = lm.with_sigmas(lm.sigmas / np.sqrt(opts.refine_landmark_weight))
     fit = refine_on_outlines(
         problem.model,
         (result.rotation, result.translation, result.weights),

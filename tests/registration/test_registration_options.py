@@ -12,6 +12,7 @@ import shutil
 import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 from registration_problems import problem_for, with_blunder
 
@@ -62,6 +63,7 @@ BAD = {
     "pose_sigma_mm": [0.0, -5.0, math.nan],
     "rigid_start_redundancy": [-1, 10_001, 1.5],
     "joint_outline_sigma_factor": [0.5, 0.0, math.inf, math.nan],
+    "refine_landmark_weight": [0.0, -1.0, math.inf],
 }
 
 
@@ -295,3 +297,17 @@ def test_consensus_iterations_sets_the_short_fit(model, views):
         short = choose_start(p, landmark_start(p)).short_fit
         assert short is not None and 1 <= short.index <= n
     assert short.index > 1  # 3 iterations: a later iterate is better than the first
+
+
+def test_refine_landmark_weight_pulls_the_refinement_to_the_landmarks(model, views, good_fit):
+    """The final refinement from the same start: a larger landmark weight leaves the
+    landmarks' share of its objective no larger (they weigh more against the outlines)."""
+    from biplanar_reg.registration.stages import refine_once
+
+    err = {}
+    for k in (0.25, 16.0):
+        p = problem_for(model, views, RegistrationOptions(refine_landmark_weight=k))
+        res, fit = refine_once(p, good_fit, p.outlines(good_fit), None)
+        assert fit.cost_after <= fit.cost_before
+        err[k] = float(np.sqrt(np.mean(p.landmark_px_errors(res.vertices) ** 2)))
+    assert err[16.0] < err[0.25]
