@@ -17,12 +17,14 @@ from .annotations import (
 )
 from .clean import clean_contour, cut_polyline, remove_self_intersections, resample_polyline
 from .image import XrayImage, load_image, read_image_size
-from .livewire import livewire
-from .render import Radiograph, render_radiograph
 
-#: The other semi-automatic tools, imported on first use (a case's registration uses none of
-#: them; ``livewire`` imports scikit-image only when it runs).
+#: The semi-automatic tools and the radiograph renderer, imported on first use (a case's
+#: registration uses none of them, and they import ``scipy.ndimage``: ~0.1 s; ``livewire``
+#: imports scikit-image only when it runs).
 _LAZY = {
+    "livewire": ".livewire",
+    "Radiograph": ".render",
+    "render_radiograph": ".render",
     "ContourRecipe": ".recipe",
     "load_recipe": ".recipe",
     "run_recipe": ".recipe",

@@ -15,7 +15,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..annotation.clean import distance_to_polyline
-from ..annotation.render import path_lengths
 from ..outline import outline_polylines
 from ..registration import ViewObservations
 
@@ -236,6 +235,10 @@ def model_outlines(vertices: np.ndarray, faces: np.ndarray, view) -> list[np.nda
     """
     mask = None
     if view.image_size is not None:
+        # imported here: the renderer imports scipy.ndimage, which a registration with
+        # silhouettes never needs
+        from ..annotation.render import path_lengths
+
         _, mask = path_lengths(vertices, faces, view, image_size=view.image_size)
     lines, _ = outline_polylines(vertices, view, faces, mask=mask)
     return lines
