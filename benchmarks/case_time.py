@@ -1,8 +1,9 @@
 """Case time: stage-by-stage CPU and wall time of ``biplanar-reg register``, and a batch.
 
 Compares two source trees side by side in one run (the machine is shared and noisy): the
-reference (default: the base commit of issue 17, ``266f442``, checked out with ``git worktree
-add --detach /tmp/speedbase 266f442``) and this tree. Every measurement runs in a fresh
+reference (default ``/tmp/speedbase``, e.g. ``git archive main | tar -x -C /tmp/speedbase``)
+and this tree (``--tree``: better a snapshot, ``git archive HEAD | tar -x -C /tmp/speedtree``,
+so that edits made during the run stay out of it). Every measurement runs in a fresh
 subprocess with ``PYTHONPATH`` set to the tree, the two trees alternating, and the median over
 ``--repeats`` is reported. CPU time is user + system of the child process (all its threads).
 
@@ -15,11 +16,14 @@ seed 0, landmarks from :func:`synthetic_landmarks`).
    trees that have it, ``--no-report``.
 2. Stages inside one process (a driver calling the functions ``register`` calls): imports,
    case loading, registration, contour errors + ground-truth metrics, report imports, report.
-3. ``batch --workers 2`` over ``--batch`` copies of the knee-sized case (wall time).
+3. ``batch --workers 2`` over ``--batch`` copies of the knee-sized case (wall time), with and
+   without reports; ``--batch-trees this`` times this tree only (issue 17's 100-case target:
+   ``--batch 100 --batch-trees this`` on a quiet machine, ~20 min).
 
 Usage::
 
-    python benchmarks/case_time.py [--reference /tmp/speedbase] [--repeats 3] [--batch 100]
+    python benchmarks/case_time.py [--reference /tmp/speedbase] [--tree /tmp/speedtree]
+        [--repeats 3] [--batch 100] [--batch-trees both|this] [--samples [NAME ...]]
         [--out benchmarks/results/case_time.md]
 """
 
@@ -135,7 +139,7 @@ def time_stages(trees, case, repeats, work):
 
 
 def time_batch(trees, case, n, work):
-    cases = work / "batch_cases"
+    cases = work / f"batch_cases_{n}"
     if not cases.exists():
         for i in range(n):
             shutil.copytree(case, cases / f"case{i:03d}")
@@ -182,8 +186,11 @@ def report(args, trees, reg, stages, batch, knee_size, total) -> str:
     lines = [
         f"# Case time: `biplanar-reg register` stage by stage, and a {args.batch}-case batch",
         "",
-        f"Command: `python benchmarks/case_time.py --reference {args.reference} --tree "
-        f"{args.tree} --repeats {args.repeats} --batch {args.batch}` ({total / 60:.1f} min).",
+        f"Command: `OMP_NUM_THREADS=1 python benchmarks/case_time.py --reference {args.reference} "
+        f"--tree {args.tree} --repeats {args.repeats} --batch {args.batch}"
+        + (" --batch-trees this" if args.batch_trees == "this" else "")
+        + f" --samples {' '.join(args.samples)}".rstrip()
+        + f"` ({total / 60:.1f} min).",
         f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python "
         f"{platform.python_version()}; shared and noisy (load average at start "
         f"{os.getloadavg()[0]:.1f}): compare the two columns of a row, measured in the same run "
@@ -259,6 +266,12 @@ def main() -> None:
     )
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--batch", type=int, default=100, help="cases in the batch (0: skip)")
+    ap.add_argument(
+        "--batch-trees",
+        choices=("both", "this"),
+        default="both",
+        help="trees whose batch is timed (this: this tree only)",
+    )
     ap.add_argument("--samples", nargs="*", default=SAMPLES, help="sample cases to register")
     ap.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "case_time.md")
     ap.add_argument("--work", type=Path, help="scratch folder (default: a temporary one)")
@@ -288,7 +301,8 @@ def main() -> None:
     batch = {}
     if args.batch:
         print(f"batch of {args.batch} ...", flush=True)
-        batch = time_batch(trees, knee, args.batch, work)
+        which = trees if args.batch_trees == "both" else {"this tree": trees["this tree"]}
+        batch = time_batch(which, knee, args.batch, work)
     text = report(args, trees, reg, stages, batch, knee_size, time.perf_counter() - t0)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_suffix(".tmp")

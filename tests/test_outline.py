@@ -207,3 +207,52 @@ def test_mesh_outline_of_the_same_posed_mesh_is_computed_once():
     other = mesh_outline(moved, model.faces, view)
     assert other[1] is not first[1]
     np.testing.assert_allclose(other[1], view.project(moved))
+
+
+def test_coverage_near_pixels_equals_the_full_raster_there(model, posed):
+    """``coverage_mask(near=)`` rasterises only the triangles near the wanted pixels: the same
+    values there as the full raster (also where front faces overlap: a folded shape), at the
+    pixels ``mesh_outline`` probes and at every pixel of the full raster's border band."""
+    from biplanar_reg.outline import _contour_generator_edges, _facing, _probe_pixels, coverage_mask
+
+    _, w, X = posed
+    view = biplanar_views(75.0)[0]
+    he = half_edges(model.faces, model.n_vertices)
+    folded = model.instance(4.0 * w) + (X.mean(axis=0) - model.mean.mean(axis=0))
+    for V in (X, folded):
+        uv = view.project(V)
+        facing = _facing(V, model.faces, view)
+        front = model.faces[facing]
+        full, off = coverage_mask(uv, front)
+        edges = _contour_generator_edges(V, he, model.faces, view, facing)
+        probes = np.vstack(_probe_pixels(uv, edges, np.zeros(2, int))[1])
+        ring = ndimage.binary_dilation(full, iterations=2) & ~ndimage.binary_erosion(
+            full, iterations=2
+        )
+        band = np.column_stack(np.nonzero(ring)[::-1]) + off
+        for near in (probes, band):
+            part, off2 = coverage_mask(uv, front, near=near)
+            assert np.array_equal(off, off2)
+            q = near - off
+            assert np.array_equal(part[q[:, 1], q[:, 0]], full[q[:, 1], q[:, 0]])
+        assert part.sum() < full.sum()  # only part of the projection was rasterised
+
+
+def test_facing_without_projection_matches_back_projection(model, posed):
+    """Perspective (with distortion) and orthographic views take the ray direction directly;
+    the generic back-projection of the centroids gives the same front faces."""
+    from biplanar_reg.calibration import PerspectiveView
+    from biplanar_reg.outline import _facing
+
+    _, _, X = posed
+    F = model.faces
+    v = _view("perspective")
+    distorted = PerspectiveView(R=v.R, t=v.t, K=v.K, distortion=[0.05, -0.01, 0.001, 0.0])
+    for view in (v, distorted, _view("orthographic")):
+        cen = X[F].mean(axis=1)
+        _, d = view.rays(view.project(cen))
+        n = np.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]])
+        ref = np.einsum("ij,ij->i", n, d)
+        got = _facing(X, F, view)
+        clear = np.abs(ref) > 1e-9 * np.abs(ref).max()  # leave out exactly grazing faces
+        assert np.array_equal(got[clear], ref[clear] < 0)

@@ -17,12 +17,15 @@ from .annotations import (
 )
 from .clean import clean_contour, cut_polyline, remove_self_intersections, resample_polyline
 from .image import XrayImage, load_image, read_image_size
-from .livewire import livewire
-from .render import Radiograph, render_radiograph
 
-#: The other semi-automatic tools, imported on first use (a case's registration uses none of
-#: them; ``livewire`` imports scikit-image only when it runs).
+# eager: a lazy ``livewire`` would be shadowed by the submodule of that name once imported
+from .livewire import livewire  # noqa: E402
+
+#: The other semi-automatic tools and the radiograph renderer, imported on first use (a
+#: case's registration uses none of them; ``livewire`` imports scikit-image only when it runs).
 _LAZY = {
+    "Radiograph": ".render",
+    "render_radiograph": ".render",
     "ContourRecipe": ".recipe",
     "load_recipe": ".recipe",
     "run_recipe": ".recipe",

@@ -5,11 +5,11 @@ See ``docs/cases.md``; the package exports the names listed in ``docs/api.md``:
 ``biplanar-reg register``) and :func:`run_batch` (many, as ``biplanar-reg batch``), which are
 also importable from their modules ``biplanar_reg.cases.run`` and ``biplanar_reg.cases.batch``.
 Importing them here costs little: the report (its templates, VTK) and Dask are
-imported only when a case is written or a cluster is used.
+imported only when a case is written or a cluster is used, and the batch module (its process
+pool and locks) on first use of :func:`run_batch` or :class:`BatchSummary`.
 """
 
 from ..errors import CaseError, CaseFailure
-from .batch import BatchSummary, run_batch
 from .case import (
     Case,
     CaseSetup,
@@ -20,6 +20,19 @@ from .case import (
     to_view_observations,
 )
 from .run import RunOutcome, register_case, run_case_dir
+
+_LAZY = {"run_batch": ".batch", "BatchSummary": ".batch"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "Case",

@@ -15,7 +15,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..annotation.clean import distance_to_polyline
-from ..annotation.render import path_lengths
 from ..outline import outline_polylines
 from ..registration import ViewObservations
 
@@ -53,18 +52,37 @@ def point_to_surface(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray
     near = cKDTree(tri.centre).query(P, k=k)[1].reshape(len(P), k)
     best = tri.distance(np.repeat(P, k, axis=0), near.ravel()).reshape(-1, k).min(axis=1)
     for group in np.array_split(np.argsort(tri.radius), min(_SIZE_GROUPS, len(F))):
-        balls = cKDTree(tri.centre[group]).query_ball_point(
-            P, best + tri.radius[group[-1]], return_sorted=False
-        )
-        n = np.fromiter(map(len, balls), np.int64, len(balls))
-        if not n.sum():
-            continue
-        q = np.repeat(np.arange(len(P)), n)
-        f = group[np.concatenate(balls).astype(np.int64)]
+        q, f = _candidates(cKDTree(tri.centre[group]), P, best + tri.radius[group[-1]])
+        f = group[f]
         keep = np.linalg.norm(P[q] - tri.centre[f], axis=1) <= best[q] + tri.radius[f]
         q, f = q[keep], f[keep]
         np.minimum.at(best, q, tri.distance(P[q], f))
     return best
+
+
+#: :func:`_candidates` asks the KD-tree for this many nearest centres per point first (arrays,
+#: fast); only the points with that many within their bound get a ball query (lists, slow).
+_NEAREST_FIRST = 16
+
+
+def _candidates(tree, points: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every (point index, tree index) pair with the tree point within ``bound`` (K,) of the
+    point (and possibly a few a rounding error farther, which the caller's exact test drops)."""
+    k = min(_NEAREST_FIRST, tree.n)
+    # a hair wider than the ball (the k-nearest query's bound is strict, and one for all)
+    wide = bound * (1.0 + 1e-12) + 1e-300
+    dist, idx = tree.query(points, k=k, distance_upper_bound=float(wide.max()))
+    dist, idx = dist.reshape(len(points), k), idx.reshape(len(points), k)
+    more = dist[:, -1] <= wide  # k found within the ball: there may be more
+    ok = (dist <= wide[:, None]) & ~more[:, None]
+    q, f = np.nonzero(ok)[0], idx[ok]
+    if np.any(more):
+        rows = np.flatnonzero(more)
+        balls = tree.query_ball_point(points[rows], wide[rows], return_sorted=False)
+        n = np.fromiter(map(len, balls), np.int64, len(balls))
+        q = np.concatenate([q, np.repeat(rows, n)])
+        f = np.concatenate([f, np.concatenate(balls).astype(np.int64)])
+    return q, f
 
 
 class _Triangles:
@@ -217,6 +235,10 @@ def model_outlines(vertices: np.ndarray, faces: np.ndarray, view) -> list[np.nda
     """
     mask = None
     if view.image_size is not None:
+        # imported here: the renderer imports scipy.ndimage, which a registration with
+        # silhouettes never needs
+        from ..annotation.render import path_lengths
+
         _, mask = path_lengths(vertices, faces, view, image_size=view.image_size)
     lines, _ = outline_polylines(vertices, view, faces, mask=mask)
     return lines

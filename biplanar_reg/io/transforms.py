@@ -31,7 +31,6 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .atomic import atomic_write_json, atomic_write_text
 from .jsonfile import read_json
@@ -49,6 +48,15 @@ __all__ = [
     "write_markups_json",
     "write_tra",
 ]
+
+
+def _rotation():
+    """scipy's ``Rotation``, imported on first use (``scipy.spatial`` takes ~0.4 s to import,
+    and importing :mod:`biplanar_reg.io` for an atomic write should not pay it)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation
+
 
 #: scipy ``Rotation`` sequence of the kinematics angles: intrinsic (upper case) X, then Y', then
 #: Z'' (Cardan), so ``R = Rx(rx) @ Ry(ry) @ Rz(rz)``; with bone axes along anatomical axes this
@@ -394,7 +402,7 @@ def _rows(frames: Sequence[int], body: str, reference: str, P: np.ndarray) -> li
         if np.isnan(T).any():
             vals = [math.nan] * 6
         else:
-            vals = [*T[:3, 3], *Rotation.from_matrix(T[:3, :3]).as_euler(ANGLE_SEQUENCE, True)]
+            vals = [*T[:3, 3], *_rotation().from_matrix(T[:3, :3]).as_euler(ANGLE_SEQUENCE, True)]
         out.append([str(f), body, reference, *(_g(v) for v in vals)])
     return out
 
@@ -448,7 +456,8 @@ def _pose_from_row(path: Path, lineno: int, row: list[str]) -> np.ndarray:
         return np.full((4, 4), np.nan)
     if not all(math.isfinite(x) for x in v):
         raise ValueError(f"{path}: line {lineno}: NaN/inf in a tracked row")
-    return rigid_pose(Rotation.from_euler(ANGLE_SEQUENCE, v[3:], degrees=True).as_matrix(), v[:3])
+    R = _rotation().from_euler(ANGLE_SEQUENCE, v[3:], degrees=True).as_matrix()
+    return rigid_pose(R, v[:3])
 
 
 def read_kinematics_csv(

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from functools import partial
+from functools import lru_cache, partial
 
 import numpy as np
 
@@ -70,9 +70,22 @@ WARM_START_MU = 0.1
 RECENTRE_DISTANCE = 3.0
 
 try:  # small dense BLAS calls: one thread is faster than two fighting over a shared machine
-    from threadpoolctl import threadpool_limits
+    from threadpoolctl import ThreadpoolController
 except ImportError:  # pragma: no cover - optional
-    threadpool_limits = None
+    ThreadpoolController = None
+
+
+@lru_cache(maxsize=1)
+def _threadpools() -> object | None:
+    """The process's BLAS/OpenMP thread pools, found once (finding them takes ~1 ms, a
+    ``threadpool_limits`` per solve did it every time; limiting found pools takes 10 us)."""
+    return ThreadpoolController() if ThreadpoolController is not None else None
+
+
+def _one_thread() -> object | None:
+    """Limit the thread pools to one thread until ``.unregister()`` (None without threadpoolctl)."""
+    pools = _threadpools()
+    return pools.limit(limits=1) if pools is not None else None
 
 
 @dataclass(frozen=True)
@@ -299,7 +312,7 @@ def _solve_recentred(
     if it lands farther than ``RECENTRE_DISTANCE`` from that guess (e.g. one perspective view,
     whose rays all meet at the source)."""
     centre = nearest_point_to_rays(rays.origins, rays.directions)
-    limits = threadpool_limits(1) if threadpool_limits is not None else None
+    limits = _one_thread()
     try:
         for attempt in range(2):
             data = KnownPoseData(

@@ -347,10 +347,11 @@ def _cluster_dof(
     J = lin.jacobian * sw[:, None]
     C = _posterior(J, np.ones(len(J)), prior)
     q = np.zeros((len(A), len(clusters)))
+    A2 = A.reshape(-1, A.shape[-1])  # (3N, P): one matrix product per cluster (BLAS)
     for c, rows in enumerate(clusters):
         B = C @ J[rows].T  # (P, |c|)
         E = (B * row_var[rows]) @ B.T
-        q[:, c] = np.einsum("nip,pq,niq->n", A, E, A)
+        q[:, c] = np.sum((A2 @ E) * A2, axis=1).reshape(len(A), -1).sum(axis=1)
     return q.sum(axis=1) ** 2 / np.maximum(np.sum(q * q, axis=1), 1e-300)
 
 

@@ -130,6 +130,7 @@ def test_cluster_runs_cases_through_the_batch_system(tmp_path, capsys, monkeypat
     out = tmp_path / "out"
     argv = ["--json", "batch", str(case), "--out", str(out), "--cluster", "slurm", "--jobs", "1"]
     argv += ["--cluster-option", "walltime=00:10:00", "--cluster-option", "dashboard_address=:0"]
+    argv += ["--no-report"]  # the batch system is under test, not the case report
     try:
         capsys.readouterr()
         assert main(argv) == 0

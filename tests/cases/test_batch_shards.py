@@ -22,6 +22,8 @@ from biplanar_reg.cli import main
 from biplanar_reg.simulate import write_synthetic_case
 
 ROOT = Path(__file__).resolve().parents[2]
+#: the shards and merges are under test, not the case reports (most of a small case's time)
+NO_REPORT = "--no-report"
 
 
 @pytest.fixture(scope="module")
@@ -60,10 +62,10 @@ def test_shards_then_merge_equal_a_full_run(three_cases, tmp_path, capsys):
     # the two shards of a job array run at the same time on one output folder (shard 2/2 is
     # given the cases in another order), while a full run of the same cases goes elsewhere
     shards = [
-        _cli("batch", *cases, "--out", str(out), "--shard", "1/2", "--workers", "1"),
-        _cli("batch", *reversed(cases), "--out", str(out), "--shard", "2/2"),
+        _cli("batch", *cases, "--out", str(out), "--shard", "1/2", "--workers", "1", NO_REPORT),
+        _cli("batch", *reversed(cases), "--out", str(out), "--shard", "2/2", NO_REPORT),
     ]
-    assert main(["batch", *cases, "--out", str(full), "--workers", "1"]) == 0
+    assert main(["batch", *cases, "--out", str(full), "--workers", "1", NO_REPORT]) == 0
     for p in shards:
         stdout, stderr = p.communicate(timeout=120)
         assert p.returncode == 0, stderr
@@ -81,7 +83,7 @@ def test_shards_then_merge_equal_a_full_run(three_cases, tmp_path, capsys):
     assert doc["summary"] == str(out / "summary.html") and (out / "summary.html").is_file()
     assert _summary(out) == _summary(full)  # same cases, same metrics, same statistics
     # a shard rerun skips its complete cases; merging again gives the same summary
-    assert main(["batch", *cases, "--out", str(out), "--shard", "2/2"]) == 0
+    assert main(["batch", *cases, "--out", str(out), "--shard", "2/2", NO_REPORT]) == 0
     assert merge_batch(out).counts == {**doc["counts"], "skipped": 1}
     assert _summary(out)[0] == [{**r, "ran": r["case"] != "c1"} for r in _summary(full)[0]]
 
