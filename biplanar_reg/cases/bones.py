@@ -12,10 +12,11 @@ bone leaves the previous outputs (or none).
 
 from __future__ import annotations
 
+import base64
 import html
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from itertools import combinations
 from pathlib import Path
 from typing import Any
@@ -182,10 +183,56 @@ def _document(case: Case, docs, poses, contact, relative, frame_names) -> dict[s
     )
 
 
-def _index_html(doc: dict[str, Any]) -> str:
+def _overlays(tmp: Path, case: Case, surfaces: dict) -> list[str]:
+    """``overlay_<view>.png`` per view: every registered bone of frame 0 shaded over the
+    radiograph (one mesh, so the painter's order holds across bones) with each bone's
+    projected outline (cyan), pixels. The file names written."""
+    from ..report.figures import overlay_figure
+    from ..report.shading import shaded_faces
+    from .metrics import model_outlines
+
+    meshes = [(frames[0], F) for frames, F in surfaces.values()]
+    offsets = np.cumsum([0] + [len(V) for V, _ in meshes])
+    V = np.concatenate([V for V, _ in meshes])
+    F = np.concatenate([F + o for (_, F), o in zip(meshes, offsets, strict=False)])
+    names = []
+    for cv in case.frames[0].views if case.frames else case.views:
+        try:
+            shaded = shaded_faces(cv.view, V, F)
+        except ValueError as exc:  # e.g. a vertex behind the source: the outlines still show
+            log.warning("%s: no shaded bones (%s)", cv.name, exc)
+            shaded = None
+        name = f"overlay_{''.join(c if c.isalnum() or c in '-_.' else '_' for c in cv.name)}.png"
+        overlay_figure(
+            tmp / name,
+            f"{cv.name}: {', '.join(surfaces)} registered (frame 0)",
+            display=None if cv.image is None else cv.image.display,
+            image_size=cv.image_size,
+            annotations=None,
+            outlines=[o for Vb, Fb in meshes for o in model_outlines(Vb, Fb, cv.view)],
+            landmarks_px={},
+            shaded=shaded,
+        )
+        names.append(name)
+    return names
+
+
+def _index_html(doc: dict[str, Any], figures: Sequence[str] = (), folder: Path | None = None) -> str:
     """A small ``report.html`` of a multi-bone case: links to each bone's report, the bones'
-    metrics, the contact check and the relative poses (no figures of its own)."""
+    metrics, the contact check, the relative poses and ``figures`` (PNG files in ``folder``,
+    embedded)."""
     e = html.escape
+    imgs = "".join(
+        f'<img alt="{e(f)}" style="max-width:48%;margin:4px" src="data:image/png;base64,'
+        f'{base64.b64encode((folder / f).read_bytes()).decode("ascii")}">'
+        for f in figures
+    )
+    views = (
+        "<h2>Views</h2><p>Every registered bone (frame 0) shaded over the radiograph, its "
+        f"projected outline in cyan, pixels; per-bone figures in each bone's report.</p>{imgs}"
+        if imgs
+        else ""
+    )
     num = lambda v: "" if v is None else f"{v:.3g}"  # noqa: E731
     keys = [k for k in ("landmark_rms_px", "contour_rms_px", "vertex_rms_mm", "surface_rms_mm")]
     rows = []
@@ -216,7 +263,7 @@ def _index_html(doc: dict[str, Any]) -> str:
     return f"""<!doctype html><html><head><meta charset="utf-8">
 <title>{e(doc["id"])}: bones</title>
 <style>body{{font-family:sans-serif;margin:2em}}td,th{{padding:2px 10px;text-align:right}}
-</style></head><body><h1>{e(doc["id"])}: {len(doc["bones"])} bones</h1>
+</style></head><body><h1>{e(doc["id"])}: {len(doc["bones"])} bones</h1>{views}
 <h2>Bones</h2><table><tr><th>bone (report)</th>{"".join(f"<th>{k}</th>" for k in keys)}</tr>
 {"".join(rows)}</table>
 <h2>Non-penetration check</h2><p>{e(doc["contact"]["method"])}; warning above
@@ -284,9 +331,10 @@ def register_bones_case(
         doc["exports"] = [p.relative_to(tmp).as_posix() for p in files]
         doc["report"] = None
         if report:
-            atomic_write_text(tmp / "report.html", _index_html(doc))
+            figures = _overlays(tmp, case, surfaces)
+            atomic_write_text(tmp / "report.html", _index_html(doc, figures, tmp))
             pages = [b["report"] for b in doc["bones"].values() if b["report"]]
-            doc["report"] = {"html": "report.html", "bones": pages}
+            doc["report"] = {"html": "report.html", "bones": pages, "views": figures}
         doc["timings"]["total"] = load_seconds + time.perf_counter() - t0
         atomic_write_json(tmp / "result.json", doc)
     log.info("%s: wrote %s", case.id, out_dir)

@@ -43,6 +43,8 @@ def test_sample_case_matches_expected(case):
     if case.name == "wrist_radius":
         assert doc["ground_truth"]["up_to_pose"] is True
         assert doc["ground_truth"]["alignment"]["init"] == "vertex correspondence"
+    if case.name == "wrist_radius_ulna":  # the index page: both bones over each radiograph
+        assert doc["report"]["views"] == ["overlay_cam01.png", "overlay_cam02.png"]
     if case.name == "synthetic_radius_blunder":
         truth = json.loads((case / "gt" / "truth.json").read_text())["blunder"]
         assert [truth["view"], truth["landmark"]] in [list(r) for r in doc["rejected"]]
