@@ -217,7 +217,9 @@ def _overlays(tmp: Path, case: Case, surfaces: dict) -> list[str]:
     return names
 
 
-def _index_html(doc: dict[str, Any], figures: Sequence[str] = (), folder: Path | None = None) -> str:
+def _index_html(
+    doc: dict[str, Any], figures: Sequence[str] = (), folder: Path | None = None
+) -> str:
     """A small ``report.html`` of a multi-bone case: links to each bone's report, the bones'
     metrics, the contact check, the relative poses and ``figures`` (PNG files in ``folder``,
     embedded)."""
