@@ -12,7 +12,6 @@ bone leaves the previous outputs (or none).
 
 from __future__ import annotations
 
-import base64
 import html
 import logging
 import time
@@ -223,10 +222,11 @@ def _index_html(
     """A small ``report.html`` of a multi-bone case: links to each bone's report, the bones'
     metrics, the contact check, the relative poses and ``figures`` (PNG files in ``folder``,
     embedded)."""
+    from ..report.html import data_uri
+
     e = html.escape
     imgs = "".join(
-        f'<img alt="{e(f)}" style="max-width:48%;margin:4px" src="data:image/png;base64,'
-        f'{base64.b64encode((folder / f).read_bytes()).decode("ascii")}">'
+        f'<img alt="{e(f)}" style="max-width:48%;margin:4px" src="{data_uri(folder / f)}">'
         for f in figures
     )
     views = (

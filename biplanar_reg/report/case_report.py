@@ -18,7 +18,6 @@ matplotlib fallback.
 
 from __future__ import annotations
 
-import base64
 import logging
 import os
 import re
@@ -33,7 +32,7 @@ import numpy as np
 from ..annotation import ViewAnnotations
 from .advice import flag_advice
 from .figures import convergence_figure, histogram_figure, overlay_figure
-from .html import write_page
+from .html import embedded_figures, write_page
 from .render3d import render_error_mesh
 from .residuals import ContourResidual, contour_residuals
 from .shading import shaded_faces
@@ -296,10 +295,6 @@ def _uncertainty_entry(folder: Path, views, vertices, faces, vertex_sd) -> dict[
     }
 
 
-def _data_uri(path: Path) -> str:
-    """A PNG file as a ``data:image/png;base64,...`` URI."""
-    return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
-
 
 def _landmark_rows(doc: Mapping[str, Any]) -> list[tuple[str, str, float, bool, str]]:
     """(view, landmark, error px, rejected, CSS class) of every landmark observation."""
@@ -319,10 +314,7 @@ def _write_html(
 ) -> None:
     """``report.html``: flags with advice, metrics, the figures (embedded), the residual
     tables and the tables of ``doc``."""
-    embedded = {
-        group: [{**f, "data": _data_uri(folder / f["src"])} for f in figs]
-        for group, figs in figures.items()
-    }
+    embedded = embedded_figures(folder, figures)
     options = doc["registration"].get("options") or {}
     write_page(
         folder / "report.html",

@@ -29,7 +29,6 @@ the panel size by :func:`.figures.overlay_figure`.
 
 from __future__ import annotations
 
-import base64
 import logging
 import os
 import re
@@ -45,7 +44,7 @@ from ..io.transforms import ANGLE_SEQUENCE
 from .advice import flag_advice
 from .case_report import ReportView
 from .figures import overlay_figure, save_figure
-from .html import write_page
+from .html import embedded_figures, write_page
 from .shading import shaded_faces
 
 __all__ = ["frame_overlay_indices", "kinematics_components", "write_frames_report"]
@@ -220,9 +219,6 @@ def _overlay(folder: Path, frame: str, v: ReportView, vertices, faces) -> dict[s
     return {"src": fname, "caption": f"Frame {frame}, view {v.name}."}
 
 
-def _data_uri(path: Path) -> str:
-    return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
-
 
 def _fmt(x: Any, digits: int = 2) -> str:
     return "-" if x is None or not np.isfinite(float(x)) else f"{float(x):.{digits}f}"
@@ -353,10 +349,7 @@ def write_frames_report(
                     }
                 )
     figures = {"views": overlays, "plots": plots, "surface": surface}
-    embedded = {
-        g: [{**x, "data": _data_uri(folder / x["src"])} for x in figs]
-        for g, figs in figures.items()
-    }
+    embedded = embedded_figures(folder, figures)
     options = doc["registration"].get("options") or {}
     write_page(
         folder / "report.html",

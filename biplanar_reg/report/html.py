@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import base64
 import functools
 import os
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -12,7 +14,7 @@ import jinja2
 from .. import __version__
 from ..io.atomic import atomic_write_text
 
-__all__ = ["render_template", "write_page"]
+__all__ = ["data_uri", "embedded_figures", "render_template", "write_page"]
 
 
 @functools.cache
@@ -34,3 +36,19 @@ def render_template(name: str, **context: Any) -> str:
 def write_page(path: str | os.PathLike, name: str, **context: Any) -> Path:
     """Render a template and write it atomically to ``path``."""
     return atomic_write_text(path, render_template(name, **context))
+
+
+def data_uri(path: str | os.PathLike) -> str:
+    """A PNG file as a ``data:image/png;base64,...`` URI (pages hold their figures)."""
+    return "data:image/png;base64," + base64.b64encode(Path(path).read_bytes()).decode("ascii")
+
+
+def embedded_figures(
+    folder: Path, figures: Mapping[str, Sequence[Mapping[str, str]]]
+) -> dict[str, list[dict[str, str]]]:
+    """``figures`` (group -> entries with ``src``, a PNG in ``folder``) with each entry's
+    ``data`` URI added, for a self-contained page."""
+    return {
+        group: [{**f, "data": data_uri(folder / f["src"])} for f in figs]
+        for group, figs in figures.items()
+    }
