@@ -14,7 +14,7 @@ import jinja2
 from .. import __version__
 from ..io.atomic import atomic_write_text
 
-__all__ = ["data_uri", "embedded_figures", "render_template", "write_page"]
+__all__ = ["render_template", "write_page"]
 
 
 @functools.cache
