@@ -288,6 +288,26 @@ def _cylinder_lengths(
     return (np.sqrt(disc) / np.maximum(a, 1e-12)).reshape(h, w)
 
 
+def model_off_the_cut(
+    template: np.ndarray, shapes: np.ndarray, faces: np.ndarray, n_modes: int
+) -> tuple[ShapeModel, np.ndarray]:
+    """The SSM of ``shapes`` (``n_modes`` modes) with synthetic landmarks off the CT crop's cut,
+    and the cut mask (``template``'s vertices within 4 mm of its top along z, mm): no landmark
+    on the cut, whose centre ("proximal_tip") is nowhere in a radiograph."""
+    model = build_ssm(shapes, faces=faces, n_modes=n_modes)
+    cut = template[:, 2] > template[:, 2].max() - 4.0
+    marks = synthetic_landmarks(model, distal_sign=-1.0)
+    model = ShapeModel(
+        model.mean,
+        model.modes,
+        faces=model.faces,
+        variances=model.variances,
+        landmarks={k: i for k, i in marks.items() if not cut[i]},
+        truncation_modes=model.truncation_modes,
+    )
+    return model, cut
+
+
 @functools.lru_cache(maxsize=4)
 def wrist_scene(
     data_dir: str,
@@ -326,18 +346,7 @@ def wrist_scene(
         read_volume(data / "ulna_ct.tif", voxel_size=WRIST_CT_VOXEL_MM), target_vertices=600
     )
     pop = synthesise_population(rad.vertices, n_population, seed=seed, resolution=resolution)
-    model = build_ssm(pop.shapes[:n_train], faces=rad.faces, n_modes=n_modes)
-    cut = rad.vertices[:, 2] > rad.vertices[:, 2].max() - 4.0
-    # no landmark on the crop's cut (its centre, "proximal_tip", is nowhere in a radiograph)
-    marks = synthetic_landmarks(model, distal_sign=-1.0)
-    model = ShapeModel(
-        model.mean,
-        model.modes,
-        faces=model.faces,
-        variances=model.variances,
-        landmarks={k: i for k, i in marks.items() if not cut[i]},
-        truncation_modes=model.truncation_modes,
-    )
+    model, cut = model_off_the_cut(rad.vertices, pop.shapes[:n_train], rad.faces, n_modes)
     rough = read_json(data.parent / "annotation" / "rough_pose.json")
     pose = (np.asarray(rough["R"], float), np.asarray(rough["t"], float))
     views = [

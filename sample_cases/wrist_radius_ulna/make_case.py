@@ -37,7 +37,6 @@ from biplanar_reg.annotation import (
 )
 from biplanar_reg.calibration import save_calibration
 from biplanar_reg.io import atomic_write_bytes, atomic_write_json, read_volume, write_mesh
-from biplanar_reg.simulate import synthetic_landmarks
 from biplanar_reg.simulate.realistic import (
     WRIST_CT_VOXEL_MM,
     _crop,
@@ -46,9 +45,10 @@ from biplanar_reg.simulate.realistic import (
     _trace,
     _traceable,
     model_floor,
+    model_off_the_cut,
     wrist_scene,
 )
-from biplanar_reg.ssm import ShapeModel, bone_surface, build_ssm, synthesise_population
+from biplanar_reg.ssm import bone_surface, synthesise_population
 
 HERE = Path(__file__).resolve().parent
 DATA = HERE.parent / "wrist_radius" / "data"
@@ -109,17 +109,7 @@ def _ulna_model(scene, seed):
     first N_TRAIN members with landmarks off the crop's cut, and the cut mask."""
     verts, faces = _ulna_template(scene)
     pop = synthesise_population(verts, N_POP, seed=seed + 1, resolution=40)
-    model = build_ssm(pop.shapes[:N_TRAIN], faces=faces, n_modes=N_MODES)
-    cut = verts[:, 2] > verts[:, 2].max() - 4.0
-    marks = synthetic_landmarks(model, distal_sign=-1.0)
-    model = ShapeModel(
-        model.mean,
-        model.modes,
-        faces=model.faces,
-        variances=model.variances,
-        landmarks={k: i for k, i in marks.items() if not cut[i]},
-        truncation_modes=model.truncation_modes,
-    )
+    model, cut = model_off_the_cut(verts, pop.shapes[:N_TRAIN], faces, N_MODES)
     return model, pop.shapes, cut, faces
 
 
