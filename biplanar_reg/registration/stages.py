@@ -243,16 +243,16 @@ def robust_start(problem: Problem, start: Start) -> Start:
     with outlines and at least 5 landmarks, (b) the landmark-only start without one landmark,
     for each landmark the others contradict (:func:`.blunders.suspicious_landmarks`: deleted
     residual above the robust loss's width; a screen of landmark-only refits that costs a
-    fraction of one outline iteration).
-    With redundant landmarks few are (none in the knee-sized case of
-    ``benchmarks/case_time.py``: no short fit runs at all). Each start gets a short boosted
-    fit (``consensus_iterations``). A start
-    without a landmark is taken when its robust cost (:func:`.blunders.robust_cost`: truncated
-    landmark terms plus the outline term) is below ``consensus_margin`` times that of (a) and
-    the lowest: short fits are not converged, and without the margin a start without a good
-    landmark wins by chance (measured: one out-of-span trial then rejected a good landmark and
-    missed the blunder). No landmark is rejected here: the boosting's reweighting decides that
-    from the chosen start.
+    fraction of one outline iteration). With redundant landmarks few are (none in the
+    knee-sized case of ``benchmarks/case_time.py``: no short fit runs at all).
+
+    Each start gets a short boosted fit (``consensus_iterations``). A start without a landmark
+    is taken when its robust cost (:func:`.blunders.robust_cost`: truncated landmark terms
+    plus the outline term) is below ``consensus_margin`` times that of (a) and the lowest:
+    short fits are not converged, and without the margin a start without a good landmark wins
+    by chance (measured: one out-of-span trial then rejected a good landmark and missed the
+    blunder). No landmark is rejected here: the boosting's reweighting decides that from the
+    chosen start.
     """
     if not problem.options.robust:
         return choose_start(problem, start)
