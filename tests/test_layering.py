@@ -27,6 +27,7 @@ PACKAGE_DIR = Path(biplanar_reg.__file__).resolve().parent
 LAYERS: dict[str, int] = {
     "": 0,  # biplanar_reg/__init__.py: the version only
     "_validate": 0,
+    "_threads": 0,
     "errors": 0,
     "io": 0,
     "calibration": 1,

@@ -38,6 +38,8 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
+from .._threads import worker_threads
+
 __all__: list[str] = []
 
 log = logging.getLogger(__name__)
@@ -47,39 +49,6 @@ _PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 WATCHDOG_SECONDS = 0.25
 #: Consecutive workers dying before they are ready after which the pool gives up.
 MAX_START_FAILURES = 3
-#: Thread-count variables of the BLAS/OpenMP libraries numpy and scipy may load.
-THREAD_VARIABLES = (
-    "OMP_NUM_THREADS",
-    "OPENBLAS_NUM_THREADS",
-    "MKL_NUM_THREADS",
-    "BLIS_NUM_THREADS",
-    "VECLIB_MAXIMUM_THREADS",
-    "NUMEXPR_NUM_THREADS",
-)
-
-
-def available_cores() -> int:
-    """CPU cores this process may run on (its affinity mask where known)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except (AttributeError, OSError):
-        return max(1, os.cpu_count() or 1)
-
-
-@contextlib.contextmanager
-def worker_threads(size: int):
-    """Within the block, ``os.environ`` gives spawned workers ``cores // size`` BLAS/OpenMP
-    threads each (variables the user set are kept); restored afterwards."""
-    n = str(max(1, available_cores() // max(1, size)))
-    added = [k for k in THREAD_VARIABLES if k not in os.environ]
-    for k in added:
-        os.environ[k] = n
-    try:
-        yield
-    finally:
-        for k in added:
-            os.environ.pop(k, None)
-
 #: ``on_result(job, kind, value)``: ``kind`` "done" (``value``: the task's return value) or
 #: "error" (``value``: the one-line message of the exception the task raised).
 ResultCallback = Callable[[int, str, Any], None]

@@ -39,9 +39,9 @@ from typing import Any
 
 import numpy as np
 
+from .._threads import available_cores
 from ..io.atomic import atomic_write_text
 from ._lock import OutputLock, describe, probe
-from ._pool import available_cores
 from ._shards import SUMMARY_FORMAT, parse_shard, read_shard_summaries, shard_file, shard_names
 from .outputs import clean_stale, is_complete
 

@@ -18,6 +18,9 @@ __all__ = ["register"]
 
 
 def _cmd_register(args: argparse.Namespace) -> int:
+    from .._threads import default_threads
+
+    default_threads(1)  # before numpy loads: small matrices, extra BLAS threads only spin
     from ..cases.run import run_case_dir
 
     outcome = run_case_dir(

@@ -15,6 +15,9 @@ __all__ = ["register"]
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
+    from .._threads import default_threads
+
+    default_threads(1)  # before numpy loads, as for ``register``
     from ..demo import run_demo
 
     outcome = run_demo(args.out, args.case)

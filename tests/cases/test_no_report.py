@@ -7,7 +7,7 @@ import io
 import json
 import os
 
-from biplanar_reg.cases._pool import THREAD_VARIABLES, available_cores, worker_threads
+from biplanar_reg._threads import THREAD_VARIABLES, available_cores, worker_threads
 from biplanar_reg.cases.batch import run_batch
 from biplanar_reg.cases.outputs import is_complete
 from biplanar_reg.cli import main
