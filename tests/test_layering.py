@@ -28,6 +28,7 @@ LAYERS: dict[str, int] = {
     "": 0,  # biplanar_reg/__init__.py: the version only
     "_validate": 0,
     "_threads": 0,
+    "_lazy": 0,
     "errors": 0,
     "io": 0,
     "calibration": 1,

@@ -5,6 +5,7 @@ See ``docs/annotation.md``; the package exports the names listed in ``docs/api.m
 implementation modules hold more, for the package's own use).
 """
 
+from .._lazy import lazy_getattr
 from ..errors import AnnotationError
 from .annotations import (
     Annotations,
@@ -35,15 +36,7 @@ _LAZY = {
 }
 
 
-def __getattr__(name: str):
-    """The lazily imported names of ``_LAZY`` (PEP 562)."""
-    if name in _LAZY:
-        import importlib
-
-        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_getattr(__name__, _LAZY)
 
 
 __all__ = [

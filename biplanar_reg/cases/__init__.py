@@ -9,6 +9,7 @@ imported only when a case is written or a cluster is used, and the batch module 
 pool and locks) on first use of :func:`run_batch` or :class:`BatchSummary`.
 """
 
+from .._lazy import lazy_getattr
 from ..errors import CaseError, CaseFailure
 from .case import (
     Case,
@@ -24,14 +25,7 @@ from .run import RunOutcome, register_case, run_case_dir
 _LAZY = {"run_batch": ".batch", "BatchSummary": ".batch"}
 
 
-def __getattr__(name: str):
-    if name in _LAZY:
-        import importlib
-
-        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_getattr(__name__, _LAZY)
 
 
 __all__ = [

@@ -3,25 +3,44 @@
 See ``docs/ssm.md``; the package exports the names listed in ``docs/api.md``.
 """
 
-from .build import affine_fractions, build_ssm, explained_fractions, procrustes_align
-from .correspond import Correspondence, correspond_meshes
-from .dense import densify
-from .fit import ModelFit, fit_model
-from .harmonic import BoxCage, box_cage, harmonic_coordinates
-from .mirror import mirror_mesh, mirror_model
+from .._lazy import lazy_getattr
 from .model import ShapeModel
-from .population import FAMILIES, Population, synthesise_population
-from .quality import (
-    ModelQuality,
-    compactness,
-    generalisation,
-    model_quality,
-    plot_quality,
-    recommended_modes,
-    specificity,
-)
-from .statismo import read_statismo, write_statismo
-from .template import BoneSurface, bone_surface
+
+#: Everything but the model itself is imported on first use: a registration needs only
+#: :class:`ShapeModel`, and model building pulls in scipy's sparse solvers and graph routines.
+_LAZY = {
+    **dict.fromkeys(
+        ("affine_fractions", "build_ssm", "explained_fractions", "procrustes_align"), ".build"
+    ),
+    "Correspondence": ".correspond",
+    "correspond_meshes": ".correspond",
+    "densify": ".dense",
+    "ModelFit": ".fit",
+    "fit_model": ".fit",
+    **dict.fromkeys(("BoxCage", "box_cage", "harmonic_coordinates"), ".harmonic"),
+    "mirror_mesh": ".mirror",
+    "mirror_model": ".mirror",
+    **dict.fromkeys(("FAMILIES", "Population", "synthesise_population"), ".population"),
+    **dict.fromkeys(
+        (
+            "ModelQuality",
+            "compactness",
+            "generalisation",
+            "model_quality",
+            "plot_quality",
+            "recommended_modes",
+            "specificity",
+        ),
+        ".quality",
+    ),
+    "read_statismo": ".statismo",
+    "write_statismo": ".statismo",
+    "BoneSurface": ".template",
+    "bone_surface": ".template",
+}
+
+__getattr__ = lazy_getattr(__name__, _LAZY)
+
 
 __all__ = [
     "FAMILIES",

@@ -23,7 +23,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
-from scipy.sparse.linalg import splu
 
 from .._validate import as_array, check_positive
 
@@ -208,6 +207,8 @@ def harmonic_coordinates(cage: BoxCage, points: object, resolution: int = 40) ->
     a_ii = lap[interior][:, interior].tocsc()
     rhs = -(lap[interior] @ ub).toarray()
     u = ub.toarray()
+    from scipy.sparse.linalg import splu  # here: loading it costs a case without a template
+
     u[interior] = splu(a_ii, permc_spec=_PERMC).solve(rhs)
 
     # Trilinear interpolation of the nodal fields at the points.

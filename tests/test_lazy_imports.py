@@ -1,0 +1,56 @@
+"""Lazy package names (``biplanar_reg._lazy``) and what a registration leaves unloaded."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import types
+from pathlib import Path
+
+import pytest
+
+from biplanar_reg._lazy import lazy_getattr
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_lazy_name_is_imported_once_and_cached(monkeypatch):
+    pkg = types.ModuleType("lazy_pkg_for_test")
+    pkg.__path__ = []  # a package
+    monkeypatch.setitem(sys.modules, "lazy_pkg_for_test", pkg)
+    sub = types.ModuleType("lazy_pkg_for_test.impl")
+    sub.thing = object()
+    monkeypatch.setitem(sys.modules, "lazy_pkg_for_test.impl", sub)
+    pkg.__getattr__ = lazy_getattr("lazy_pkg_for_test", {"thing": ".impl"})
+    from lazy_pkg_for_test import thing  # noqa: PLC0415 - the lazy path under test
+
+    assert thing is sub.thing and pkg.__dict__["thing"] is sub.thing  # cached in the package
+    with pytest.raises(AttributeError, match="no attribute 'other'"):
+        pkg.__getattr__("other")
+
+
+def test_lazy_name_equal_to_its_module_is_refused():
+    with pytest.raises(ValueError, match=r"equal to their module's name: \['render'\]"):
+        lazy_getattr("pkg", {"render": ".render"})
+
+
+def test_registration_leaves_model_building_unloaded():
+    """``biplanar-reg register`` imports what a registration uses: not the SSM building
+    modules, scipy's sparse solvers and graph routines, scikit-image or matplotlib."""
+    code = (
+        "import sys, biplanar_reg.cases.run\n"
+        "print(sorted(m for m in ('biplanar_reg.ssm.dense', 'biplanar_reg.ssm.correspond', "
+        "'biplanar_reg.ssm.quality', 'scipy.sparse.linalg', 'scipy.sparse.csgraph', 'skimage', "
+        "'matplotlib', 'biplanar_reg.report') if m in sys.modules))\n"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        timeout=120,
+    )
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip() == "[]"
