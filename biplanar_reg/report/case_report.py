@@ -295,7 +295,6 @@ def _uncertainty_entry(folder: Path, views, vertices, faces, vertex_sd) -> dict[
     }
 
 
-
 def _landmark_rows(doc: Mapping[str, Any]) -> list[tuple[str, str, float, bool, str]]:
     """(view, landmark, error px, rejected, CSS class) of every landmark observation."""
     options = doc["registration"].get("options") or {}

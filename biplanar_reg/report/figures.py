@@ -9,13 +9,17 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 from matplotlib import patheffects
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 from matplotlib.ticker import LogFormatter
 
@@ -38,10 +42,41 @@ _OVERLAY_RASTER_PX = 560
 _OVERLAY_MARGINS = {"left": 0.12, "right": 0.97, "bottom": 0.08, "top": 0.95}
 
 
-def save_figure(fig: Figure, path: str | os.PathLike) -> None:
+#: PNG encoding: zlib level 1 and the "up" filter on every row (libpng's adaptive filter choice
+#: took twice as long for files of the same size); OpenCV before 4.11 has no filter option.
+_PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 1]
+if hasattr(cv2, "IMWRITE_PNG_FILTER"):
+    _PNG_PARAMS += [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP]
+
+
+def png_bytes(
+    fig: Figure, dpi: float = _DPI, paste: tuple[np.ndarray, tuple[int, int]] | None = None
+) -> bytes:
+    """``fig`` drawn once with the Agg canvas at ``dpi``, as an opaque RGB PNG (the figure
+    background is opaque: no alpha channel to encode).
+
+    ``paste = (rgb, (left, top))``: an (h, w, 3) uint8 image put on the drawn figure pixel for
+    pixel, its top-left corner ``left`` pixels from the figure's left edge and ``top`` from
+    its top (for a rendering in a part of the figure where nothing else is drawn: matplotlib
+    would convert and resample it).
+    """
+    fig.set_dpi(dpi)
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    bgr = cv2.cvtColor(np.asarray(canvas.buffer_rgba()), cv2.COLOR_RGBA2BGR)
+    if paste is not None:
+        rgb, (left, top) = paste
+        h, w = rgb.shape[:2]
+        bgr[top : top + h, left : left + w] = rgb[:, :, ::-1]
+    ok, png = cv2.imencode(".png", bgr, _PNG_PARAMS)
+    if not ok:
+        raise ValueError("PNG encoding failed")
+    return png.tobytes()
+
+
+def save_figure(fig: Figure, path: str | os.PathLike, dpi: float = _DPI) -> None:
     """Render ``fig`` to a PNG file (the caller writes into a temporary folder)."""
-    FigureCanvasAgg(fig)
-    fig.savefig(path, dpi=_DPI, pil_kwargs={"compress_level": 1})
+    Path(path).write_bytes(png_bytes(fig, dpi))
 
 
 def overlay_figure(
@@ -125,10 +160,13 @@ def draw_overlay(
     limits = _limits(drawn, size)
     has_bone = shaded is not None and len(shaded[0]) > 0
     _draw_background(ax, display, image_size, limits, shaded if has_bone else None)
-    for k, line in enumerate(outlines):
-        _polyline(ax, line, "cyan", "registered outline" if k == 0 else None)
-    _draw_contours(ax, contours)
-    _draw_landmarks(ax, annotated, landmarks_px)
+    handles = [Patch(facecolor=BONE_RGB, alpha=BONE_ALPHA, label="registered bone (shaded)")]
+    handles = handles if has_bone else []
+    # one artist per kind of mark (a line collection, or one line of markers), not one per
+    # polyline or point: matplotlib's cost is per artist
+    handles += _polylines(ax, outlines, "cyan", "registered outline")
+    handles += _draw_contours(ax, contours)
+    handles += _draw_landmarks(ax, annotated, landmarks_px)
     _draw_marks(ax, marks)
     if limits is not None:
         ax.set_xlim(limits[0], limits[1])
@@ -136,15 +174,18 @@ def draw_overlay(
     ax.set_aspect("equal")
     ax.set_xlabel("u (px)")
     ax.set_ylabel("v (px)")
-    ax.set_title(title, fontsize=10)
-    handles = ax.get_legend_handles_labels()[0]
-    if has_bone:  # the bone's colour, not its first triangle's
-        label = "registered bone (shaded)"
-        handles.insert(0, Patch(facecolor=BONE_RGB, alpha=BONE_ALPHA, label=label))
+    _title(ax, title, fontsize=10)
     if handles:
         ax.legend(handles=handles, loc="lower right", fontsize=7, framealpha=0.7)
     fig.subplots_adjust(**_OVERLAY_MARGINS)
     return fig, ax
+
+
+def _title(ax: Axes, text: str, **style: Any) -> None:
+    """The axes' title at its default place above the axes, given explicitly: matplotlib then
+    skips measuring every tick label to keep the title clear of an axis on top (there is none
+    in these figures)."""
+    ax.set_title(text, y=1.0, **style)
 
 
 def _shade_bone(
@@ -179,8 +220,11 @@ def _shade_bone(
 
 def _draw_marks(ax: Axes, marks: Sequence[tuple[str, np.ndarray]]) -> None:
     """Labelled points as magenta rings with their label."""
+    if not marks:
+        return
+    uv = np.array([p for _, p in marks], float).reshape(-1, 2)
+    ax.plot(uv[:, 0], uv[:, 1], "o", ls="none", color="magenta", ms=11, mfc="none", mew=1.2)
     for label, p in marks:
-        ax.plot(*p, "o", color="magenta", ms=11, mfc="none", mew=1.2)
         ax.annotate(
             label,
             p,
@@ -240,28 +284,50 @@ def rgba_bytes(rgb: np.ndarray) -> np.ndarray:
     return out
 
 
-def _polyline(ax: Axes, uv: np.ndarray, color: str, label: str | None) -> None:
-    """One (Q, 2) pixel polyline, 1 pt wide (outlines and contours look alike but for colour)."""
-    ax.plot(uv[:, 0], uv[:, 1], "-", color=color, lw=1.0, label=label)
+def _polylines(
+    ax: Axes, lines: Sequence[np.ndarray], color: str, label: str, lw: float = 1.0
+) -> list[Line2D]:
+    """(Q, 2) pixel polylines as one collection, ``lw`` points wide (outlines and contours look
+    alike but for colour); its legend entry (none when there are no lines)."""
+    lines = [np.asarray(line, float).reshape(-1, 2) for line in lines]
+    if not lines:
+        return []
+    ax.add_collection(LineCollection(lines, colors=color, linewidths=lw), autolim=False)
+    return [Line2D([], [], color=color, lw=lw, label=label)]
 
 
-def _draw_contours(ax: Axes, contours: Sequence[Contour]) -> None:
-    """Annotated contours in red (closed ones joined up), the ends of open ones as amber rings."""
-    for k, c in enumerate(contours):
-        uv = np.vstack([c.uv, c.uv[:1]]) if c.closed else c.uv
-        _polyline(ax, uv, "red", "annotated contour" if k == 0 else None)
-        if not c.closed:
-            ax.plot(c.uv[[0, -1], 0], c.uv[[0, -1], 1], "o", color="orange", ms=4, mfc="none")
+def _points(
+    ax: Axes, uv: Sequence[np.ndarray], marker: str, color: str, label: str | None, **style: Any
+) -> list[Line2D]:
+    """Points ``uv`` (each (2,), pixels) as one line of markers; its legend entry when
+    ``label`` is given (none when there are no points)."""
+    if not len(uv):
+        return []
+    xy = np.asarray(uv, float).reshape(-1, 2)
+    line = ax.plot(xy[:, 0], xy[:, 1], marker, ls="none", color=color, label=label, **style)
+    return line if label else []
+
+
+def _draw_contours(ax: Axes, contours: Sequence[Contour]) -> list[Line2D]:
+    """Annotated contours in red (closed ones joined up), the ends of open ones as amber rings;
+    the legend entry."""
+    lines = [np.vstack([c.uv, c.uv[:1]]) if c.closed else c.uv for c in contours]
+    handles = _polylines(ax, lines, "red", "annotated contour")
+    ends = [p for c in contours if not c.closed for p in c.uv[[0, -1]]]
+    _points(ax, ends, "o", "orange", None, ms=4, mfc="none")
+    return handles
 
 
 def _draw_landmarks(
     ax: Axes, annotated: Mapping[str, Landmark], registered: Mapping[str, np.ndarray]
-) -> None:
+) -> list[Line2D]:
     """Annotated landmarks (green +, named), each joined by a yellow line to the registered
-    model's landmark of the same name; then the registered landmarks (blue x), pixels."""
-    for k, (name, lm) in enumerate(annotated.items()):
-        label = "annotated landmark" if k == 0 else None
-        ax.plot(*lm.uv, "+", color="lime", ms=9, mew=1.5, label=label)
+    model's landmark of the same name; then the registered landmarks (blue x), pixels; the
+    legend entries."""
+    handles = _points(
+        ax, [lm.uv for lm in annotated.values()], "+", "lime", "annotated landmark", ms=9, mew=1.5
+    )
+    for name, lm in annotated.items():
         ax.annotate(
             name,
             lm.uv,
@@ -271,12 +337,15 @@ def _draw_landmarks(
             fontsize=7,
             path_effects=_HALO,
         )
-        if name in registered:
-            p = registered[name]
-            ax.plot([lm.uv[0], p[0]], [lm.uv[1], p[1]], "-", color="yellow", lw=0.8)
-    for k, p in enumerate(registered.values()):
-        label = "registered landmark" if k == 0 else None
-        ax.plot(*p, "x", color="deepskyblue", ms=7, mew=1.5, label=label)
+    links = [
+        np.array([lm.uv, registered[n]], float) for n, lm in annotated.items() if n in registered
+    ]
+    if links:
+        ax.add_collection(LineCollection(links, colors="yellow", linewidths=0.8), autolim=False)
+    handles += _points(
+        ax, list(registered.values()), "x", "deepskyblue", "registered landmark", ms=7, mew=1.5
+    )
+    return handles
 
 
 def _limits(

@@ -20,7 +20,7 @@ import numpy as np
 if TYPE_CHECKING:
     from ..calibration import View
 
-__all__ = ["shaded_faces"]
+__all__ = ["painter_faces", "shaded_faces"]
 
 
 def shaded_faces(
@@ -49,24 +49,39 @@ def shaded_faces(
     Degenerate triangles (zero area in 3D) are left out, and so are the back faces of a closed,
     consistently wound mesh.
     """
+    triangles, _, shade = painter_faces(view, vertices, faces)
+    return triangles, shade
+
+
+def painter_faces(
+    view: View, vertices: np.ndarray, faces: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`shaded_faces` with the index of each drawn triangle in ``faces``:
+    ``(triangles (T, 3, 2) px, index (T,), shade (T,))``, farthest first."""
     V = np.asarray(vertices, float)
     F = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     tri = V[F]  # (F, 3, 3)
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     outward = _outward_sign(F, tri, len(V))
     norm = np.linalg.norm(n, axis=1)
-    keep = norm > 1e-12 * max(float(np.ptp(V)), 1.0) ** 2
-    F, tri, n = F[keep], tri[keep], n[keep] / norm[keep, None]
+    index = np.flatnonzero(norm > 1e-12 * max(float(np.ptp(V)), 1.0) ** 2)
+    tri, n = tri[index], n[index] / norm[index, None]
     centroid = tri.mean(axis=1)
     origin, direction = view.rays(view.project(centroid))
     facing = np.einsum("ij,ij->i", n, direction)
     if outward is not None:  # closed: only the faces turned towards the source
         front = outward * facing <= 0.0
-        F, centroid, origin, direction = F[front], centroid[front], origin[front], direction[front]
+        index, centroid, origin, direction = (
+            index[front],
+            centroid[front],
+            origin[front],
+            direction[front],
+        )
         facing = facing[front]
     depth = np.einsum("ij,ij->i", centroid - origin, direction)
     order = np.argsort(-depth, kind="stable")
-    return view.project(V)[F[order]], np.abs(facing[order])
+    index = index[order]
+    return view.project(V)[F[index]], index, np.abs(facing[order])
 
 
 def _outward_sign(F: np.ndarray, tri: np.ndarray, n_vertices: int) -> float | None:
