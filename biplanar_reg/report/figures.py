@@ -21,7 +21,13 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
-from matplotlib.ticker import LogFormatter
+from matplotlib.ticker import (
+    FormatStrFormatter,
+    LogFormatter,
+    LogLocator,
+    MaxNLocator,
+    NullLocator,
+)
 
 from ..annotation import Contour, Landmark, ViewAnnotations
 
@@ -373,7 +379,8 @@ def _limits(
 def histogram_figure(
     path: str | os.PathLike, series: Sequence[tuple[str, np.ndarray, str]]
 ) -> None:
-    """Histograms side by side; ``series`` holds (label, values, unit) triples (empty skipped)."""
+    """Histograms side by side; ``series`` holds (label, values, unit) triples (empty skipped).
+    Each median is a dashed line labelled above the axes (``median 0.53``)."""
     series = [s for s in series if len(s[1])]
     n = max(1, len(series))
     fig = Figure(figsize=(4.0 * n, 3.2))
@@ -384,16 +391,26 @@ def histogram_figure(
         counts, bins = np.histogram(v, bins=min(40, max(5, len(v) // 5)))
         ax.stairs(counts, bins, fill=True, color="steelblue")
         ax.stairs(counts, bins, color="white", lw=0.5, baseline=None)
-        ax.axvline(
-            float(np.median(v)), color="k", ls="--", lw=1, label=f"median {np.median(v):.3g}"
+        median = float(np.median(v))
+        ax.axvline(median, color="k", ls="--", lw=1)
+        # the line's label on it, above the axes (a legend of one entry cost more to lay out),
+        # kept over the axes near their ends
+        at = (median - bins[0]) / max(bins[-1] - bins[0], 1e-300)
+        ax.text(
+            median,
+            1.01,
+            f"median {median:.3g}",
+            transform=ax.get_xaxis_transform(),
+            ha="left" if at < 0.15 else "right" if at > 0.85 else "center",
+            va="bottom",
+            fontsize=7,
         )
         ax.set_xlabel(f"{label} ({unit})")
         ax.set_ylabel("count")
-        ax.legend(fontsize=7)
     if not series:
         fig.text(0.5, 0.5, "no errors to show", ha="center")
     width = 4.0 * n  # inches; fixed margins of about 0.6 in left, 0.2 in right
-    fig.subplots_adjust(left=0.6 / width, right=1 - 0.2 / width, bottom=0.17, top=0.95, wspace=0.3)
+    fig.subplots_adjust(left=0.6 / width, right=1 - 0.2 / width, bottom=0.17, top=0.92, wspace=0.3)
     save_figure(fig, path)
 
 
@@ -415,6 +432,7 @@ def convergence_figure(
     """
     kinds = list(kinds) if kinds is not None else ["sdp"] * len(costs)
     c = np.maximum(np.asarray(costs, float), 1e-300)
+    cert = np.maximum(np.asarray(certificates, float), 1e-16)
     idx = np.arange(len(costs))
     sdp = np.array([k != "local" for k in kinds], dtype=bool)
     local = ~sdp
@@ -424,25 +442,20 @@ def convergence_figure(
     ax.set_xlabel("iteration (0 = landmarks only)")
     ax.set_ylabel("match-independent cost", color="tab:blue")
     ax.set_xticks(idx[sdp])
+    _title(ax, "convex iterations (numbers: outline matches)", fontsize=9)
     ax2 = ax.twinx()
-    ax2.semilogy(
-        idx[sdp],
-        np.maximum(np.asarray(certificates, float)[sdp], 1e-16),
-        "s--",
-        color="tab:green",
-        label="certificate",
-    )
+    ax2.semilogy(idx[sdp], cert[sdp], "s--", color="tab:green", label="certificate")
     ax2.set_ylabel("certificate (lambda2 / lambda1)", color="tab:green")
-    panels = [(ax, sdp)]
+    panels = [(ax, sdp, c[sdp]), (ax2, None, cert[sdp])]
     if local.any():
         axl = fig.add_subplot(1, 2, 2)
         axl.semilogy(idx[local], c[local], "o-", color="tab:purple", label="objective")
         axl.set_xlabel("iteration")
         axl.set_ylabel("refinement objective", color="tab:purple")
         axl.set_xticks(idx[local])
-        axl.set_title("final refinement (numbers: outline samples)", fontsize=9)
-        panels.append((axl, local))
-    for a, sel in panels:
+        _title(axl, "final refinement (numbers: outline samples)", fontsize=9)
+        panels.append((axl, local, c[local]))
+    for a, sel, _ in panels[:1] + panels[2:]:
         for i in idx[sel]:
             a.annotate(
                 str(matches[i]),
@@ -459,9 +472,8 @@ def convergence_figure(
     ax.legend(h1 + h2, l1 + l2, fontsize=7, loc="best")
     if local.any():
         axl.legend(fontsize=7, loc="best")
-    ax.set_title("convex iterations (numbers: outline matches)", fontsize=9)
-    for a in (ax, ax2, *([axl] if local.any() else [])):
-        _plain_log_labels(a)
+    for a, _, values in panels:  # after the last semilogy (which resets the ticks)
+        _log_ticks(a, values)
     if local.any():  # fixed margins (inches / width): the twin axis' labels sit between
         fig.subplots_adjust(left=0.085, right=0.98, bottom=0.15, top=0.9, wspace=0.6)
     else:
@@ -469,9 +481,19 @@ def convergence_figure(
     save_figure(fig, path)
 
 
-def _plain_log_labels(ax: Axes) -> None:
-    """Plain-text labels on a log y axis (``0.02``, ``3e-05``), not mathtext: the same ticks,
-    a fraction of the cost to lay out."""
+def _log_ticks(ax: Axes, values: np.ndarray) -> None:
+    """Ticks and plain-text labels (``0.02``, ``3e-05``, not mathtext) on the log y axis of
+    ``values`` (> 0). Over a decade or more: matplotlib's labelled decades, with minor ticks at
+    2 and 5 times each. Within a decade (where matplotlib would label about ten minor ticks):
+    about five evenly spaced labelled ticks, no minor ones."""
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v) & (v > 0)]
+    if len(v) and v.max() < 10.0 * v.min():
+        ax.yaxis.set_major_locator(MaxNLocator(nbins=5))
+        ax.yaxis.set_minor_locator(NullLocator())
+        ax.yaxis.set_major_formatter(FormatStrFormatter("%.6g"))
+        return
+    ax.yaxis.set_minor_locator(LogLocator(subs=(2.0, 5.0)))
     ax.yaxis.set_major_formatter(_PlainLogFormatter())
     ax.yaxis.set_minor_formatter(_PlainLogFormatter(labelOnlyBase=False))
 
