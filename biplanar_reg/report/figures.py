@@ -39,10 +39,11 @@ BONE_RGB = (1.0, 0.75, 0.4)
 BONE_ALPHA = 0.55
 #: A dark outline that keeps labels readable on bright and dark radiographs alike.
 _HALO = [patheffects.withStroke(linewidth=1.5, foreground="black", alpha=0.8)]
-#: Pixels across the overlay's background raster (about the axes' size on the saved figure):
-#: the radiograph crop and the shaded bone are resampled to it once, instead of Agg
-#: resampling a full-resolution crop and drawing thousands of triangles.
-_OVERLAY_RASTER_PX = 560
+#: Pixels across the overlay's background raster, the axes' side on the saved figure (6.4 in x
+#: (0.97 - 0.12) x 100 dpi): the radiograph crop and the shaded bone are resampled to it once,
+#: and matplotlib draws it nearly pixel for pixel, instead of Agg resampling a full-resolution
+#: crop and drawing thousands of triangles.
+_OVERLAY_RASTER_PX = 544
 #: Fixed margins (figure fractions): measuring the labels (``tight_layout``) cost more than
 #: drawing the figure.
 _OVERLAY_MARGINS = {"left": 0.12, "right": 0.97, "bottom": 0.08, "top": 0.95}
@@ -201,7 +202,7 @@ def _shade_bone(
     triangles: np.ndarray,
     shade: np.ndarray,
 ) -> None:
-    """Composite the shaded bone onto the raster ``rgb`` (h, w, 3) in [0, 1], in place.
+    """Composite the shaded bone onto the raster ``rgb`` (h, w, 3) float32 in [0, 1], in place.
 
     ``triangles`` (T, 3, 2) are pixels ``(u, v)`` in painter's order; raster pixel ``(i, j)``
     covers ``u`` from ``origin[0] + j / scale[0]`` and ``v`` from ``origin[1] + i / scale[1]``.
@@ -218,10 +219,14 @@ def _shade_bone(
     cols = np.round(cols * 255).astype(int).tolist()
     for tri, col in zip(pts, cols, strict=True):
         cv2.fillConvexPoly(layer, tri, col, lineType=cv2.LINE_8, shift=shift)
-    cover = layer.any(axis=2).astype(np.float32)  # every shade is > 0 in red
-    a = BONE_ALPHA * cv2.GaussianBlur(cover, (3, 3), 0)[..., None]
-    rgb *= 1.0 - a
-    rgb += a * (layer.astype(float) / 255.0)
+    cover = (layer[:, :, 0] > 0).astype(np.float32)  # every shade is > 0 in red
+    a = cv2.GaussianBlur(cover, (3, 3), 0)[..., None]
+    a *= BONE_ALPHA
+    blend = layer.astype(np.float32)  # rgb += a (layer - rgb), in place
+    blend *= np.float32(1.0 / 255.0)
+    blend -= rgb
+    blend *= a
+    rgb += blend
 
 
 def _draw_marks(ax: Axes, marks: Sequence[tuple[str, np.ndarray]]) -> None:
@@ -251,7 +256,8 @@ def _draw_background(
 ) -> None:
     """The radiograph (only the part within ``limits`` ``(u0, u1, v0, v1)``, which is what the
     axes show) or a dark canvas, with the shaded bone: one raster of at most
-    ``_OVERLAY_RASTER_PX`` pixels across, drawn with pixel centres at integer ``(u, v)``."""
+    ``_OVERLAY_RASTER_PX`` pixels across (about the axes' size on the saved figure, so it is
+    drawn nearly pixel for pixel, nearest neighbour), with pixel centres at integer ``(u, v)``."""
     if display is None and (shaded is None or limits is None):
         if image_size is not None:
             ax.set_facecolor("#202020")
@@ -268,17 +274,19 @@ def _draw_background(
         grey = np.asarray(display[r0:r1, c0:c1], np.float32)
         if (w, h) != (c1 - c0, r1 - r0):  # area averaging: no aliasing of the fine grain
             grey = cv2.resize(grey, (w, h), interpolation=cv2.INTER_AREA)
-        rgb = np.repeat(grey[..., None].astype(float), 3, axis=2)
+        rgb = cv2.cvtColor(grey, cv2.COLOR_GRAY2RGB)
     else:
         edges = limits
         scale = _OVERLAY_RASTER_PX / max(limits[1] - limits[0], limits[3] - limits[2], 1e-9)
         w = max(1, round((limits[1] - limits[0]) * scale))
         h = max(1, round((limits[3] - limits[2]) * scale))
-        rgb = np.full((h, w, 3), 0x20 / 255 if image_size is not None else 1.0)
+        rgb = np.full((h, w, 3), 0x20 / 255 if image_size is not None else 1.0, np.float32)
     if shaded is not None:
         sxy = (w / (edges[1] - edges[0]), h / (edges[3] - edges[2]))
         _shade_bone(rgb, (edges[0], edges[2]), sxy, *shaded)
-    ax.imshow(rgba_bytes(rgb), extent=(edges[0], edges[1], edges[3], edges[2]))
+    extent = (edges[0], edges[1], edges[3], edges[2])
+    interpolation = "nearest" if scale < 1.0 else "antialiased"  # enlarged: smooth
+    ax.imshow(rgba_bytes(rgb), extent=extent, interpolation=interpolation)
 
 
 def rgba_bytes(rgb: np.ndarray) -> np.ndarray:
@@ -286,7 +294,7 @@ def rgba_bytes(rgb: np.ndarray) -> np.ndarray:
     resamples and composites without converting it first (the conversion of a float image
     cost more than drawing it)."""
     out = np.full(rgb.shape[:2] + (4,), 255, np.uint8)
-    out[..., :3] = np.round(np.clip(rgb, 0.0, 1.0) * 255.0)
+    out[..., :3] = np.clip(rgb * np.float32(255.0) + np.float32(0.5), 0.0, 255.0)
     return out
 
 

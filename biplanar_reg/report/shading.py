@@ -20,7 +20,7 @@ import numpy as np
 if TYPE_CHECKING:
     from ..calibration import View
 
-__all__ = ["painter_faces", "shaded_faces"]
+__all__ = ["shaded_faces"]
 
 
 def shaded_faces(
