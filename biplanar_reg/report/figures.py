@@ -22,6 +22,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 from matplotlib.ticker import (
+    FixedLocator,
     FormatStrFormatter,
     LogFormatter,
     LogLocator,
@@ -74,6 +75,7 @@ def png_bytes(
     """
     fig.set_dpi(dpi)
     canvas = FigureCanvasAgg(fig)
+    _visible_ticks_only(fig)
     with rc_context(_DRAW_RC):
         canvas.draw()
     bgr = cv2.cvtColor(np.asarray(canvas.buffer_rgba()), cv2.COLOR_RGBA2BGR)
@@ -85,6 +87,29 @@ def png_bytes(
     if not ok:
         raise ValueError("PNG encoding failed")
     return png.tobytes()
+
+
+def _visible_ticks_only(fig: Figure) -> None:
+    """Fix each axis' ticks to those its locator puts within the axis' limits (with the final
+    layout and aspect): matplotlib makes a tick (two labels, three lines) for every location
+    a locator returns, also the one or two beyond each end it does not draw. Colour bars keep
+    their own ticks."""
+    for ax in fig.axes:
+        if hasattr(ax, "_colorbar"):
+            continue
+        ax.apply_aspect()
+        for axis in (ax.xaxis, ax.yaxis):
+            if not axis.get_visible():
+                continue
+            lo, hi = sorted(axis.get_view_interval())
+            tol = 1e-9 * (hi - lo)
+            for get, put in (
+                (axis.get_major_locator, axis.set_major_locator),
+                (axis.get_minor_locator, axis.set_minor_locator),
+            ):
+                locator = get()
+                if not isinstance(locator, (NullLocator, FixedLocator)):
+                    put(FixedLocator([t for t in locator() if lo - tol <= t <= hi + tol]))
 
 
 def save_figure(fig: Figure, path: str | os.PathLike, dpi: float = _DPI) -> None:

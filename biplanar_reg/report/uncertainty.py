@@ -144,6 +144,7 @@ def uncertainty_figure(
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
     from matplotlib.figure import Figure
+    from matplotlib.ticker import MaxNLocator
 
     from .figures import png_bytes
     from .shading import painter_faces
@@ -187,7 +188,12 @@ def uncertainty_figure(
             0.8 * (1 - 1.4 / height),
         )
     )
-    fig.colorbar(ScalarMappable(norm=norm, cmap="viridis"), cax=cax, label="sd (mm, RMS over axes)")
+    fig.colorbar(
+        ScalarMappable(norm=norm, cmap="viridis"),
+        cax=cax,
+        label="sd (mm, RMS over axes)",
+        ticks=MaxNLocator(nbins=5),
+    )
     fig.suptitle(
         f"Posterior sd per vertex: median {np.median(sd_mm):.2f} mm, "
         f"95th percentile {np.percentile(sd_mm, 95):.2f} mm"
