@@ -32,7 +32,7 @@ __all__ = ["uncertainty_figure"]
 #: its axes inset by the margins; the colour bar in a strip on the right.
 _DPI = 90
 _PANEL_IN = (4.6, 5.0)
-_MARGIN_IN = {"left": 0.75, "right": 0.15, "bottom": 0.6, "top": 0.8}
+_MARGIN_IN = {"left": 0.75, "right": 0.15, "bottom": 0.55, "top": 0.65}
 _COLORBAR_IN = 1.2
 #: Opacity of the coloured bone over the radiograph.
 _ALPHA = 0.85
@@ -180,19 +180,15 @@ def uncertainty_figure(
         ax.set_title(f"{name}")
         ax.set_xlabel("u (px)")
         ax.set_ylabel("v (px)")
-    cax = fig.add_axes(
-        (
-            (n * _PANEL_IN[0] + 0.1) / width,
-            0.5 * (m["bottom"] + height - m["top"]) / height - 0.4 * (1 - 1.4 / height),
-            0.2 / width,
-            0.8 * (1 - 1.4 / height),
-        )
-    )
+    # the colour bar beside the last panel's axes (their width follows the bone's aspect)
+    ax.apply_aspect()
+    box = ax.get_position()
+    cax = fig.add_axes((box.x1 + 0.3 / width, box.y0, 0.2 / width, box.height))
     fig.colorbar(
         ScalarMappable(norm=norm, cmap="viridis"),
         cax=cax,
         label="sd (mm, RMS over axes)",
-        ticks=MaxNLocator(nbins=5),
+        ticks=MaxNLocator(nbins=6, steps=[1, 2, 2.5, 5, 10]),
     )
     fig.suptitle(
         f"Posterior sd per vertex: median {np.median(sd_mm):.2f} mm, "
