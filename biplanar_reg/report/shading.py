@@ -13,6 +13,7 @@ anyway); any other mesh keeps both sides (an open mesh shows its inside).
 
 from __future__ import annotations
 
+import functools
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -87,13 +88,24 @@ def painter_faces(
 def _outward_sign(F: np.ndarray, tri: np.ndarray, n_vertices: int) -> float | None:
     """For a closed, consistently wound mesh, +1 when its winding's normals point outwards
     (positive signed volume), -1 when inwards; ``None`` for any other mesh."""
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    if not _closed_and_consistent(F.tobytes(), n_vertices):
+        return None
+    volume = float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum())
+    return None if volume == 0.0 else float(np.sign(volume))
+
+
+@functools.lru_cache(maxsize=4)
+def _closed_and_consistent(faces: bytes, n_vertices: int) -> bool:
+    """Whether the (F, 3) int64 faces (as bytes) make a closed, consistently wound mesh: every
+    directed edge once, and its reverse too. Cached: the report asks once per view and for the
+    3D view, about the same faces."""
+    F = np.frombuffer(faces, dtype=np.int64).reshape(-1, 3)
     a = np.concatenate([F[:, 0], F[:, 1], F[:, 2]])
     b = np.concatenate([F[:, 1], F[:, 2], F[:, 0]])
     key, back = a * n_vertices + b, b * n_vertices + a
     key_sorted = np.sort(key)
     if len(key) == 0 or np.any(np.diff(key_sorted) == 0):  # a directed edge twice
-        return None
-    if not np.isin(back, key_sorted, assume_unique=True).all():  # an edge with no twin
-        return None
-    volume = float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum())
-    return None if volume == 0.0 else float(np.sign(volume))
+        return False
+    at = np.minimum(np.searchsorted(key_sorted, back), len(key_sorted) - 1)
+    return bool(np.all(key_sorted[at] == back))  # else an edge with no twin
