@@ -12,8 +12,9 @@ outline and landmarks against the annotations, on the radiograph or a blank canv
 ``errors_hist.png`` (landmark and contour reprojection errors in px, surface distance in mm),
 ``convergence.png`` (cost and certificate per iteration) and a 3D view of the registered
 surface: with a ground truth ``error_3d.png`` (coloured by its distance to the ground truth,
-colour bar in mm), without one ``registered_3d.png`` (one neutral colour); PyVista off-screen,
-matplotlib fallback.
+colour bar in mm), without one ``registered_3d.png`` (one neutral colour), software-rendered
+(:mod:`.render3d`); with the per-vertex sd, ``uncertainty.png`` (:mod:`.uncertainty`). The mesh
+is projected into each view once, for its overlay and the uncertainty map.
 """
 
 from __future__ import annotations

@@ -2,14 +2,17 @@
 
 ``uncertainty.png``: one panel per view, the registered bone's triangles projected into the view
 (pixels) in painter's order (farthest from the source first, so the surface nearest the source
-shows) over the radiograph when there is one, each triangle coloured by the mean ``sd_mm`` of
-its corners (``RegistrationResult.vertex_sd_mm``: posterior sd, RMS over the three axes, mm;
+shows; a closed mesh's back faces left out, :func:`.shading.painter_faces`) over the radiograph
+when there is one, each triangle coloured by the mean ``sd_mm`` of its corners
+(``RegistrationResult.vertex_sd_mm``: posterior sd, RMS over the three axes, mm;
 :mod:`biplanar_reg.registration.uncertainty`), one colour scale for all panels.
 
-The triangles are filled with OpenCV into an image of the panel's crop (at twice the panel's
-resolution, then reduced: anti-aliased edges), blended at 85 % over the radiograph, and the image
-is shown on matplotlib axes in pixel units: a matplotlib collection of the 15,000 triangles of a
-knee-sized bone took ten times longer to draw.
+The triangles are filled once with OpenCV into an image of the panel's crop at twice the size of
+the panel's axes on the saved figure, then reduced (anti-aliased edges; a pixel the triangles
+cover is filled, and the edge pixels keep the triangles' colour), blended at 85 % over the
+radiograph (area-averaged to the panel's size), and the image is shown on matplotlib axes in
+pixel units: a matplotlib collection of the 15,000 triangles of a knee-sized bone took ten
+times longer to draw. Fixed layout: the panels side by side, the colour bar beside the last.
 """
 
 from __future__ import annotations
