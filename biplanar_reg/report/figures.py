@@ -53,11 +53,20 @@ _OVERLAY_MARGINS = {"left": 0.12, "right": 0.97, "bottom": 0.08, "top": 0.95}
 #: Settings while a figure is drawn: text is laid out with DejaVu Sans alone, without the
 #: Last Resort fallback font (a box for a character no font has), which made matplotlib 3.11's
 #: text layout three times as slow (DejaVu Sans covers Latin, Greek and Cyrillic; a missing
-#: character is still drawn as a box, with matplotlib's warning).
-_DRAW_RC = {"font.enable_last_resort": False}
-#: PNG encoding: zlib level 1 and the "up" filter on every row (libpng's adaptive filter choice
-#: took twice as long for files of the same size); OpenCV before 4.11 has no filter option.
-_PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 1]
+#: character is still drawn as a box, with matplotlib's warning); and its glyphs are not hinted
+#: (matplotlib 3.11 sets the font size before every glyph, which re-ran the font's TrueType
+#: hinting programs each time: a tenth of the report's instructions; at 7-11 pt and 100 dpi the
+#: unhinted text is as legible, its stems a little softer).
+_DRAW_RC = {"font.enable_last_resort": False, "text.hinting": "no_hinting"}
+#: PNG encoding: zlib level 1, run-length matching only, after the "up" filter on every row
+#: (libpng's adaptive filter choice and zlib's default matching took twice as long for files of
+#: the same size); OpenCV before 4.11 has no filter option.
+_PNG_PARAMS = [
+    cv2.IMWRITE_PNG_COMPRESSION,
+    1,
+    cv2.IMWRITE_PNG_STRATEGY,
+    cv2.IMWRITE_PNG_STRATEGY_RLE,
+]
 if hasattr(cv2, "IMWRITE_PNG_FILTER"):
     _PNG_PARAMS += [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP]
 
