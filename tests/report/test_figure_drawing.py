@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from matplotlib import rc_context
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from PIL import Image
@@ -43,7 +44,8 @@ def _plot() -> Figure:
 def test_png_is_the_drawn_canvas_in_rgb():
     fig = _plot()
     canvas = FigureCanvasAgg(fig)
-    canvas.draw()
+    with rc_context(figures._DRAW_RC):  # the text settings png_bytes draws with
+        canvas.draw()
     drawn = np.asarray(canvas.buffer_rgba())[..., :3].copy()
     assert np.array_equal(_decode(png_bytes(_plot())), drawn)
 
