@@ -101,10 +101,10 @@ def png_bytes(
 def _visible_ticks_only(fig: Figure) -> None:
     """Fix each axis' ticks to those its locator puts within the axis' limits (with the final
     layout and aspect): matplotlib makes a tick (two labels, three lines) for every location
-    a locator returns, also the one or two beyond each end it does not draw. Colour bars keep
-    their own ticks."""
+    a locator returns, also the one or two beyond each end it does not draw. Colour bars and 3D
+    axes keep their own ticks."""
     for ax in fig.axes:
-        if hasattr(ax, "_colorbar"):
+        if hasattr(ax, "_colorbar") or ax.name != "rectilinear":
             continue
         ax.apply_aspect()
         for axis in (ax.xaxis, ax.yaxis):
