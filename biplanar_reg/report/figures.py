@@ -325,8 +325,9 @@ def _draw_background(
         sxy = (w / (edges[1] - edges[0]), h / (edges[3] - edges[2]))
         _shade_bone(rgb, (edges[0], edges[2]), sxy, *shaded)
     extent = (edges[0], edges[1], edges[3], edges[2])
-    interpolation = "nearest" if scale < 1.0 else "antialiased"  # enlarged: smooth
-    ax.imshow(rgba_bytes(rgb), extent=extent, interpolation=interpolation)
+    # as large as the axes: drawn about pixel for pixel; a smaller crop is enlarged smoothly
+    nearest = max(w, h) >= _OVERLAY_RASTER_PX - 1
+    ax.imshow(rgba_bytes(rgb), extent=extent, interpolation="nearest" if nearest else "auto")
 
 
 def rgba_bytes(rgb: np.ndarray) -> np.ndarray:

@@ -176,7 +176,9 @@ def uncertainty_figure(
         lo, hi = tri.reshape(-1, 2).min(axis=0), tri.reshape(-1, 2).max(axis=0)
         pad = 0.08 * float(np.max(hi - lo))
         image, extent = _panel_image(tri, face_rgb[index], display, (lo - pad, hi + pad), px)
-        ax.imshow(image, extent=extent, interpolation="nearest")  # about pixel for pixel
+        # as large as the axes: about pixel for pixel; a small crop is enlarged smoothly
+        nearest = max(image.shape[:2]) >= px - 1
+        ax.imshow(image, extent=extent, interpolation="nearest" if nearest else "bilinear")
         ax.set_xlim(lo[0] - pad, hi[0] + pad)
         ax.set_ylim(hi[1] + pad, lo[1] - pad)  # image rows grow downwards
         ax.set_aspect("equal")
