@@ -1,13 +1,42 @@
-"""Error reports: figures (matplotlib, off-screen PyVista) and HTML pages (Jinja2)."""
+"""Error reports: figures (matplotlib's Agg canvas, OpenCV rasters) and HTML pages (Jinja2).
 
-from .advice import FLAG_ADVICE, flag_advice
-from .case_report import ReportView, write_case_report
-from .figures import convergence_figure, histogram_figure, overlay_figure
-from .frames import write_frames_report
-from .html import render_template, write_page
-from .render3d import render_error_mesh
-from .residuals import ContourResidual, contour_residuals
-from .shading import shaded_faces
+The names below are loaded from their modules on first use, so that a light import (the
+workbench's :mod:`.shading`, the flag table of :mod:`.advice`, :mod:`.residuals`) does not load
+matplotlib and Jinja2.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .advice import FLAG_ADVICE, flag_advice
+    from .case_report import ReportView, write_case_report
+    from .figures import convergence_figure, histogram_figure, overlay_figure
+    from .frames import write_frames_report
+    from .html import render_template, write_page
+    from .render3d import render_error_mesh
+    from .residuals import ContourResidual, contour_residuals
+    from .shading import shaded_faces
+
+#: Each exported name and the module (of this package) that defines it.
+_HOMES = {
+    "FLAG_ADVICE": "advice",
+    "ContourResidual": "residuals",
+    "ReportView": "case_report",
+    "contour_residuals": "residuals",
+    "convergence_figure": "figures",
+    "flag_advice": "advice",
+    "histogram_figure": "figures",
+    "overlay_figure": "figures",
+    "render_error_mesh": "render3d",
+    "render_template": "html",
+    "shaded_faces": "shading",
+    "write_case_report": "case_report",
+    "write_frames_report": "frames",
+    "write_page": "html",
+}
 
 __all__ = [
     "FLAG_ADVICE",
@@ -25,3 +54,16 @@ __all__ = [
     "write_frames_report",
     "write_page",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{home}", __name__), name)
+    globals()[name] = value  # looked up once
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

@@ -12,8 +12,9 @@ outline and landmarks against the annotations, on the radiograph or a blank canv
 ``errors_hist.png`` (landmark and contour reprojection errors in px, surface distance in mm),
 ``convergence.png`` (cost and certificate per iteration) and a 3D view of the registered
 surface: with a ground truth ``error_3d.png`` (coloured by its distance to the ground truth,
-colour bar in mm), without one ``registered_3d.png`` (one neutral colour); PyVista off-screen,
-matplotlib fallback.
+colour bar in mm), without one ``registered_3d.png`` (one neutral colour), software-rendered
+(:mod:`.render3d`); with the per-vertex sd, ``uncertainty.png`` (:mod:`.uncertainty`). The mesh
+is projected into each view once, for its overlay and the uncertainty map.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from .figures import convergence_figure, histogram_figure, overlay_figure
 from .html import embedded_figures, write_page
 from .render3d import render_error_mesh
 from .residuals import ContourResidual, contour_residuals
-from .shading import shaded_faces
+from .shading import painter_faces
 
 if TYPE_CHECKING:
     from ..calibration import View
@@ -199,22 +200,31 @@ def _level(value: float, options: Mapping[str, Any]) -> str:
     return ""
 
 
+def _project(
+    v: ReportView, vertices: np.ndarray | None, faces: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The registered mesh projected into the view (:func:`.shading.painter_faces`), once for
+    the shaded bone and the uncertainty map; ``None`` without the view, the vertices or the
+    faces, or when it cannot be projected."""
+    if v.view is None or vertices is None or faces is None:
+        return None
+    try:
+        return painter_faces(v.view, vertices, faces)
+    except ValueError as exc:  # e.g. a vertex behind the source: the outline still shows
+        log.warning("%s: no shaded bone (%s)", v.name, exc)
+        return None
+
+
 def _view_overlay(
     folder: Path,
     v: ReportView,
-    vertices: np.ndarray | None,
-    faces: np.ndarray | None,
+    projected: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
     residuals: Sequence[ContourResidual],
 ) -> dict[str, str]:
-    """``overlay_<view>.png`` of one view (the bone shaded when the view, the vertices and the
-    faces are known; the worst stretch of each contour marked); its figure entry."""
+    """``overlay_<view>.png`` of one view (the bone shaded when it is ``projected``, the output
+    of :func:`_project`; the worst stretch of each contour marked); its figure entry."""
     fname = f"overlay_{safe_name(v.name)}.png"
-    shaded = None
-    if v.view is not None and vertices is not None and faces is not None:
-        try:
-            shaded = shaded_faces(v.view, vertices, faces)
-        except ValueError as exc:  # e.g. a vertex behind the source: the outline still shows
-            log.warning("%s: no shaded bone (%s)", v.name, exc)
+    shaded = None if projected is None else (projected[0], projected[2])
     overlay_figure(
         folder / fname,
         f"{v.name}: registered (cyan/blue) vs annotated (red/green)",
@@ -281,19 +291,26 @@ def _surface_figure(
     return {"src": fname, "caption": f"{what} (rendered with {renderer})."}, renderer
 
 
-def _uncertainty_entry(folder: Path, views, vertices, faces, vertex_sd) -> dict[str, str]:
-    """``uncertainty.png``: the bone coloured by its per-vertex sd over each view."""
+def _uncertainty_entry(
+    folder: Path, views, vertices, faces, vertex_sd, projected=None
+) -> dict[str, str]:
+    """``uncertainty.png``: the bone coloured by its per-vertex sd over each view
+    (``projected``: per view name the output of :func:`_project`, reused)."""
     from .uncertainty import uncertainty_figure
 
-    panels = [(v.name, v.view, v.display) for v in views if v.view is not None]
-    uncertainty_figure(folder / "uncertainty.png", panels, vertices, faces, vertex_sd)
+    projected = projected or {}
+    drawn = [v for v in views if v.view is not None]
+    panels = [(v.name, v.view, v.display) for v in drawn]
+    given = [None if projected.get(v.name) is None else projected[v.name][:2] for v in drawn]
+    uncertainty_figure(
+        folder / "uncertainty.png", panels, vertices, faces, vertex_sd, projected=given
+    )
     return {
         "src": "uncertainty.png",
         "caption": "Uncertainty: the registered bone coloured by its posterior sd per vertex "
         "(mm, RMS over the three axes; pose, shape weights and the model's truncation error; "
         "the view poses taken as known), projected into each view, pixels.",
     }
-
 
 
 def _landmark_rows(doc: Mapping[str, Any]) -> list[tuple[str, str, float, bool, str]]:
@@ -390,11 +407,13 @@ def write_case_report(
     options = doc["registration"].get("options") or {}
     figures: dict[str, list[dict[str, str]]] = {"surface": [], "views": [], "plots": []}
     contour_rows = []
+    projected = {}
     for v in views:
         contours = [] if v.annotations is None else v.annotations.contours
         residuals = contour_residuals(contours, v.outlines)
         contour_rows += _contour_rows(v.name, residuals, options)
-        figures["views"].append(_view_overlay(folder, v, vertices, faces, residuals))
+        projected[v.name] = _project(v, vertices, faces)
+        figures["views"].append(_view_overlay(folder, v, projected[v.name], residuals))
     figures["plots"].append(_histogram_figure(folder, doc, vertex_error))
     figures["plots"].append(_convergence_figure(folder, doc))
     renderer = None
@@ -402,7 +421,9 @@ def write_case_report(
         entry, renderer = _surface_figure(folder, doc, vertices, faces, vertex_error)
         figures["surface"].append(entry)
         if vertex_sd is not None:
-            figures["surface"].append(_uncertainty_entry(folder, views, vertices, faces, vertex_sd))
+            figures["surface"].append(
+                _uncertainty_entry(folder, views, vertices, faces, vertex_sd, projected)
+            )
     _write_html(folder, doc, figures, contour_rows)
     names = [f["src"] for group in ("surface", "views", "plots") for f in figures[group]]
     return {"html": "report.html", "figures": names, "renderer": renderer}

@@ -9,15 +9,26 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
-from matplotlib import patheffects
+from matplotlib import patheffects, rc_context
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
-from matplotlib.ticker import LogFormatter
+from matplotlib.ticker import (
+    FixedLocator,
+    FormatStrFormatter,
+    LogFormatter,
+    LogLocator,
+    MaxNLocator,
+    NullLocator,
+)
 
 from ..annotation import Contour, Landmark, ViewAnnotations
 
@@ -29,19 +40,90 @@ BONE_RGB = (1.0, 0.75, 0.4)
 BONE_ALPHA = 0.55
 #: A dark outline that keeps labels readable on bright and dark radiographs alike.
 _HALO = [patheffects.withStroke(linewidth=1.5, foreground="black", alpha=0.8)]
-#: Pixels across the overlay's background raster (about the axes' size on the saved figure):
-#: the radiograph crop and the shaded bone are resampled to it once, instead of Agg
-#: resampling a full-resolution crop and drawing thousands of triangles.
-_OVERLAY_RASTER_PX = 560
+#: Pixels across the overlay's background raster, the axes' side on the saved figure (6.4 in x
+#: (0.97 - 0.12) x 100 dpi): the radiograph crop and the shaded bone are resampled to it once,
+#: and matplotlib draws it nearly pixel for pixel, instead of Agg resampling a full-resolution
+#: crop and drawing thousands of triangles.
+_OVERLAY_RASTER_PX = 544
 #: Fixed margins (figure fractions): measuring the labels (``tight_layout``) cost more than
 #: drawing the figure.
 _OVERLAY_MARGINS = {"left": 0.12, "right": 0.97, "bottom": 0.08, "top": 0.95}
 
 
-def save_figure(fig: Figure, path: str | os.PathLike) -> None:
+#: Settings while a figure is drawn: text is laid out with DejaVu Sans alone, without the
+#: Last Resort fallback font (a box for a character no font has), which made matplotlib 3.11's
+#: text layout three times as slow (DejaVu Sans covers Latin, Greek and Cyrillic; a missing
+#: character is still drawn as a box, with matplotlib's warning); and its glyphs are not hinted
+#: (matplotlib 3.11 sets the font size before every glyph, which re-ran the font's TrueType
+#: hinting programs each time: a tenth of the report's instructions; at 7-11 pt and 100 dpi the
+#: unhinted text is as legible, its stems a little softer).
+_DRAW_RC = {"font.enable_last_resort": False, "text.hinting": "no_hinting"}
+#: PNG encoding: zlib level 1, run-length matching only, after the "up" filter on every row
+#: (libpng's adaptive filter choice and zlib's default matching took twice as long for files of
+#: the same size); OpenCV before 4.11 has no filter option.
+_PNG_PARAMS = [
+    cv2.IMWRITE_PNG_COMPRESSION,
+    1,
+    cv2.IMWRITE_PNG_STRATEGY,
+    cv2.IMWRITE_PNG_STRATEGY_RLE,
+]
+if hasattr(cv2, "IMWRITE_PNG_FILTER"):
+    _PNG_PARAMS += [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP]
+
+
+def png_bytes(
+    fig: Figure, dpi: float = _DPI, paste: tuple[np.ndarray, tuple[int, int]] | None = None
+) -> bytes:
+    """``fig`` drawn once with the Agg canvas at ``dpi``, as an opaque RGB PNG (the figure
+    background is opaque: no alpha channel to encode).
+
+    ``paste = (rgb, (left, top))``: an (h, w, 3) uint8 image put on the drawn figure pixel for
+    pixel, its top-left corner ``left`` pixels from the figure's left edge and ``top`` from
+    its top (for a rendering in a part of the figure where nothing else is drawn: matplotlib
+    would convert and resample it).
+    """
+    fig.set_dpi(dpi)
+    canvas = FigureCanvasAgg(fig)
+    _visible_ticks_only(fig)
+    with rc_context(_DRAW_RC):
+        canvas.draw()
+    bgr = cv2.cvtColor(np.asarray(canvas.buffer_rgba()), cv2.COLOR_RGBA2BGR)
+    if paste is not None:
+        rgb, (left, top) = paste
+        h, w = rgb.shape[:2]
+        bgr[top : top + h, left : left + w] = rgb[:, :, ::-1]
+    ok, png = cv2.imencode(".png", bgr, _PNG_PARAMS)
+    if not ok:
+        raise ValueError("PNG encoding failed")
+    return png.tobytes()
+
+
+def _visible_ticks_only(fig: Figure) -> None:
+    """Fix each axis' ticks to those its locator puts within the axis' limits (with the final
+    layout and aspect): matplotlib makes a tick (two labels, three lines) for every location
+    a locator returns, also the one or two beyond each end it does not draw. Colour bars and 3D
+    axes keep their own ticks."""
+    for ax in fig.axes:
+        if hasattr(ax, "_colorbar") or ax.name != "rectilinear":
+            continue
+        ax.apply_aspect()
+        for axis in (ax.xaxis, ax.yaxis):
+            if not axis.get_visible():
+                continue
+            lo, hi = sorted(axis.get_view_interval())
+            tol = 1e-9 * (hi - lo)
+            for get, put in (
+                (axis.get_major_locator, axis.set_major_locator),
+                (axis.get_minor_locator, axis.set_minor_locator),
+            ):
+                locator = get()
+                if not isinstance(locator, (NullLocator, FixedLocator)):
+                    put(FixedLocator([t for t in locator() if lo - tol <= t <= hi + tol]))
+
+
+def save_figure(fig: Figure, path: str | os.PathLike, dpi: float = _DPI) -> None:
     """Render ``fig`` to a PNG file (the caller writes into a temporary folder)."""
-    FigureCanvasAgg(fig)
-    fig.savefig(path, dpi=_DPI, pil_kwargs={"compress_level": 1})
+    Path(path).write_bytes(png_bytes(fig, dpi))
 
 
 def overlay_figure(
@@ -125,10 +207,13 @@ def draw_overlay(
     limits = _limits(drawn, size)
     has_bone = shaded is not None and len(shaded[0]) > 0
     _draw_background(ax, display, image_size, limits, shaded if has_bone else None)
-    for k, line in enumerate(outlines):
-        _polyline(ax, line, "cyan", "registered outline" if k == 0 else None)
-    _draw_contours(ax, contours)
-    _draw_landmarks(ax, annotated, landmarks_px)
+    handles = [Patch(facecolor=BONE_RGB, alpha=BONE_ALPHA, label="registered bone (shaded)")]
+    handles = handles if has_bone else []
+    # one artist per kind of mark (a line collection, or one line of markers), not one per
+    # polyline or point: matplotlib's cost is per artist
+    handles += _polylines(ax, outlines, "cyan", "registered outline")
+    handles += _draw_contours(ax, contours)
+    handles += _draw_landmarks(ax, annotated, landmarks_px)
     _draw_marks(ax, marks)
     if limits is not None:
         ax.set_xlim(limits[0], limits[1])
@@ -136,15 +221,18 @@ def draw_overlay(
     ax.set_aspect("equal")
     ax.set_xlabel("u (px)")
     ax.set_ylabel("v (px)")
-    ax.set_title(title, fontsize=10)
-    handles = ax.get_legend_handles_labels()[0]
-    if has_bone:  # the bone's colour, not its first triangle's
-        label = "registered bone (shaded)"
-        handles.insert(0, Patch(facecolor=BONE_RGB, alpha=BONE_ALPHA, label=label))
+    _title(ax, title, fontsize=10)
     if handles:
         ax.legend(handles=handles, loc="lower right", fontsize=7, framealpha=0.7)
     fig.subplots_adjust(**_OVERLAY_MARGINS)
     return fig, ax
+
+
+def _title(ax: Axes, text: str, **style: Any) -> None:
+    """The axes' title at its default place above the axes, given explicitly: matplotlib then
+    skips measuring every tick label to keep the title clear of an axis on top (there is none
+    in these figures)."""
+    ax.set_title(text, y=1.0, **style)
 
 
 def _shade_bone(
@@ -154,7 +242,7 @@ def _shade_bone(
     triangles: np.ndarray,
     shade: np.ndarray,
 ) -> None:
-    """Composite the shaded bone onto the raster ``rgb`` (h, w, 3) in [0, 1], in place.
+    """Composite the shaded bone onto the raster ``rgb`` (h, w, 3) float32 in [0, 1], in place.
 
     ``triangles`` (T, 3, 2) are pixels ``(u, v)`` in painter's order; raster pixel ``(i, j)``
     covers ``u`` from ``origin[0] + j / scale[0]`` and ``v`` from ``origin[1] + i / scale[1]``.
@@ -171,16 +259,23 @@ def _shade_bone(
     cols = np.round(cols * 255).astype(int).tolist()
     for tri, col in zip(pts, cols, strict=True):
         cv2.fillConvexPoly(layer, tri, col, lineType=cv2.LINE_8, shift=shift)
-    cover = layer.any(axis=2).astype(np.float32)  # every shade is > 0 in red
-    a = BONE_ALPHA * cv2.GaussianBlur(cover, (3, 3), 0)[..., None]
-    rgb *= 1.0 - a
-    rgb += a * (layer.astype(float) / 255.0)
+    cover = (layer[:, :, 0] > 0).astype(np.float32)  # every shade is > 0 in red
+    a = cv2.GaussianBlur(cover, (3, 3), 0)[..., None]
+    a *= BONE_ALPHA
+    blend = layer.astype(np.float32)  # rgb += a (layer - rgb), in place
+    blend *= np.float32(1.0 / 255.0)
+    blend -= rgb
+    blend *= a
+    rgb += blend
 
 
 def _draw_marks(ax: Axes, marks: Sequence[tuple[str, np.ndarray]]) -> None:
     """Labelled points as magenta rings with their label."""
+    if not marks:
+        return
+    uv = np.array([p for _, p in marks], float).reshape(-1, 2)
+    ax.plot(uv[:, 0], uv[:, 1], "o", ls="none", color="magenta", ms=11, mfc="none", mew=1.2)
     for label, p in marks:
-        ax.plot(*p, "o", color="magenta", ms=11, mfc="none", mew=1.2)
         ax.annotate(
             label,
             p,
@@ -201,7 +296,8 @@ def _draw_background(
 ) -> None:
     """The radiograph (only the part within ``limits`` ``(u0, u1, v0, v1)``, which is what the
     axes show) or a dark canvas, with the shaded bone: one raster of at most
-    ``_OVERLAY_RASTER_PX`` pixels across, drawn with pixel centres at integer ``(u, v)``."""
+    ``_OVERLAY_RASTER_PX`` pixels across (about the axes' size on the saved figure, so it is
+    drawn nearly pixel for pixel, nearest neighbour), with pixel centres at integer ``(u, v)``."""
     if display is None and (shaded is None or limits is None):
         if image_size is not None:
             ax.set_facecolor("#202020")
@@ -218,17 +314,20 @@ def _draw_background(
         grey = np.asarray(display[r0:r1, c0:c1], np.float32)
         if (w, h) != (c1 - c0, r1 - r0):  # area averaging: no aliasing of the fine grain
             grey = cv2.resize(grey, (w, h), interpolation=cv2.INTER_AREA)
-        rgb = np.repeat(grey[..., None].astype(float), 3, axis=2)
+        rgb = cv2.cvtColor(grey, cv2.COLOR_GRAY2RGB)
     else:
         edges = limits
         scale = _OVERLAY_RASTER_PX / max(limits[1] - limits[0], limits[3] - limits[2], 1e-9)
         w = max(1, round((limits[1] - limits[0]) * scale))
         h = max(1, round((limits[3] - limits[2]) * scale))
-        rgb = np.full((h, w, 3), 0x20 / 255 if image_size is not None else 1.0)
+        rgb = np.full((h, w, 3), 0x20 / 255 if image_size is not None else 1.0, np.float32)
     if shaded is not None:
         sxy = (w / (edges[1] - edges[0]), h / (edges[3] - edges[2]))
         _shade_bone(rgb, (edges[0], edges[2]), sxy, *shaded)
-    ax.imshow(rgba_bytes(rgb), extent=(edges[0], edges[1], edges[3], edges[2]))
+    extent = (edges[0], edges[1], edges[3], edges[2])
+    # as large as the axes: drawn about pixel for pixel; a smaller crop is enlarged smoothly
+    nearest = max(w, h) >= _OVERLAY_RASTER_PX - 1
+    ax.imshow(rgba_bytes(rgb), extent=extent, interpolation="nearest" if nearest else "auto")
 
 
 def rgba_bytes(rgb: np.ndarray) -> np.ndarray:
@@ -236,32 +335,54 @@ def rgba_bytes(rgb: np.ndarray) -> np.ndarray:
     resamples and composites without converting it first (the conversion of a float image
     cost more than drawing it)."""
     out = np.full(rgb.shape[:2] + (4,), 255, np.uint8)
-    out[..., :3] = np.round(np.clip(rgb, 0.0, 1.0) * 255.0)
+    out[..., :3] = np.clip(rgb * np.float32(255.0) + np.float32(0.5), 0.0, 255.0)
     return out
 
 
-def _polyline(ax: Axes, uv: np.ndarray, color: str, label: str | None) -> None:
-    """One (Q, 2) pixel polyline, 1 pt wide (outlines and contours look alike but for colour)."""
-    ax.plot(uv[:, 0], uv[:, 1], "-", color=color, lw=1.0, label=label)
+def _polylines(
+    ax: Axes, lines: Sequence[np.ndarray], color: str, label: str, lw: float = 1.0
+) -> list[Line2D]:
+    """(Q, 2) pixel polylines as one collection, ``lw`` points wide (outlines and contours look
+    alike but for colour); its legend entry (none when there are no lines)."""
+    lines = [np.asarray(line, float).reshape(-1, 2) for line in lines]
+    if not lines:
+        return []
+    ax.add_collection(LineCollection(lines, colors=color, linewidths=lw), autolim=False)
+    return [Line2D([], [], color=color, lw=lw, label=label)]
 
 
-def _draw_contours(ax: Axes, contours: Sequence[Contour]) -> None:
-    """Annotated contours in red (closed ones joined up), the ends of open ones as amber rings."""
-    for k, c in enumerate(contours):
-        uv = np.vstack([c.uv, c.uv[:1]]) if c.closed else c.uv
-        _polyline(ax, uv, "red", "annotated contour" if k == 0 else None)
-        if not c.closed:
-            ax.plot(c.uv[[0, -1], 0], c.uv[[0, -1], 1], "o", color="orange", ms=4, mfc="none")
+def _points(
+    ax: Axes, uv: Sequence[np.ndarray], marker: str, color: str, label: str | None, **style: Any
+) -> list[Line2D]:
+    """Points ``uv`` (each (2,), pixels) as one line of markers; its legend entry when
+    ``label`` is given (none when there are no points)."""
+    if not len(uv):
+        return []
+    xy = np.asarray(uv, float).reshape(-1, 2)
+    line = ax.plot(xy[:, 0], xy[:, 1], marker, ls="none", color=color, label=label, **style)
+    return line if label else []
+
+
+def _draw_contours(ax: Axes, contours: Sequence[Contour]) -> list[Line2D]:
+    """Annotated contours in red (closed ones joined up), the ends of open ones as amber rings;
+    the legend entry."""
+    lines = [np.vstack([c.uv, c.uv[:1]]) if c.closed else c.uv for c in contours]
+    handles = _polylines(ax, lines, "red", "annotated contour")
+    ends = [p for c in contours if not c.closed for p in c.uv[[0, -1]]]
+    _points(ax, ends, "o", "orange", None, ms=4, mfc="none")
+    return handles
 
 
 def _draw_landmarks(
     ax: Axes, annotated: Mapping[str, Landmark], registered: Mapping[str, np.ndarray]
-) -> None:
+) -> list[Line2D]:
     """Annotated landmarks (green +, named), each joined by a yellow line to the registered
-    model's landmark of the same name; then the registered landmarks (blue x), pixels."""
-    for k, (name, lm) in enumerate(annotated.items()):
-        label = "annotated landmark" if k == 0 else None
-        ax.plot(*lm.uv, "+", color="lime", ms=9, mew=1.5, label=label)
+    model's landmark of the same name; then the registered landmarks (blue x), pixels; the
+    legend entries."""
+    handles = _points(
+        ax, [lm.uv for lm in annotated.values()], "+", "lime", "annotated landmark", ms=9, mew=1.5
+    )
+    for name, lm in annotated.items():
         ax.annotate(
             name,
             lm.uv,
@@ -271,12 +392,15 @@ def _draw_landmarks(
             fontsize=7,
             path_effects=_HALO,
         )
-        if name in registered:
-            p = registered[name]
-            ax.plot([lm.uv[0], p[0]], [lm.uv[1], p[1]], "-", color="yellow", lw=0.8)
-    for k, p in enumerate(registered.values()):
-        label = "registered landmark" if k == 0 else None
-        ax.plot(*p, "x", color="deepskyblue", ms=7, mew=1.5, label=label)
+    links = [
+        np.array([lm.uv, registered[n]], float) for n, lm in annotated.items() if n in registered
+    ]
+    if links:
+        ax.add_collection(LineCollection(links, colors="yellow", linewidths=0.8), autolim=False)
+    handles += _points(
+        ax, list(registered.values()), "x", "deepskyblue", "registered landmark", ms=7, mew=1.5
+    )
+    return handles
 
 
 def _limits(
@@ -304,7 +428,8 @@ def _limits(
 def histogram_figure(
     path: str | os.PathLike, series: Sequence[tuple[str, np.ndarray, str]]
 ) -> None:
-    """Histograms side by side; ``series`` holds (label, values, unit) triples (empty skipped)."""
+    """Histograms side by side; ``series`` holds (label, values, unit) triples (empty skipped).
+    Each median is a dashed line labelled above the axes (``median 0.53``)."""
     series = [s for s in series if len(s[1])]
     n = max(1, len(series))
     fig = Figure(figsize=(4.0 * n, 3.2))
@@ -315,16 +440,26 @@ def histogram_figure(
         counts, bins = np.histogram(v, bins=min(40, max(5, len(v) // 5)))
         ax.stairs(counts, bins, fill=True, color="steelblue")
         ax.stairs(counts, bins, color="white", lw=0.5, baseline=None)
-        ax.axvline(
-            float(np.median(v)), color="k", ls="--", lw=1, label=f"median {np.median(v):.3g}"
+        median = float(np.median(v))
+        ax.axvline(median, color="k", ls="--", lw=1)
+        # the line's label on it, above the axes (a legend of one entry cost more to lay out),
+        # kept over the axes near their ends
+        at = (median - bins[0]) / max(bins[-1] - bins[0], 1e-300)
+        ax.text(
+            median,
+            1.01,
+            f"median {median:.3g}",
+            transform=ax.get_xaxis_transform(),
+            ha="left" if at < 0.15 else "right" if at > 0.85 else "center",
+            va="bottom",
+            fontsize=7,
         )
         ax.set_xlabel(f"{label} ({unit})")
         ax.set_ylabel("count")
-        ax.legend(fontsize=7)
     if not series:
         fig.text(0.5, 0.5, "no errors to show", ha="center")
     width = 4.0 * n  # inches; fixed margins of about 0.6 in left, 0.2 in right
-    fig.subplots_adjust(left=0.6 / width, right=1 - 0.2 / width, bottom=0.17, top=0.95, wspace=0.3)
+    fig.subplots_adjust(left=0.6 / width, right=1 - 0.2 / width, bottom=0.17, top=0.92, wspace=0.3)
     save_figure(fig, path)
 
 
@@ -346,6 +481,7 @@ def convergence_figure(
     """
     kinds = list(kinds) if kinds is not None else ["sdp"] * len(costs)
     c = np.maximum(np.asarray(costs, float), 1e-300)
+    cert = np.maximum(np.asarray(certificates, float), 1e-16)
     idx = np.arange(len(costs))
     sdp = np.array([k != "local" for k in kinds], dtype=bool)
     local = ~sdp
@@ -355,25 +491,20 @@ def convergence_figure(
     ax.set_xlabel("iteration (0 = landmarks only)")
     ax.set_ylabel("match-independent cost", color="tab:blue")
     ax.set_xticks(idx[sdp])
+    _title(ax, "convex iterations (numbers: outline matches)", fontsize=9)
     ax2 = ax.twinx()
-    ax2.semilogy(
-        idx[sdp],
-        np.maximum(np.asarray(certificates, float)[sdp], 1e-16),
-        "s--",
-        color="tab:green",
-        label="certificate",
-    )
+    ax2.semilogy(idx[sdp], cert[sdp], "s--", color="tab:green", label="certificate")
     ax2.set_ylabel("certificate (lambda2 / lambda1)", color="tab:green")
-    panels = [(ax, sdp)]
+    panels = [(ax, sdp, c[sdp]), (ax2, None, cert[sdp])]
     if local.any():
         axl = fig.add_subplot(1, 2, 2)
         axl.semilogy(idx[local], c[local], "o-", color="tab:purple", label="objective")
         axl.set_xlabel("iteration")
         axl.set_ylabel("refinement objective", color="tab:purple")
         axl.set_xticks(idx[local])
-        axl.set_title("final refinement (numbers: outline samples)", fontsize=9)
-        panels.append((axl, local))
-    for a, sel in panels:
+        _title(axl, "final refinement (numbers: outline samples)", fontsize=9)
+        panels.append((axl, local, c[local]))
+    for a, sel, _ in panels[:1] + panels[2:]:
         for i in idx[sel]:
             a.annotate(
                 str(matches[i]),
@@ -390,9 +521,8 @@ def convergence_figure(
     ax.legend(h1 + h2, l1 + l2, fontsize=7, loc="best")
     if local.any():
         axl.legend(fontsize=7, loc="best")
-    ax.set_title("convex iterations (numbers: outline matches)", fontsize=9)
-    for a in (ax, ax2, *([axl] if local.any() else [])):
-        _plain_log_labels(a)
+    for a, _, values in panels:  # after the last semilogy (which resets the ticks)
+        _log_ticks(a, values)
     if local.any():  # fixed margins (inches / width): the twin axis' labels sit between
         fig.subplots_adjust(left=0.085, right=0.98, bottom=0.15, top=0.9, wspace=0.6)
     else:
@@ -400,9 +530,19 @@ def convergence_figure(
     save_figure(fig, path)
 
 
-def _plain_log_labels(ax: Axes) -> None:
-    """Plain-text labels on a log y axis (``0.02``, ``3e-05``), not mathtext: the same ticks,
-    a fraction of the cost to lay out."""
+def _log_ticks(ax: Axes, values: np.ndarray) -> None:
+    """Ticks and plain-text labels (``0.02``, ``3e-05``, not mathtext) on the log y axis of
+    ``values`` (> 0). Over a decade or more: matplotlib's labelled decades, with minor ticks at
+    2 and 5 times each. Within a decade (where matplotlib would label about ten minor ticks):
+    about five evenly spaced labelled ticks, no minor ones."""
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v) & (v > 0)]
+    if len(v) and v.max() < 10.0 * v.min():
+        ax.yaxis.set_major_locator(MaxNLocator(nbins=5))
+        ax.yaxis.set_minor_locator(NullLocator())
+        ax.yaxis.set_major_formatter(FormatStrFormatter("%.6g"))
+        return
+    ax.yaxis.set_minor_locator(LogLocator(subs=(2.0, 5.0)))
     ax.yaxis.set_major_formatter(_PlainLogFormatter())
     ax.yaxis.set_minor_formatter(_PlainLogFormatter(labelOnlyBase=False))
 

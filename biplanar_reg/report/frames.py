@@ -219,7 +219,6 @@ def _overlay(folder: Path, frame: str, v: ReportView, vertices, faces) -> dict[s
     return {"src": fname, "caption": f"Frame {frame}, view {v.name}."}
 
 
-
 def _fmt(x: Any, digits: int = 2) -> str:
     return "-" if x is None or not np.isfinite(float(x)) else f"{float(x):.{digits}f}"
 

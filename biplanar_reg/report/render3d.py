@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import os
+from pathlib import Path
 
 import numpy as np
 
@@ -130,9 +131,11 @@ def _vertex_shade(V: np.ndarray, F: np.ndarray, eye: np.ndarray) -> np.ndarray:
     """Lambert shade in [0.25, 1] of each vertex under a light at the eye: ambient 0.25 plus
     0.75 |n . eye| with ``n`` the area-weighted vertex normal."""
     n_face = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    n = np.zeros_like(V)
-    for k in range(3):
-        np.add.at(n, F[:, k], n_face)
+    # only n . eye is needed: sum each face's n . eye and |n|-components over its corners
+    corners = F.ravel()
+    n = np.column_stack(
+        [np.bincount(corners, np.repeat(n_face[:, c], 3), len(V)) for c in range(3)]
+    )
     length = np.linalg.norm(n, axis=1)
     lit = np.abs(n @ eye) / np.where(length > 0, length, 1.0)
     return 0.25 + 0.75 * np.where(length > 0, lit, 1.0)
@@ -157,6 +160,17 @@ def software_image(
     size : (W, H)
         Image size, pixels; the mesh fills 90 % of its smaller side.
     """
+    return _software_rgb8(vertices, faces, vertex_rgb, size, background).astype(float) / 255.0
+
+
+def _software_rgb8(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    vertex_rgb: np.ndarray,
+    size: tuple[int, int],
+    background: tuple[float, float, float] = (1.0, 1.0, 1.0),
+) -> np.ndarray:
+    """:func:`software_image` as (H, W, 3) uint8."""
     import cv2
 
     from .shading import _outward_sign
@@ -185,8 +199,7 @@ def software_image(
     image[:] = np.round(np.asarray(background) * 255).astype(np.uint8)
     for tri, col in zip(pts, cols, strict=True):
         cv2.fillConvexPoly(image, tri, col, lineType=cv2.LINE_8, shift=shift)
-    image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
-    return image.astype(float) / 255.0
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
 
 
 def render_software(
@@ -199,32 +212,32 @@ def render_software(
     size: tuple[int, int] = (900, 700),
 ) -> None:
     """Render with :func:`software_image` into a figure of ``size`` pixels: the title top left,
-    with ``error_mm`` a viridis colour bar in mm on the right, else one ivory colour."""
+    with ``error_mm`` a viridis colour bar in mm on the right, else one ivory colour. The
+    rendering is put on the drawn figure pixel for pixel (no axes, no resampling)."""
     from matplotlib import colormaps, colors
     from matplotlib.cm import ScalarMappable
     from matplotlib.figure import Figure
 
-    from .figures import rgba_bytes, save_figure
+    from .figures import png_bytes
 
     dpi = 100
     fig = Figure(figsize=(size[0] / dpi, size[1] / dpi), dpi=dpi)
-    ax = fig.add_axes((0.0, 0.0, 0.86, 0.94))
-    ax.set_axis_off()
     n = len(vertices)
     if error_mm is not None:
         norm = colors.Normalize(0.0, _error_max(error_mm))
         vertex_rgb = colormaps["viridis"](norm(np.asarray(error_mm, float)))[:, :3]
         cax = fig.add_axes((0.90, 0.06, 0.025, 0.5))
         cbar = fig.colorbar(ScalarMappable(norm=norm, cmap="viridis"), cax=cax)
-        cax.set_title("error (mm)", fontsize=10, loc="left")
+        cax.set_title("error (mm)", fontsize=10, loc="left", y=1.0)
         cbar.ax.tick_params(labelsize=9)
     else:
         vertex_rgb = np.tile(colors.to_rgb("ivory"), (n, 1))
-    w, h = round(0.86 * size[0]), round(0.94 * size[1])
-    image = rgba_bytes(software_image(vertices, faces, vertex_rgb, (w, h)))
-    ax.imshow(image, interpolation="nearest")
     fig.text(0.005, 0.985, title, fontsize=11, va="top", ha="left")
-    save_figure(fig, path)
+    # the rendering fills the figure's lower left 86 % x 94 % (the title above, the colour
+    # bar to the right), where matplotlib draws nothing
+    w, h = round(0.86 * size[0]), round(0.94 * size[1])
+    image = _software_rgb8(vertices, faces, vertex_rgb, (w, h))
+    Path(path).write_bytes(png_bytes(fig, dpi, paste=(image, (0, size[1] - h))))
 
 
 def render_error_mesh(

@@ -2,14 +2,17 @@
 
 ``uncertainty.png``: one panel per view, the registered bone's triangles projected into the view
 (pixels) in painter's order (farthest from the source first, so the surface nearest the source
-shows) over the radiograph when there is one, each triangle coloured by the mean ``sd_mm`` of
-its corners (``RegistrationResult.vertex_sd_mm``: posterior sd, RMS over the three axes, mm;
+shows; a closed mesh's back faces left out, :func:`.shading.painter_faces`) over the radiograph
+when there is one, each triangle coloured by the mean ``sd_mm`` of its corners
+(``RegistrationResult.vertex_sd_mm``: posterior sd, RMS over the three axes, mm;
 :mod:`biplanar_reg.registration.uncertainty`), one colour scale for all panels.
 
-The triangles are filled with OpenCV into an image of the panel's crop (at twice the panel's
-resolution, then reduced: anti-aliased edges), blended at 85 % over the radiograph, and the image
-is shown on matplotlib axes in pixel units: a matplotlib collection of the 15,000 triangles of a
-knee-sized bone took ten times longer to draw.
+The triangles are filled once with OpenCV into an image of the panel's crop at twice the size of
+the panel's axes on the saved figure, then reduced (anti-aliased edges; a pixel the triangles
+cover is filled, and the edge pixels keep the triangles' colour), blended at 85 % over the
+radiograph (area-averaged to the panel's size), and the image is shown on matplotlib axes in
+pixel units: a matplotlib collection of the 15,000 triangles of a knee-sized bone took ten
+times longer to draw. Fixed layout: the panels side by side, the colour bar beside the last.
 """
 
 from __future__ import annotations
@@ -21,44 +24,56 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..io.atomic import atomic_path
+from ..io.atomic import atomic_write_bytes
 
 if TYPE_CHECKING:
     from ..calibration import View
 
 __all__ = ["uncertainty_figure"]
 
-
-def _painter_faces(view: View, vertices: np.ndarray, faces: np.ndarray) -> tuple:
-    """Projected triangles (T, 3, 2) px, farthest first, and the face index of each."""
-    centroid = (vertices[faces[:, 0]] + vertices[faces[:, 1]] + vertices[faces[:, 2]]) / 3.0
-    origin, direction = view.rays(view.project(centroid))
-    depth = np.einsum("ij,ij->i", centroid - origin, direction)
-    order = np.argsort(-depth, kind="stable")
-    return view.project(vertices)[faces[order]], order
-
-
-#: Largest side (px) of the radiograph crop drawn under the bone: a figure panel is ~500 px wide,
-#: and drawing a full 8000 px radiograph costs matplotlib gigabytes.
-MAX_BACKGROUND_PX = 560
+#: Figure resolution (dots per inch) and layout, inches: per view a panel ``_PANEL_IN`` wide,
+#: its axes inset by the margins; the colour bar in a strip on the right.
+_DPI = 90
+_PANEL_IN = (4.6, 5.0)
+_MARGIN_IN = {"left": 0.75, "right": 0.15, "bottom": 0.55, "top": 0.65}
+_COLORBAR_IN = 1.2
+#: Opacity of the coloured bone over the radiograph.
+_ALPHA = 0.85
 
 
-def _crop(display: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, tuple]:
-    """The part of ``display`` (H, W) inside the pixel box ``lo``..``hi`` (u, v), reduced to at
-    most :data:`MAX_BACKGROUND_PX` a side, and its ``imshow`` extent in full-image pixels."""
+def _raster_px() -> int:
+    """Pixels across a panel's raster: the larger side of its axes box on the saved figure (the
+    raster is drawn about 1:1, not resampled from a larger one)."""
+    w = _PANEL_IN[0] - _MARGIN_IN["left"] - _MARGIN_IN["right"]
+    h = _PANEL_IN[1] - _MARGIN_IN["bottom"] - _MARGIN_IN["top"]
+    return int(np.ceil(max(w, h) * _DPI))
+
+
+def _background(
+    display: np.ndarray | None, lo: np.ndarray, hi: np.ndarray, px: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """The panel's background (h, w, 3) float32 in [0, 1]: the part of ``display`` (H, W)
+    inside the pixel box ``lo``..``hi`` (u, v) area-averaged to at most ``px`` a side (white
+    without a radiograph); the box's corners (whole image pixels when there is a radiograph)
+    and the raster's pixels per image pixel."""
     import cv2
 
-    h, w = display.shape
-    u0, v0 = (max(int(np.floor(x)), 0) for x in lo)
-    u1, v1 = min(int(np.ceil(hi[0])) + 1, w), min(int(np.ceil(hi[1])) + 1, h)
-    if u1 <= u0 or v1 <= v0:  # the bone projects outside the image
-        u0, v0, u1, v1 = 0, 0, w, h
+    if display is not None:
+        H, W = display.shape
+        u0, v0 = (max(int(np.floor(x)), 0) for x in lo)
+        u1, v1 = min(int(np.ceil(hi[0])) + 1, W), min(int(np.ceil(hi[1])) + 1, H)
+        if u1 <= u0 or v1 <= v0:  # the bone projects outside the image
+            u0, v0, u1, v1 = 0, 0, W, H
+        lo, hi = np.array([u0 - 0.5, v0 - 0.5]), np.array([u1 - 0.5, v1 - 0.5])
+    f = min(px / max(float(np.max(hi - lo)), 1e-9), 1.0 if display is not None else np.inf)
+    w, h = (max(int(np.ceil(x * f)), 1) for x in hi - lo)
+    if display is None:
+        return np.ones((h, w, 3), np.float32), lo, hi, f
     crop = np.asarray(display[v0:v1, u0:u1], dtype=np.float32)
-    f = MAX_BACKGROUND_PX / max(crop.shape)
-    if f < 1.0:
-        size = (max(int(crop.shape[1] * f), 1), max(int(crop.shape[0] * f), 1))
-        crop = cv2.resize(crop, size, interpolation=cv2.INTER_AREA)
-    return crop, (u0 - 0.5, u1 - 0.5, v1 - 0.5, v0 - 0.5)
+    if (w, h) != (u1 - u0, v1 - v0):
+        crop = cv2.resize(crop, (w, h), interpolation=cv2.INTER_AREA)
+    back = np.clip(crop, 0.0, 1.0)[:, :, None]
+    return np.repeat(back, 3, axis=2), lo, hi, f
 
 
 def _panel_image(
@@ -66,39 +81,38 @@ def _panel_image(
     rgb: np.ndarray,
     display: np.ndarray | None,
     box: tuple[np.ndarray, np.ndarray],
+    px: int,
 ) -> tuple[np.ndarray, tuple]:
-    """The panel (H, W, 3) in [0, 1]: triangles ``tri`` (T, 3, 2) px filled in order with
-    colours ``rgb`` (T, 3), 85 % over the radiograph (or white), inside the pixel box
-    ``box = (lo, hi)``; and its ``imshow`` extent in full-image pixels."""
+    """The panel (h, w, 4) uint8 RGBA: triangles ``tri`` (T, 3, 2) px filled in order with
+    colours ``rgb`` (T, 3) in [0, 1], ``_ALPHA`` over the radiograph (or white), inside the
+    pixel box ``box = (lo, hi)``, at most ``px`` pixels a side; and its ``imshow`` extent in
+    full-image pixels."""
     import cv2
 
-    lo, hi = box
-    f = MAX_BACKGROUND_PX / max(float(np.max(hi - lo)), 1e-9)
-    w, h = (max(int(np.ceil(x * f)), 1) for x in hi - lo)
-    if display is not None:
-        crop, extent = _crop(display, lo, hi)
-        u0, u1, v1, v0 = extent
-        lo, hi = np.array([u0, v0]), np.array([u1, v1])
-        f = MAX_BACKGROUND_PX / max(float(np.max(hi - lo)), 1e-9)
-        w, h = (max(int(np.ceil(x * f)), 1) for x in hi - lo)
-        back = cv2.resize(crop, (w, h), interpolation=cv2.INTER_AREA)
-        back = np.repeat(np.clip(back, 0.0, 1.0)[:, :, None], 3, axis=2)
-    else:
-        back = np.ones((h, w, 3), np.float32)
-    s, shift = 2, 4  # supersampling; cv2 fixed-point sub-pixel precision (1/16 px)
+    back, lo, hi, f = _background(display, *box, px)
+    h, w = back.shape[:2]
+    s, shift = 2, 4  # supersampling (anti-aliased edges); cv2 sub-pixel precision (1/16 px)
     layer = np.zeros((h * s, w * s, 3), np.uint8)
-    cover = np.zeros((h * s, w * s), np.uint8)
     # the box's corners are pixel edges: image point u maps to (u - lo) f s - 0.5 in the
     # layer's pixel-centre coordinates
     pts = np.round(((tri - lo) * f * s - 0.5) * (1 << shift)).astype(np.int32)
-    cols = np.round(np.asarray(rgb) * 255).astype(int).tolist()
-    for t, col in zip(pts, cols, strict=True):
+    # every colour at least 1 in red: a filled pixel is one that is not black
+    cols = np.round(np.asarray(rgb) * 255).astype(int)
+    cols[:, 0] = np.maximum(cols[:, 0], 1)
+    for t, col in zip(pts, cols.tolist(), strict=True):
         cv2.fillConvexPoly(layer, t, col, lineType=cv2.LINE_8, shift=shift)
-        cv2.fillConvexPoly(cover, t, 255, lineType=cv2.LINE_8, shift=shift)
-    layer = cv2.resize(layer, (w, h), interpolation=cv2.INTER_AREA).astype(np.float32) / 255
-    alpha = 0.85 * cv2.resize(cover, (w, h), interpolation=cv2.INTER_AREA)[:, :, None] / 255
-    image = np.clip(alpha * layer + (1.0 - alpha) * back, 0.0, 1.0)
-    hi = lo + np.array([w, h]) / f  # the image's own extent (whole pixels)
+    cover = (layer[:, :, 0] > 0).view(np.uint8) * np.uint8(255)
+    layer = cv2.resize(layer, (w, h), interpolation=cv2.INTER_AREA).astype(np.float32)
+    alpha = cv2.resize(cover, (w, h), interpolation=cv2.INTER_AREA)[:, :, None]
+    alpha = alpha.astype(np.float32) * (_ALPHA / 255.0)
+    # where the layer is partly covered, its mean colour is darkened by the black around:
+    # undo that (divide by the coverage) before blending
+    cov = np.maximum(alpha / _ALPHA, 1e-6)
+    image = np.empty((h, w, 4), np.uint8)
+    mix = alpha * np.minimum(layer / (255.0 * cov), 1.0) + (1.0 - alpha) * back
+    image[:, :, :3] = np.round(np.clip(mix, 0.0, 1.0) * 255.0)
+    image[:, :, 3] = 255
+    hi = lo + np.array([w, h]) / f  # the image's own extent (whole raster pixels)
     return image, (lo[0], hi[0], hi[1], lo[1])
 
 
@@ -108,6 +122,8 @@ def uncertainty_figure(
     vertices: np.ndarray,
     faces: np.ndarray,
     sd_mm: np.ndarray,
+    *,
+    projected: Sequence[tuple[np.ndarray, np.ndarray] | None] | None = None,
 ) -> Path:
     """Write ``path`` (PNG): the bone coloured by ``sd_mm`` over each view.
 
@@ -123,44 +139,64 @@ def uncertainty_figure(
     faces : (F, 3) int array
     sd_mm : (N,) array
         Per-vertex sd, mm.
+    projected : sequence of ((T, 3, 2) array, (T,) int array) or None, optional
+        Per panel the mesh already projected into its view, the first two outputs of
+        :func:`.shading.painter_faces` (``None``, or no sequence: projected here).
     """
     from matplotlib import colormaps
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
     from matplotlib.figure import Figure
+    from matplotlib.ticker import MaxNLocator
+
+    from .figures import png_bytes
+    from .shading import painter_faces
 
     V, F = np.asarray(vertices, float), np.asarray(faces, dtype=np.int64)
     sd = np.asarray(sd_mm, float)
     face_sd = (sd[F[:, 0]] + sd[F[:, 1]] + sd[F[:, 2]]) / 3.0
     norm = Normalize(vmin=0.0, vmax=max(float(np.percentile(face_sd, 99)), 1e-6))
     face_rgb = colormaps["viridis"](norm(face_sd))[:, :3]
-    fig = Figure(figsize=(5.2 * len(panels), 5.0))
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(1, len(panels), squeeze=False)
-    for ax, (name, view, display) in zip(axes[0], panels, strict=True):
-        tri, order = _painter_faces(view, V, F)
+    n = len(panels)
+    width, height = _PANEL_IN[0] * n + _COLORBAR_IN, _PANEL_IN[1]
+    fig = Figure(figsize=(width, height), dpi=_DPI)
+    m = _MARGIN_IN
+    px = _raster_px()
+    for i, (name, view, display) in enumerate(panels):
+        given = None if projected is None else projected[i]
+        tri, index = given if given is not None else painter_faces(view, V, F)[:2]
+        ax = fig.add_axes(
+            (
+                (i * _PANEL_IN[0] + m["left"]) / width,
+                m["bottom"] / height,
+                (_PANEL_IN[0] - m["left"] - m["right"]) / width,
+                (height - m["bottom"] - m["top"]) / height,
+            )
+        )
         lo, hi = tri.reshape(-1, 2).min(axis=0), tri.reshape(-1, 2).max(axis=0)
         pad = 0.08 * float(np.max(hi - lo))
-        image, extent = _panel_image(tri, face_rgb[order], display, (lo - pad, hi + pad))
-        ax.imshow(image, extent=extent, interpolation="bilinear")
+        image, extent = _panel_image(tri, face_rgb[index], display, (lo - pad, hi + pad), px)
+        # as large as the axes: about pixel for pixel; a small crop is enlarged smoothly
+        nearest = max(image.shape[:2]) >= px - 1
+        ax.imshow(image, extent=extent, interpolation="nearest" if nearest else "bilinear")
         ax.set_xlim(lo[0] - pad, hi[0] + pad)
         ax.set_ylim(hi[1] + pad, lo[1] - pad)  # image rows grow downwards
         ax.set_aspect("equal")
         ax.set_title(f"{name}")
         ax.set_xlabel("u (px)")
         ax.set_ylabel("v (px)")
+    # the colour bar beside the last panel's axes (their width follows the bone's aspect)
+    ax.apply_aspect()
+    box = ax.get_position()
+    cax = fig.add_axes((box.x1 + 0.3 / width, box.y0, 0.2 / width, box.height))
     fig.colorbar(
         ScalarMappable(norm=norm, cmap="viridis"),
-        ax=list(axes[0]),
-        shrink=0.8,
+        cax=cax,
         label="sd (mm, RMS over axes)",
+        ticks=MaxNLocator(nbins=6, steps=[1, 2, 2.5, 5, 10]),
     )
     fig.suptitle(
         f"Posterior sd per vertex: median {np.median(sd_mm):.2f} mm, "
         f"95th percentile {np.percentile(sd_mm, 95):.2f} mm"
     )
-    path = Path(path)
-    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        fig.savefig(fh, format="png", dpi=90, pil_kwargs={"compress_level": 1})
-    return path
+    return atomic_write_bytes(path, png_bytes(fig, _DPI), make_parents=False)
