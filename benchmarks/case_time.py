@@ -80,7 +80,7 @@ from biplanar_reg.report import case_report; lap("report imports")
 doc = run.result_document(case, obs, res, errs, src, gm, {})
 views = run._report_views(case, obs, res, outl)
 case_report.write_case_report(Path(tempfile.mkdtemp()), doc, views, vertices=res.vertices,
-                              faces=case.model.faces, vertex_error=ve)
+                              faces=case.model.faces, vertex_error=ve, vertex_sd=res.vertex_sd_mm)
 lap("report")
 print(json.dumps(T))
 """
