@@ -24,45 +24,248 @@ __all__ = ["model_outlines"]
 SURFACE_SAMPLES = 20000
 
 
+#: Grid cells (:class:`_Grid`) have this edge, in units of the triangles' median bounding-box
+#: extent: larger cells list more triangles per point, smaller ones send more points on to
+#: their neighbour cells.
+_CELL = 1.0
+#: At most this many grid cells per triangle (the cells of a sparse surface grow instead).
+_CELLS_PER_TRIANGLE = 8
+#: Points are measured in blocks of this many (:meth:`_Surface.distance`).
+_BLOCK = 2048
+#: A triangle whose area is below this fraction of its longest edge squared is a sliver: its
+#: plane is ill-defined in floating point, and only :meth:`_Triangles.distance` measures it.
+_SLIVER = 1e-3
 #: Triangles are split into this many groups by the radius of their enclosing sphere, one
-#: KD-tree each, so the few long triangles do not widen every point's search ball.
+#: KD-tree each, so the few long triangles do not widen every point's search ball (fallback).
 _SIZE_GROUPS = 2
+#: :func:`_candidates` asks the KD-tree for this many nearest centres per point first (arrays,
+#: fast); only the points with that many within their bound get a ball query (lists, slow).
+_NEAREST_FIRST = 16
 
 
 def point_to_surface(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Unsigned distance (mm) from each point (K, 3) to the triangle surface (exact).
 
-    Why only a few triangles are measured: each triangle lies in a sphere of centre ``c`` and
-    radius ``r`` (its smallest enclosing one), so its distance to a point ``q`` is at least
-    ``|q - c| - r``. A first estimate ``best`` (the exact distance to the triangles of the
-    three nearest sphere centres) bounds the distance from above; every triangle that could be
-    nearer has ``|q - c| <= best + r``, and a KD-tree of the centres (one per size group)
-    finds those. Each candidate is measured exactly; no triangle that could be the nearest is
-    skipped, so the result is the exact distance (to rounding).
+    See :class:`_Surface`, which also serves several queries against one surface.
     """
-    from scipy.spatial import cKDTree
-
-    P = np.asarray(points, float).reshape(-1, 3)
-    V = np.asarray(vertices, float)
-    F = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    if len(P) == 0 or len(F) == 0:
-        return cKDTree(V).query(P)[0] if len(P) and len(V) else np.zeros(len(P))
-    tri = _Triangles(V[F])
-    k = min(3, len(F))
-    near = cKDTree(tri.centre).query(P, k=k)[1].reshape(len(P), k)
-    best = tri.distance(np.repeat(P, k, axis=0), near.ravel()).reshape(-1, k).min(axis=1)
-    for group in np.array_split(np.argsort(tri.radius), min(_SIZE_GROUPS, len(F))):
-        q, f = _candidates(cKDTree(tri.centre[group]), P, best + tri.radius[group[-1]])
-        f = group[f]
-        keep = np.linalg.norm(P[q] - tri.centre[f], axis=1) <= best[q] + tri.radius[f]
-        q, f = q[keep], f[keep]
-        np.minimum.at(best, q, tri.distance(P[q], f))
-    return best
+    return _Surface(vertices, faces).distance(points)
 
 
-#: :func:`_candidates` asks the KD-tree for this many nearest centres per point first (arrays,
-#: fast); only the points with that many within their bound get a ball query (lists, slow).
-_NEAREST_FIRST = 16
+class _Surface:
+    """A triangle surface (vertices mm, faces) prepared for exact point distances (mm).
+
+    Why only a few triangles are measured per point: a uniform grid of cubic cells
+    (:class:`_Grid`, edge ``h``) lists in each cell every triangle whose bounding box meets it,
+    so a triangle that comes within ``rho`` of a point ``q`` is listed in a cell that comes
+    within ``rho`` of ``q``. Per point:
+
+    1. the triangles of its own cell. Each lies in its smallest enclosing sphere (centre ``c``,
+       radius ``r``), so it is no nearer than ``|q - c| - r``: the one of lowest such bound is
+       measured first, then every one whose bound is below the best distance so far. A best
+       distance below the distance to the cell's walls is the distance to the surface;
+    2. otherwise, the triangles of the neighbour cells within ``rho = min(best, h)`` of ``q``
+       whose bound is below the best distance: a best distance within ``rho`` is then the
+       distance to the surface;
+    3. otherwise (far from the surface, or outside the grid), the KD-tree search of
+       :meth:`_kd_distance`, which has no such limit.
+
+    A triangle is measured in two steps (:meth:`_measure`): the distance to its plane, which is
+    the distance when ``q`` projects into the triangle and otherwise a lower bound (with the
+    distance to the edge lines it projects beyond, :meth:`_Triangles.plane_bound`), then, only
+    where that bound does not exclude it, the exact point-to-triangle distance.
+
+    No triangle that could be the nearest is skipped, so the result is the exact distance (to
+    rounding). Points sampled on a surface close to this one (a registration and its ground
+    truth) need step 1, and a few of them step 2.
+    """
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+        self.vertices = np.asarray(vertices, float)
+        F = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        corners = [np.ascontiguousarray(self.vertices[F[:, i]].T) for i in range(3)]  # (3, T)
+        self.triangles = _Triangles(*corners) if len(F) else None
+        self.grid = None
+        if len(F):
+            lo = np.minimum(np.minimum(corners[0], corners[1]), corners[2])
+            hi = np.maximum(np.maximum(corners[0], corners[1]), corners[2])
+            self.grid = _Grid(lo, hi)
+        self._trees: list | None = None  # the fallback's KD-trees, built when first needed
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Unsigned distance (mm) from each point (K, 3) to the surface (exact)."""
+        P = np.asarray(points, float).reshape(-1, 3)
+        if len(P) == 0 or self.triangles is None:
+            if len(P) and len(self.vertices):
+                from scipy.spatial import cKDTree
+
+                return cKDTree(self.vertices).query(P)[0]
+            return np.zeros(len(P))
+        Pt = np.ascontiguousarray(P.T)
+        best = np.full(len(P), np.inf)
+        proven = np.zeros(len(P), bool)
+        # in blocks, in the order of the cells: the candidates' arrays stay in the processor's
+        # cache, and the points of a block share their triangles' data
+        cell = self.grid.locate(Pt)[0]
+        order = np.argsort(cell, kind="stable")
+        order = order[np.searchsorted(cell[order], 0) :]  # outside the grid: step 3
+        for i in range(0, len(order), _BLOCK):
+            b = order[i : i + _BLOCK]
+            best[b], proven[b] = self._grid_distance(np.take(Pt, b, axis=1))
+        rest = np.flatnonzero(~proven)
+        if len(rest):
+            best[rest] = self._kd_distance(P[rest])
+        return best
+
+    def _grid_distance(self, Pt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Steps 1 and 2 (class doc) for points ``Pt`` (3, K), mm, in the grid: the distance
+        (mm) of each to the triangles of its cell and of the neighbour cells it needs, and
+        whether that is proven to be the distance to the surface (else an upper bound, or
+        inf)."""
+        grid = self.grid
+        cell, index, gap = grid.locate(Pt)
+        best = np.full(len(cell), np.inf)
+        self._nearest(Pt, np.arange(len(cell)), cell, best, ranked=True)
+        wall = np.minimum(gap[0], gap[1]).min(axis=0) - grid.tol
+        proven = best <= wall
+        need = np.flatnonzero(~proven)
+        if len(need):
+            rho = np.minimum(best[need], grid.h)
+            k, nb = grid.neighbours(index[:, need], gap[:, :, need], rho + grid.tol)
+            self._nearest(Pt, need[k], nb, best, ranked=False)
+            proven[need] = best[need] <= rho
+        return best, proven
+
+    def _nearest(self, Pt, q: np.ndarray, cells: np.ndarray, best: np.ndarray, ranked: bool):
+        """Lower ``best`` (K,), mm, in place to the distance of points ``q`` (of ``Pt``
+        (3, K)) to the triangles of cells ``cells`` (both (L,)) that could be nearer;
+        ``ranked``: first the triangle of lowest bound of each point, then those that it does
+        not exclude."""
+        n, f = self.grid.pairs(cells)
+        q = np.repeat(q, n)
+        p = np.take(Pt, q, axis=1)
+        g = np.take(self.triangles.sphere, f, axis=1)  # (4, pairs): centre, radius
+        g[:3] -= p
+        low = np.sqrt(_dot(g, g))
+        low -= g[3]  # no nearer than the enclosing sphere
+        if ranked:
+            lowest = np.full(len(best), np.inf)
+            np.minimum.at(lowest, q, low)
+            first = np.flatnonzero(low <= np.take(lowest, q))
+            self._measure(np.take(p, first, axis=1), f[first], q[first], best)
+            low[first] = np.inf  # measured
+        sel = np.flatnonzero(low <= np.take(best, q))
+        self._measure(np.take(p, sel, axis=1), f[sel], q[sel], best)
+
+    def _measure(self, p: np.ndarray, f: np.ndarray, q: np.ndarray, best: np.ndarray) -> None:
+        """Lower ``best`` (K,), mm, in place to the distance of points ``p`` (3, L), mm, to
+        triangles ``f`` (L,) (points ``q`` (L,) of ``best``): by the plane where the point
+        projects into the triangle, else exactly unless the plane bound exceeds ``best``."""
+        tri = self.triangles
+        inside, low2 = tri.plane_bound(p, f)
+        np.minimum.at(best, q[inside], np.sqrt(low2[inside]))
+        # a hair of slack: a bound equal to best up to rounding is measured; NaN (a sliver) too
+        far = low2 > np.take(best, q) ** 2 * (1.0 + 1e-9)
+        rest = np.flatnonzero(~(inside | far))
+        if len(rest):
+            d = tri.distance_t(np.take(p, rest, axis=1), f[rest])
+            np.minimum.at(best, q[rest], d)
+
+    def _kd_distance(self, P: np.ndarray) -> np.ndarray:
+        """Exact distance (mm) of points (K, 3) by KD-trees of the enclosing spheres' centres:
+        a first estimate ``best`` (the triangles of the three nearest centres) bounds the
+        distance from above; every triangle that could be nearer has ``|q - c| <= best + r``,
+        and a KD-tree of the centres (one per size group) finds those."""
+        from scipy.spatial import cKDTree
+
+        tri = self.triangles
+        centre, radius = tri.sphere[:3].T, tri.sphere[3]
+        if self._trees is None:
+            self._trees = [cKDTree(centre)]
+            for group in np.array_split(np.argsort(radius), min(_SIZE_GROUPS, tri.n)):
+                self._trees.append((group, cKDTree(centre[group])))
+        k = min(3, tri.n)
+        near = self._trees[0].query(P, k=k)[1].reshape(len(P), k)
+        best = tri.distance(np.repeat(P, k, axis=0), near.ravel()).reshape(-1, k).min(axis=1)
+        for group, tree in self._trees[1:]:
+            q, f = _candidates(tree, P, best + radius[group[-1]])
+            f = group[f]
+            keep = np.linalg.norm(P[q] - centre[f], axis=1) <= best[q] + radius[f]
+            q, f = q[keep], f[keep]
+            np.minimum.at(best, q, tri.distance(P[q], f))
+        return best
+
+
+class _Grid:
+    """A uniform grid of cubic cells (edge ``h``, mm) over a surface's triangles, each cell
+    listing the triangles whose bounding box meets it.
+
+    ``h`` is :data:`_CELL` times the triangles' median bounding-box extent (larger for a sparse
+    surface: at most :data:`_CELLS_PER_TRIANGLE` cells per triangle). Cell ``c`` (a flat
+    number, x fastest) lists triangles ``tris[start[c] : start[c + 1]]``.
+    """
+
+    def __init__(self, lo: np.ndarray, hi: np.ndarray) -> None:
+        """``lo``, ``hi`` (3, T): each triangle's bounding box, mm."""
+        ext = hi - lo
+        size = float(np.median(np.maximum(np.maximum(ext[0], ext[1]), ext[2])))
+        span = hi.max(axis=1) - lo.min(axis=1)
+        h = _CELL * size if size > 0 else max(float(span.max()), 1.0)
+        cap = _CELLS_PER_TRIANGLE * lo.shape[1] + 64
+        while np.prod(np.floor(span / h) + 1) > cap:
+            h *= 1.01 * (np.prod(np.floor(span / h) + 1) / cap) ** (1 / 3)
+        self.h, self.origin = h, lo.min(axis=1)
+        self.dims = np.floor(span / h).astype(np.int64) + 1
+        # rounding of the cell arithmetic, by which the walls are kept nearer
+        self.tol = 1e-9 * h + 1e-12 * float(np.max(np.abs(self.origin)) + span.max())
+        top = (self.dims - 1)[:, None]
+        i0 = np.clip(np.floor((lo - self.origin[:, None]) / h).astype(np.int64), 0, top)
+        n = np.clip(np.floor((hi - self.origin[:, None]) / h).astype(np.int64), 0, top) - i0 + 1
+        count = n[0] * n[1] * n[2]  # each triangle's cells
+        tri = np.repeat(np.arange(len(count)), count)
+        # the j-th cell of a triangle's box, x fastest
+        j = np.arange(len(tri)) - np.repeat(np.cumsum(count) - count, count)
+        nx, ny = np.take(n[0], tri), np.take(n[1], tri)
+        ix, jy = np.take(i0[0], tri) + j % nx, j // nx
+        iy, iz = np.take(i0[1], tri) + jy % ny, np.take(i0[2], tri) + jy // ny
+        cell = (iz * self.dims[1] + iy) * self.dims[0] + ix
+        self.tris = tri[np.argsort(cell, kind="stable")]
+        self.start = np.zeros(int(np.prod(self.dims)) + 1, np.int64)
+        np.cumsum(np.bincount(cell, minlength=len(self.start) - 1), out=self.start[1:])
+
+    def locate(self, Pt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Each point's (``Pt`` (3, K), mm) cell: its flat number (K,) (-1 outside the grid),
+        its index (3, K), and the distances (2, 3, K), mm, from the point to the cell's lower
+        and upper walls along each axis."""
+        origin, dims = self.origin[:, None], self.dims[:, None]
+        index = np.floor((Pt - origin) / self.h).astype(np.int64)
+        ok = np.all((index >= 0) & (index < dims), axis=0)
+        cell = np.where(ok, (index[2] * self.dims[1] + index[1]) * self.dims[0] + index[0], -1)
+        lo = origin + index * self.h
+        return cell, index, np.stack([Pt - lo, lo + self.h - Pt])
+
+    def neighbours(self, index: np.ndarray, gap: np.ndarray, radius: np.ndarray):
+        """The cells of the 26 around each point's own cell (``index`` (3, K), wall distances
+        ``gap`` (2, 3, K) from :meth:`locate`) that come within ``radius`` (K,), mm, of the
+        point: (point index, flat cell number) pairs."""
+        # squared distance to the neighbour at offset -1, 0, +1 along each axis
+        g2 = np.zeros((3, 3, index.shape[1]))
+        g2[:, 0], g2[:, 2] = gap[0] ** 2, gap[1] ** 2
+        d2 = g2[0][:, None, None] + g2[1][None, :, None] + g2[2][None, None, :]
+        near = d2 <= radius**2
+        near[1, 1, 1] = False  # the own cell is done
+        ox, oy, oz, k = np.nonzero(near)
+        nb = index[:, k] + np.stack([ox, oy, oz]) - 1
+        ok = np.all((nb >= 0) & (nb < self.dims[:, None]), axis=0)
+        nb = nb[:, ok]
+        return k[ok], (nb[2] * self.dims[1] + nb[1]) * self.dims[0] + nb[0]
+
+    def pairs(self, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The triangles listed by cells ``cells`` (L,): how many each (L,), and all of them,
+        cell after cell."""
+        first = self.start[cells]
+        n = self.start[cells + 1] - first
+        offset = np.cumsum(n) - n  # each cell's first entry in the output
+        return n, self.tris[np.repeat(first - offset, n) + np.arange(int(n.sum()))]
 
 
 def _candidates(tree, points: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -86,32 +289,86 @@ def _candidates(tree, points: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray
 
 
 class _Triangles:
-    """Triangles (T, 3, 3), mm, prepared for exact point distances: corner ``a``, edges
-    ``ab``, ``ac`` and their dot products; the smallest enclosing sphere of each (``centre``,
-    ``radius``, slightly enlarged so that rounding never drops a candidate)."""
+    """Triangles (corners ``a``, ``b``, ``c`` (3, T), mm) prepared for exact point distances.
 
-    def __init__(self, tri: np.ndarray) -> None:
-        self.a = tri[:, 0]
-        self.ab, self.ac = tri[:, 1] - self.a, tri[:, 2] - self.a
-        self.ab2 = np.einsum("ij,ij->i", self.ab, self.ab)
-        self.ac2 = np.einsum("ij,ij->i", self.ac, self.ac)
-        self.abac = np.einsum("ij,ij->i", self.ab, self.ac)
-        self.centre, radius = _enclosing_spheres(tri)
-        self.radius = radius * (1.0 + 1e-9) + 1e-12 * max(float(np.ptp(tri)), 1.0)
+    The per-triangle values are tables (rows, T), so that the values of a list of candidates
+    are one ``take`` (rows, L) whose rows are contiguous:
+
+    * ``sphere`` (4, T): the smallest enclosing sphere (centre, radius slightly enlarged so
+      that rounding never drops a candidate);
+    * ``plane`` (15, T) for :meth:`plane_bound`: corner ``a``, the unit normal, the vectors
+      ``alpha``, ``beta`` whose dot products with ``q - a`` are the coordinates ``(s, t)`` of
+      the projection of ``q`` on the plane (``a + s ab + t ac``), and the heights of corners
+      a, b, c over their opposite edges, mm (all NaN for a sliver, see :data:`_SLIVER`);
+    * ``edges`` (12, T) for :meth:`distance_t`: ``a``, ``ab``, ``ac``, ``|ab|^2``, ``|ac|^2``,
+      ``ab . ac``.
+    """
+
+    def __init__(self, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> None:
+        self.n = a.shape[1]
+        ab, ac = b - a, c - a
+        ab2, ac2, abac, bc2 = _dot(ab, ab), _dot(ac, ac), _dot(ab, ac), _dot(c - b, c - b)
+        self.edges = np.concatenate([a, ab, ac, [ab2, ac2, abac]])
+        n = _cross(ab, ac)
+        area2 = np.sqrt(_dot(n, n))  # twice the area, mm^2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            det = area2 * area2
+            self.plane = np.concatenate(
+                [
+                    a,
+                    n / area2,
+                    (ac2 * ab - abac * ac) / det,  # alpha
+                    (ab2 * ac - abac * ab) / det,  # beta
+                    area2 / np.sqrt([bc2, ac2, ab2]),  # heights
+                ]
+            )
+        sliver = ~(area2 > _SLIVER * np.maximum(np.maximum(ab2, ac2), bc2))
+        self.plane[3:, sliver] = np.nan
+        centre, radius = _enclosing_spheres(a, b, c, ab2, ac2, bc2, n)
+        extent = max(float(np.ptp([a, b, c])), 1.0)
+        self.sphere = np.concatenate([centre, [radius * (1.0 + 1e-9) + 1e-12 * extent]])
+
+    def plane_bound(self, p: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For points ``p`` (3, L), mm, and triangles ``f`` (L,): whether the point projects
+        into the triangle, and a lower bound of its squared distance (mm^2): the squared
+        distance to the plane plus the squared distance, in the plane, to the farthest of the
+        edge lines that the projection lies beyond (``-barycentric * height``). Inside, the
+        bound is the squared distance itself. NaN for a sliver."""
+        g = np.take(self.plane, f, axis=1)
+        w = p - g[0:3]
+        dist, s, t = _dot(w, g[3:6]), _dot(w, g[6:9]), _dot(w, g[9:12])
+        u = 1.0 - s - t  # the barycentric coordinate of corner a
+        inside = (s >= 0) & (t >= 0) & (u >= 0)
+        u *= g[12]
+        s *= g[13]
+        t *= g[14]
+        gap = np.minimum(np.minimum(np.minimum(u, s), t), 0.0)
+        dist *= dist
+        gap *= gap
+        dist += gap
+        return inside, dist
 
     def distance(self, p: np.ndarray, f: np.ndarray) -> np.ndarray:
-        """Distance from each point ``p`` (K, 3) to triangle ``f[i]`` (K,): the closest point
-        by the triangle's Voronoi regions (Ericson, Real-Time Collision Detection, 5.1.5) as
-        ``a + s ab + t ac``, vectorised; regions assigned from the last Ericson checks to the
-        first, so the first that holds wins. A degenerate triangle's interior gives inf (its
-        edges belong to its neighbours or are measured through its edge regions)."""
-        ab, ac, ap = self.ab[f], self.ac[f], p - self.a[f]
-        ab2, ac2, abac = self.ab2[f], self.ac2[f], self.abac[f]
-        d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
+        """Distance (mm) from each point ``p`` (K, 3) to triangle ``f[i]`` (K,)."""
+        p = np.asarray(p, float).reshape(-1, 3)
+        return self.distance_t(np.ascontiguousarray(p.T), np.asarray(f, np.int64))
+
+    def distance_t(self, p: np.ndarray, f: np.ndarray) -> np.ndarray:
+        """Distance (mm, (L,)) from each point ``p[:, i]`` ((3, L), mm) to triangle ``f[i]``:
+        the closest point by the triangle's Voronoi regions (Ericson, Real-Time Collision
+        Detection, 5.1.5) as ``a + s ab + t ac``, vectorised; regions assigned from the last
+        Ericson checks to the first, so the first that holds wins. A degenerate triangle's
+        interior gives inf (its edges belong to its neighbours or are measured through its edge
+        regions)."""
+        g = np.take(self.edges, f, axis=1)
+        ab, ac, ap = g[3:6], g[6:9], p - g[0:3]
+        ab2, ac2, abac = g[9], g[10], g[11]
+        d1, d2 = _dot(ab, ap), _dot(ac, ap)
         d3, d4, d5, d6 = d1 - ab2, d2 - abac, d1 - abac, d2 - ac2
         va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
         with np.errstate(divide="ignore", invalid="ignore"):
-            s, t = vb / (va + vb + vc), vc / (va + vb + vc)
+            vsum = va + vb + vc
+            s, t = vb / vsum, vc / vsum
             bc2 = (d4 - d3) + (d5 - d6)  # |c - b|^2
             e = (d4 - d3) / bc2
             # an edge of zero length has no region of its own (its corners do)
@@ -124,30 +381,45 @@ class _Triangles:
                 ((d1 <= 0) & (d2 <= 0), 0.0, 0.0),  # corner a
             )
             for m, sv, tv in regions:
-                s, t = np.where(m, sv, s), np.where(m, tv, t)
-        r = s[:, None] * ab + t[:, None] * ac - ap
-        d = np.sqrt(np.einsum("ij,ij->i", r, r))
-        return np.where(np.isfinite(d), d, np.inf)
+                np.copyto(s, sv, where=m)
+                np.copyto(t, tv, where=m)
+        r = s * ab
+        r += t * ac
+        r -= ap  # the closest point minus the point
+        d = np.sqrt(_dot(r, r))
+        d[~np.isfinite(d)] = np.inf
+        return d
 
 
-def _enclosing_spheres(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Smallest enclosing sphere (centre (T, 3), radius (T,)) of each triangle (T, 3, 3): the
+def _dot(u, v) -> np.ndarray:
+    """Dot products of vectors stored by axis (the first 3 rows of ``u`` and ``v``)."""
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
+
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Cross products (3, T) of vectors stored by axis (3, T)."""
+    x = u[1] * v[2] - u[2] * v[1]
+    y = u[2] * v[0] - u[0] * v[2]
+    return np.stack([x, y, u[0] * v[1] - u[1] * v[0]])
+
+
+def _enclosing_spheres(a, b, c, ab2, ac2, bc2, n) -> tuple[np.ndarray, np.ndarray]:
+    """Smallest enclosing sphere (centre (3, T), radius (T,), mm) of each triangle (corners
+    ``a``, ``b``, ``c`` (3, T), squared edge lengths, normal ``n = ab x ac`` (3, T)): the
     circumcentre of an acute triangle, the middle of the longest edge of any other."""
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
     ab, ac = b - a, c - a
-    n = np.cross(ab, ac)
     with np.errstate(divide="ignore", invalid="ignore"):
-        cc = a + (
-            np.cross(n, ab) * np.einsum("ij,ij->i", ac, ac)[:, None]
-            + np.cross(ac, n) * np.einsum("ij,ij->i", ab, ab)[:, None]
-        ) / (2.0 * np.einsum("ij,ij->i", n, n)[:, None])
-    edges = np.stack([b - c, c - a, a - b], axis=1)
-    longest = np.argmax(np.einsum("ijk,ijk->ij", edges, edges), axis=1)
-    mids = np.stack([(b + c) / 2, (c + a) / 2, (a + b) / 2], axis=1)[np.arange(len(tri)), longest]
-    r_cc = np.linalg.norm(tri - np.nan_to_num(cc)[:, None], axis=2).max(axis=1)
-    r_mid = np.linalg.norm(tri - mids[:, None], axis=2).max(axis=1)
-    use_mid = ~np.isfinite(cc).all(axis=1) | (r_mid <= r_cc)
-    return np.where(use_mid[:, None], mids, cc), np.where(use_mid, r_mid, r_cc)
+        cc = a + (_cross(n, ab) * ac2 + _cross(ac, n) * ab2) / (2.0 * _dot(n, n))
+    longest = np.where(bc2 >= np.maximum(ac2, ab2), 0, np.where(ac2 >= ab2, 1, 2))
+    mid = np.where(longest == 0, (b + c) / 2, np.where(longest == 1, (c + a) / 2, (a + b) / 2))
+
+    def reach(centre):  # the farthest corner's distance
+        d = [np.sqrt(_dot(p - centre, p - centre)) for p in (a, b, c)]
+        return np.maximum(np.maximum(d[0], d[1]), d[2])
+
+    r_cc, r_mid = reach(cc), reach(mid)
+    use_mid = (r_mid <= r_cc) | ~np.isfinite(r_cc)  # a degenerate triangle has no circumcentre
+    return np.where(use_mid, mid, cc), np.where(use_mid, r_mid, r_cc)
 
 
 def sample_surface(
@@ -217,11 +489,10 @@ def surface_metrics(
     if faces is not None and gt_faces is not None:
         a = sample_surface(vertices, faces, samples, seed)
         b = sample_surface(gt_vertices, gt_faces, samples, seed + 1)
-        pooled = np.concatenate(
-            [point_to_surface(a, gt_vertices, gt_faces), point_to_surface(b, vertices, faces)]
-        )
+        truth = _Surface(gt_vertices, gt_faces)  # prepared once for its two queries
+        pooled = np.concatenate([truth.distance(a), _Surface(vertices, faces).distance(b)])
         out.update({f"surface_{k}_mm": v for k, v in summary_stats(pooled).items()})
-        per_vertex = point_to_surface(vertices, gt_vertices, gt_faces)
+        per_vertex = truth.distance(vertices)
     return out, per_vertex
 
 

@@ -6,7 +6,7 @@ import itertools
 
 import numpy as np
 
-from biplanar_reg.cases.metrics import _Triangles, point_to_surface, sample_surface
+from biplanar_reg.cases.metrics import _Surface, point_to_surface, sample_surface
 
 
 def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -52,7 +52,7 @@ def test_degenerate_triangles_measure_as_their_segment():
     p = rng.normal(0.0, 2.0, (500, 3))
     ref = _segment_distance(p, V[0], V[1])
     for f in set(itertools.permutations([0, 1, 2])) | set(itertools.permutations([0, 1, 1])):
-        d = _Triangles(V[np.array([f])]).distance(p, np.zeros(len(p), int))
+        d = _Surface(V, np.array([f])).triangles.distance(p, np.zeros(len(p), int))
         assert np.allclose(d, ref, rtol=0, atol=1e-12), f
 
 
