@@ -1,13 +1,13 @@
 """Error metrics of a registered surface against a ground truth, and image-space errors.
 
-Surface distances are exact point-to-triangle distances (no sampling of the target): a
-KD-tree of the triangles' centroids (SciPy ``cKDTree``, which the outline code loads anyway)
-gives each point the few triangles that can hold its closest point, and those are measured
-exactly, vectorised (see :func:`point_to_surface`). The sources are points sampled uniformly by
-area on each surface (seeded; the same points as ``trimesh.sample.sample_surface``), so the
-statistics are symmetric: ``surface_*`` pool registered -> ground truth and ground truth ->
-registered distances. Neither VTK nor trimesh is imported (their imports cost more than the
-metrics).
+Surface distances are exact point-to-triangle distances (no sampling of the target): a uniform
+grid over the triangles gives each point the few triangles that can hold its closest point,
+and those are measured exactly, vectorised (see :class:`_Surface`; SciPy ``cKDTree``, which the
+outline code loads anyway, only for points far from the surface). The sources are points
+sampled uniformly by area on each surface (seeded; the same points as
+``trimesh.sample.sample_surface``), so the statistics are symmetric: ``surface_*`` pool
+registered -> ground truth and ground truth -> registered distances. Neither VTK nor trimesh is
+imported (their imports cost more than the metrics).
 """
 
 from __future__ import annotations
@@ -32,9 +32,6 @@ _CELL = 1.0
 _CELLS_PER_TRIANGLE = 8
 #: Points are measured in blocks of this many (:meth:`_Surface.distance`).
 _BLOCK = 2048
-#: A triangle whose area is below this fraction of its longest edge squared is a sliver: its
-#: plane is ill-defined in floating point, and only :meth:`_Triangles.distance` measures it.
-_SLIVER = 1e-3
 #: Triangles are split into this many groups by the radius of their enclosing sphere, one
 #: KD-tree each, so the few long triangles do not widen every point's search ball (fallback).
 _SIZE_GROUPS = 2
@@ -57,26 +54,28 @@ class _Surface:
     Why only a few triangles are measured per point: a uniform grid of cubic cells
     (:class:`_Grid`, edge ``h``) lists in each cell every triangle whose bounding box meets it,
     so a triangle that comes within ``rho`` of a point ``q`` is listed in a cell that comes
-    within ``rho`` of ``q``. Per point:
+    within ``rho`` of ``q``. Each triangle lies in its smallest enclosing sphere (centre ``c``,
+    radius ``r``), so it is no nearer than ``|q - c| - r``. Per point:
 
-    1. the triangles of its own cell. Each lies in its smallest enclosing sphere (centre ``c``,
-       radius ``r``), so it is no nearer than ``|q - c| - r``: the one of lowest such bound is
-       measured first, then every one whose bound is below the best distance so far. A best
-       distance below the distance to the cell's walls is the distance to the surface;
+    1. the triangles of its own cell: the one of the nearest centre first, then every one whose
+       sphere bound is below the best distance so far. A best distance below the distance to
+       the cell's walls is the distance to the surface;
     2. otherwise, the triangles of the neighbour cells within ``rho = min(best, h)`` of ``q``
-       whose bound is below the best distance: a best distance within ``rho`` is then the
-       distance to the surface;
+       whose sphere bound is below the best distance: a best distance within ``rho`` is then
+       the distance to the surface;
     3. otherwise (far from the surface, or outside the grid), the KD-tree search of
        :meth:`_kd_distance`, which has no such limit.
 
-    A triangle is measured in two steps (:meth:`_measure`): the distance to its plane, which is
-    the distance when ``q`` projects into the triangle and otherwise a lower bound (with the
-    distance to the edge lines it projects beyond, :meth:`_Triangles.plane_bound`), then, only
-    where that bound does not exclude it, the exact point-to-triangle distance.
+    A candidate is measured in two steps (:meth:`_measure`): its plane and edge lines
+    (:meth:`_Triangles.plane_bound`) give the distance when ``q`` projects into the triangle
+    and a lower bound otherwise; only where that bound does not exclude it are its edges
+    measured (:meth:`_Triangles.edge_distance2`).
 
     No triangle that could be the nearest is skipped, so the result is the exact distance (to
     rounding). Points sampled on a surface close to this one (a registration and its ground
-    truth) need step 1, and a few of them step 2.
+    truth) need step 1, and a few of them step 2. The points are measured in blocks of
+    :data:`_BLOCK`, in the order of their cells: the candidates' arrays stay in the
+    processor's cache, and the points of a block share their triangles' data.
     """
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
@@ -103,8 +102,6 @@ class _Surface:
         Pt = np.ascontiguousarray(P.T)
         best = np.full(len(P), np.inf)
         proven = np.zeros(len(P), bool)
-        # in blocks, in the order of the cells: the candidates' arrays stay in the processor's
-        # cache, and the points of a block share their triangles' data
         cell = self.grid.locate(Pt)[0]
         order = np.argsort(cell, kind="stable")
         order = order[np.searchsorted(cell[order], 0) :]  # outside the grid: step 3
@@ -123,52 +120,58 @@ class _Surface:
         inf)."""
         grid = self.grid
         cell, index, gap = grid.locate(Pt)
-        best = np.full(len(cell), np.inf)
-        self._nearest(Pt, np.arange(len(cell)), cell, best, ranked=True)
-        wall = np.minimum(gap[0], gap[1]).min(axis=0) - grid.tol
-        proven = best <= wall
+        best2 = np.full(len(cell), np.inf)  # squared (mm^2) while searching
+        self._nearest(Pt, np.arange(len(cell)), cell, best2, ranked=True)
+        best = np.sqrt(best2)
+        proven = best <= np.minimum(gap[0], gap[1]).min(axis=0) - grid.tol
         need = np.flatnonzero(~proven)
         if len(need):
             rho = np.minimum(best[need], grid.h)
             k, nb = grid.neighbours(index[:, need], gap[:, :, need], rho + grid.tol)
-            self._nearest(Pt, need[k], nb, best, ranked=False)
+            self._nearest(Pt, need[k], nb, best2, ranked=False)
+            best[need] = np.sqrt(best2[need])
             proven[need] = best[need] <= rho
         return best, proven
 
-    def _nearest(self, Pt, q: np.ndarray, cells: np.ndarray, best: np.ndarray, ranked: bool):
-        """Lower ``best`` (K,), mm, in place to the distance of points ``q`` (of ``Pt``
-        (3, K)) to the triangles of cells ``cells`` (both (L,)) that could be nearer;
-        ``ranked``: first the triangle of lowest bound of each point, then those that it does
-        not exclude."""
+    def _nearest(self, Pt, q: np.ndarray, cells: np.ndarray, best2: np.ndarray, ranked: bool):
+        """Lower ``best2`` (K,), the squared distances (mm^2), in place to those of points
+        ``q`` (of ``Pt`` (3, K)) to the triangles of cells ``cells`` (both (L,)) that could be
+        nearer; ``ranked`` (``q`` ascending): first the triangle of the nearest enclosing
+        sphere centre of each point, then those that it does not exclude."""
         n, f = self.grid.pairs(cells)
         q = np.repeat(q, n)
         p = np.take(Pt, q, axis=1)
         g = np.take(self.triangles.sphere, f, axis=1)  # (4, pairs): centre, radius
         g[:3] -= p
-        low = np.sqrt(_dot(g, g))
-        low -= g[3]  # no nearer than the enclosing sphere
-        if ranked:
-            lowest = np.full(len(best), np.inf)
-            np.minimum.at(lowest, q, low)
-            first = np.flatnonzero(low <= np.take(lowest, q))
-            self._measure(np.take(p, first, axis=1), f[first], q[first], best)
-            low[first] = np.inf  # measured
-        sel = np.flatnonzero(low <= np.take(best, q))
-        self._measure(np.take(p, sel, axis=1), f[sel], q[sel], best)
+        d2 = _dot(g, g)  # squared distance to the centre
+        if ranked and len(f):
+            start = (np.cumsum(n) - n)[n > 0]  # each point's pairs are contiguous
+            nearest = np.minimum.reduceat(d2, start)
+            first = np.flatnonzero(d2 <= np.repeat(nearest, n[n > 0]))
+            once = np.ones(len(first), bool)  # one per point (two triangles may share a centre)
+            once[1:] = q[first[1:]] != q[first[:-1]]
+            first = first[once]
+            self._measure(np.take(p, first, axis=1), f[first], q[first], best2)
+            d2[first] = np.inf  # measured
+        # no nearer than the enclosing sphere: only those with |q - c| - r <= best
+        reach = np.take(np.sqrt(best2), q) + g[3]
+        sel = np.flatnonzero(d2 <= reach * reach)
+        self._measure(np.take(p, sel, axis=1), f[sel], q[sel], best2)
 
-    def _measure(self, p: np.ndarray, f: np.ndarray, q: np.ndarray, best: np.ndarray) -> None:
-        """Lower ``best`` (K,), mm, in place to the distance of points ``p`` (3, L), mm, to
-        triangles ``f`` (L,) (points ``q`` (L,) of ``best``): by the plane where the point
-        projects into the triangle, else exactly unless the plane bound exceeds ``best``."""
+    def _measure(self, p: np.ndarray, f: np.ndarray, q: np.ndarray, best2: np.ndarray) -> None:
+        """Lower ``best2`` (K,), mm^2, in place to the squared distance of points ``p``
+        (3, L), mm, to triangles ``f`` (L,) (points ``q`` (L,) of ``best2``): by the plane
+        where the point projects into the triangle, else exactly unless the plane bound
+        exceeds ``best2``."""
         tri = self.triangles
         inside, low2 = tri.plane_bound(p, f)
-        np.minimum.at(best, q[inside], np.sqrt(low2[inside]))
-        # a hair of slack: a bound equal to best up to rounding is measured; NaN (a sliver) too
-        far = low2 > np.take(best, q) ** 2 * (1.0 + 1e-9)
+        np.minimum.at(best2, q, np.where(inside, low2, np.inf))
+        # a hair of slack: a bound equal to best up to rounding is measured (and NaN: a
+        # degenerate triangle, which only its edges measure)
+        far = low2 > np.take(best2, q) * (1.0 + 1e-9)
         rest = np.flatnonzero(~(inside | far))
-        if len(rest):
-            d = tri.distance_t(np.take(p, rest, axis=1), f[rest])
-            np.minimum.at(best, q[rest], d)
+        if len(rest):  # outside the triangle: the nearest point is on an edge
+            np.minimum.at(best2, q[rest], tri.edge_distance2(np.take(p, rest, axis=1), f[rest]))
 
     def _kd_distance(self, P: np.ndarray) -> np.ndarray:
         """Exact distance (mm) of points (K, 3) by KD-trees of the enclosing spheres' centres:
@@ -291,39 +294,38 @@ def _candidates(tree, points: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray
 class _Triangles:
     """Triangles (corners ``a``, ``b``, ``c`` (3, T), mm) prepared for exact point distances.
 
+    The distance from ``q`` to a triangle is its distance to the plane when ``q`` projects into
+    the triangle, else its distance to the nearest of the three edges (segments). Both are
+    computed from well-conditioned quantities: the unit normal and the edges' unit in-plane
+    normals (relative error ``eps |ab| / height`` for a thin triangle), never from the
+    barycentric coordinates (whose error grows with the square of that ratio). A degenerate
+    triangle (zero area) has no plane: only its edges measure it.
+
     The per-triangle values are tables (rows, T), so that the values of a list of candidates
     are one ``take`` (rows, L) whose rows are contiguous:
 
     * ``sphere`` (4, T): the smallest enclosing sphere (centre, radius slightly enlarged so
       that rounding never drops a candidate);
-    * ``plane`` (15, T) for :meth:`plane_bound`: corner ``a``, the unit normal, the vectors
-      ``alpha``, ``beta`` whose dot products with ``q - a`` are the coordinates ``(s, t)`` of
-      the projection of ``q`` on the plane (``a + s ab + t ac``), and the heights of corners
-      a, b, c over their opposite edges, mm (all NaN for a sliver, see :data:`_SLIVER`);
-    * ``edges`` (12, T) for :meth:`distance_t`: ``a``, ``ab``, ``ac``, ``|ab|^2``, ``|ac|^2``,
-      ``ab . ac``.
+    * ``plane`` (16, T) for :meth:`plane_bound`: corner ``a``, the unit normal ``n``, the unit
+      normals ``n x ab / |ab|``, ``n x bc / |bc|``, ``n x ca / |ca|`` of the edges in the plane
+      (pointing inwards) and ``ab . (n x bc / |bc|)`` (NaN for a degenerate triangle);
+    * ``edges`` (12, T) for :meth:`edge_distance2`: ``a``, ``ab``, ``ac`` and ``1 / |ab|^2``,
+      ``1 / |ac|^2``, ``1 / |bc|^2`` (0 for an edge of zero length).
     """
 
     def __init__(self, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> None:
         self.n = a.shape[1]
-        ab, ac = b - a, c - a
-        ab2, ac2, abac, bc2 = _dot(ab, ab), _dot(ac, ac), _dot(ab, ac), _dot(c - b, c - b)
-        self.edges = np.concatenate([a, ab, ac, [ab2, ac2, abac]])
+        ab, ac, bc = b - a, c - a, c - b
+        ab2, ac2, bc2 = _dot(ab, ab), _dot(ac, ac), _dot(bc, bc)
         n = _cross(ab, ac)
-        area2 = np.sqrt(_dot(n, n))  # twice the area, mm^2
         with np.errstate(divide="ignore", invalid="ignore"):
-            det = area2 * area2
-            self.plane = np.concatenate(
-                [
-                    a,
-                    n / area2,
-                    (ac2 * ab - abac * ac) / det,  # alpha
-                    (ab2 * ac - abac * ab) / det,  # beta
-                    area2 / np.sqrt([bc2, ac2, ab2]),  # heights
-                ]
-            )
-        sliver = ~(area2 > _SLIVER * np.maximum(np.maximum(ab2, ac2), bc2))
-        self.plane[3:, sliver] = np.nan
+            normal = n / np.sqrt(_dot(n, n))
+            m_ab = _cross(normal, ab) / np.sqrt(ab2)
+            m_bc = _cross(normal, bc) / np.sqrt(bc2)
+            m_ca = _cross(normal, -ac) / np.sqrt(ac2)
+            inv = [np.where(e2 > 0, 1.0 / e2, 0.0) for e2 in (ab2, ac2, bc2)]
+        self.plane = np.concatenate([a, normal, m_ab, m_bc, m_ca, [_dot(ab, m_bc)]])
+        self.edges = np.concatenate([a, ab, ac, inv])
         centre, radius = _enclosing_spheres(a, b, c, ab2, ac2, bc2, n)
         extent = max(float(np.ptp([a, b, c])), 1.0)
         self.sphere = np.concatenate([centre, [radius * (1.0 + 1e-9) + 1e-12 * extent]])
@@ -331,64 +333,43 @@ class _Triangles:
     def plane_bound(self, p: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """For points ``p`` (3, L), mm, and triangles ``f`` (L,): whether the point projects
         into the triangle, and a lower bound of its squared distance (mm^2): the squared
-        distance to the plane plus the squared distance, in the plane, to the farthest of the
-        edge lines that the projection lies beyond (``-barycentric * height``). Inside, the
-        bound is the squared distance itself. NaN for a sliver."""
+        distance to the plane plus the squared distance, in the plane, beyond the edge line it
+        lies farthest outside of. Inside, the bound is the squared distance itself. NaN for a
+        degenerate triangle."""
         g = np.take(self.plane, f, axis=1)
         w = p - g[0:3]
-        dist, s, t = _dot(w, g[3:6]), _dot(w, g[6:9]), _dot(w, g[9:12])
-        u = 1.0 - s - t  # the barycentric coordinate of corner a
-        inside = (s >= 0) & (t >= 0) & (u >= 0)
-        u *= g[12]
-        s *= g[13]
-        t *= g[14]
-        gap = np.minimum(np.minimum(np.minimum(u, s), t), 0.0)
+        dist = _dot(w, g[3:6])
+        # signed distances in the plane to the edge lines, positive inside
+        s_ab, s_bc, s_ca = _dot(w, g[6:9]), _dot(w, g[9:12]) - g[15], _dot(w, g[12:15])
+        inside = (s_ab >= 0) & (s_bc >= 0) & (s_ca >= 0)
+        gap = np.minimum(np.minimum(np.minimum(s_ab, s_bc), s_ca), 0.0)
         dist *= dist
         gap *= gap
         dist += gap
         return inside, dist
 
+    def edge_distance2(self, p: np.ndarray, f: np.ndarray) -> np.ndarray:
+        """Squared distance (mm^2, (L,)) from each point ``p[:, i]`` ((3, L), mm) to the
+        nearest edge (segment) of triangle ``f[i]``."""
+        g = np.take(self.edges, f, axis=1)
+        ap, ab, ac = p - g[0:3], g[3:6], g[6:9]
+        d2 = np.minimum(_segment_distance2(ap, ab, g[9]), _segment_distance2(ap, ac, g[10]))
+        return np.minimum(d2, _segment_distance2(ap - ab, ac - ab, g[11]))
+
     def distance(self, p: np.ndarray, f: np.ndarray) -> np.ndarray:
         """Distance (mm) from each point ``p`` (K, 3) to triangle ``f[i]`` (K,)."""
-        p = np.asarray(p, float).reshape(-1, 3)
-        return self.distance_t(np.ascontiguousarray(p.T), np.asarray(f, np.int64))
+        pt = np.ascontiguousarray(np.asarray(p, float).reshape(-1, 3).T)
+        f = np.asarray(f, np.int64)
+        inside, low2 = self.plane_bound(pt, f)
+        return np.sqrt(np.where(inside, low2, self.edge_distance2(pt, f)))
 
-    def distance_t(self, p: np.ndarray, f: np.ndarray) -> np.ndarray:
-        """Distance (mm, (L,)) from each point ``p[:, i]`` ((3, L), mm) to triangle ``f[i]``:
-        the closest point by the triangle's Voronoi regions (Ericson, Real-Time Collision
-        Detection, 5.1.5) as ``a + s ab + t ac``, vectorised; regions assigned from the last
-        Ericson checks to the first, so the first that holds wins. A degenerate triangle's
-        interior gives inf (its edges belong to its neighbours or are measured through its edge
-        regions)."""
-        g = np.take(self.edges, f, axis=1)
-        ab, ac, ap = g[3:6], g[6:9], p - g[0:3]
-        ab2, ac2, abac = g[9], g[10], g[11]
-        d1, d2 = _dot(ab, ap), _dot(ac, ap)
-        d3, d4, d5, d6 = d1 - ab2, d2 - abac, d1 - abac, d2 - ac2
-        va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-        with np.errstate(divide="ignore", invalid="ignore"):
-            vsum = va + vb + vc
-            s, t = vb / vsum, vc / vsum
-            bc2 = (d4 - d3) + (d5 - d6)  # |c - b|^2
-            e = (d4 - d3) / bc2
-            # an edge of zero length has no region of its own (its corners do)
-            regions = (
-                ((va <= 0) & (d4 >= d3) & (d5 >= d6) & (bc2 > 0), 1.0 - e, e),  # edge bc
-                ((vb <= 0) & (d2 >= 0) & (d6 <= 0) & (ac2 > 0), 0.0, d2 / (d2 - d6)),  # ac
-                ((d6 >= 0) & (d5 <= d6), 0.0, 1.0),  # corner c
-                ((vc <= 0) & (d1 >= 0) & (d3 <= 0) & (ab2 > 0), d1 / (d1 - d3), 0.0),  # ab
-                ((d3 >= 0) & (d4 <= d3), 1.0, 0.0),  # corner b
-                ((d1 <= 0) & (d2 <= 0), 0.0, 0.0),  # corner a
-            )
-            for m, sv, tv in regions:
-                np.copyto(s, sv, where=m)
-                np.copyto(t, tv, where=m)
-        r = s * ab
-        r += t * ac
-        r -= ap  # the closest point minus the point
-        d = np.sqrt(_dot(r, r))
-        d[~np.isfinite(d)] = np.inf
-        return d
+
+def _segment_distance2(w: np.ndarray, e: np.ndarray, inv_e2: np.ndarray) -> np.ndarray:
+    """Squared distance (3, L) -> (L,) from points at ``w`` relative to a segment's start to
+    the segment ``e`` (``inv_e2 = 1 / |e|^2``, 0 for a point)."""
+    t = np.clip(_dot(w, e) * inv_e2, 0.0, 1.0)
+    r = w - t * e
+    return _dot(r, r)
 
 
 def _dot(u, v) -> np.ndarray:
@@ -431,18 +412,22 @@ def sample_surface(
     seed=seed)`` (the same draws of ``numpy.random.default_rng(seed)``), without importing
     trimesh.
     """
-    V = np.asarray(vertices, float)
+    Vt = np.ascontiguousarray(np.asarray(vertices, float).T)
     F = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    tri = V[F]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 1])
-    weight_cum = np.cumsum(np.sqrt((cross**2).sum(axis=1)) / 2.0)
+    a, b, c = (np.take(Vt, F[:, i], axis=1) for i in range(3))  # (3, T), by axis
+    # trimesh's arithmetic, operation for operation (the same bits): areas from (b - a) x
+    # (c - b), each sample a + l1 (b - a) + l2 (c - a)
+    cross = _cross(b - a, c - b)
+    weight_cum = np.cumsum(np.sqrt(_dot(cross, cross)) / 2.0)
     random = np.random.default_rng(seed).random
     face_index = np.searchsorted(weight_cum, random(count) * weight_cum[-1])
-    origins = tri[face_index, 0]
-    vectors = tri[face_index, 1:] - origins[:, None]
-    lengths = random((count, 2, 1))
-    lengths[lengths.sum(axis=1).reshape(-1) > 1.0] -= 1.0
-    return (vectors * np.abs(lengths)).sum(axis=1) + origins
+    l1, l2 = random((count, 2)).T
+    flip = l1 + l2 > 1.0  # reflected into the triangle: l - 1 (minus 0 elsewhere: no change)
+    l1, l2 = np.abs(l1 - flip), np.abs(l2 - flip)
+    out = np.take(b - a, face_index, axis=1) * l1
+    out += np.take(c - a, face_index, axis=1) * l2
+    out += np.take(a, face_index, axis=1)
+    return np.ascontiguousarray(out.T)
 
 
 def summary_stats(values: np.ndarray) -> dict[str, float]:
