@@ -214,10 +214,12 @@ class _Grid:
         span = hi.max(axis=1) - lo.min(axis=1)
         h = _CELL * size if size > 0 else max(float(span.max()), 1.0)
         cap = _CELLS_PER_TRIANGLE * lo.shape[1] + 64
-        while np.prod(np.floor(span / h) + 1) > cap:
-            h *= 1.01 * (np.prod(np.floor(span / h) + 1) / cap) ** (1 / 3)
-        self.h, self.origin = h, lo.min(axis=1)
-        self.dims = np.floor(span / h).astype(np.int64) + 1
+        while np.prod(np.floor(span / h) + 3) > cap:
+            h *= 1.01 * (np.prod(np.floor(span / h) + 3) / cap) ** (1 / 3)
+        # a layer of empty cells around the triangles' box: a point just outside it (a vertex
+        # of a registration at the ground truth's extremes) is still found by step 2
+        self.h, self.origin = h, lo.min(axis=1) - h
+        self.dims = np.floor(span / h).astype(np.int64) + 3
         # rounding of the cell arithmetic, by which the walls are kept nearer
         self.tol = 1e-9 * h + 1e-12 * float(np.max(np.abs(self.origin)) + span.max())
         top = (self.dims - 1)[:, None]

@@ -154,7 +154,7 @@ def test_points_on_the_grid_cells_walls_and_corners_are_exact():
     quads = np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 4)
     F = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
     surface = _Surface(V, F)
-    assert surface.grid.h == 1.0 and np.array_equal(surface.grid.origin, [0.0, 0.0, 0.0])
+    assert surface.grid.h == 1.0 and np.array_equal(surface.grid.origin, [-1.0, -1.0, -1.0])
     g = np.stack(np.meshgrid(*(np.arange(-1.0, 9.0, 0.5),) * 3, indexing="ij"), -1).reshape(-1, 3)
     P = np.vstack([g, g + 1e-15, g - 1e-15, np.nextafter(g, np.inf)])
     np.testing.assert_allclose(surface.distance(P), _brute_force(P, V, F), rtol=0, atol=ATOL)
