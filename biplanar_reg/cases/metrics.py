@@ -139,8 +139,9 @@ class _Surface:
         nearer; ``ranked`` (``q`` ascending): first the triangle of the nearest enclosing
         sphere centre of each point, then those that it does not exclude."""
         n, f = self.grid.pairs(cells)
-        q = np.repeat(q, n)
-        p = np.take(Pt, q, axis=1)
+        # each point once per candidate (a repeat: cheaper than a take per pair)
+        p = np.repeat(np.take(Pt, q, axis=1), n, axis=1)
+        pq = np.repeat(q, n)
         g = np.take(self.triangles.sphere, f, axis=1)  # (4, pairs): centre, radius
         g[:3] -= p
         d2 = _dot(g, g)  # squared distance to the centre
@@ -149,14 +150,14 @@ class _Surface:
             nearest = np.minimum.reduceat(d2, start)
             first = np.flatnonzero(d2 <= np.repeat(nearest, n[n > 0]))
             once = np.ones(len(first), bool)  # one per point (two triangles may share a centre)
-            once[1:] = q[first[1:]] != q[first[:-1]]
+            once[1:] = pq[first[1:]] != pq[first[:-1]]
             first = first[once]
-            self._measure(np.take(p, first, axis=1), f[first], q[first], best2)
+            self._measure(np.take(p, first, axis=1), f[first], pq[first], best2)
             d2[first] = np.inf  # measured
         # no nearer than the enclosing sphere: only those with |q - c| - r <= best
-        reach = np.take(np.sqrt(best2), q) + g[3]
+        reach = np.repeat(np.take(np.sqrt(best2), q), n) + g[3]
         sel = np.flatnonzero(d2 <= reach * reach)
-        self._measure(np.take(p, sel, axis=1), f[sel], q[sel], best2)
+        self._measure(np.take(p, sel, axis=1), f[sel], pq[sel], best2)
 
     def _measure(self, p: np.ndarray, f: np.ndarray, q: np.ndarray, best2: np.ndarray) -> None:
         """Lower ``best2`` (K,), mm^2, in place to the squared distance of points ``p``
