@@ -228,12 +228,16 @@ class _Grid:
         n = np.clip(np.floor((hi - self.origin[:, None]) / h).astype(np.int64), 0, top) - i0 + 1
         count = n[0] * n[1] * n[2]  # each triangle's cells
         tri = np.repeat(np.arange(len(count)), count)
-        # the j-th cell of a triangle's box, x fastest
-        j = np.arange(len(tri)) - np.repeat(np.cumsum(count) - count, count)
-        nx, ny = np.take(n[0], tri), np.take(n[1], tri)
-        ix, jy = np.take(i0[0], tri) + j % nx, j // nx
-        iy, iz = np.take(i0[1], tri) + jy % ny, np.take(i0[2], tri) + jy // ny
-        cell = (iz * self.dims[1] + iy) * self.dims[0] + ix
+        # the j-th cell of a triangle's box, x fastest (small integers, exact in floating
+        # point, whose division is vectorised where the integers' is not)
+        j = (np.arange(len(tri)) - np.repeat(np.cumsum(count) - count, count)).astype(float)
+        nx, ny = np.take(n[0], tri).astype(float), np.take(n[1], tri).astype(float)
+        jy = np.floor(j / nx)
+        jz = np.floor(jy / ny)
+        ix, iy, iz = (
+            np.take(i0[k], tri) + d for k, d in enumerate((j - jy * nx, jy - jz * ny, jz))
+        )
+        cell = ((iz * self.dims[1] + iy) * self.dims[0] + ix).astype(np.int64)
         self.tris = tri[np.argsort(cell, kind="stable")]
         self.start = np.zeros(int(np.prod(self.dims)) + 1, np.int64)
         np.cumsum(np.bincount(cell, minlength=len(self.start) - 1), out=self.start[1:])
