@@ -64,8 +64,9 @@ def _kabsch(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndar
 def _principal_axes_init(
     src: np.ndarray, dst_vertices: np.ndarray, dst_faces: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    from .metrics import point_to_surface
+    from .metrics import _Surface
 
+    target = _Surface(dst_vertices, dst_faces)  # prepared once for the 4 candidates
     ca, cb = src.mean(axis=0), dst_vertices.mean(axis=0)
     ea = np.linalg.svd(src - ca, full_matrices=False)[2]
     eb = np.linalg.svd(dst_vertices - cb, full_matrices=False)[2]
@@ -74,7 +75,7 @@ def _principal_axes_init(
         S = np.diag([s0, s1, s0 * s1 * np.linalg.det(ea) * np.linalg.det(eb)])
         R = eb.T @ S @ ea
         t = cb - R @ ca
-        cost = float(np.mean(point_to_surface(src @ R.T + t, dst_vertices, dst_faces)))
+        cost = float(np.mean(target.distance(src @ R.T + t)))
         if cost < best[0]:
             best = (cost, R, t)
     return best[1], best[2]

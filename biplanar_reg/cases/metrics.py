@@ -1,13 +1,13 @@
 """Error metrics of a registered surface against a ground truth, and image-space errors.
 
-Surface distances are exact point-to-triangle distances (no sampling of the target): a
-KD-tree of the triangles' centroids (SciPy ``cKDTree``, which the outline code loads anyway)
-gives each point the few triangles that can hold its closest point, and those are measured
-exactly, vectorised (see :func:`point_to_surface`). The sources are points sampled uniformly by
-area on each surface (seeded; the same points as ``trimesh.sample.sample_surface``), so the
-statistics are symmetric: ``surface_*`` pool registered -> ground truth and ground truth ->
-registered distances. Neither VTK nor trimesh is imported (their imports cost more than the
-metrics).
+Surface distances are exact point-to-triangle distances (no sampling of the target): a uniform
+grid over the triangles gives each point the few triangles that can hold its closest point,
+and those are measured exactly, vectorised (see :class:`_Surface`; SciPy ``cKDTree``, which the
+outline code loads anyway, only for points far from the surface). The sources are points
+sampled uniformly by area on each surface (seeded; the same points as
+``trimesh.sample.sample_surface``), so the statistics are symmetric: ``surface_*`` pool
+registered -> ground truth and ground truth -> registered distances. Neither VTK nor trimesh is
+imported (their imports cost more than the metrics).
 """
 
 from __future__ import annotations
@@ -24,45 +24,258 @@ __all__ = ["model_outlines"]
 SURFACE_SAMPLES = 20000
 
 
+#: Grid cells (:class:`_Grid`) have this edge, in units of the triangles' median bounding-box
+#: extent: larger cells list more triangles per point, smaller ones send more points on to
+#: their neighbour cells.
+_CELL = 1.0
+#: At most this many grid cells per triangle (the cells of a sparse surface grow instead).
+_CELLS_PER_TRIANGLE = 8
+#: Points are measured in blocks of this many (:meth:`_Surface.distance`).
+_BLOCK = 2048
 #: Triangles are split into this many groups by the radius of their enclosing sphere, one
-#: KD-tree each, so the few long triangles do not widen every point's search ball.
+#: KD-tree each, so the few long triangles do not widen every point's search ball (fallback).
 _SIZE_GROUPS = 2
+#: :func:`_candidates` asks the KD-tree for this many nearest centres per point first (arrays,
+#: fast); only the points with that many within their bound get a ball query (lists, slow).
+_NEAREST_FIRST = 16
 
 
 def point_to_surface(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Unsigned distance (mm) from each point (K, 3) to the triangle surface (exact).
 
-    Why only a few triangles are measured: each triangle lies in a sphere of centre ``c`` and
-    radius ``r`` (its smallest enclosing one), so its distance to a point ``q`` is at least
-    ``|q - c| - r``. A first estimate ``best`` (the exact distance to the triangles of the
-    three nearest sphere centres) bounds the distance from above; every triangle that could be
-    nearer has ``|q - c| <= best + r``, and a KD-tree of the centres (one per size group)
-    finds those. Each candidate is measured exactly; no triangle that could be the nearest is
-    skipped, so the result is the exact distance (to rounding).
+    See :class:`_Surface`, which also serves several queries against one surface.
     """
-    from scipy.spatial import cKDTree
-
-    P = np.asarray(points, float).reshape(-1, 3)
-    V = np.asarray(vertices, float)
-    F = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    if len(P) == 0 or len(F) == 0:
-        return cKDTree(V).query(P)[0] if len(P) and len(V) else np.zeros(len(P))
-    tri = _Triangles(V[F])
-    k = min(3, len(F))
-    near = cKDTree(tri.centre).query(P, k=k)[1].reshape(len(P), k)
-    best = tri.distance(np.repeat(P, k, axis=0), near.ravel()).reshape(-1, k).min(axis=1)
-    for group in np.array_split(np.argsort(tri.radius), min(_SIZE_GROUPS, len(F))):
-        q, f = _candidates(cKDTree(tri.centre[group]), P, best + tri.radius[group[-1]])
-        f = group[f]
-        keep = np.linalg.norm(P[q] - tri.centre[f], axis=1) <= best[q] + tri.radius[f]
-        q, f = q[keep], f[keep]
-        np.minimum.at(best, q, tri.distance(P[q], f))
-    return best
+    return _Surface(vertices, faces).distance(points)
 
 
-#: :func:`_candidates` asks the KD-tree for this many nearest centres per point first (arrays,
-#: fast); only the points with that many within their bound get a ball query (lists, slow).
-_NEAREST_FIRST = 16
+class _Surface:
+    """A triangle surface (vertices mm, faces) prepared for exact point distances (mm).
+
+    Why only a few triangles are measured per point: a uniform grid of cubic cells
+    (:class:`_Grid`, edge ``h``) lists in each cell every triangle whose bounding box meets it,
+    so a triangle that comes within ``rho`` of a point ``q`` is listed in a cell that comes
+    within ``rho`` of ``q``. Each triangle lies in its smallest enclosing sphere (centre ``c``,
+    radius ``r``), so it is no nearer than ``|q - c| - r``. Per point:
+
+    1. the triangles of its own cell: the one of the nearest centre first, then every one whose
+       sphere bound is below the best distance so far. A best distance below the distance to
+       the cell's walls is the distance to the surface;
+    2. otherwise, the triangles of the neighbour cells within ``rho = min(best, h)`` of ``q``
+       whose sphere bound is below the best distance: a best distance within ``rho`` is then
+       the distance to the surface;
+    3. otherwise (far from the surface, or outside the grid), the KD-tree search of
+       :meth:`_kd_distance`, which has no such limit.
+
+    A candidate is measured in two steps (:meth:`_measure`): its plane and edge lines
+    (:meth:`_Triangles.plane_bound`) give the distance when ``q`` projects into the triangle
+    and a lower bound otherwise; only where that bound does not exclude it are its edges
+    measured (:meth:`_Triangles.edge_distance2`).
+
+    No triangle that could be the nearest is skipped, so the result is the exact distance (to
+    rounding). Points sampled on a surface close to this one (a registration and its ground
+    truth) need step 1, and a few of them step 2. The points are measured in blocks of
+    :data:`_BLOCK`, in the order of their cells: the candidates' arrays stay in the
+    processor's cache, and the points of a block share their triangles' data.
+    """
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+        self.vertices = np.asarray(vertices, float)
+        F = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        corners = [np.ascontiguousarray(self.vertices[F[:, i]].T) for i in range(3)]  # (3, T)
+        self.triangles = _Triangles(*corners) if len(F) else None
+        self.grid = None
+        if len(F):
+            lo = np.minimum(np.minimum(corners[0], corners[1]), corners[2])
+            hi = np.maximum(np.maximum(corners[0], corners[1]), corners[2])
+            self.grid = _Grid(lo, hi)
+        self._trees: list | None = None  # the fallback's KD-trees, built when first needed
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Unsigned distance (mm) from each point (K, 3) to the surface (exact)."""
+        P = np.asarray(points, float).reshape(-1, 3)
+        if len(P) == 0 or self.triangles is None:
+            if len(P) and len(self.vertices):
+                from scipy.spatial import cKDTree
+
+                return cKDTree(self.vertices).query(P)[0]
+            return np.zeros(len(P))
+        Pt = np.ascontiguousarray(P.T)
+        best = np.full(len(P), np.inf)
+        proven = np.zeros(len(P), bool)
+        cell = self.grid.locate(Pt)[0]
+        order = np.argsort(cell, kind="stable")
+        order = order[np.searchsorted(cell[order], 0) :]  # outside the grid: step 3
+        for i in range(0, len(order), _BLOCK):
+            b = order[i : i + _BLOCK]
+            best[b], proven[b] = self._grid_distance(np.take(Pt, b, axis=1))
+        rest = np.flatnonzero(~proven)
+        if len(rest):
+            best[rest] = self._kd_distance(P[rest])
+        return best
+
+    def _grid_distance(self, Pt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Steps 1 and 2 (class doc) for points ``Pt`` (3, K), mm, in the grid: the distance
+        (mm) of each to the triangles of its cell and of the neighbour cells it needs, and
+        whether that is proven to be the distance to the surface (else an upper bound, or
+        inf)."""
+        grid = self.grid
+        cell, index, gap = grid.locate(Pt)
+        best2 = np.full(len(cell), np.inf)  # squared (mm^2) while searching
+        self._nearest(Pt, np.arange(len(cell)), cell, best2, ranked=True)
+        best = np.sqrt(best2)
+        proven = best <= np.minimum(gap[0], gap[1]).min(axis=0) - grid.tol
+        need = np.flatnonzero(~proven)
+        if len(need):
+            rho = np.minimum(best[need], grid.h)
+            k, nb = grid.neighbours(index[:, need], gap[:, :, need], rho + grid.tol)
+            self._nearest(Pt, need[k], nb, best2, ranked=False)
+            best[need] = np.sqrt(best2[need])
+            proven[need] = best[need] <= rho
+        return best, proven
+
+    def _nearest(self, Pt, q: np.ndarray, cells: np.ndarray, best2: np.ndarray, ranked: bool):
+        """Lower ``best2`` (K,), the squared distances (mm^2), in place to those of points
+        ``q`` (of ``Pt`` (3, K)) to the triangles of cells ``cells`` (both (L,)) that could be
+        nearer; ``ranked`` (``q`` ascending): first the triangle of the nearest enclosing
+        sphere centre of each point, then those that it does not exclude."""
+        n, f = self.grid.pairs(cells)
+        # each point once per candidate (a repeat: cheaper than a take per pair)
+        p = np.repeat(np.take(Pt, q, axis=1), n, axis=1)
+        pq = np.repeat(q, n)
+        g = np.take(self.triangles.sphere, f, axis=1)  # (4, pairs): centre, radius
+        g[:3] -= p
+        d2 = _dot(g, g)  # squared distance to the centre
+        if ranked and len(f):
+            start = (np.cumsum(n) - n)[n > 0]  # each point's pairs are contiguous
+            nearest = np.minimum.reduceat(d2, start)
+            first = np.flatnonzero(d2 <= np.repeat(nearest, n[n > 0]))
+            once = np.ones(len(first), bool)  # one per point (two triangles may share a centre)
+            once[1:] = pq[first[1:]] != pq[first[:-1]]
+            first = first[once]
+            self._measure(np.take(p, first, axis=1), f[first], pq[first], best2)
+            d2[first] = np.inf  # measured
+        # no nearer than the enclosing sphere: only those with |q - c| - r <= best
+        reach = np.repeat(np.take(np.sqrt(best2), q), n) + g[3]
+        sel = np.flatnonzero(d2 <= reach * reach)
+        self._measure(np.take(p, sel, axis=1), f[sel], pq[sel], best2)
+
+    def _measure(self, p: np.ndarray, f: np.ndarray, q: np.ndarray, best2: np.ndarray) -> None:
+        """Lower ``best2`` (K,), mm^2, in place to the squared distance of points ``p``
+        (3, L), mm, to triangles ``f`` (L,) (points ``q`` (L,) of ``best2``): by the plane
+        where the point projects into the triangle, else exactly unless the plane bound
+        exceeds ``best2``."""
+        tri = self.triangles
+        inside, low2 = tri.plane_bound(p, f)
+        np.minimum.at(best2, q, np.where(inside, low2, np.inf))
+        # a hair of slack: a bound equal to best up to rounding is measured (and NaN: a
+        # degenerate triangle, which only its edges measure)
+        far = low2 > np.take(best2, q) * (1.0 + 1e-9)
+        rest = np.flatnonzero(~(inside | far))
+        if len(rest):  # outside the triangle: the nearest point is on an edge
+            np.minimum.at(best2, q[rest], tri.edge_distance2(np.take(p, rest, axis=1), f[rest]))
+
+    def _kd_distance(self, P: np.ndarray) -> np.ndarray:
+        """Exact distance (mm) of points (K, 3) by KD-trees of the enclosing spheres' centres:
+        a first estimate ``best`` (the triangles of the three nearest centres) bounds the
+        distance from above; every triangle that could be nearer has ``|q - c| <= best + r``,
+        and a KD-tree of the centres (one per size group) finds those."""
+        from scipy.spatial import cKDTree
+
+        tri = self.triangles
+        centre, radius = tri.sphere[:3].T, tri.sphere[3]
+        if self._trees is None:
+            self._trees = [cKDTree(centre)]
+            for group in np.array_split(np.argsort(radius), min(_SIZE_GROUPS, tri.n)):
+                self._trees.append((group, cKDTree(centre[group])))
+        k = min(3, tri.n)
+        near = self._trees[0].query(P, k=k)[1].reshape(len(P), k)
+        best = tri.distance(np.repeat(P, k, axis=0), near.ravel()).reshape(-1, k).min(axis=1)
+        for group, tree in self._trees[1:]:
+            q, f = _candidates(tree, P, best + radius[group[-1]])
+            f = group[f]
+            keep = np.linalg.norm(P[q] - centre[f], axis=1) <= best[q] + radius[f]
+            q, f = q[keep], f[keep]
+            np.minimum.at(best, q, tri.distance(P[q], f))
+        return best
+
+
+class _Grid:
+    """A uniform grid of cubic cells (edge ``h``, mm) over a surface's triangles, each cell
+    listing the triangles whose bounding box meets it.
+
+    ``h`` is :data:`_CELL` times the triangles' median bounding-box extent (larger for a sparse
+    surface: at most :data:`_CELLS_PER_TRIANGLE` cells per triangle). Cell ``c`` (a flat
+    number, x fastest) lists triangles ``tris[start[c] : start[c + 1]]``.
+    """
+
+    def __init__(self, lo: np.ndarray, hi: np.ndarray) -> None:
+        """``lo``, ``hi`` (3, T): each triangle's bounding box, mm."""
+        ext = hi - lo
+        size = float(np.median(np.maximum(np.maximum(ext[0], ext[1]), ext[2])))
+        span = hi.max(axis=1) - lo.min(axis=1)
+        h = _CELL * size if size > 0 else max(float(span.max()), 1.0)
+        cap = _CELLS_PER_TRIANGLE * lo.shape[1] + 64
+        while np.prod(np.floor(span / h) + 3) > cap:
+            h *= 1.01 * (np.prod(np.floor(span / h) + 3) / cap) ** (1 / 3)
+        # a layer of empty cells around the triangles' box: a point just outside it (a vertex
+        # of a registration at the ground truth's extremes) is still found by step 2
+        self.h, self.origin = h, lo.min(axis=1) - h
+        self.dims = np.floor(span / h).astype(np.int64) + 3
+        # rounding of the cell arithmetic, by which the walls are kept nearer
+        self.tol = 1e-9 * h + 1e-12 * float(np.max(np.abs(self.origin)) + span.max())
+        top = (self.dims - 1)[:, None]
+        i0 = np.clip(np.floor((lo - self.origin[:, None]) / h).astype(np.int64), 0, top)
+        n = np.clip(np.floor((hi - self.origin[:, None]) / h).astype(np.int64), 0, top) - i0 + 1
+        count = n[0] * n[1] * n[2]  # each triangle's cells
+        tri = np.repeat(np.arange(len(count)), count)
+        # the j-th cell of a triangle's box, x fastest (small integers, exact in floating
+        # point, whose division is vectorised where the integers' is not)
+        j = (np.arange(len(tri)) - np.repeat(np.cumsum(count) - count, count)).astype(float)
+        nx, ny = np.take(n[0], tri).astype(float), np.take(n[1], tri).astype(float)
+        jy = np.floor(j / nx)
+        jz = np.floor(jy / ny)
+        ix, iy, iz = (
+            np.take(i0[k], tri) + d for k, d in enumerate((j - jy * nx, jy - jz * ny, jz))
+        )
+        cell = ((iz * self.dims[1] + iy) * self.dims[0] + ix).astype(np.int64)
+        self.tris = tri[np.argsort(cell, kind="stable")]
+        self.start = np.zeros(int(np.prod(self.dims)) + 1, np.int64)
+        np.cumsum(np.bincount(cell, minlength=len(self.start) - 1), out=self.start[1:])
+
+    def locate(self, Pt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Each point's (``Pt`` (3, K), mm) cell: its flat number (K,) (-1 outside the grid),
+        its index (3, K), and the distances (2, 3, K), mm, from the point to the cell's lower
+        and upper walls along each axis."""
+        origin, dims = self.origin[:, None], self.dims[:, None]
+        index = np.floor((Pt - origin) / self.h).astype(np.int64)
+        ok = np.all((index >= 0) & (index < dims), axis=0)
+        cell = np.where(ok, (index[2] * self.dims[1] + index[1]) * self.dims[0] + index[0], -1)
+        lo = origin + index * self.h
+        return cell, index, np.stack([Pt - lo, lo + self.h - Pt])
+
+    def neighbours(self, index: np.ndarray, gap: np.ndarray, radius: np.ndarray):
+        """The cells of the 26 around each point's own cell (``index`` (3, K), wall distances
+        ``gap`` (2, 3, K) from :meth:`locate`) that come within ``radius`` (K,), mm, of the
+        point: (point index, flat cell number) pairs."""
+        # squared distance to the neighbour at offset -1, 0, +1 along each axis
+        g2 = np.zeros((3, 3, index.shape[1]))
+        g2[:, 0], g2[:, 2] = gap[0] ** 2, gap[1] ** 2
+        d2 = g2[0][:, None, None] + g2[1][None, :, None] + g2[2][None, None, :]
+        near = d2 <= radius**2
+        near[1, 1, 1] = False  # the own cell is done
+        ox, oy, oz, k = np.nonzero(near)
+        nb = index[:, k] + np.stack([ox, oy, oz]) - 1
+        ok = np.all((nb >= 0) & (nb < self.dims[:, None]), axis=0)
+        nb = nb[:, ok]
+        return k[ok], (nb[2] * self.dims[1] + nb[1]) * self.dims[0] + nb[0]
+
+    def pairs(self, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The triangles listed by cells ``cells`` (L,): how many each (L,), and all of them,
+        cell after cell."""
+        first = self.start[cells]
+        n = self.start[cells + 1] - first
+        offset = np.cumsum(n) - n  # each cell's first entry in the output
+        return n, self.tris[np.repeat(first - offset, n) + np.arange(int(n.sum()))]
 
 
 def _candidates(tree, points: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -86,68 +299,115 @@ def _candidates(tree, points: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray
 
 
 class _Triangles:
-    """Triangles (T, 3, 3), mm, prepared for exact point distances: corner ``a``, edges
-    ``ab``, ``ac`` and their dot products; the smallest enclosing sphere of each (``centre``,
-    ``radius``, slightly enlarged so that rounding never drops a candidate)."""
+    """Triangles (corners ``a``, ``b``, ``c`` (3, T), mm) prepared for exact point distances.
 
-    def __init__(self, tri: np.ndarray) -> None:
-        self.a = tri[:, 0]
-        self.ab, self.ac = tri[:, 1] - self.a, tri[:, 2] - self.a
-        self.ab2 = np.einsum("ij,ij->i", self.ab, self.ab)
-        self.ac2 = np.einsum("ij,ij->i", self.ac, self.ac)
-        self.abac = np.einsum("ij,ij->i", self.ab, self.ac)
-        self.centre, radius = _enclosing_spheres(tri)
-        self.radius = radius * (1.0 + 1e-9) + 1e-12 * max(float(np.ptp(tri)), 1.0)
+    The distance from ``q`` to a triangle is its distance to the plane when ``q`` projects into
+    the triangle, else its distance to the nearest of the three edges (segments). Both are
+    computed from well-conditioned quantities: the unit normal and the edges' unit in-plane
+    normals (relative error ``eps |ab| / height`` for a thin triangle), never from the
+    barycentric coordinates (whose error grows with the square of that ratio). A degenerate
+    triangle (zero area) has no plane: only its edges measure it.
+
+    The per-triangle values are tables (rows, T), so that the values of a list of candidates
+    are one ``take`` (rows, L) whose rows are contiguous:
+
+    * ``sphere`` (4, T): the smallest enclosing sphere (centre, radius slightly enlarged so
+      that rounding never drops a candidate);
+    * ``plane`` (16, T) for :meth:`plane_bound`: corner ``a``, the unit normal ``n``, the unit
+      normals ``n x ab / |ab|``, ``n x bc / |bc|``, ``n x ca / |ca|`` of the edges in the plane
+      (pointing inwards) and ``ab . (n x bc / |bc|)`` (NaN for a degenerate triangle);
+    * ``edges`` (12, T) for :meth:`edge_distance2`: ``a``, ``ab``, ``ac`` and ``1 / |ab|^2``,
+      ``1 / |ac|^2``, ``1 / |bc|^2`` (0 for an edge of zero length).
+    """
+
+    def __init__(self, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> None:
+        self.n = a.shape[1]
+        ab, ac, bc = b - a, c - a, c - b
+        ab2, ac2, bc2 = _dot(ab, ab), _dot(ac, ac), _dot(bc, bc)
+        n = _cross(ab, ac)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            normal = n / np.sqrt(_dot(n, n))
+            m_ab = _cross(normal, ab) / np.sqrt(ab2)
+            m_bc = _cross(normal, bc) / np.sqrt(bc2)
+            m_ca = _cross(normal, -ac) / np.sqrt(ac2)
+            inv = [np.where(e2 > 0, 1.0 / e2, 0.0) for e2 in (ab2, ac2, bc2)]
+        self.plane = np.concatenate([a, normal, m_ab, m_bc, m_ca, [_dot(ab, m_bc)]])
+        self.edges = np.concatenate([a, ab, ac, inv])
+        centre, radius = _enclosing_spheres(a, b, c, ab2, ac2, bc2, n)
+        extent = max(float(np.ptp([a, b, c])), 1.0)
+        self.sphere = np.concatenate([centre, [radius * (1.0 + 1e-9) + 1e-12 * extent]])
+
+    def plane_bound(self, p: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For points ``p`` (3, L), mm, and triangles ``f`` (L,): whether the point projects
+        into the triangle, and a lower bound of its squared distance (mm^2): the squared
+        distance to the plane plus the squared distance, in the plane, beyond the edge line it
+        lies farthest outside of. Inside, the bound is the squared distance itself. NaN for a
+        degenerate triangle."""
+        g = np.take(self.plane, f, axis=1)
+        w = p - g[0:3]
+        dist = _dot(w, g[3:6])
+        # signed distances in the plane to the edge lines, positive inside
+        s_ab, s_bc, s_ca = _dot(w, g[6:9]), _dot(w, g[9:12]) - g[15], _dot(w, g[12:15])
+        inside = (s_ab >= 0) & (s_bc >= 0) & (s_ca >= 0)
+        gap = np.minimum(np.minimum(np.minimum(s_ab, s_bc), s_ca), 0.0)
+        dist *= dist
+        gap *= gap
+        dist += gap
+        return inside, dist
+
+    def edge_distance2(self, p: np.ndarray, f: np.ndarray) -> np.ndarray:
+        """Squared distance (mm^2, (L,)) from each point ``p[:, i]`` ((3, L), mm) to the
+        nearest edge (segment) of triangle ``f[i]``."""
+        g = np.take(self.edges, f, axis=1)
+        ap, ab, ac = p - g[0:3], g[3:6], g[6:9]
+        d2 = np.minimum(_segment_distance2(ap, ab, g[9]), _segment_distance2(ap, ac, g[10]))
+        return np.minimum(d2, _segment_distance2(ap - ab, ac - ab, g[11]))
 
     def distance(self, p: np.ndarray, f: np.ndarray) -> np.ndarray:
-        """Distance from each point ``p`` (K, 3) to triangle ``f[i]`` (K,): the closest point
-        by the triangle's Voronoi regions (Ericson, Real-Time Collision Detection, 5.1.5) as
-        ``a + s ab + t ac``, vectorised; regions assigned from the last Ericson checks to the
-        first, so the first that holds wins. A degenerate triangle's interior gives inf (its
-        edges belong to its neighbours or are measured through its edge regions)."""
-        ab, ac, ap = self.ab[f], self.ac[f], p - self.a[f]
-        ab2, ac2, abac = self.ab2[f], self.ac2[f], self.abac[f]
-        d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
-        d3, d4, d5, d6 = d1 - ab2, d2 - abac, d1 - abac, d2 - ac2
-        va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s, t = vb / (va + vb + vc), vc / (va + vb + vc)
-            bc2 = (d4 - d3) + (d5 - d6)  # |c - b|^2
-            e = (d4 - d3) / bc2
-            # an edge of zero length has no region of its own (its corners do)
-            regions = (
-                ((va <= 0) & (d4 >= d3) & (d5 >= d6) & (bc2 > 0), 1.0 - e, e),  # edge bc
-                ((vb <= 0) & (d2 >= 0) & (d6 <= 0) & (ac2 > 0), 0.0, d2 / (d2 - d6)),  # ac
-                ((d6 >= 0) & (d5 <= d6), 0.0, 1.0),  # corner c
-                ((vc <= 0) & (d1 >= 0) & (d3 <= 0) & (ab2 > 0), d1 / (d1 - d3), 0.0),  # ab
-                ((d3 >= 0) & (d4 <= d3), 1.0, 0.0),  # corner b
-                ((d1 <= 0) & (d2 <= 0), 0.0, 0.0),  # corner a
-            )
-            for m, sv, tv in regions:
-                s, t = np.where(m, sv, s), np.where(m, tv, t)
-        r = s[:, None] * ab + t[:, None] * ac - ap
-        d = np.sqrt(np.einsum("ij,ij->i", r, r))
-        return np.where(np.isfinite(d), d, np.inf)
+        """Distance (mm) from each point ``p`` (K, 3) to triangle ``f[i]`` (K,)."""
+        pt = np.ascontiguousarray(np.asarray(p, float).reshape(-1, 3).T)
+        f = np.asarray(f, np.int64)
+        inside, low2 = self.plane_bound(pt, f)
+        return np.sqrt(np.where(inside, low2, self.edge_distance2(pt, f)))
 
 
-def _enclosing_spheres(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Smallest enclosing sphere (centre (T, 3), radius (T,)) of each triangle (T, 3, 3): the
+def _segment_distance2(w: np.ndarray, e: np.ndarray, inv_e2: np.ndarray) -> np.ndarray:
+    """Squared distance (3, L) -> (L,) from points at ``w`` relative to a segment's start to
+    the segment ``e`` (``inv_e2 = 1 / |e|^2``, 0 for a point)."""
+    t = np.clip(_dot(w, e) * inv_e2, 0.0, 1.0)
+    r = w - t * e
+    return _dot(r, r)
+
+
+def _dot(u, v) -> np.ndarray:
+    """Dot products of vectors stored by axis (the first 3 rows of ``u`` and ``v``)."""
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
+
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Cross products (3, T) of vectors stored by axis (3, T)."""
+    x = u[1] * v[2] - u[2] * v[1]
+    y = u[2] * v[0] - u[0] * v[2]
+    return np.stack([x, y, u[0] * v[1] - u[1] * v[0]])
+
+
+def _enclosing_spheres(a, b, c, ab2, ac2, bc2, n) -> tuple[np.ndarray, np.ndarray]:
+    """Smallest enclosing sphere (centre (3, T), radius (T,), mm) of each triangle (corners
+    ``a``, ``b``, ``c`` (3, T), squared edge lengths, normal ``n = ab x ac`` (3, T)): the
     circumcentre of an acute triangle, the middle of the longest edge of any other."""
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
     ab, ac = b - a, c - a
-    n = np.cross(ab, ac)
     with np.errstate(divide="ignore", invalid="ignore"):
-        cc = a + (
-            np.cross(n, ab) * np.einsum("ij,ij->i", ac, ac)[:, None]
-            + np.cross(ac, n) * np.einsum("ij,ij->i", ab, ab)[:, None]
-        ) / (2.0 * np.einsum("ij,ij->i", n, n)[:, None])
-    edges = np.stack([b - c, c - a, a - b], axis=1)
-    longest = np.argmax(np.einsum("ijk,ijk->ij", edges, edges), axis=1)
-    mids = np.stack([(b + c) / 2, (c + a) / 2, (a + b) / 2], axis=1)[np.arange(len(tri)), longest]
-    r_cc = np.linalg.norm(tri - np.nan_to_num(cc)[:, None], axis=2).max(axis=1)
-    r_mid = np.linalg.norm(tri - mids[:, None], axis=2).max(axis=1)
-    use_mid = ~np.isfinite(cc).all(axis=1) | (r_mid <= r_cc)
-    return np.where(use_mid[:, None], mids, cc), np.where(use_mid, r_mid, r_cc)
+        cc = a + (_cross(n, ab) * ac2 + _cross(ac, n) * ab2) / (2.0 * _dot(n, n))
+    longest = np.where(bc2 >= np.maximum(ac2, ab2), 0, np.where(ac2 >= ab2, 1, 2))
+    mid = np.where(longest == 0, (b + c) / 2, np.where(longest == 1, (c + a) / 2, (a + b) / 2))
+
+    def reach(centre):  # the farthest corner's distance
+        d = [np.sqrt(_dot(p - centre, p - centre)) for p in (a, b, c)]
+        return np.maximum(np.maximum(d[0], d[1]), d[2])
+
+    r_cc, r_mid = reach(cc), reach(mid)
+    use_mid = (r_mid <= r_cc) | ~np.isfinite(r_cc)  # a degenerate triangle has no circumcentre
+    return np.where(use_mid, mid, cc), np.where(use_mid, r_mid, r_cc)
 
 
 def sample_surface(
@@ -159,18 +419,22 @@ def sample_surface(
     seed=seed)`` (the same draws of ``numpy.random.default_rng(seed)``), without importing
     trimesh.
     """
-    V = np.asarray(vertices, float)
+    Vt = np.ascontiguousarray(np.asarray(vertices, float).T)
     F = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    tri = V[F]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 1])
-    weight_cum = np.cumsum(np.sqrt((cross**2).sum(axis=1)) / 2.0)
+    a, b, c = (np.take(Vt, F[:, i], axis=1) for i in range(3))  # (3, T), by axis
+    # trimesh's arithmetic, operation for operation (the same bits): areas from (b - a) x
+    # (c - b), each sample a + l1 (b - a) + l2 (c - a)
+    cross = _cross(b - a, c - b)
+    weight_cum = np.cumsum(np.sqrt(_dot(cross, cross)) / 2.0)
     random = np.random.default_rng(seed).random
     face_index = np.searchsorted(weight_cum, random(count) * weight_cum[-1])
-    origins = tri[face_index, 0]
-    vectors = tri[face_index, 1:] - origins[:, None]
-    lengths = random((count, 2, 1))
-    lengths[lengths.sum(axis=1).reshape(-1) > 1.0] -= 1.0
-    return (vectors * np.abs(lengths)).sum(axis=1) + origins
+    l1, l2 = random((count, 2)).T
+    flip = l1 + l2 > 1.0  # reflected into the triangle: l - 1 (minus 0 elsewhere: no change)
+    l1, l2 = np.abs(l1 - flip), np.abs(l2 - flip)
+    out = np.take(b - a, face_index, axis=1) * l1
+    out += np.take(c - a, face_index, axis=1) * l2
+    out += np.take(a, face_index, axis=1)
+    return np.ascontiguousarray(out.T)
 
 
 def summary_stats(values: np.ndarray) -> dict[str, float]:
@@ -217,11 +481,10 @@ def surface_metrics(
     if faces is not None and gt_faces is not None:
         a = sample_surface(vertices, faces, samples, seed)
         b = sample_surface(gt_vertices, gt_faces, samples, seed + 1)
-        pooled = np.concatenate(
-            [point_to_surface(a, gt_vertices, gt_faces), point_to_surface(b, vertices, faces)]
-        )
+        truth = _Surface(gt_vertices, gt_faces)  # prepared once for its two queries
+        pooled = np.concatenate([truth.distance(a), _Surface(vertices, faces).distance(b)])
         out.update({f"surface_{k}_mm": v for k, v in summary_stats(pooled).items()})
-        per_vertex = point_to_surface(vertices, gt_vertices, gt_faces)
+        per_vertex = truth.distance(vertices)
     return out, per_vertex
 
 

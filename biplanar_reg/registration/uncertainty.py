@@ -335,24 +335,34 @@ def _cluster_dof(
     prior: np.ndarray,
     clusters: list[np.ndarray],
     row_var: np.ndarray,
-    A: np.ndarray,
+    grams: np.ndarray,
 ) -> np.ndarray:
     """Per vertex, the Satterthwaite degrees of freedom (N,) of the jackknife variance, from
     each cluster's expected share under the working model (rows independent between clusters
     with variances ``row_var``; Bell and McCaffrey 2002, Imbens and Kolesar 2016):
     ``nu = (sum_c q_c)^2 / sum_c q_c^2``, ``q_c =
     trace(A_v C_e J_c' W_c Sigma_c W_c J_c C_e A_v')``. A few clusters carrying a vertex's
-    variance give a few degrees of freedom."""
+    variance give a few degrees of freedom.
+
+    ``grams`` (N, P^2) are the vertices' ``A_v' A_v`` (:func:`_vertex_grams`): with the
+    clusters' ``E_c = C_e J_c' W_c Sigma_c W_c J_c C_e`` (P, P), ``q_c = sum(grams_v * E_c)``
+    for every vertex and cluster is one matrix product (N, P^2) x (P^2, clusters)."""
     sw = np.sqrt(est_w)
     J = lin.jacobian * sw[:, None]
     C = _posterior(J, np.ones(len(J)), prior)
-    q = np.zeros((len(A), len(clusters)))
-    A2 = A.reshape(-1, A.shape[-1])  # (3N, P): one matrix product per cluster (BLAS)
+    B = J @ C.T  # row r: C J_r (the change of the estimate per unit residual r)
+    E = np.empty((len(clusters), *C.shape))
     for c, rows in enumerate(clusters):
-        B = C @ J[rows].T  # (P, |c|)
-        E = (B * row_var[rows]) @ B.T
-        q[:, c] = np.sum((A2 @ E) * A2, axis=1).reshape(len(A), -1).sum(axis=1)
+        E[c] = B[rows].T @ (B[rows] * row_var[rows, None])
+    q = grams.reshape(len(grams), -1) @ E.reshape(len(clusters), -1).T  # (N, clusters)
     return q.sum(axis=1) ** 2 / np.maximum(np.sum(q * q, axis=1), 1e-300)
+
+
+def _vertex_grams(A: np.ndarray) -> np.ndarray:
+    """``A_v' A_v`` (N, P, P) of each vertex's Jacobian ``A_v`` (3, P) (``A`` (N, 3, P)), so
+    that ``trace(A_v X A_v') = sum(grams_v * X)`` for any (P, P) ``X``: every vertex's variance
+    under a covariance ``X`` is then one matrix-vector product."""
+    return np.matmul(A.transpose(0, 2, 1), A)
 
 
 def vertex_jacobians(model: ShapeModel, state: PoseShape) -> np.ndarray:
@@ -404,14 +414,15 @@ def vertex_sd(
     row_var, stats = _group_scales(lin, prior, estimator_weights)
     C, G = _parameter_covariance(lin.jacobian, row_var, prior, estimator_weights)
     A = vertex_jacobians(model, state)
+    grams = _vertex_grams(A).reshape(model.n_vertices, -1)  # (N, P^2)
     n_vert = model.n_vertices
     var_p, nu_d = np.zeros(n_vert), np.full(n_vert, np.inf)
     if estimator_weights is not None:  # the data's share from the residuals themselves
         clusters = _clusters(lin, stats)
         C, prior_part = _jackknife_covariance(lin, estimator_weights, prior, clusters)
-        var_p = np.einsum("nip,pq,niq->n", A, prior_part, A)
-        nu_d = _cluster_dof(lin, estimator_weights, prior, clusters, row_var, A)
-    var_c = np.maximum(np.einsum("nip,pq,niq->n", A, C, A), 0.0)
+        var_p = grams @ prior_part.ravel()
+        nu_d = _cluster_dof(lin, estimator_weights, prior, clusters, row_var, grams)
+    var_c = np.maximum(grams @ C.ravel(), 0.0)
     var_d = np.maximum(var_c - var_p, 0.0)
     var_t, nu_t = np.zeros(n_vert), np.inf
     if model.truncation_modes is not None:

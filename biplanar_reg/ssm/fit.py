@@ -16,7 +16,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .build import _fit_transform
 from .model import ShapeModel
 
 __all__ = ["ModelFit", "fit_model"]
@@ -71,19 +70,15 @@ def fit_model(
             f"points: expected a finite ({model.n_vertices}, 3) array in correspondence with "
             f"the model, got shape {pts.shape}"
         )
-    basis = model.modes.reshape(model.n_modes, 3 * model.n_vertices).T  # (3N, M)
-    # the least-squares solution operator, once (each iteration is then a product, not a fresh
-    # SVD of the (3N, M) basis)
-    solve = np.linalg.pinv(basis) if shape and model.n_modes else None
+    steps = _Steps(model, pts, shape)
     w = np.zeros(model.n_modes)
-    inst = model.instance(w)
-    _, rot, t = _fit_transform(inst, pts, scaling=False)
+    inst = model.mean
+    rot, t = steps.rigid(w[: len(steps.modes)])  # the weights not fitted stay 0
     rms = _rms(inst @ rot.T + t, pts)
-    for _ in range(iterations if shape and model.n_modes else 0):
-        local = (pts - t) @ rot  # the points in the model frame
-        w = solve @ (local - model.mean).ravel()
-        inst = model.instance(w)
-        _, rot, t = _fit_transform(inst, pts, scaling=False)
+    for _ in range(iterations if steps.modes.size else 0):
+        w = steps.weights(rot, t)
+        inst = model.mean + np.tensordot(w, steps.modes, axes=1)
+        rot, t = steps.rigid(w)
         new = _rms(inst @ rot.T + t, pts)
         done = rms - new < tol_mm
         rms = new
@@ -93,5 +88,58 @@ def fit_model(
     return ModelFit(rot, t, w, verts, _rms(verts, pts))
 
 
+class _Steps:
+    """The two steps of :func:`fit_model` for fixed points (N, 3), mm, each reduced to a few
+    (3, 3) products by sums over the vertices taken once (an iteration then costs one instance
+    and its RMS, not passes over the vertices for every sum):
+
+    * :meth:`rigid`: the Kabsch pose of the instance ``mean + w modes`` onto the points. Its
+      cross-covariance ``B' (Q - mean(Q))`` (``B`` the points about their centroid) is linear
+      in ``w``: ``H0 + sum_m w_m H_m``;
+    * :meth:`weights`: the least-squares weights of the points brought into the model frame,
+      ``pinv(basis) ((points - t) R - mean)``, linear in ``R`` and ``(centroid - t) R``.
+    """
+
+    def __init__(self, model: ShapeModel, pts: np.ndarray, shape: bool) -> None:
+        n_modes = model.n_modes if shape else 0
+        self.modes = modes = model.modes[:n_modes]
+        self.centre = pts.mean(axis=0)
+        B = pts - self.centre
+        self.mean_c = model.mean.mean(axis=0)
+        self.modes_c = np.tensordot(
+            modes, np.full(model.n_vertices, 1.0 / model.n_vertices), (1, 0)
+        )
+        # B' (Q - mean(Q)) = B' Q - sum(B) mean(Q)': sum(B) is 0 up to rounding, kept exact
+        total = B.sum(axis=0)
+        self.H0 = B.T @ model.mean - np.outer(total, self.mean_c)
+        self.Hw = np.tensordot(B, modes, (0, 1)).transpose(1, 0, 2)
+        self.Hw -= total[:, None] * self.modes_c[:, None, :]
+        if not n_modes:
+            return
+        # the least-squares solution operator applied, once, to the 13 vectors the weights
+        # step is a combination of: B[:, d] in coordinate c (9), 1 in coordinate c (3), mean
+        basis = modes.reshape(n_modes, 3 * model.n_vertices).T  # (3N, M)
+        solve = np.linalg.pinv(basis)  # (M, 3N)
+        per_vertex = solve.reshape(n_modes, model.n_vertices, 3)
+        self.K = np.tensordot(per_vertex, B, (1, 0))  # (M, 3, 3)
+        self.s = np.tensordot(per_vertex, np.ones(model.n_vertices), (1, 0))  # (M, 3)
+        self.w0 = solve @ model.mean.ravel()
+
+    def rigid(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rotation and translation (mm) of the Kabsch fit of ``mean + w modes`` to the points
+        (as :func:`.build._fit_transform` without scaling)."""
+        H = self.H0 + np.tensordot(w, self.Hw, axes=1)
+        u, _, vt = np.linalg.svd(H)
+        d = np.sign(np.linalg.det(u @ vt)) or 1.0
+        rot = u @ np.diag([1.0, 1.0, d]) @ vt
+        return rot, self.centre - (self.mean_c + w @ self.modes_c) @ rot.T
+
+    def weights(self, rot: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Least-squares weights of the points in the model frame of pose ``(rot, t)``."""
+        return np.einsum("mcd,dc->m", self.K, rot) + self.s @ ((self.centre - t) @ rot) - self.w0
+
+
 def _rms(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
+    """Vertex RMS distance (mm) between two (N, 3) arrays."""
+    d = (a - b).ravel()
+    return float(np.sqrt(d @ d / len(a)))

@@ -155,3 +155,36 @@ def test_degrees_of_freedom_and_student_factor(scene):
     f = student_factor(np.array([3.0, 10.0, 1e6]))
     assert f[0] > f[1] > f[2] and f[2] == pytest.approx(1.0, abs=1e-4)
     assert f[0] == pytest.approx(3.31 / 2.0, rel=0.02)  # t_3 at 97.7 %
+
+
+def test_cluster_dof_matches_its_definition_cluster_by_cluster():
+    """The vectorised Satterthwaite degrees of freedom (one product of the vertices' grams and
+    the clusters' covariance shares) equal the definition evaluated cluster by cluster:
+    ``q_c = trace(A_v C J_c' W_c Sigma_c W_c J_c C A_v')``."""
+    from biplanar_reg.registration.uncertainty import (
+        Linearisation,
+        _cluster_dof,
+        _posterior,
+        _vertex_grams,
+    )
+
+    rng = np.random.default_rng(4)
+    K, P, N = 120, 10, 50
+    J = rng.normal(size=(K, P))
+    lin = Linearisation(J, rng.normal(size=K), np.ones(K), np.zeros(K, int), np.zeros((K, 0)))
+    est_w, row_var = rng.uniform(0.5, 2.0, K), rng.uniform(0.5, 3.0, K)
+    prior = np.r_[np.zeros(6), np.full(P - 6, 0.7)]
+    clusters = [np.arange(i, min(i + 7, K)) for i in range(0, K, 7)]
+    A = rng.normal(size=(N, 3, P))
+    Jw = J * np.sqrt(est_w)[:, None]
+    C = _posterior(Jw, np.ones(K), prior)
+    q = np.zeros((N, len(clusters)))
+    for c, rows in enumerate(clusters):
+        B = C @ Jw[rows].T
+        E = (B * row_var[rows]) @ B.T
+        q[:, c] = [np.trace(A[v] @ E @ A[v].T) for v in range(N)]
+    expected = q.sum(axis=1) ** 2 / np.sum(q * q, axis=1)
+    grams = _vertex_grams(A).reshape(N, -1)
+    got = _cluster_dof(lin, est_w, prior, clusters, row_var, grams)
+    np.testing.assert_allclose(got, expected, rtol=1e-12)
+    assert np.all((got >= 1.0) & (got <= len(clusters)))
