@@ -34,8 +34,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..calibration.views import View
+from ..outline import outline_edges
 from ..ssm.model import ShapeModel
-from .outline_match import OutlineTarget, Segments, model_outline
+from .outline_match import OutlineTarget, Segments
 from .rays import RayObservations
 from .refine import (
     PoseShape,
@@ -120,8 +121,8 @@ def _outline_terms(
     """The terms of one view's annotated outline samples against the model outline at ``V``."""
     q, o, d = samples
     M = model.n_modes
-    outl = model_outline(V, model, term.view, 3, he)
-    e = outl.edges
+    # the outline's edges only: the thinned points and tangents of model_outline are not used
+    e, uv = outline_edges(V, term.view, model.faces, topology=he)
     if len(e) == 0:  # the model left the view: every term at its cap
         res = np.column_stack([np.full(len(q), term.gate_px), np.zeros(len(q))])
         res *= term.mm_per_px / term.sigma_mm
@@ -129,7 +130,6 @@ def _outline_terms(
         return _Linearised(
             res, zeros, np.zeros((M, len(q), 3)), np.zeros((len(q), 3, 2)), np.zeros(len(q)), 0
         )
-    uv = outl.uv_all
     segs = Segments.build(uv[e[:, 0]], uv[e[:, 1]])
     _, _, s, u = segs.nearest(q)
     i, j = e[s, 0], e[s, 1]

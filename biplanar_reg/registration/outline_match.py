@@ -59,15 +59,23 @@ class Segments:
         k = min(k, len(self.a))
         _, cand = self.tree.query(p, k=k)
         cand = cand.reshape(len(p), k)
-        a, b = self.a[cand], self.b[cand]  # (P, k, 2)
-        ab = b - a
-        ln2 = np.maximum(np.einsum("pkc,pkc->pk", ab, ab), 1e-300)
-        t = np.clip(np.einsum("pkc,pkc->pk", p[:, None, :] - a, ab) / ln2, 0.0, 1.0)
-        foot = a + t[..., None] * ab
-        dist = np.linalg.norm(foot - p[:, None, :], axis=2)
+        # (P, k) arrays per coordinate rather than (P, k, 2) ones: numpy is slow on length-2
+        # axes. The arithmetic is that of the 2-vector form, term by term (b - a per segment
+        # is the same number whether taken before or after the gather), so the result is
+        # bitwise the same.
+        ab = self.b - self.a
+        ax, ay = (self.a[:, c].take(cand) for c in (0, 1))
+        bx, by = (ab[:, c].take(cand) for c in (0, 1))
+        px, py = p[:, :1], p[:, 1:]
+        ln2 = np.maximum(bx * bx + by * by, 1e-300)
+        t = ((px - ax) * bx + (py - ay) * by) / ln2
+        np.clip(t, 0.0, 1.0, out=t)
+        fx, fy = ax + t * bx, ay + t * by
+        dx, dy = fx - px, fy - py
+        dist = np.sqrt(dx * dx + dy * dy)
         j = np.argmin(dist, axis=1)
         r = np.arange(len(p))
-        return foot[r, j], dist[r, j], cand[r, j], t[r, j]
+        return np.column_stack([fx[r, j], fy[r, j]]), dist[r, j], cand[r, j], t[r, j]
 
 
 @dataclass(frozen=True)
