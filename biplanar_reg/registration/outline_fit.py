@@ -36,7 +36,7 @@ import numpy as np
 from ..calibration.views import View
 from ..outline import outline_edges
 from ..ssm.model import ShapeModel
-from .outline_match import OutlineTarget, Segments
+from .outline_match import OutlineTarget, nearest_on_outline
 from .rays import RayObservations
 from .refine import (
     PoseShape,
@@ -130,8 +130,7 @@ def _outline_terms(
         return _Linearised(
             res, zeros, np.zeros((M, len(q), 3)), np.zeros((len(q), 3, 2)), np.zeros(len(q)), 0
         )
-    segs = Segments.build(uv[e[:, 0]], uv[e[:, 1]])
-    _, _, s, u = segs.nearest(q)
+    _, _, s, u = nearest_on_outline(e, uv, q)
     i, j = e[s, 0], e[s, 1]
     Qc = (1.0 - u)[:, None] * Qall[i] + u[:, None] * Qall[j]
     Pc = (1.0 - u)[None, :, None] * model.modes[:, i] + u[None, :, None] * model.modes[:, j]

@@ -21,6 +21,8 @@ to the projected model outline (pixels).
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -252,8 +254,80 @@ def outline_distances(outline: ModelOutline, target: OutlineTarget) -> np.ndarra
     q = target.points[target.usable]
     if len(outline.edges) == 0:
         return np.full(len(q), np.inf)
-    segs = Segments.build(outline.uv_all[outline.edges[:, 0]], outline.uv_all[outline.edges[:, 1]])
-    return segs.nearest(q)[1]
+    return nearest_on_outline(outline.edges, outline.uv_all, q)[1].copy()
+
+
+def nearest_on_outline(
+    edges: np.ndarray, uv: np.ndarray, q: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:meth:`Segments.nearest` of the points ``q`` (P, 2) on the projected model outline.
+
+    Parameters
+    ----------
+    edges : (C, 2) int array
+        Outline edges (vertex ids), at least one.
+    uv : (N, 2) array
+        Projected vertices, pixels.
+    q : (P, 2) array
+        Query points, pixels (the annotated outline's usable samples).
+
+    Returns
+    -------
+    foot, dist, seg, t
+        As :meth:`Segments.nearest` (``seg`` indexes ``edges``); read-only when the outline
+        came from :func:`biplanar_reg.outline.mesh_outline`'s cache (see :class:`_NearestCache`).
+    """
+    cacheable = not (edges.flags.writeable or uv.flags.writeable)
+    if cacheable:
+        hit = _NEAREST.get(edges, uv, q)
+        if hit is not None:
+            return hit
+    out = Segments.build(uv[edges[:, 0]], uv[edges[:, 1]]).nearest(q)
+    if cacheable:
+        _NEAREST.put(edges, uv, q, out)
+    return out
+
+
+class _NearestCache:
+    """The last few :func:`nearest_on_outline` results for outlines of the outline cache.
+
+    The registration measures the same annotated samples against the same model outline
+    several times: the iteration cost and the refinement's gates, the refinement's first and
+    last evaluation, the result's contour errors and the uncertainty's linearisation. The
+    outline cache (:func:`biplanar_reg.outline.mesh_outline`) hands out the very same
+    read-only ``edges`` and ``uv`` arrays for the same posed mesh, so they are compared by
+    identity (an entry holds references to them, so their identities stay valid while it
+    lives; read-only arrays cannot change); the query points, computed afresh by each caller,
+    by value. A hit returns the very arrays computed before (read-only): results unchanged.
+    """
+
+    def __init__(self, size: int = 8) -> None:
+        self.size = size
+        self._items: OrderedDict[int, tuple] = OrderedDict()
+        self._count = 0
+        self._lock = threading.Lock()
+
+    def get(self, edges: np.ndarray, uv: np.ndarray, q: np.ndarray) -> tuple | None:
+        """The stored result for these ``edges`` and ``uv`` (identity) and ``q`` (value)."""
+        with self._lock:
+            for key, (E, U, Q, out) in reversed(self._items.items()):
+                if E is edges and U is uv and Q.shape == q.shape and np.array_equal(Q, q):
+                    self._items.move_to_end(key)
+                    return out
+        return None
+
+    def put(self, edges: np.ndarray, uv: np.ndarray, q: np.ndarray, out: tuple) -> None:
+        """Store ``out`` (made read-only) for ``edges``, ``uv`` and ``q`` (copied)."""
+        for a in out:
+            a.setflags(write=False)
+        with self._lock:
+            self._count += 1
+            self._items[self._count] = (edges, uv, np.array(q, dtype=float), out)
+            while len(self._items) > self.size:
+                self._items.popitem(last=False)
+
+
+_NEAREST = _NearestCache()
 
 
 def mesh_topology(model: ShapeModel) -> HalfEdges | None:
