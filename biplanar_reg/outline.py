@@ -251,8 +251,9 @@ def _contour_generator_edges(
         Vertex-id edges. Their orientation follows the front faces' winding, so they chain into
         oriented loops; the same directed edges come out whichever way the mesh is oriented.
     """
-    twin_front = np.where(he.twin_face >= 0, front[np.maximum(he.twin_face, 0)], False)
-    return he.edges[front[he.face] & ~twin_front]
+    # a border edge's twin face is -1: the appended False (no face there is front-facing)
+    twin_front = np.append(front, False).take(he.twin_face)
+    return he.edges[front.take(he.face) & ~twin_front]
 
 
 def _outer_edges(
@@ -381,7 +382,8 @@ class _OutlineCache:
         with self._lock:
             for key, (V, F, vw, out) in reversed(self._items.items()):
                 same = F is faces and vw is view and V.shape == np.shape(vertices)
-                if same and np.array_equal(V, vertices):
+                # the first vertex first: another pose or shape moves it (a cheap miss)
+                if same and np.array_equal(V[:1], vertices[:1]) and np.array_equal(V, vertices):
                     self._items.move_to_end(key)
                     return out
         return None
