@@ -150,8 +150,10 @@ def coverage_mask(
     whose box is within ``NEAR_PX`` (4 px) of a wanted pixel: the whole raster's values there,
     from a fraction of the triangles (:func:`mesh_outline` wants its probe pixels only).
     """
-    lo = np.floor(uv.min(axis=0)).astype(int) - pad
-    hi = np.ceil(uv.max(axis=0)).astype(int) + pad
+    # column by column: a min or max over axis 0 of an (N, 2) array runs numpy's buffered
+    # reduction, 20 times slower than over a column
+    lo = np.floor(np.array([uv[:, 0].min(), uv[:, 1].min()])).astype(int) - pad
+    hi = np.ceil(np.array([uv[:, 0].max(), uv[:, 1].max()])).astype(int) + pad
     w, h = (hi - lo + 1).tolist()
     if near is not None:
         faces = _faces_near(uv - lo, faces, np.asarray(near) - lo, (h, w))
