@@ -256,3 +256,61 @@ def test_facing_without_projection_matches_back_projection(model, posed):
         got = _facing(X, F, view)
         clear = np.abs(ref) > 1e-9 * np.abs(ref).max()  # leave out exactly grazing faces
         assert np.array_equal(got[clear], ref[clear] < 0)
+
+
+def test_row_wise_helpers_are_bitwise_the_array_forms(model, posed):
+    """The coordinate-row forms of ``_facing``, ``_faces_near`` and ``outline_tangents`` (faster)
+    give bitwise what the plain (F, 3) / (F, 2) array forms give, so the outlines (and every
+    registration) are unchanged."""
+    from biplanar_reg.outline import (
+        NEAR_PX,
+        _contour_generator_edges,
+        _faces_near,
+        _facing,
+        _probe_pixels,
+        outline_tangents,
+    )
+
+    _, w, X = posed
+    F = model.faces
+    he = half_edges(F, model.n_vertices)
+    for view in (_view("perspective"), _view("orthographic"), _view("slot scanning")):
+        a, b, c = X[F[:, 0]], X[F[:, 1]], X[F[:, 2]]
+        n = np.cross(b - a, c - a)
+        cen = (a + b + c) / 3.0
+        if isinstance(view, SlotScanningView):
+            d = view.rays(view.project(cen))[1]
+        elif isinstance(view, OrthographicView):
+            d = np.broadcast_to(view.principal_ray, n.shape)
+        else:
+            d = cen - view.centre
+        ref = np.einsum("ij,ij->i", n, d) < 0
+        facing = _facing(X, F, view)
+        assert np.array_equal(facing, ref)
+        uv = view.project(X)
+        edges = _contour_generator_edges(X, he, F, view, facing)
+        # outline tangents: np.add.at of the aligned edge directions, normalised
+        t = uv[edges[:, 1]] - uv[edges[:, 0]]
+        t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
+        t *= np.where(t[:, :1] < 0, -1.0, 1.0)
+        acc = np.zeros_like(uv)
+        for k in range(2):
+            np.add.at(acc, edges[:, k], t)
+        nrm = np.linalg.norm(acc, axis=1, keepdims=True)
+        want = np.where(nrm > 1e-12, acc / np.maximum(nrm, 1e-12), 0.0)
+        assert np.array_equal(outline_tangents(edges, uv), want)
+        # faces near the probe pixels: boxes of the (F, 2) corner arrays on the integral image
+        lo = np.floor(uv.min(axis=0)).astype(int) - 3
+        h, wd = (np.ceil(uv.max(axis=0)).astype(int) + 3 - lo + 1).tolist()[::-1]
+        q = np.vstack(_probe_pixels(uv, edges, np.zeros(2, int))[1]) - lo
+        front = F[facing]
+        mark = np.zeros((h, wd), np.uint8)
+        inside = (q[:, 0] >= 0) & (q[:, 0] < wd) & (q[:, 1] >= 0) & (q[:, 1] < h)
+        mark[q[inside, 1], q[inside, 0]] = 1
+        mark = ndimage.binary_dilation(mark, np.ones((2 * NEAR_PX + 1,) * 2)).astype(int)
+        total = np.pad(mark.cumsum(0).cumsum(1), ((1, 0), (1, 0)))
+        p = (uv - lo)[front]  # (F, 3, 2)
+        x0, y0 = np.floor(p.min(axis=1)).astype(int).T.clip(0, [[wd - 1], [h - 1]])
+        x1, y1 = (np.ceil(p.max(axis=1)).astype(int).T + 1).clip(1, [[wd], [h]])
+        hits = total[y1, x1] - total[y0, x1] - total[y1, x0] + total[y0, x0]
+        assert np.array_equal(_faces_near(uv - lo, front, q, (h, wd)), front[hits > 0])

@@ -50,29 +50,30 @@ _TRIU_CACHE: dict[int, tuple[np.ndarray, ...]] = {}
 
 
 def _triu(n: int) -> tuple[np.ndarray, ...]:
-    """Row, column and scale of every svec entry, and the flat indices ``i n + j``, ``j n + i``
+    """Row, column and scale of every svec entry, the flat indices ``i n + j``, ``j n + i``
     into an ``n x n`` matrix (``take`` with flat indices is several times faster than 2-D
-    fancy indexing on these small matrices)."""
+    fancy indexing on these small matrices) and, for every flat position of the matrix, the
+    svec entry it holds."""
     if n not in _TRIU_CACHE:  # pure function of n: a memo, not state
         i, j = _triu_colmajor(n)
-        _TRIU_CACHE[n] = (i, j, np.where(i == j, 1.0, np.sqrt(2.0)), i * n + j, j * n + i)
+        entry = np.empty(n * n, dtype=np.intp)
+        entry[i * n + j] = entry[j * n + i] = np.arange(len(i))
+        _TRIU_CACHE[n] = (i, j, np.where(i == j, 1.0, np.sqrt(2.0)), i * n + j, j * n + i, entry)
     return _TRIU_CACHE[n]
 
 
 def svec(X: np.ndarray) -> np.ndarray:
     """Scaled upper-triangle vector of a symmetric matrix."""
-    _, _, s, ij, _ = _triu(X.shape[0])
+    s, ij = _triu(X.shape[0])[2:4]
     return X.ravel().take(ij) * s
 
 
 def smat(x: np.ndarray, n: int) -> np.ndarray:
     """Inverse of :func:`svec`."""
-    _, _, s, ij, ji = _triu(n)
-    X = np.zeros(n * n)
-    v = x / s
-    X[ij] = v
-    X[ji] = v
-    return X.reshape(n, n)
+    tab = _triu(n)
+    s, entry = tab[2], tab[5]
+    # one take of every matrix entry's svec entry (a zero fill and two scatters cost twice)
+    return (x / s).take(entry).reshape(n, n)
 
 
 _SKRON_CACHE: dict[int, tuple[np.ndarray, ...]] = {}
@@ -86,7 +87,7 @@ def skron(T: np.ndarray) -> np.ndarray:
     """
     n = T.shape[0]
     if n not in _SKRON_CACHE:  # index tables depend on n only
-        i, j, s, _, _ = _triu(n)
+        i, j, s = _triu(n)[:3]
         scale = (s[:, None] / s[None, :]) * np.where(i == j, 0.5, 1.0)[None, :]
         flat = [(a[:, None] * n + b[None, :]).ravel() for a, b in ((i, i), (j, j), (i, j), (j, i))]
         _SKRON_CACHE[n] = (*flat, scale.ravel())
@@ -219,13 +220,16 @@ class _Scaling:
     w_inv: np.ndarray  # LP: 1 / w
     d_lp: np.ndarray  # LP: w^-2, the diagonal of (W'W)^-1
     T: list[np.ndarray]  # PSD: (W'W)^-1 (X) = T X T, T = R^-T R^-1
+    # PSD, for the products with lambda and the step length (computed once per scaling):
+    lam_half: list[np.ndarray]  # (lam_i + lam_j) / 2 per svec entry
+    isq_outer: list[np.ndarray]  # lam_i^-1/2 lam_j^-1/2, (n, n)
 
 
 def _nt_scaling(cones: _Cones, s: np.ndarray, z: np.ndarray) -> _Scaling:
     m = cones.n_lp
     w = np.sqrt(s[:m] / z[:m])
     lam = np.sqrt(s[:m] * z[:m])
-    Rs, Rtis, lams = [], [], []
+    Rs, Rtis, lams, halves, outers = [], [], [], [], []
     for n, sl in zip(cones.sizes, cones.slices, strict=True):
         Ls = _chol(smat(s[sl], n))
         Lz = _chol(smat(z[sl], n))
@@ -236,8 +240,12 @@ def _nt_scaling(cones: _Cones, s: np.ndarray, z: np.ndarray) -> _Scaling:
         Rs.append(Ls @ Vt.T * isq)
         Rtis.append(Lz @ U * isq)
         lams.append(lmb)
+        i, j = _triu(n)[:2]
+        halves.append(0.5 * (lmb.take(i) + lmb.take(j)))
+        outers.append(isq[:, None] * isq[None, :])
     w_inv = 1.0 / w
-    return _Scaling(w, lam, Rs, Rtis, lams, w_inv, w_inv * w_inv, [Ri @ Ri.T for Ri in Rtis])
+    T = [Ri @ Ri.T for Ri in Rtis]
+    return _Scaling(w, lam, Rs, Rtis, lams, w_inv, w_inv * w_inv, T, halves, outers)
 
 
 def _apply(cones: _Cones, sc: _Scaling, u: np.ndarray, kind: str) -> np.ndarray:
@@ -268,10 +276,8 @@ def _lam_prod(cones: _Cones, sc: _Scaling, u: np.ndarray, divide: bool) -> np.nd
     m = cones.n_lp
     out = np.empty_like(u)
     out[:m] = u[:m] / sc.lam_lp if divide else u[:m] * sc.lam_lp
-    for n, sl, lam in zip(cones.sizes, cones.slices, sc.lam_psd, strict=True):
+    for sl, half in zip(cones.slices, sc.lam_half, strict=True):
         # elementwise with (lam_i + lam_j) / 2: the same in svec coordinates, no smat/svec
-        i, j = _triu(n)[:2]
-        half = 0.5 * (lam.take(i) + lam.take(j))
         out[sl] = u[sl] / half if divide else u[sl] * half
     return out
 
@@ -303,9 +309,8 @@ def _max_step(cones: _Cones, sc: _Scaling, dt: np.ndarray) -> float:
     worst = 0.0
     if m:
         worst = max(worst, float(np.max(-dt[:m] / sc.lam_lp)))
-    for n, sl, lam in zip(cones.sizes, cones.slices, sc.lam_psd, strict=True):
-        isq = 1.0 / np.sqrt(lam)
-        X = smat(dt[sl], n) * (isq[:, None] * isq[None, :])
+    for n, sl, isq_outer in zip(cones.sizes, cones.slices, sc.isq_outer, strict=True):
+        X = smat(dt[sl], n) * isq_outer
         worst = max(worst, -_min_eigval(X))
     return np.inf if worst <= 0 else 1.0 / worst
 

@@ -34,8 +34,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..calibration.views import View
+from ..outline import outline_edges
 from ..ssm.model import ShapeModel
-from .outline_match import OutlineTarget, Segments, model_outline
+from .outline_match import OutlineTarget, nearest_on_outline
 from .rays import RayObservations
 from .refine import (
     PoseShape,
@@ -120,8 +121,8 @@ def _outline_terms(
     """The terms of one view's annotated outline samples against the model outline at ``V``."""
     q, o, d = samples
     M = model.n_modes
-    outl = model_outline(V, model, term.view, 3, he)
-    e = outl.edges
+    # the outline's edges only: the thinned points and tangents of model_outline are not used
+    e, uv = outline_edges(V, term.view, model.faces, topology=he)
     if len(e) == 0:  # the model left the view: every term at its cap
         res = np.column_stack([np.full(len(q), term.gate_px), np.zeros(len(q))])
         res *= term.mm_per_px / term.sigma_mm
@@ -129,9 +130,7 @@ def _outline_terms(
         return _Linearised(
             res, zeros, np.zeros((M, len(q), 3)), np.zeros((len(q), 3, 2)), np.zeros(len(q)), 0
         )
-    uv = outl.uv_all
-    segs = Segments.build(uv[e[:, 0]], uv[e[:, 1]])
-    _, _, s, u = segs.nearest(q)
+    _, _, s, u = nearest_on_outline(e, uv, q)
     i, j = e[s, 0], e[s, 1]
     Qc = (1.0 - u)[:, None] * Qall[i] + u[:, None] * Qall[j]
     Pc = (1.0 - u)[None, :, None] * model.modes[:, i] + u[None, :, None] * model.modes[:, j]
@@ -231,16 +230,25 @@ def _landmark_part(model, landmarks, sel, R, t, w, Qall, V) -> _Linearised:
     return _Linearised(res, Qall[ids], model.modes[:, ids], B, inv, 0)
 
 
-def _view_depths(model, outlines, pose_of_view, state) -> np.ndarray:
-    """Every outline view's nearest model depth (mm; inf for a view without a source)."""
-    Rs, ts, w = (np.asarray(a, dtype=float) for a in state)
-    Q = model.instance(w)
+def _view_depths(model, outlines, pose_of_view, state, posed=None) -> np.ndarray:
+    """Every outline view's nearest model depth (mm; inf for a view without a source).
+    ``posed``: the model's vertices posed by each group's pose (world, mm), when the caller
+    has them (:func:`_posed`)."""
+    if posed is None:
+        posed = _posed(model, state)[1]
     z = []
     for term in outlines:
-        g = pose_of_view[term.index]
-        has_source = hasattr(term.view, "centre")
-        z.append(np.min(term.view.to_camera(Q @ Rs[g].T + ts[g])[:, 2]) if has_source else np.inf)
+        V = posed[pose_of_view[term.index]]
+        z.append(np.min(term.view.to_camera(V)[:, 2]) if hasattr(term.view, "centre") else np.inf)
     return np.array(z)
+
+
+def _posed(model, state) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The shape ``Q(w)`` (object frame) and its vertices posed by every group's pose (world),
+    mm: one evaluation's, shared by its depth guard and its residuals."""
+    Rs, ts, w = (np.asarray(a, dtype=float) for a in state)
+    Q = model.instance(w)
+    return Q, [Q @ R.T + t for R, t in zip(Rs, ts, strict=True)]
 
 
 def _stacked_jacobian(state, parts_groups, M: int, sqrt_lam: float, prior) -> np.ndarray:
@@ -262,11 +270,11 @@ def _stacked_jacobian(state, parts_groups, M: int, sqrt_lam: float, prior) -> np
     return np.vstack([*blocks, Jw, _prior_jacobian(state, prior, 6 * G + M)])
 
 
-def _centroid_depths(model, views, state) -> np.ndarray:
+def _centroid_depths(model, views, state, Q=None) -> np.ndarray:
     """Depth (mm) of the posed model's centroid in every pose group's view ``views[g]`` (nan
-    for a view without a source)."""
+    for a view without a source); ``Q``: the shape of ``state``'s weights, when known."""
     Rs, ts, w = state
-    c = model.instance(w).mean(axis=0)
+    c = (model.instance(w) if Q is None else Q).mean(axis=0)
     return np.array(
         [
             float(v.to_camera((c @ Rs[g].T + ts[g])[None])[0, 2])
@@ -299,31 +307,31 @@ class _PoseFit:
             self.samples.append((q, *term.view.rays(q)))
         self.px = px  # None (mm) or (views per group, z at the start, z of the sigmas)
 
-    def _scales(self, state) -> np.ndarray | None:
+    def _scales(self, state, Q, posed) -> np.ndarray | None:
         """Per-group pixel scales; None when a trial step halves or doubles a view's depth
-        (or puts the bone behind its source): its projection may be huge."""
+        (or puts the bone behind its source): its projection may be huge. ``Q``, ``posed``:
+        :func:`_posed` of ``state``."""
         if self.px is None:
-            z = _view_depths(self.model, self.outlines, self.pose_of_view, state)
+            z = _view_depths(self.model, self.outlines, self.pose_of_view, state, posed)
             z0 = self.z0
             if np.any(~np.isinf(z0) & ((z < 0.5 * z0) | (z > 2.0 * z0))):
                 return None
             return np.ones(len(state[0]))
         views, z0, z_ref = self.px
-        z = _centroid_depths(self.model, views, state)
+        z = _centroid_depths(self.model, views, state, Q)
         moved = _depth_scales(z, z0)
         if np.any(~np.isfinite(moved)) or np.any((moved > 2.0) | (moved < 0.5)):
             return None
         return _depth_scales(z, z_ref)
 
     def residuals(self, state):
-        s = self._scales(state)
+        Qall, posed = _posed(self.model, state)  # once for the depth guard and the terms
+        s = self._scales(state, Qall, posed)
         if s is None:
             return np.array([np.inf]), None
         model, Rs, ts, w = self.model, *state
-        Qall = model.instance(w)
         parts, groups = [], []
-        for g in range(len(Rs)):
-            V = Qall @ Rs[g].T + ts[g]
+        for g, V in enumerate(posed):
             sel = self.lm_group == g
             if np.any(sel):
                 parts.append(_landmark_part(model, self.landmarks, sel, Rs[g], ts[g], w, Qall, V))

@@ -21,6 +21,8 @@ to the projected model outline (pixels).
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,15 +61,23 @@ class Segments:
         k = min(k, len(self.a))
         _, cand = self.tree.query(p, k=k)
         cand = cand.reshape(len(p), k)
-        a, b = self.a[cand], self.b[cand]  # (P, k, 2)
-        ab = b - a
-        ln2 = np.maximum(np.einsum("pkc,pkc->pk", ab, ab), 1e-300)
-        t = np.clip(np.einsum("pkc,pkc->pk", p[:, None, :] - a, ab) / ln2, 0.0, 1.0)
-        foot = a + t[..., None] * ab
-        dist = np.linalg.norm(foot - p[:, None, :], axis=2)
+        # (P, k) arrays per coordinate rather than (P, k, 2) ones: numpy is slow on length-2
+        # axes. The arithmetic is that of the 2-vector form, term by term (b - a per segment
+        # is the same number whether taken before or after the gather), so the result is
+        # bitwise the same.
+        ab = self.b - self.a
+        ax, ay = (self.a[:, c].take(cand) for c in (0, 1))
+        bx, by = (ab[:, c].take(cand) for c in (0, 1))
+        px, py = p[:, :1], p[:, 1:]
+        ln2 = np.maximum(bx * bx + by * by, 1e-300)
+        t = ((px - ax) * bx + (py - ay) * by) / ln2
+        np.clip(t, 0.0, 1.0, out=t)
+        fx, fy = ax + t * bx, ay + t * by
+        dx, dy = fx - px, fy - py
+        dist = np.sqrt(dx * dx + dy * dy)
         j = np.argmin(dist, axis=1)
         r = np.arange(len(p))
-        return foot[r, j], dist[r, j], cand[r, j], t[r, j]
+        return np.column_stack([fx[r, j], fy[r, j]]), dist[r, j], cand[r, j], t[r, j]
 
 
 @dataclass(frozen=True)
@@ -244,8 +254,80 @@ def outline_distances(outline: ModelOutline, target: OutlineTarget) -> np.ndarra
     q = target.points[target.usable]
     if len(outline.edges) == 0:
         return np.full(len(q), np.inf)
-    segs = Segments.build(outline.uv_all[outline.edges[:, 0]], outline.uv_all[outline.edges[:, 1]])
-    return segs.nearest(q)[1]
+    return nearest_on_outline(outline.edges, outline.uv_all, q)[1].copy()
+
+
+def nearest_on_outline(
+    edges: np.ndarray, uv: np.ndarray, q: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:meth:`Segments.nearest` of the points ``q`` (P, 2) on the projected model outline.
+
+    Parameters
+    ----------
+    edges : (C, 2) int array
+        Outline edges (vertex ids), at least one.
+    uv : (N, 2) array
+        Projected vertices, pixels.
+    q : (P, 2) array
+        Query points, pixels (the annotated outline's usable samples).
+
+    Returns
+    -------
+    foot, dist, seg, t
+        As :meth:`Segments.nearest` (``seg`` indexes ``edges``); read-only when the outline
+        came from :func:`biplanar_reg.outline.mesh_outline`'s cache (see :class:`_NearestCache`).
+    """
+    cacheable = not (edges.flags.writeable or uv.flags.writeable)
+    if cacheable:
+        hit = _NEAREST.get(edges, uv, q)
+        if hit is not None:
+            return hit
+    out = Segments.build(uv[edges[:, 0]], uv[edges[:, 1]]).nearest(q)
+    if cacheable:
+        _NEAREST.put(edges, uv, q, out)
+    return out
+
+
+class _NearestCache:
+    """The last few :func:`nearest_on_outline` results for outlines of the outline cache.
+
+    The registration measures the same annotated samples against the same model outline
+    several times: the iteration cost and the refinement's gates, the refinement's first and
+    last evaluation, the result's contour errors and the uncertainty's linearisation. The
+    outline cache (:func:`biplanar_reg.outline.mesh_outline`) hands out the very same
+    read-only ``edges`` and ``uv`` arrays for the same posed mesh, so they are compared by
+    identity (an entry holds references to them, so their identities stay valid while it
+    lives; read-only arrays cannot change); the query points, computed afresh by each caller,
+    by value. A hit returns the very arrays computed before (read-only): results unchanged.
+    """
+
+    def __init__(self, size: int = 8) -> None:
+        self.size = size
+        self._items: OrderedDict[int, tuple] = OrderedDict()
+        self._count = 0
+        self._lock = threading.Lock()
+
+    def get(self, edges: np.ndarray, uv: np.ndarray, q: np.ndarray) -> tuple | None:
+        """The stored result for these ``edges`` and ``uv`` (identity) and ``q`` (value)."""
+        with self._lock:
+            for key, (E, U, Q, out) in reversed(self._items.items()):
+                if E is edges and U is uv and Q.shape == q.shape and np.array_equal(Q, q):
+                    self._items.move_to_end(key)
+                    return out
+        return None
+
+    def put(self, edges: np.ndarray, uv: np.ndarray, q: np.ndarray, out: tuple) -> None:
+        """Store ``out`` (made read-only) for ``edges``, ``uv`` and ``q`` (copied)."""
+        for a in out:
+            a.setflags(write=False)
+        with self._lock:
+            self._count += 1
+            self._items[self._count] = (edges, uv, np.array(q, dtype=float), out)
+            while len(self._items) > self.size:
+                self._items.popitem(last=False)
+
+
+_NEAREST = _NearestCache()
 
 
 def mesh_topology(model: ShapeModel) -> HalfEdges | None:

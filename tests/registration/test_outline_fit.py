@@ -140,3 +140,50 @@ def test_boosting_with_other_camera_kinds(model, kind):
     res = register_views(model, views)
     assert res.iterations[-1].kind == "local"
     assert _rms(res.vertices, X) < min(0.1, 0.5 * _rms(base.vertices, X))
+
+
+def test_outline_nearest_of_the_same_outline_is_computed_once(model):
+    """The annotated samples against the same cached model outline hit the nearest cache: the
+    very (read-only) arrays, equal to a fresh computation; a changed pose or shape (a new
+    outline) or other query points compute anew."""
+    from biplanar_reg.outline import mesh_outline
+    from biplanar_reg.registration.outline_match import (
+        _NEAREST,
+        ModelOutline,
+        Segments,
+        nearest_on_outline,
+        outline_distances,
+    )
+
+    _, w, R, t, X = _truth(model, 2)
+    view = biplanar_views(75.0)[0]
+    term = _terms(model, X, 0.7)[0]
+    q = term.target.points[term.target.usable]
+    edges, uv = mesh_outline(X, model.faces, view)
+    first = nearest_on_outline(edges, uv, q)
+    again = nearest_on_outline(*mesh_outline(X.copy(), model.faces, view), q.copy())
+    assert all(a is b for a, b in zip(first, again, strict=True))
+    assert not any(a.flags.writeable for a in first)
+    fresh = Segments.build(uv[edges[:, 0]], uv[edges[:, 1]]).nearest(q)
+    for a, b in zip(first, fresh, strict=True):
+        np.testing.assert_array_equal(a, b)
+    # the distances handed out are the cached ones, in an array of the caller's own
+    d = outline_distances(ModelOutline(np.unique(edges), uv, edges, np.zeros_like(uv)), term.target)
+    assert d.flags.writeable and d is not first[1]
+    np.testing.assert_array_equal(d, first[1])
+    # another pose or shape: another outline, computed (and cached) anew
+    for moved in (X + np.array([0.3, 0.0, 0.0]), model.instance(1.1 * w) @ R.T + t):
+        e2, uv2 = mesh_outline(moved, model.faces, view)
+        other = nearest_on_outline(e2, uv2, q)
+        assert other[1] is not first[1]
+        ref = Segments.build(uv2[e2[:, 0]], uv2[e2[:, 1]]).nearest(q)
+        np.testing.assert_array_equal(other[1], ref[1])
+        assert not np.array_equal(other[0], first[0])
+    # other query points against the same outline
+    part = nearest_on_outline(edges, uv, q[::2])
+    np.testing.assert_array_equal(part[1], first[1][::2])
+    assert part[1] is not first[1]
+    # writable arrays (not from the outline cache) are never cached
+    stored = _NEAREST._count
+    nearest_on_outline(edges.copy(), uv.copy(), q)
+    assert _NEAREST._count == stored
