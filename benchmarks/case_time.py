@@ -46,6 +46,9 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+from biplanar_reg import _threads  # noqa: E402 - this checkout's list
+
 SAMPLES = ["synthetic_demo", "synthetic_radius_known", "synthetic_radius_unknown", "wrist_radius"]
 
 KNEE = """
@@ -87,15 +90,8 @@ print(json.dumps(T))
 
 
 #: Thread-count variables removed from a child's environment (a user who set none) or set to
-#: ``threads`` (the stage driver): the same list as ``biplanar_reg._threads``.
-THREAD_VARIABLES = (
-    "OMP_NUM_THREADS",
-    "OPENBLAS_NUM_THREADS",
-    "MKL_NUM_THREADS",
-    "BLIS_NUM_THREADS",
-    "VECLIB_MAXIMUM_THREADS",
-    "NUMEXPR_NUM_THREADS",
-)
+#: ``threads`` (the stage driver).
+THREAD_VARIABLES = _threads.THREAD_VARIABLES
 
 
 def compile_tree(tree: Path) -> None:
