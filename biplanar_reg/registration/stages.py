@@ -222,7 +222,30 @@ def _landmark_only_start(problem: Problem, start: Start) -> Start:
         return choose_start(problem, start)
     names = [problem.landmarks.names[i] for i in sorted(rejected_landmarks(problem, weights))]
     problem.say(f"robust start: rejected {names}")
-    return start_from_landmarks(problem, weights)
+    return reweighted_start(problem, weights, start.result)
+
+
+def reweighted_start(problem: Problem, weights: np.ndarray, unweighted: GsftResult) -> Start:
+    """A start for new landmark ``weights``: the landmark-only solve with them
+    (:func:`start_from_landmarks`) or ``unweighted`` (the landmark-only solve of every landmark
+    weighing 1) with them, whichever short boosted fit (``consensus_iterations``, the same
+    weights) explains the data better (the lower cost).
+
+    Why both: without the rejected landmarks the landmarks left may no longer fix the pose
+    (e.g. 5 landmarks, 2 of them in one view, for 6 pose and 6 shape parameters), and their
+    solve can start the outline fit in a wrong basin; the solve of all of them is pulled by a
+    blunder but pinned down by more data. Both short fits weigh the landmarks alike, so their
+    costs compare.
+    """
+    own = start_from_landmarks(problem, weights)
+    own_fit = _short_fit(problem, own)
+    alt_fit = _short_fit(problem, Start(unweighted, weights))
+    problem.say(
+        f"reweighted start: landmark-only {own_fit.cost:.3g}, all landmarks' {alt_fit.cost:.3g}"
+    )
+    if alt_fit.cost < own_fit.cost:
+        return Start(unweighted, weights, alt_fit)
+    return Start(own.result, weights, own_fit)
 
 
 def _short_fit(problem: Problem, start: Start) -> Iterate:
