@@ -129,7 +129,13 @@ def make_bundle(folder: Path, seeds: list[int], conditions: list[str]) -> int:
 
     scene = wrist_scene(str(WRIST_DATA))
     m = scene.model
-    np.savez(folder / "model.npz", mean=m.mean, modes=m.modes, faces=m.faces)
+    np.savez(
+        folder / "model.npz",
+        mean=m.mean,
+        modes=m.modes,
+        faces=m.faces,
+        truncation_modes=m.truncation_modes,
+    )
     mean_only = ShapeModel(m.mean, np.zeros((0, m.n_vertices, 3)))
     jobs = []
     for seed in seeds:
@@ -233,7 +239,9 @@ def run_worker(bundle: Path, out: Path) -> None:
     from biplanar_reg.ssm import ShapeModel
 
     z = np.load(bundle / "model.npz")
-    model = ShapeModel(z["mean"], z["modes"], faces=z["faces"])
+    model = ShapeModel(
+        z["mean"], z["modes"], faces=z["faces"], truncation_modes=z["truncation_modes"]
+    )
     jobs = json.loads((bundle / "jobs.json").read_text())
     results = []
     with threadpool_limits(1):

@@ -85,13 +85,14 @@ class RegistrationOptions:
     mutual : bool
         Keep only mutual nearest-neighbour matches.
     robust : bool
-        Weight the landmarks by a robust (Geman-McClure) loss with a scale estimated from the
-        data, solved by graduated non-convexity (:mod:`.blunders`); off: every landmark
-        weighs 1.
+        Weight the landmarks by a robust (Geman-McClure) loss of their errors over their
+        predicted sigmas (clicks and model truncation; :mod:`.blunders`), solved by graduated
+        non-convexity; off: every landmark weighs 1.
     robust_threshold : float
-        Width ``c`` of the robust loss in robust scales (the landmark errors' median scale,
-        at least the annotated sigma). See docs/registration.md for the measurements behind
-        the default.
+        Width ``c`` of the robust loss in predicted sigmas (each landmark's annotated sigma
+        combined with the model's truncation error at its vertex; with a model without
+        truncation modes, in robust scales of the errors: their median scale, at least the
+        annotated sigma). See docs/registration.md for the measurements behind the default.
     rejection_weight : float
         A landmark whose Geman-McClure weight at the fit is below this level (in (0, 1])
         counts as rejected and weighs 0; the others weigh 1. 0.1 is an error above 1.47 ``c``.

@@ -258,10 +258,20 @@ def _register_posed(model, posed, poses, opts, silhouettes, say, start_pose):
     problem = make_problem(model, posed.views, opts, silhouettes, say, c)
     if start_pose is not None:
         start = pose_start(problem, *start_pose)
+        unweighted = None
     else:
-        start = robust_start(problem, landmark_start(problem))
+        unweighted = landmark_start(problem)
+        start = robust_start(problem, unweighted)
+        unweighted = unweighted.result
     detect = opts.robust and len(problem.landmarks) > 0
-    run = boost(problem, start.result, start.weights, opts.max_iterations, detect=detect)
+    run = boost(
+        problem,
+        start.result,
+        start.weights,
+        opts.max_iterations,
+        detect=detect,
+        unweighted=unweighted,
+    )
     final = refine_final(problem, run)
     if poses == "known" or not problem.use_outlines:
         return problem, final
