@@ -31,7 +31,8 @@ first view) and the largest view rotation error, refusals (``ValueError`` from
 ``register_views``, e.g. too few landmarks for ``refine``/``unknown``), CPU seconds.
 
 Each tree runs in its own subprocess (``PYTHONPATH`` = the tree, one BLAS thread) on the same
-cases, generated once by this tree and passed as plain arrays, so a checkout without
+cases, generated once by this tree and passed as plain arrays (the model with its truncation
+modes), so a checkout without
 ``simulate/realistic.py`` (e.g. ``git worktree add /tmp/realbase 266f442``) runs too::
 
     python benchmarks/realistic.py [--seeds 10] [--quick] [--base /tmp/realbase]
@@ -239,9 +240,12 @@ def run_worker(bundle: Path, out: Path) -> None:
     from biplanar_reg.ssm import ShapeModel
 
     z = np.load(bundle / "model.npz")
-    model = ShapeModel(
-        z["mean"], z["modes"], faces=z["faces"], truncation_modes=z["truncation_modes"]
-    )
+    try:  # the truncation modes predict each landmark's residual (registration/blunders.py)
+        model = ShapeModel(
+            z["mean"], z["modes"], faces=z["faces"], truncation_modes=z["truncation_modes"]
+        )
+    except TypeError:  # a checkout from before truncation modes
+        model = ShapeModel(z["mean"], z["modes"], faces=z["faces"])
     jobs = json.loads((bundle / "jobs.json").read_text())
     results = []
     with threadpool_limits(1):

@@ -8,7 +8,8 @@ calls them:
 3. :func:`boost`: outline boosting (match the model's outline to the annotated outlines,
    re-solve, repeat); with ``robust``, the landmarks' robust weights are re-estimated after
    every solve by graduated non-convexity (:mod:`.blunders`), and when the set of rejected
-   landmarks changes the boosting restarts from a landmark-only start with the new weights;
+   landmarks changes the boosting restarts with the new weights from the better of the
+   landmark-only solve with them and that of every landmark (:func:`reweighted_start`);
 4. :func:`refine_final`: the final local refinement of the registration objective itself, then
    one reweighting of the landmarks at the refined fit (refined again if the rejected set
    changed).
@@ -48,6 +49,7 @@ __all__ = [
     "pose_start",
     "choose_start",
     "robust_start",
+    "reweighted_start",
     "boost",
     "refine_final",
 ]
@@ -216,7 +218,8 @@ def start_from_landmarks(problem: Problem, weights: np.ndarray | None) -> Start:
 
 def _landmark_only_start(problem: Problem, start: Start) -> Start:
     """``start`` with robust weights from the landmarks alone (graduated non-convexity without
-    outlines), re-solved with them when some landmark is rejected, then :func:`choose_start`."""
+    outlines): when some landmark is rejected, the start :func:`reweighted_start` chooses for
+    them; otherwise ``start`` through :func:`choose_start`."""
     weights, _ = gnc_weights(problem, start.result, RayObservations.empty())
     if not rejected_landmarks(problem, weights):
         return choose_start(problem, start)
@@ -260,7 +263,8 @@ def robust_start(problem: Problem, start: Start) -> Start:
     The robust objective is not convex, and with few landmarks a blunder spoils the
     landmark-only start so that the outline fit converges in the wrong basin, where every
     landmark is a few pixels off and none stands out. So the starts are (a) the landmark-only
-    start with robust weights from the landmarks alone (:func:`.blunders.gnc_weights`) and,
+    start with robust weights from the landmarks alone (:func:`.blunders.gnc_weights`; after a
+    rejection, the start :func:`reweighted_start` chooses) and,
     with outlines and at least 5 landmarks, (b) the landmark-only start without one landmark,
     for each landmark the others contradict (:func:`.blunders.suspicious_landmarks`: deleted
     residual above the robust loss's width; a screen of landmark-only refits that costs a
@@ -375,9 +379,10 @@ class _BoostState:
 
 
 def _restart(problem: Problem, s: _BoostState, weights: np.ndarray) -> None:
-    """Start afresh from a landmark-only solve with ``weights``: the matches so far were found
-    from a fit that the landmarks now rejected (or taken back) had pulled, and a fit from them
-    stays near it. Earlier costs are not comparable, so the best iterate is reset."""
+    """Start afresh with ``weights`` (:func:`reweighted_start` given the unweighted solve,
+    else a landmark-only solve with them): the matches so far were found from a fit that the
+    landmarks now rejected (or taken back) had pulled, and a fit from them stays near it.
+    Earlier costs are not comparable, so the best iterate is reset."""
     s.weights = weights
     s.tried.add(s.rejected(problem))
     s.k_start = s.k + 1
