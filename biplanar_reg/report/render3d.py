@@ -5,7 +5,7 @@ direction (orthographic, z up, as PyVista's ``view_isometric``), each triangle f
 painter's order (farthest first, back faces of a closed mesh left out) with the mean of its
 corners' colours (viridis of the error, times a Lambert shade under a light at the eye from
 area-weighted vertex normals, i.e. smooth shading), drawn at twice the size and reduced
-(anti-aliasing), then put into a matplotlib figure with the title and colour bar. It needs no
+(anti-aliasing), then put on a :mod:`.raster_plot` canvas with the title and colour bar. It needs no
 OpenGL and imports neither PyVista nor VTK (their import alone cost more than the whole
 report's other figures).
 
