@@ -185,6 +185,7 @@ def _software_rgb8(
     """:func:`software_image` as (H, W, 3) uint8."""
     import cv2
 
+    from .raster_plot import fill_rgb
     from .shading import _outward_sign
 
     V = np.asarray(vertices, float)
@@ -208,7 +209,7 @@ def _software_rgb8(
     pts = np.round(tri2[order] * (1 << shift)).astype(np.int32)
     cols = np.round(rgb[F[order]].mean(axis=1) * 255).astype(int).tolist()
     image = np.empty((h, w, 3), np.uint8)
-    image[:] = np.round(np.asarray(background) * 255).astype(np.uint8)
+    fill_rgb(image, np.round(np.asarray(background) * 255).astype(np.uint8).tolist())
     for tri, col in zip(pts, cols, strict=True):
         cv2.fillConvexPoly(image, tri, col, lineType=cv2.LINE_8, shift=shift)
     return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
