@@ -593,18 +593,19 @@ _LEGEND_ORDER = (
 
 @dataclass
 class _Axis:
-    """One axis' scale and ticks."""
+    """One axis: its limits, scale, major ticks with their labels (None: chosen when the axes
+    are finished), minor ticks and the tick labels' font size (points)."""
 
     lim: tuple[float, float]
     log: bool = False
     ticks: np.ndarray | None = None
     labels: list[str] | None = None
     minor: np.ndarray = field(default_factory=lambda: np.array([]))
-    label: str = ""
-    label_rgb: Any = "black"
     tick_pt: float = 10.0
 
     def f(self, v: np.ndarray) -> np.ndarray:
+        """Data values in the axis' linear measure (their log10 on a log axis; NaN for values
+        <= 0 there)."""
         v = np.asarray(v, float)
         if self.log:
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -1135,9 +1136,11 @@ def colour_bar(
     label_pt: float = 10.0,
     colours: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> Axes:
-    """A vertical viridis colour bar from ``lo`` (bottom) to ``hi`` (top) in the pixel
-    ``box``, framed, ticked and labelled on its right (``ticks``: default about six nice
-    ones), ``label`` rotated beside the tick labels or ``title`` above the bar, left-aligned."""
+    """A vertical colour bar from ``lo`` (bottom) to ``hi`` (top) in the pixel ``box``,
+    framed, ticked and labelled on its right (``ticks``: default about six nice ones),
+    ``label`` rotated beside the tick labels or ``title`` above the bar, left-aligned;
+    ``colours`` maps values (N,) to RGB (N, 3) in [0, 1] (default viridis from ``lo`` to
+    ``hi``). Returns its axes."""
     ax = canvas.axes(box, xlim=(0.0, 1.0), ylim=(lo, hi))
     x0, y0, x1, y1 = ax.box
     v = hi - (np.arange(y1 - y0) + 0.5) / (y1 - y0) * (hi - lo)
