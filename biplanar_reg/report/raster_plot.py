@@ -491,6 +491,8 @@ class Canvas:
         ``rotation`` 0 or 90 (counter-clockwise); ``halo = (colour, alpha)``: a one-pixel
         outline under the text that keeps it readable on any background. Returns the box
         ``(x0, y0, x1, y1)`` in canvas coordinates."""
+        if not (math.isfinite(x) and math.isfinite(y)):  # e.g. a NaN cost: nothing to label
+            return x, y, x, y
         size = self.font_px(size_pt)
         tm = _text_mask(text, size, align or ha)
         base = tm.box[1] + _line_metrics(size)[0]  # the first baseline in the unrotated mask
@@ -1114,6 +1116,7 @@ def _dense(lines: Sequence[np.ndarray], step: float = 3.0) -> np.ndarray:
     out = []
     for xy in lines:
         xy = np.asarray(xy, float).reshape(-1, 2)
+        xy = xy[np.all(np.isfinite(xy), axis=1)]
         out.append(xy)
         for a, b in zip(xy[:-1], xy[1:], strict=True):
             n = int(np.hypot(*(b - a)) // step)
