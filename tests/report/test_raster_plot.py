@@ -158,3 +158,14 @@ def test_viridis_indices_as_matplotlib():
     np.testing.assert_array_equal(rgb[2], rp.viridis()[255])
     np.testing.assert_array_equal(rgb[3], rp.viridis()[255])
     assert rp.viridis()[0, 2] > rp.viridis()[0, 1] and rp.viridis()[255, 1] > 0.85  # blue->yellow
+
+
+def test_non_finite_points_draw_no_label_and_do_not_break_a_figure(tmp_path):
+    from biplanar_reg.report.figures import convergence_figure
+
+    canvas = Canvas(50, 50)
+    canvas.text(float("nan"), 10.0, "x")
+    assert np.all(canvas.rgb == 255)
+    costs = [5.0, float("nan"), 3.0, 1e-3]
+    convergence_figure(tmp_path / "c.png", costs, [0.1, 0.2, 1e-9, 1e-3], [0, 1, 2, 3], 2)
+    assert (tmp_path / "c.png").stat().st_size > 1000
