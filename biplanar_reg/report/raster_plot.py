@@ -36,11 +36,13 @@ __all__ = [
     "Axes",
     "Canvas",
     "LegendEntry",
-    "colour",
+    "colour_bar",
+    "data_limits",
+    "draw_legend",
     "log_ticks",
     "nice_ticks",
     "tick_labels",
-    "viridis",
+    "viridis_rgb",
 ]
 
 RGB = tuple[int, int, int]
