@@ -1,8 +1,10 @@
-"""Error reports: figures (matplotlib's Agg canvas, OpenCV rasters) and HTML pages (Jinja2).
+"""Error reports: figures (:mod:`.raster_plot`: OpenCV lines and fills, Pillow text; no
+matplotlib) and HTML pages (Jinja2).
 
 The names below are loaded from their modules on first use, so that a light import (the
 workbench's :mod:`.shading`, the flag table of :mod:`.advice`, :mod:`.residuals`) does not load
-matplotlib and Jinja2.
+Pillow and Jinja2. Only the opt-in ``BIPLANAR_REG_RENDERER=matplotlib`` 3D view imports
+matplotlib.
 """
 
 from __future__ import annotations

@@ -1,129 +1,44 @@
-"""Report figures with matplotlib (object API, Agg canvas: no display, thread-safe per figure).
+"""The report's figures, drawn with :mod:`.raster_plot` (OpenCV lines and fills, Pillow text;
+no matplotlib).
 
 Pixels are ``(u, v)`` = (column, row), 0-based, origin at the centre of the top-left pixel: an
-image is drawn with ``extent = (-0.5, W - 0.5, H - 0.5, -0.5)`` so that pixel centres sit at
-integer coordinates and annotation/projection coordinates overlay exactly.
+image's pixel edges are at half-integer ``(u, v)`` (its extent ``(-0.5, W - 0.5)``), so that pixel
+centres sit at integer coordinates and annotation/projection coordinates overlay exactly.
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Mapping, Sequence
-from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
-from matplotlib import patheffects, rc_context
-from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.collections import LineCollection
-from matplotlib.figure import Figure
-from matplotlib.lines import Line2D
-from matplotlib.patches import Patch
-from matplotlib.ticker import (
-    FixedLocator,
-    FormatStrFormatter,
-    LogFormatter,
-    LogLocator,
-    MaxNLocator,
-    NullLocator,
-)
 
 from ..annotation import Contour, Landmark, ViewAnnotations
+from .raster_plot import Axes, Canvas, LegendEntry, data_limits
 
 __all__ = ["overlay_figure", "histogram_figure", "convergence_figure"]
 
-_DPI = 100
 #: Colour (RGB) and opacity of the shaded registered bone over a radiograph.
 BONE_RGB = (1.0, 0.75, 0.4)
 BONE_ALPHA = 0.55
 #: A dark outline that keeps labels readable on bright and dark radiographs alike.
-_HALO = [patheffects.withStroke(linewidth=1.5, foreground="black", alpha=0.8)]
-#: Pixels across the overlay's background raster, the axes' side on the saved figure (6.4 in x
-#: (0.97 - 0.12) x 100 dpi): the radiograph crop and the shaded bone are resampled to it once,
-#: and matplotlib draws it nearly pixel for pixel, instead of Agg resampling a full-resolution
-#: crop and drawing thousands of triangles.
+_HALO = ("black", 0.8)
+#: The overlay figure, pixels (6.4 in at 100 dpi), and its axes box: fixed margins (figure
+#: fractions 0.12 left, 0.97 right, 0.08 bottom, 0.95 top).
+_OVERLAY_PX = 640
+_OVERLAY_BOX = (77, 32, 621, 589)
+#: Pixels across the overlay's background raster, the axes' side on the figure: the
+#: radiograph crop and the shaded bone are resampled to it once and drawn about pixel for
+#: pixel.
 _OVERLAY_RASTER_PX = 544
-#: Fixed margins (figure fractions): measuring the labels (``tight_layout``) cost more than
-#: drawing the figure.
-_OVERLAY_MARGINS = {"left": 0.12, "right": 0.97, "bottom": 0.08, "top": 0.95}
 
 
-#: Settings while a figure is drawn: text is laid out with DejaVu Sans alone, without the
-#: Last Resort fallback font (a box for a character no font has), which made matplotlib 3.11's
-#: text layout three times as slow (DejaVu Sans covers Latin, Greek and Cyrillic; a missing
-#: character is still drawn as a box, with matplotlib's warning); and its glyphs are not hinted
-#: (matplotlib 3.11 sets the font size before every glyph, which re-ran the font's TrueType
-#: hinting programs each time: a tenth of the report's instructions; at 7-11 pt and 100 dpi the
-#: unhinted text is as legible, its stems a little softer).
-_DRAW_RC = {"font.enable_last_resort": False, "text.hinting": "no_hinting"}
-#: PNG encoding: zlib level 1, run-length matching only, after the "up" filter on every row
-#: (libpng's adaptive filter choice and zlib's default matching took twice as long for files of
-#: the same size); OpenCV before 4.11 has no filter option.
-_PNG_PARAMS = [
-    cv2.IMWRITE_PNG_COMPRESSION,
-    1,
-    cv2.IMWRITE_PNG_STRATEGY,
-    cv2.IMWRITE_PNG_STRATEGY_RLE,
-]
-if hasattr(cv2, "IMWRITE_PNG_FILTER"):
-    _PNG_PARAMS += [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP]
-
-
-def png_bytes(
-    fig: Figure, dpi: float = _DPI, paste: tuple[np.ndarray, tuple[int, int]] | None = None
-) -> bytes:
-    """``fig`` drawn once with the Agg canvas at ``dpi``, as an opaque RGB PNG (the figure
-    background is opaque: no alpha channel to encode).
-
-    ``paste = (rgb, (left, top))``: an (h, w, 3) uint8 image put on the drawn figure pixel for
-    pixel, its top-left corner ``left`` pixels from the figure's left edge and ``top`` from
-    its top (for a rendering in a part of the figure where nothing else is drawn: matplotlib
-    would convert and resample it).
-    """
-    fig.set_dpi(dpi)
-    canvas = FigureCanvasAgg(fig)
-    _visible_ticks_only(fig)
-    with rc_context(_DRAW_RC):
-        canvas.draw()
-    bgr = cv2.cvtColor(np.asarray(canvas.buffer_rgba()), cv2.COLOR_RGBA2BGR)
-    if paste is not None:
-        rgb, (left, top) = paste
-        h, w = rgb.shape[:2]
-        bgr[top : top + h, left : left + w] = rgb[:, :, ::-1]
-    ok, png = cv2.imencode(".png", bgr, _PNG_PARAMS)
-    if not ok:
-        raise ValueError("PNG encoding failed")
-    return png.tobytes()
-
-
-def _visible_ticks_only(fig: Figure) -> None:
-    """Fix each axis' ticks to those its locator puts within the axis' limits (with the final
-    layout and aspect): matplotlib makes a tick (two labels, three lines) for every location
-    a locator returns, also the one or two beyond each end it does not draw. Colour bars and 3D
-    axes keep their own ticks."""
-    for ax in fig.axes:
-        if hasattr(ax, "_colorbar") or ax.name != "rectilinear":
-            continue
-        ax.apply_aspect()
-        for axis in (ax.xaxis, ax.yaxis):
-            if not axis.get_visible():
-                continue
-            lo, hi = sorted(axis.get_view_interval())
-            tol = 1e-9 * (hi - lo)
-            for get, put in (
-                (axis.get_major_locator, axis.set_major_locator),
-                (axis.get_minor_locator, axis.set_minor_locator),
-            ):
-                locator = get()
-                if not isinstance(locator, (NullLocator, FixedLocator)):
-                    put(FixedLocator([t for t in locator() if lo - tol <= t <= hi + tol]))
-
-
-def save_figure(fig: Figure, path: str | os.PathLike, dpi: float = _DPI) -> None:
-    """Render ``fig`` to a PNG file (the caller writes into a temporary folder)."""
-    Path(path).write_bytes(png_bytes(fig, dpi))
+def _box(size: tuple[int, int], left: float, right: float, bottom: float, top: float) -> tuple:
+    """A pixel box from figure fractions (matplotlib's ``subplots_adjust`` convention: from
+    the left and from the bottom)."""
+    w, h = size
+    return (round(left * w), round((1 - top) * h), round(right * w), round((1 - bottom) * h))
 
 
 def overlay_figure(
@@ -144,7 +59,7 @@ def overlay_figure(
     Parameters
     ----------
     path : path
-        Output PNG.
+        Output PNG (640 x 640 px).
     title : str
     display : (H, W) array in [0, 1] or None
         The radiograph (grey); ``None`` draws on a blank canvas.
@@ -169,7 +84,7 @@ def overlay_figure(
         if outlines is not None:
             raise TypeError("overlay_figure: give outlines or silhouettes (its old name), not both")
         outlines = silhouettes
-    fig = draw_overlay(
+    canvas = draw_overlay(
         title,
         display=display,
         image_size=image_size,
@@ -179,7 +94,7 @@ def overlay_figure(
         shaded=shaded,
         marks=marks,
     )[0]
-    save_figure(fig, path)
+    canvas.save(path)
 
 
 def draw_overlay(
@@ -192,12 +107,10 @@ def draw_overlay(
     landmarks_px: Mapping[str, np.ndarray],
     shaded: tuple[np.ndarray, np.ndarray] | None = None,
     marks: Sequence[tuple[str, np.ndarray]] = (),
-) -> tuple[Figure, Axes]:
+) -> tuple[Canvas, Axes]:
     """The figure of :func:`overlay_figure` (not saved) and its axes, in pixel coordinates."""
     contours = [] if annotations is None else list(annotations.contours)
     annotated = {} if annotations is None else annotations.landmarks
-    fig = Figure(figsize=(6.4, 6.4))
-    ax = fig.add_subplot(1, 1, 1)
     # zoom on what is drawn (a bone covers a small part of a radiograph), within the image
     drawn = [*outlines, *(c.uv for c in contours)]
     drawn += [lm.uv[None] for lm in annotated.values()] + [p[None] for p in landmarks_px.values()]
@@ -206,33 +119,28 @@ def draw_overlay(
     size = (display.shape[1], display.shape[0]) if display is not None else image_size
     limits = _limits(drawn, size)
     has_bone = shaded is not None and len(shaded[0]) > 0
+    canvas = Canvas(_OVERLAY_PX, _OVERLAY_PX)
+    u0, u1, v0, v1 = (0.0, 1.0, 1.0, 0.0) if limits is None else limits
+    ax = canvas.axes(_OVERLAY_BOX, xlim=(u0, u1), ylim=(v1, v0))  # rows grow downwards
+    ax.set_aspect_equal()
     _draw_background(ax, display, image_size, limits, shaded if has_bone else None)
-    handles = [Patch(facecolor=BONE_RGB, alpha=BONE_ALPHA, label="registered bone (shaded)")]
-    handles = handles if has_bone else []
-    # one artist per kind of mark (a line collection, or one line of markers), not one per
-    # polyline or point: matplotlib's cost is per artist
-    handles += _polylines(ax, outlines, "cyan", "registered outline")
-    handles += _draw_contours(ax, contours)
-    handles += _draw_landmarks(ax, annotated, landmarks_px)
+    entries = [LegendEntry("registered bone (shaded)", BONE_RGB, patch=True, alpha=BONE_ALPHA)]
+    entries = entries if has_bone else []
+    entries += _polylines(ax, outlines, "cyan", "registered outline")
+    entries += _draw_contours(ax, contours)
+    entries += _draw_landmarks(ax, annotated, landmarks_px)
     _draw_marks(ax, marks)
-    if limits is not None:
-        ax.set_xlim(limits[0], limits[1])
-        ax.set_ylim(limits[3], limits[2])  # rows grow downwards
-    ax.set_aspect("equal")
-    ax.set_xlabel("u (px)")
-    ax.set_ylabel("v (px)")
-    _title(ax, title, fontsize=10)
-    if handles:
-        ax.legend(handles=handles, loc="lower right", fontsize=7, framealpha=0.7)
-    fig.subplots_adjust(**_OVERLAY_MARGINS)
-    return fig, ax
-
-
-def _title(ax: Axes, text: str, **style: Any) -> None:
-    """The axes' title at its default place above the axes, given explicitly: matplotlib then
-    skips measuring every tick label to keep the title clear of an axis on top (there is none
-    in these figures)."""
-    ax.set_title(text, y=1.0, **style)
+    ax.legend_entries = entries
+    ax.finish(
+        xlabel="u (px)",
+        ylabel="v (px)",
+        title=title,
+        title_pt=10,
+        legend="lower right",
+        legend_pt=7,
+        legend_alpha=0.7,
+    )
+    return canvas, ax
 
 
 def _shade_bone(
@@ -274,17 +182,9 @@ def _draw_marks(ax: Axes, marks: Sequence[tuple[str, np.ndarray]]) -> None:
     if not marks:
         return
     uv = np.array([p for _, p in marks], float).reshape(-1, 2)
-    ax.plot(uv[:, 0], uv[:, 1], "o", ls="none", color="magenta", ms=11, mfc="none", mew=1.2)
+    ax.markers(uv[:, 0], uv[:, 1], "o", "magenta", ms_pt=11, mew_pt=1.2, face=None)
     for label, p in marks:
-        ax.annotate(
-            label,
-            p,
-            xytext=(7, 5),
-            textcoords="offset points",
-            color="magenta",
-            fontsize=8,
-            path_effects=_HALO,
-        )
+        ax.text(p[0], p[1], label, offset_pt=(7, 5), rgb="magenta", size_pt=8, halo=_HALO)
 
 
 def _draw_background(
@@ -296,11 +196,12 @@ def _draw_background(
 ) -> None:
     """The radiograph (only the part within ``limits`` ``(u0, u1, v0, v1)``, which is what the
     axes show) or a dark canvas, with the shaded bone: one raster of at most
-    ``_OVERLAY_RASTER_PX`` pixels across (about the axes' size on the saved figure, so it is
-    drawn nearly pixel for pixel, nearest neighbour), with pixel centres at integer ``(u, v)``."""
+    ``_OVERLAY_RASTER_PX`` pixels across (about the axes' size, so it is drawn about pixel for
+    pixel, nearest neighbour; a smaller crop is enlarged bilinearly), with pixel centres at
+    integer ``(u, v)``."""
     if display is None and (shaded is None or limits is None):
         if image_size is not None:
-            ax.set_facecolor("#202020")
+            ax.fill("#202020")
         return
     if display is not None:
         H, W = display.shape
@@ -324,83 +225,67 @@ def _draw_background(
     if shaded is not None:
         sxy = (w / (edges[1] - edges[0]), h / (edges[3] - edges[2]))
         _shade_bone(rgb, (edges[0], edges[2]), sxy, *shaded)
-    extent = (edges[0], edges[1], edges[3], edges[2])
+    rgb8 = np.clip(rgb * np.float32(255.0) + np.float32(0.5), 0.0, 255.0).astype(np.uint8)
     # as large as the axes: drawn about pixel for pixel; a smaller crop is enlarged smoothly
-    nearest = max(w, h) >= _OVERLAY_RASTER_PX - 1
-    ax.imshow(rgba_bytes(rgb), extent=extent, interpolation="nearest" if nearest else "auto")
-
-
-def rgba_bytes(rgb: np.ndarray) -> np.ndarray:
-    """An (h, w, 3) float image in [0, 1] as opaque (h, w, 4) uint8 RGBA, the form matplotlib
-    resamples and composites without converting it first (the conversion of a float image
-    cost more than drawing it)."""
-    out = np.full(rgb.shape[:2] + (4,), 255, np.uint8)
-    out[..., :3] = np.clip(rgb * np.float32(255.0) + np.float32(0.5), 0.0, 255.0)
-    return out
+    ax.image(rgb8, edges, smooth=max(w, h) < _OVERLAY_RASTER_PX - 1)
 
 
 def _polylines(
     ax: Axes, lines: Sequence[np.ndarray], color: str, label: str, lw: float = 1.0
-) -> list[Line2D]:
-    """(Q, 2) pixel polylines as one collection, ``lw`` points wide (outlines and contours look
-    alike but for colour); its legend entry (none when there are no lines)."""
+) -> list[LegendEntry]:
+    """(Q, 2) pixel polylines, ``lw`` points wide (outlines and contours look alike but for
+    colour); its legend entry (none when there are no lines)."""
     lines = [np.asarray(line, float).reshape(-1, 2) for line in lines]
     if not lines:
         return []
-    ax.add_collection(LineCollection(lines, colors=color, linewidths=lw), autolim=False)
-    return [Line2D([], [], color=color, lw=lw, label=label)]
+    ax.lines(lines, color, lw)
+    return [LegendEntry(label, color, lw_pt=lw)]
 
 
 def _points(
-    ax: Axes, uv: Sequence[np.ndarray], marker: str, color: str, label: str | None, **style: Any
-) -> list[Line2D]:
-    """Points ``uv`` (each (2,), pixels) as one line of markers; its legend entry when
-    ``label`` is given (none when there are no points)."""
+    ax: Axes, uv: Sequence[np.ndarray], marker: str, color: str, label: str | None, **style
+) -> list[LegendEntry]:
+    """Points ``uv`` (each (2,), pixels) as markers; their legend entry when ``label`` is given
+    (none when there are no points)."""
     if not len(uv):
         return []
     xy = np.asarray(uv, float).reshape(-1, 2)
-    line = ax.plot(xy[:, 0], xy[:, 1], marker, ls="none", color=color, label=label, **style)
-    return line if label else []
+    ax.markers(xy[:, 0], xy[:, 1], marker, color, **style)
+    return [LegendEntry(label, color, marker=marker, **style)] if label else []
 
 
-def _draw_contours(ax: Axes, contours: Sequence[Contour]) -> list[Line2D]:
+def _draw_contours(ax: Axes, contours: Sequence[Contour]) -> list[LegendEntry]:
     """Annotated contours in red (closed ones joined up), the ends of open ones as amber rings;
     the legend entry."""
     lines = [np.vstack([c.uv, c.uv[:1]]) if c.closed else c.uv for c in contours]
-    handles = _polylines(ax, lines, "red", "annotated contour")
+    entries = _polylines(ax, lines, "red", "annotated contour")
     ends = [p for c in contours if not c.closed for p in c.uv[[0, -1]]]
-    _points(ax, ends, "o", "orange", None, ms=4, mfc="none")
-    return handles
+    _points(ax, ends, "o", "orange", None, ms_pt=4, face=None)
+    return entries
 
 
 def _draw_landmarks(
     ax: Axes, annotated: Mapping[str, Landmark], registered: Mapping[str, np.ndarray]
-) -> list[Line2D]:
+) -> list[LegendEntry]:
     """Annotated landmarks (green +, named), each joined by a yellow line to the registered
     model's landmark of the same name; then the registered landmarks (blue x), pixels; the
     legend entries."""
-    handles = _points(
-        ax, [lm.uv for lm in annotated.values()], "+", "lime", "annotated landmark", ms=9, mew=1.5
+    style = {"ms_pt": 9, "mew_pt": 1.5}
+    entries = _points(
+        ax, [lm.uv for lm in annotated.values()], "+", "lime", "annotated landmark", **style
     )
     for name, lm in annotated.items():
-        ax.annotate(
-            name,
-            lm.uv,
-            xytext=(4, -4),
-            textcoords="offset points",
-            color="lime",
-            fontsize=7,
-            path_effects=_HALO,
-        )
+        ax.text(lm.uv[0], lm.uv[1], name, offset_pt=(4, -4), rgb="lime", size_pt=7, halo=_HALO)
     links = [
         np.array([lm.uv, registered[n]], float) for n, lm in annotated.items() if n in registered
     ]
     if links:
-        ax.add_collection(LineCollection(links, colors="yellow", linewidths=0.8), autolim=False)
-    handles += _points(
-        ax, list(registered.values()), "x", "deepskyblue", "registered landmark", ms=7, mew=1.5
+        ax.lines(links, "yellow", 0.8)
+    style = {"ms_pt": 7, "mew_pt": 1.5}
+    entries += _points(
+        ax, list(registered.values()), "x", "deepskyblue", "registered landmark", **style
     )
-    return handles
+    return entries
 
 
 def _limits(
@@ -425,42 +310,70 @@ def _limits(
     return None
 
 
+def _hist_panel(ax: Axes, label: str, values: np.ndarray, unit: str) -> None:
+    """One histogram: filled bars (white edges), the median a dashed line labelled above the
+    axes (``median 0.53``), kept over the axes near their ends."""
+    v = np.asarray(values, float)
+    counts, bins = np.histogram(v, bins=min(40, max(5, len(v) // 5)))
+    ax.x.lim, ax.y.lim = (
+        (float(bins[0]), float(bins[-1])),
+        (0.0, 1.05 * max(float(counts.max()), 1.0)),
+    )
+    ax.stairs(counts, bins, "steelblue", edge_rgb="white", edge_pt=0.5)
+    median = float(np.median(v))
+    ax.vline(median, "black", 1.0, dashed=True)
+    at = (median - bins[0]) / max(bins[-1] - bins[0], 1e-300)
+    ((px, _),) = ax.to_px([median], [0.0])
+    ax.canvas.text(
+        px,
+        ax.box[1] - 0.01 * (ax.box[3] - ax.box[1]),
+        f"median {median:.3g}",
+        size_pt=7,
+        ha="left" if at < 0.15 else "right" if at > 0.85 else "center",
+        va="bottom",
+    )
+    ax.finish(xlabel=f"{label} ({unit})", ylabel="count")
+
+
 def histogram_figure(
     path: str | os.PathLike, series: Sequence[tuple[str, np.ndarray, str]]
 ) -> None:
-    """Histograms side by side; ``series`` holds (label, values, unit) triples (empty skipped).
-    Each median is a dashed line labelled above the axes (``median 0.53``)."""
+    """Histograms side by side, 400 x 320 px each; ``series`` holds (label, values, unit)
+    triples (empty skipped). Each median is a dashed line labelled above the axes
+    (``median 0.53``)."""
     series = [s for s in series if len(s[1])]
     n = max(1, len(series))
-    fig = Figure(figsize=(4.0 * n, 3.2))
+    size = (400 * n, 320)
+    canvas = Canvas(*size)
+    # fixed margins: 0.6 in left, 0.2 in right; 0.3 of an axes' width between axes
+    x0, y0, x1, y1 = _box(size, 0.6 / (4.0 * n), 1 - 0.2 / (4.0 * n), 0.17, 0.92)
+    width = (x1 - x0) / (n + 0.3 * (n - 1))
     for i, (label, values, unit) in enumerate(series):
-        ax = fig.add_subplot(1, n, i + 1)
-        v = np.asarray(values, float)
-        # one filled step patch, not a rectangle per bin (a fraction of the drawing time)
-        counts, bins = np.histogram(v, bins=min(40, max(5, len(v) // 5)))
-        ax.stairs(counts, bins, fill=True, color="steelblue")
-        ax.stairs(counts, bins, color="white", lw=0.5, baseline=None)
-        median = float(np.median(v))
-        ax.axvline(median, color="k", ls="--", lw=1)
-        # the line's label on it, above the axes (a legend of one entry cost more to lay out),
-        # kept over the axes near their ends
-        at = (median - bins[0]) / max(bins[-1] - bins[0], 1e-300)
-        ax.text(
-            median,
-            1.01,
-            f"median {median:.3g}",
-            transform=ax.get_xaxis_transform(),
-            ha="left" if at < 0.15 else "right" if at > 0.85 else "center",
-            va="bottom",
-            fontsize=7,
-        )
-        ax.set_xlabel(f"{label} ({unit})")
-        ax.set_ylabel("count")
+        left = x0 + i * 1.3 * width
+        _hist_panel(canvas.axes((left, y0, left + width, y1)), label, values, unit)
     if not series:
-        fig.text(0.5, 0.5, "no errors to show", ha="center")
-    width = 4.0 * n  # inches; fixed margins of about 0.6 in left, 0.2 in right
-    fig.subplots_adjust(left=0.6 / width, right=1 - 0.2 / width, bottom=0.17, top=0.92, wspace=0.3)
-    save_figure(fig, path)
+        canvas.text(size[0] / 2, size[1] / 2, "no errors to show", ha="center")
+    canvas.save(path)
+
+
+def _convergence_panel(
+    ax: Axes,
+    idx: np.ndarray,
+    c: np.ndarray,
+    matches: Sequence[int],
+    best: int,
+    rgb: str,
+    label: str,
+) -> None:
+    """The cost ``c[idx]`` (log) per iteration with the match counts annotated above each
+    point and the returned iteration starred."""
+    ax.plot(idx, c[idx], rgb, marker="o", label=label)
+    for i in idx:
+        ax.text(i, c[i], str(matches[i]), offset_pt=(0, 6), size_pt=7, ha="center")
+    if best in set(idx.tolist()):
+        ax.plot([best], [c[best]], "tab:red", marker="*", ms_pt=14, label="returned", line=False)
+    ax.set_ticks("x", idx, [str(i) for i in idx])
+    ax.set_log_ticks("y", c[idx])
 
 
 def convergence_figure(
@@ -471,7 +384,7 @@ def convergence_figure(
     best: int,
     kinds: Sequence[str] | None = None,
 ) -> None:
-    """Convergence of a registration, one panel per stage.
+    """Convergence of a registration, one panel per stage (600 or 900 x 340 px).
 
     Left: the convex iterations (``kind`` ``"sdp"``): match-independent cost (log) with the
     number of outline matches, and the certificate (right axis, log). Right, when there are
@@ -485,70 +398,54 @@ def convergence_figure(
     idx = np.arange(len(costs))
     sdp = np.array([k != "local" for k in kinds], dtype=bool)
     local = ~sdp
-    fig = Figure(figsize=(9.0 if local.any() else 6.0, 3.4))
-    ax = fig.add_subplot(1, 2 if local.any() else 1, 1)
-    ax.semilogy(idx[sdp], c[sdp], "o-", color="tab:blue", label="cost")
-    ax.set_xlabel("iteration (0 = landmarks only)")
-    ax.set_ylabel("match-independent cost", color="tab:blue")
-    ax.set_xticks(idx[sdp])
-    _title(ax, "convex iterations (numbers: outline matches)", fontsize=9)
-    ax2 = ax.twinx()
-    ax2.semilogy(idx[sdp], cert[sdp], "s--", color="tab:green", label="certificate")
-    ax2.set_ylabel("certificate (lambda2 / lambda1)", color="tab:green")
-    panels = [(ax, sdp, c[sdp]), (ax2, None, cert[sdp])]
-    if local.any():
-        axl = fig.add_subplot(1, 2, 2)
-        axl.semilogy(idx[local], c[local], "o-", color="tab:purple", label="objective")
-        axl.set_xlabel("iteration")
-        axl.set_ylabel("refinement objective", color="tab:purple")
-        axl.set_xticks(idx[local])
-        _title(axl, "final refinement (numbers: outline samples)", fontsize=9)
-        panels.append((axl, local, c[local]))
-    for a, sel, _ in panels[:1] + panels[2:]:
-        for i in idx[sel]:
-            a.annotate(
-                str(matches[i]),
-                (i, c[i]),
-                xytext=(0, 6),
-                textcoords="offset points",
-                fontsize=7,
-                ha="center",
-            )
-        if 0 <= best < len(costs) and sel[best]:
-            a.semilogy([best], [c[best]], "*", color="tab:red", ms=14, label="returned")
-    h1, l1 = ax.get_legend_handles_labels()
-    h2, l2 = ax2.get_legend_handles_labels()
-    ax.legend(h1 + h2, l1 + l2, fontsize=7, loc="best")
-    if local.any():
-        axl.legend(fontsize=7, loc="best")
-    for a, _, values in panels:  # after the last semilogy (which resets the ticks)
-        _log_ticks(a, values)
-    if local.any():  # fixed margins (inches / width): the twin axis' labels sit between
-        fig.subplots_adjust(left=0.085, right=0.98, bottom=0.15, top=0.9, wspace=0.6)
-    else:
-        fig.subplots_adjust(left=0.13, right=0.84, bottom=0.15, top=0.9)
-    save_figure(fig, path)
+    two = bool(local.any())
+    size = (900 if two else 600, 340)
+    canvas = Canvas(*size)
+    # fixed margins: the twin axis' labels sit between the panels
+    x0, y0, x1, y1 = (
+        _box(size, 0.085, 0.98, 0.15, 0.9) if two else _box(size, 0.13, 0.84, 0.15, 0.9)
+    )
+    width = (x1 - x0) / (2 + 0.6) if two else x1 - x0
+    box = (x0, y0, x0 + width, y1)
+    xlim = data_limits(idx[sdp])
+    ax = canvas.axes(box, xlim=xlim, ylim=data_limits(c[sdp], log=True), ylog=True)
+    ax2 = canvas.axes(box, xlim=xlim, ylim=data_limits(cert[sdp], log=True), ylog=True)
+    _convergence_panel(
+        ax, idx[sdp], c, matches, best if 0 <= best < len(costs) else -1, "tab:blue", "cost"
+    )
+    ax2.plot(idx[sdp], cert[sdp], "tab:green", marker="s", dashed=True, label="certificate")
+    ax2.set_log_ticks("y", cert[sdp])
+    ax.finish(
+        xlabel="iteration (0 = landmarks only)",
+        ylabel="match-independent cost",
+        ylabel_rgb="tab:blue",
+        title="convex iterations (numbers: outline matches)",
+        title_pt=9,
+    )
+    ax2.finish(
+        ylabel="certificate (lambda2 / lambda1)", ylabel_rgb="tab:green", right=True, frame=False
+    )
+    # one legend for both axes, placed where neither's data are
+    ax._drawn += ax2._drawn
+    from .raster_plot import draw_legend
 
-
-def _log_ticks(ax: Axes, values: np.ndarray) -> None:
-    """Ticks and plain-text labels (``0.02``, ``3e-05``, not mathtext) on the log y axis of
-    ``values`` (> 0). Over a decade or more: matplotlib's labelled decades, with minor ticks at
-    2 and 5 times each. Within a decade (where matplotlib would label about ten minor ticks):
-    about five evenly spaced labelled ticks, no minor ones."""
-    v = np.asarray(values, float)
-    v = v[np.isfinite(v) & (v > 0)]
-    if len(v) and v.max() < 10.0 * v.min():
-        ax.yaxis.set_major_locator(MaxNLocator(nbins=5))
-        ax.yaxis.set_minor_locator(NullLocator())
-        ax.yaxis.set_major_formatter(FormatStrFormatter("%.6g"))
-        return
-    ax.yaxis.set_minor_locator(LogLocator(subs=(2.0, 5.0)))
-    ax.yaxis.set_major_formatter(_PlainLogFormatter())
-    ax.yaxis.set_minor_formatter(_PlainLogFormatter(labelOnlyBase=False))
-
-
-class _PlainLogFormatter(LogFormatter):
-    """matplotlib's choice of which log ticks to label, each label as ``%.6g``."""
-
-    def _num_to_string(self, x: float, vmin: float, vmax: float) -> str:
-        return f"{x:.6g}"
+    draw_legend(ax, ax.legend_entries + ax2.legend_entries, "best", 7)
+    if two:
+        left = x0 + 1.6 * width
+        axl = canvas.axes(
+            (left, y0, left + width, y1),
+            xlim=data_limits(idx[local]),
+            ylim=data_limits(c[local], log=True),
+            ylog=True,
+        )
+        _convergence_panel(axl, idx[local], c, matches, best, "tab:purple", "objective")
+        axl.finish(
+            xlabel="iteration",
+            ylabel="refinement objective",
+            ylabel_rgb="tab:purple",
+            title="final refinement (numbers: outline samples)",
+            title_pt=9,
+            legend="best",
+            legend_pt=7,
+        )
+    canvas.save(path)

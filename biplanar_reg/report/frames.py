@@ -37,14 +37,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from matplotlib.figure import Figure
 from scipy.spatial.transform import Rotation
 
 from ..io.transforms import ANGLE_SEQUENCE
 from .advice import flag_advice
 from .case_report import ReportView
-from .figures import overlay_figure, save_figure
+from .figures import overlay_figure
 from .html import embedded_figures, write_page
+from .raster_plot import Axes, Canvas, data_limits
 from .shading import shaded_faces
 
 __all__ = ["frame_overlay_indices", "kinematics_components", "write_frames_report"]
@@ -78,122 +78,178 @@ def kinematics_components(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.unwrap(angles, period=360.0, axis=0), P[:, :3, 3].copy()
 
 
-def _frame_axis(ax, names: Sequence[str]) -> None:
-    """Frame index on x, with the frame names as tick labels when there are few."""
-    idx = np.arange(len(names))
-    ax.set_xlabel("frame index")
-    ax.set_xlim(-0.3, len(names) - 0.7)  # the end frames' markers inside the axes
+def _frame_axis(ax: Axes, names: Sequence[str]) -> None:
+    """Frame index on x (limits: the end frames' markers inside the axes), with the frame
+    names as tick labels when there are few."""
+    ax.x.lim = (-0.3, len(names) - 0.7)
     if len(names) <= 12:
-        ax.set_xticks(idx)
-        ax.set_xticklabels([f"{i}\n{n}" for i, n in enumerate(names)], fontsize=7)
-    ax.grid(True, alpha=0.3)
+        ax.set_ticks("x", np.arange(len(names)), [f"{i}\n{n}" for i, n in enumerate(names)])
+        ax.x.tick_pt = 7
 
 
 def _nan(x: Any) -> float:
     return float("nan") if x is None else float(x)
 
 
+def _box(size: tuple[int, int], left: float, right: float, bottom: float, top: float) -> tuple:
+    """A pixel box from figure fractions (from the left and from the bottom)."""
+    w, h = size
+    return (round(left * w), round((1 - top) * h), round(right * w), round((1 - bottom) * h))
+
+
+def _top_limits(values: np.ndarray) -> tuple[float, float]:
+    """y limits from 0 to the autoscaled top of ``values``."""
+    return 0.0, data_limits(np.concatenate([np.ravel(values), [0.0]]))[1]
+
+
 def _residuals_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> None:
-    """``frames_residuals.png``: landmark and contour RMS (px) per frame."""
+    """``frames_residuals.png`` (700 x 320 px): landmark and contour RMS (px) per frame."""
     names = [f["name"] for f in frames]
     idx = np.arange(len(frames))
     lm = np.array([_nan(f["landmark_rms_px"]) for f in frames])
     ct = np.array([_nan(f["contour_rms_px"]) for f in frames])
     nb = np.array([f["started_from"] != "landmarks" for f in frames])
-    fig = Figure(figsize=(7.0, 3.2))
-    ax = fig.add_subplot(1, 1, 1)
-    for y, colour, label in ((lm, "tab:green", "landmarks"), (ct, "tab:red", "contours")):
-        ax.plot(idx, y, "-", color=colour, lw=1.0)
-        ax.plot(idx[~nb], y[~nb], "o", color=colour, label=f"{label} RMS")
-        if nb.any():
-            ax.plot(idx[nb], y[nb], "o", color=colour, mfc="white")
-    ax.set_ylabel("reprojection RMS (px)")
+    size = (700, 320)
+    canvas = Canvas(*size)
     top = np.nanmax(np.concatenate([lm, ct, [1.0]]))
-    ax.set_ylim(0, 1.2 * top)
+    ax = canvas.axes(_box(size, 0.09, 0.98, 0.2, 0.9), ylim=(0.0, 1.2 * top))
     _frame_axis(ax, names)
-    ax.legend(fontsize=7, loc="lower right")
-    ax.set_title("residuals per frame (hollow: pose started from the neighbours)", fontsize=9)
-    fig.subplots_adjust(left=0.09, right=0.98, bottom=0.2, top=0.9)
-    save_figure(fig, path)
+    ax.draw_grid()
+    for y, colour, label in ((lm, "tab:green", "landmarks"), (ct, "tab:red", "contours")):
+        ax.plot(idx, y, colour, lw_pt=1.0)
+        ax.plot(idx[~nb], y[~nb], colour, marker="o", line=False, label=f"{label} RMS")
+        if nb.any():
+            ax.plot(idx[nb], y[nb], colour, marker="o", face="white", line=False)
+    ax.finish(
+        ylabel="reprojection RMS (px)",
+        xlabel="frame index",
+        title="residuals per frame (hollow: pose started from the neighbours)",
+        title_pt=9,
+        legend="lower right",
+        legend_pt=7,
+        grid=True,
+    )
+    canvas.save(path)
 
 
 def _pose_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> None:
-    """``frames_pose.png``: the kinematics angles (deg) and translations (mm) per frame."""
+    """``frames_pose.png`` (700 x 560 px): the kinematics angles (deg) and translations (mm)
+    per frame."""
     names = [f["name"] for f in frames]
     angles, trans = kinematics_components(np.array([f["pose"] for f in frames], float))
     idx = np.arange(len(frames))
-    fig = Figure(figsize=(7.0, 5.6))
+    size = (700, 560)
+    canvas = Canvas(*size)
+    x0, y0, x1, y1 = _box(size, 0.11, 0.82, 0.1, 0.89)
+    h = (y1 - y0) / (2 + 0.45)
     for k, (vals, unit, keys) in enumerate(
         ((angles, "deg", ("rx", "ry", "rz")), (trans, "mm", ("tx", "ty", "tz")))
     ):
-        ax = fig.add_subplot(2, 1, k + 1)
+        top = y0 + k * 1.45 * h
+        ax = canvas.axes((x0, top, x1, top + h), ylim=data_limits(vals))
+        _frame_axis(ax, names)
+        ax.draw_grid()
         for j, (key, colour) in enumerate(
             zip(keys, ("tab:red", "tab:green", "tab:blue"), strict=True)
         ):
-            ax.plot(idx, vals[:, j], "o-", color=colour, ms=3, lw=1.0, label=f"{key} ({unit})")
-        ax.set_ylabel("rotation (deg)" if unit == "deg" else "translation (mm)")
-        _frame_axis(ax, names)
-        ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
-    fig.suptitle(
+            ax.plot(
+                idx, vals[:, j], colour, marker="o", ms_pt=3, lw_pt=1.0, label=f"{key} ({unit})"
+            )
+        ax.finish(
+            xlabel="frame index",
+            ylabel="rotation (deg)" if unit == "deg" else "translation (mm)",
+            legend="center left",
+            legend_pt=7,
+            legend_anchor=(1.01, 0.5),
+            grid=True,
+        )
+    canvas.text(
+        size[0] / 2,
+        0.02 * size[1],
         "pose of the bone (model -> world) per frame, as in the kinematics CSV\n"
         "(intrinsic X-Y'-Z'' Cardan angles; translation of the model frame's origin)",
-        fontsize=9,
+        size_pt=9,
+        ha="center",
+        va="top",
     )
-    fig.subplots_adjust(left=0.11, right=0.82, bottom=0.1, top=0.89, hspace=0.45)
-    save_figure(fig, path)
+    canvas.save(path)
 
 
 def _uncertainty_figure(path: Path, by_frames: Sequence[Mapping[str, Any]]) -> None:
-    """``frames_uncertainty.png``: the shape's sd (mm) against the number of frames used."""
+    """``frames_uncertainty.png`` (700 x 340 px): the shape's sd (mm) against the number of
+    frames used."""
     n = np.array([b["n_frames"] for b in by_frames])
-    fig = Figure(figsize=(7.0, 3.4))
-    ax = fig.add_subplot(1, 1, 1)
+    size = (700, 340)
+    canvas = Canvas(*size)
     series = (
         ("sd_median_mm", "tab:blue", "-", "posed vertex sd, median"),
         ("sd_p95_mm", "tab:blue", "--", "posed vertex sd, 95th pct"),
         ("shape_sd_median_mm", "tab:orange", "-", "shape weights only, median"),
         ("shape_sd_p95_mm", "tab:orange", "--", "shape weights only, 95th pct"),
     )
-    for key, colour, ls, label in series:
-        ax.plot(n, [b[key] for b in by_frames], ls, marker="o", ms=3, color=colour, label=label)
-    trunc = [b["truncation_mm"] for b in by_frames]
-    ax.plot(n, trunc, ":", color="grey", label="model truncation (does not shrink)")
-    ax.set_xlabel("frames used (the first n)")
-    ax.set_ylabel("sd (mm, RMS over axes)")
-    ax.set_xticks(n if len(n) <= 12 else n[:: max(1, len(n) // 10)])
-    ax.set_ylim(bottom=0)
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    trunc = np.array([_nan(b["truncation_mm"]) for b in by_frames])
+    ys = [np.array([_nan(b[key]) for b in by_frames]) for key, *_ in series]
+    ax = canvas.axes(
+        _box(size, 0.1, 0.64, 0.15, 0.9),
+        xlim=data_limits(n),
+        ylim=_top_limits(np.concatenate([*ys, trunc])),
+    )
+    ticks = n if len(n) <= 12 else n[:: max(1, len(n) // 10)]
+    ax.set_ticks("x", ticks, [str(int(t)) for t in ticks])
+    ax.draw_grid()
+    for y, (_, colour, ls, label) in zip(ys, series, strict=True):
+        ax.plot(n, y, colour, dashed=ls, marker="o", ms_pt=3, label=label)
+    ax.plot(n, trunc, "grey", dashed=":", label="model truncation (does not shrink)")
     frame = by_frames[0]["frame"] if by_frames else 0
-    ax.set_title(f"shape uncertainty as frames are added (bone posed in frame {frame})", fontsize=9)
-    fig.subplots_adjust(left=0.1, right=0.64, bottom=0.15, top=0.9)
-    save_figure(fig, path)
+    ax.finish(
+        xlabel="frames used (the first n)",
+        ylabel="sd (mm, RMS over axes)",
+        title=f"shape uncertainty as frames are added (bone posed in frame {frame})",
+        title_pt=9,
+        legend="center left",
+        legend_pt=7,
+        legend_anchor=(1.01, 0.5),
+        grid=True,
+    )
+    canvas.save(path)
 
 
 def _gt_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> bool:
-    """``frames_gt.png``: per frame vertex RMS and surface RMS to the ground truth (mm);
-    False when no frame has a ground truth."""
+    """``frames_gt.png`` (700 x 320 px): per frame vertex RMS and surface RMS to the ground
+    truth (mm); False when no frame has a ground truth."""
     gt = [f.get("ground_truth_metrics") or {} for f in frames]
     if not any(gt):
         return False
     idx = np.arange(len(frames))
-    fig = Figure(figsize=(7.0, 3.2))
-    ax = fig.add_subplot(1, 1, 1)
-    for key, colour, label in (
-        ("vertex_rms_mm", "tab:purple", "vertex RMS"),
-        ("surface_rms_mm", "tab:brown", "surface distance RMS"),
-        ("model_floor_vertex_rms_mm", "grey", "model floor (vertex RMS)"),
-    ):
-        y = np.array([_nan(g.get(key)) for g in gt])
-        if np.isfinite(y).any():
-            ax.plot(idx, y, "o-", color=colour, ms=4, lw=1.0, label=label)
-    ax.set_ylabel("error to ground truth (mm)")
-    ax.set_ylim(bottom=0)
+    size = (700, 320)
+    canvas = Canvas(*size)
+    series = [
+        (np.array([_nan(g.get(key)) for g in gt]), colour, label)
+        for key, colour, label in (
+            ("vertex_rms_mm", "tab:purple", "vertex RMS"),
+            ("surface_rms_mm", "tab:brown", "surface distance RMS"),
+            ("model_floor_vertex_rms_mm", "grey", "model floor (vertex RMS)"),
+        )
+    ]
+    series = [s for s in series if np.isfinite(s[0]).any()]
+    ax = canvas.axes(
+        _box(size, 0.09, 0.98, 0.2, 0.9),
+        ylim=_top_limits(np.concatenate([y for y, _, _ in series])),
+    )
     _frame_axis(ax, [f["name"] for f in frames])
-    ax.legend(fontsize=7, loc="best")
-    ax.set_title("registered bone vs ground truth per frame", fontsize=9)
-    fig.subplots_adjust(left=0.09, right=0.98, bottom=0.2, top=0.9)
-    save_figure(fig, path)
+    ax.draw_grid()
+    for y, colour, label in series:
+        ax.plot(idx, y, colour, marker="o", ms_pt=4, lw_pt=1.0, label=label)
+    ax.finish(
+        xlabel="frame index",
+        ylabel="error to ground truth (mm)",
+        title="registered bone vs ground truth per frame",
+        title_pt=9,
+        legend="best",
+        legend_pt=7,
+        grid=True,
+    )
+    canvas.save(path)
     return True
 
 

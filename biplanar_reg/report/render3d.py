@@ -5,7 +5,7 @@ direction (orthographic, z up, as PyVista's ``view_isometric``), each triangle f
 painter's order (farthest first, back faces of a closed mesh left out) with the mean of its
 corners' colours (viridis of the error, times a Lambert shade under a light at the eye from
 area-weighted vertex normals, i.e. smooth shading), drawn at twice the size and reduced
-(anti-aliasing), then put into a matplotlib figure with the title and colour bar. It needs no
+(anti-aliasing), then put on a :mod:`.raster_plot` canvas with the title and colour bar. It needs no
 OpenGL and imports neither PyVista nor VTK (their import alone cost more than the whole
 report's other figures).
 
@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import logging
 import os
-from pathlib import Path
 
 import numpy as np
 
@@ -89,8 +88,6 @@ def render_matplotlib(
     from matplotlib.figure import Figure
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    from .figures import save_figure
-
     V = np.asarray(vertices, float)
     F = np.asarray(faces)
     fig = Figure(figsize=(7.0, 6.0))
@@ -113,7 +110,22 @@ def render_matplotlib(
     ax.set_ylabel("y (mm)")
     ax.set_zlabel("z (mm)")
     ax.set_title(title)
-    save_figure(fig, path)
+    _save_matplotlib(fig, path)
+
+
+def _save_matplotlib(fig, path: str | os.PathLike) -> None:
+    """A matplotlib figure drawn with the Agg canvas, written as an RGB PNG (the opt-in
+    matplotlib renderer only)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from .raster_plot import Canvas
+
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    rgba = np.asarray(canvas.buffer_rgba())
+    out = Canvas(rgba.shape[1], rgba.shape[0])
+    out.paste(rgba[:, :, :3], 0, 0)
+    out.save(path)
 
 
 def _isometric_frame(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -173,6 +185,7 @@ def _software_rgb8(
     """:func:`software_image` as (H, W, 3) uint8."""
     import cv2
 
+    from .raster_plot import fill_rgb
     from .shading import _outward_sign
 
     V = np.asarray(vertices, float)
@@ -196,7 +209,7 @@ def _software_rgb8(
     pts = np.round(tri2[order] * (1 << shift)).astype(np.int32)
     cols = np.round(rgb[F[order]].mean(axis=1) * 255).astype(int).tolist()
     image = np.empty((h, w, 3), np.uint8)
-    image[:] = np.round(np.asarray(background) * 255).astype(np.uint8)
+    fill_rgb(image, np.round(np.asarray(background) * 255).astype(np.uint8).tolist())
     for tri, col in zip(pts, cols, strict=True):
         cv2.fillConvexPoly(image, tri, col, lineType=cv2.LINE_8, shift=shift)
     return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
@@ -214,30 +227,24 @@ def render_software(
     """Render with :func:`software_image` into a figure of ``size`` pixels: the title top left,
     with ``error_mm`` a viridis colour bar in mm on the right, else one ivory colour. The
     rendering is put on the drawn figure pixel for pixel (no axes, no resampling)."""
-    from matplotlib import colormaps, colors
-    from matplotlib.cm import ScalarMappable
-    from matplotlib.figure import Figure
+    from .raster_plot import Canvas, colour, colour_bar, viridis_rgb
 
-    from .figures import png_bytes
-
-    dpi = 100
-    fig = Figure(figsize=(size[0] / dpi, size[1] / dpi), dpi=dpi)
+    canvas = Canvas(*size, dpi=100)
     n = len(vertices)
     if error_mm is not None:
-        norm = colors.Normalize(0.0, _error_max(error_mm))
-        vertex_rgb = colormaps["viridis"](norm(np.asarray(error_mm, float)))[:, :3]
-        cax = fig.add_axes((0.90, 0.06, 0.025, 0.5))
-        cbar = fig.colorbar(ScalarMappable(norm=norm, cmap="viridis"), cax=cax)
-        cax.set_title("error (mm)", fontsize=10, loc="left", y=1.0)
-        cbar.ax.tick_params(labelsize=9)
+        top = _error_max(error_mm)
+        vertex_rgb = viridis_rgb(np.asarray(error_mm, float), 0.0, top)
     else:
-        vertex_rgb = np.tile(colors.to_rgb("ivory"), (n, 1))
-    fig.text(0.005, 0.985, title, fontsize=11, va="top", ha="left")
+        vertex_rgb = np.tile(np.array(colour("ivory"), float) / 255.0, (n, 1))
     # the rendering fills the figure's lower left 86 % x 94 % (the title above, the colour
-    # bar to the right), where matplotlib draws nothing
+    # bar to the right)
     w, h = round(0.86 * size[0]), round(0.94 * size[1])
-    image = _software_rgb8(vertices, faces, vertex_rgb, (w, h))
-    Path(path).write_bytes(png_bytes(fig, dpi, paste=(image, (0, size[1] - h))))
+    canvas.paste(_software_rgb8(vertices, faces, vertex_rgb, (w, h)), 0, size[1] - h)
+    canvas.text(0.005 * size[0], 0.015 * size[1], title, size_pt=11, va="top")
+    if error_mm is not None:
+        bar = (0.90 * size[0], 0.44 * size[1], 0.925 * size[0], 0.94 * size[1])
+        colour_bar(canvas, bar, 0.0, top, title="error (mm)", tick_pt=9)
+    canvas.save(path)
 
 
 def render_error_mesh(

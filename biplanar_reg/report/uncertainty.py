@@ -10,9 +10,8 @@ when there is one, each triangle coloured by the mean ``sd_mm`` of its corners
 The triangles are filled once with OpenCV into an image of the panel's crop at twice the size of
 the panel's axes on the saved figure, then reduced (anti-aliased edges; a pixel the triangles
 cover is filled, and the edge pixels keep the triangles' colour), blended at 85 % over the
-radiograph (area-averaged to the panel's size), and the image is shown on matplotlib axes in
-pixel units: a matplotlib collection of the 15,000 triangles of a knee-sized bone took ten
-times longer to draw. Fixed layout: the panels side by side, the colour bar beside the last.
+radiograph (area-averaged to the panel's size), and the image is drawn on axes in pixel units
+(:mod:`.raster_plot`). Fixed layout: the panels side by side, the colour bar beside the last.
 """
 
 from __future__ import annotations
@@ -85,8 +84,8 @@ def _panel_image(
 ) -> tuple[np.ndarray, tuple]:
     """The panel (h, w, 4) uint8 RGBA: triangles ``tri`` (T, 3, 2) px filled in order with
     colours ``rgb`` (T, 3) in [0, 1], ``_ALPHA`` over the radiograph (or white), inside the
-    pixel box ``box = (lo, hi)``, at most ``px`` pixels a side; and its ``imshow`` extent in
-    full-image pixels."""
+    pixel box ``box = (lo, hi)``, at most ``px`` pixels a side; and its extent
+    ``(left, right, bottom, top)`` in full-image pixels."""
     import cv2
 
     back, lo, hi, f = _background(display, *box, px)
@@ -143,60 +142,54 @@ def uncertainty_figure(
         Per panel the mesh already projected into its view, the first two outputs of
         :func:`.shading.painter_faces` (``None``, or no sequence: projected here).
     """
-    from matplotlib import colormaps
-    from matplotlib.cm import ScalarMappable
-    from matplotlib.colors import Normalize
-    from matplotlib.figure import Figure
-    from matplotlib.ticker import MaxNLocator
-
-    from .figures import png_bytes
+    from .raster_plot import Canvas, colour_bar, nice_ticks, viridis_rgb
     from .shading import painter_faces
 
     V, F = np.asarray(vertices, float), np.asarray(faces, dtype=np.int64)
     sd = np.asarray(sd_mm, float)
     face_sd = (sd[F[:, 0]] + sd[F[:, 1]] + sd[F[:, 2]]) / 3.0
-    norm = Normalize(vmin=0.0, vmax=max(float(np.percentile(face_sd, 99)), 1e-6))
-    face_rgb = colormaps["viridis"](norm(face_sd))[:, :3]
+    vmax = max(float(np.percentile(face_sd, 99)), 1e-6)
+    face_rgb = viridis_rgb(face_sd, 0.0, vmax)
     n = len(panels)
     width, height = _PANEL_IN[0] * n + _COLORBAR_IN, _PANEL_IN[1]
-    fig = Figure(figsize=(width, height), dpi=_DPI)
+    canvas = Canvas(round(width * _DPI), round(height * _DPI), dpi=_DPI)
     m = _MARGIN_IN
     px = _raster_px()
     for i, (name, view, display) in enumerate(panels):
         given = None if projected is None else projected[i]
         tri, index = given if given is not None else painter_faces(view, V, F)[:2]
-        ax = fig.add_axes(
-            (
-                (i * _PANEL_IN[0] + m["left"]) / width,
-                m["bottom"] / height,
-                (_PANEL_IN[0] - m["left"] - m["right"]) / width,
-                (height - m["bottom"] - m["top"]) / height,
-            )
-        )
         lo, hi = tri.reshape(-1, 2).min(axis=0), tri.reshape(-1, 2).max(axis=0)
         pad = 0.08 * float(np.max(hi - lo))
         image, extent = _panel_image(tri, face_rgb[index], display, (lo - pad, hi + pad), px)
+        box = (
+            (i * _PANEL_IN[0] + m["left"]) * _DPI,
+            m["top"] * _DPI,
+            ((i + 1) * _PANEL_IN[0] - m["right"]) * _DPI,
+            (height - m["bottom"]) * _DPI,
+        )
+        ax = canvas.axes(
+            box,
+            xlim=(lo[0] - pad, hi[0] + pad),
+            ylim=(hi[1] + pad, lo[1] - pad),  # image rows grow downwards
+        )
+        ax.set_aspect_equal()
         # as large as the axes: about pixel for pixel; a small crop is enlarged smoothly
-        nearest = max(image.shape[:2]) >= px - 1
-        ax.imshow(image, extent=extent, interpolation="nearest" if nearest else "bilinear")
-        ax.set_xlim(lo[0] - pad, hi[0] + pad)
-        ax.set_ylim(hi[1] + pad, lo[1] - pad)  # image rows grow downwards
-        ax.set_aspect("equal")
-        ax.set_title(f"{name}")
-        ax.set_xlabel("u (px)")
-        ax.set_ylabel("v (px)")
+        left, right, bottom, top = extent
+        ax.image(image[:, :, :3], (left, right, top, bottom), smooth=max(image.shape[:2]) < px - 1)
+        ax.finish(xlabel="u (px)", ylabel="v (px)", title=f"{name}")
     # the colour bar beside the last panel's axes (their width follows the bone's aspect)
-    ax.apply_aspect()
-    box = ax.get_position()
-    cax = fig.add_axes((box.x1 + 0.3 / width, box.y0, 0.2 / width, box.height))
-    fig.colorbar(
-        ScalarMappable(norm=norm, cmap="viridis"),
-        cax=cax,
-        label="sd (mm, RMS over axes)",
-        ticks=MaxNLocator(nbins=6, steps=[1, 2, 2.5, 5, 10]),
+    x0, y0, x1, y1 = ax.box
+    bar = (x1 + 0.3 * _DPI, y0, x1 + 0.5 * _DPI, y1)
+    colour_bar(
+        canvas, bar, 0.0, vmax, ticks=nice_ticks(0.0, vmax, 6), label="sd (mm, RMS over axes)"
     )
-    fig.suptitle(
+    canvas.text(
+        canvas.size[0] / 2,
+        0.02 * canvas.size[1],
         f"Posterior sd per vertex: median {np.median(sd_mm):.2f} mm, "
-        f"95th percentile {np.percentile(sd_mm, 95):.2f} mm"
+        f"95th percentile {np.percentile(sd_mm, 95):.2f} mm",
+        size_pt=12,
+        ha="center",
+        va="top",
     )
-    return atomic_write_bytes(path, png_bytes(fig, _DPI), make_parents=False)
+    return atomic_write_bytes(path, canvas.png_bytes(), make_parents=False)

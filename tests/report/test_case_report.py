@@ -15,7 +15,6 @@ from types import SimpleNamespace
 import markupsafe
 import numpy as np
 import pytest
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from PIL import Image
 from scipy import ndimage
 
@@ -77,7 +76,7 @@ def test_shaded_bone_is_drawn_inside_the_projected_silhouette(no_truth):
     case = load_case(case_dir)
     o = to_view_observations(case)[0]
     V, F = read_mesh(out / "registered.ply")
-    fig, ax = draw_overlay(
+    canvas, ax = draw_overlay(
         "t",
         display=None,
         image_size=case.view(o.name).image_size,
@@ -86,23 +85,21 @@ def test_shaded_bone_is_drawn_inside_the_projected_silhouette(no_truth):
         landmarks_px={},
         shaded=shaded_faces(o.view, V, F),
     )
-    canvas = FigureCanvasAgg(fig)
-    canvas.draw()
-    rgb = np.asarray(canvas.buffer_rgba(), float)[..., :3] / 255.0
+    rgb = canvas.rgb.astype(float) / 255.0
     mask, offset = coverage_mask(o.view.project(V), F, pad=12)
     mask = ndimage.binary_closing(mask, iterations=2)  # the rasteriser's few-pixel holes
     inside = np.argwhere(ndimage.binary_erosion(mask, iterations=3))[:, ::-1] + offset
     outside = np.argwhere(~ndimage.binary_dilation(mask, iterations=4))[:, ::-1] + offset
-    u0, u1 = sorted(ax.get_xlim())
-    v0, v1 = sorted(ax.get_ylim())
+    u0, u1 = sorted(ax.x.lim)
+    v0, v1 = sorted(ax.y.lim)
     ok = (outside[:, 0] > u0 + 2) & (outside[:, 0] < u1 - 2)
     outside = outside[ok & (outside[:, 1] > v0 + 2) & (outside[:, 1] < v1 - 2)]
     assert len(inside) > 500 and len(outside) > 500
 
     def colour(uv):
-        xy = ax.transData.transform(uv.astype(float))
+        xy = ax.to_px(uv[:, 0].astype(float), uv[:, 1].astype(float))
         cols = np.clip(xy[:, 0].astype(int), 0, rgb.shape[1] - 1)
-        rows = np.clip((rgb.shape[0] - xy[:, 1]).astype(int), 0, rgb.shape[0] - 1)
+        rows = np.clip(xy[:, 1].astype(int), 0, rgb.shape[0] - 1)
         return rgb[rows, cols]
 
     warm_in = colour(inside) @ np.array([1.0, 0.0, -1.0])  # red minus blue: bone colour
