@@ -42,7 +42,8 @@ def test_registration_leaves_model_building_unloaded():
     code = (
         "import sys, biplanar_reg.cases.run\n"
         "print(sorted(m for m in ('biplanar_reg.ssm.dense', 'biplanar_reg.ssm.correspond', "
-        "'biplanar_reg.ssm.quality', 'scipy.sparse.linalg', 'scipy.sparse.csgraph', 'skimage', "
+        "'biplanar_reg.ssm.quality', 'biplanar_reg.ssm.build', 'biplanar_reg.ssm.population', "
+        "'scipy.sparse.linalg', 'scipy.sparse.csgraph', 'skimage', "
         "'matplotlib', 'biplanar_reg.report', 'scipy.spatial', 'scipy.ndimage', 'scipy.special') "
         "if m in sys.modules))\n"
     )
