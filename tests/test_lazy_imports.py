@@ -37,12 +37,13 @@ def test_lazy_name_equal_to_its_module_is_refused():
 
 def test_registration_leaves_model_building_unloaded():
     """``biplanar-reg register`` imports what a registration uses: not the SSM building
-    modules, scipy's sparse solvers and graph routines, scipy.spatial, scipy.ndimage (and
-    scipy.special), scikit-image or matplotlib."""
+    modules, the CT volume reader, scipy's sparse solvers and graph routines, scipy.spatial,
+    scipy.ndimage (and scipy.special), scikit-image or matplotlib."""
     code = (
         "import sys, biplanar_reg.cases.run\n"
         "print(sorted(m for m in ('biplanar_reg.ssm.dense', 'biplanar_reg.ssm.correspond', "
         "'biplanar_reg.ssm.quality', 'biplanar_reg.ssm.build', 'biplanar_reg.ssm.population', "
+        "'biplanar_reg.io.volumes', "
         "'scipy.sparse.linalg', 'scipy.sparse.csgraph', 'skimage', "
         "'matplotlib', 'biplanar_reg.report', 'scipy.spatial', 'scipy.ndimage', 'scipy.special') "
         "if m in sys.modules))\n"
