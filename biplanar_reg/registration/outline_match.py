@@ -43,14 +43,16 @@ END_MARGIN_PX = 3.0
 class NearestPoints:
     """Exact k-nearest-neighbour queries among fixed 2D points (pixels).
 
-    OpenCV's FLANN single KD-tree (an exact search, in float32) proposes the
-    ``k + EXTRA`` nearest points of each query; their float64 squared distances
-    ``dx * dx + dy * dy`` (those of SciPy's ``cKDTree``) rank them, and the ``k`` first are
-    the answer when the k-th is nearer than the last proposal's float32 distance, less a bound
-    on float32 rounding (no point left out can then be nearer). The few other queries (and
-    non-finite ones) are compared with all points. Neighbours and their order are those of
-    ``cKDTree`` (ties aside): it replaced one because ``scipy.spatial`` costs ~0.12 CPU s to
-    import, and it is faster on a registration's outlines (``docs/registration.md``).
+    OpenCV's FLANN single KD-tree (an exact search, in float32) proposes the ``k + EXTRA``
+    nearest points of each query. Where the float32 distances of the first ``k + 1`` are
+    farther apart than a generous bound on float32 rounding, FLANN's order is the exact one
+    (and that of the float64 squared distances ``dx * dx + dy * dy`` of SciPy's ``cKDTree``)
+    and no point left out can come before the k-th; the other queries rank their proposals by
+    those float64 distances, and the k first are the answer when the k-th is nearer than the
+    last proposal's float32 distance less that bound. The few queries still undecided (and
+    non-finite ones) are compared with all points. Neighbours and their order are therefore
+    ``cKDTree``'s (ties aside): it replaced one because ``scipy.spatial`` costs ~0.05-0.12 CPU
+    s to import, and it is as fast on a registration's outlines (``docs/registration.md``).
 
     Parameters
     ----------
