@@ -33,7 +33,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.spatial import Delaunay, cKDTree
 
 from ._validate import as_array
 from .calibration.views import OrthographicView, PerspectiveView, View
@@ -428,6 +427,9 @@ def alpha_outline(
     uv : (N, 2) array
         Projections of the points, pixels.
     """
+    # SciPy's spatial module only here, for point models: a mesh's registration never needs it
+    from scipy.spatial import Delaunay, cKDTree
+
     uv = view.project(points)
     if alpha is None:
         dist, _ = cKDTree(uv).query(uv, k=2)

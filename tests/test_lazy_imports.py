@@ -37,12 +37,16 @@ def test_lazy_name_equal_to_its_module_is_refused():
 
 def test_registration_leaves_model_building_unloaded():
     """``biplanar-reg register`` imports what a registration uses: not the SSM building
-    modules, scipy's sparse solvers and graph routines, scikit-image or matplotlib."""
+    modules, the CT volume reader, scipy's sparse solvers and graph routines, scipy.spatial,
+    scipy.ndimage (and scipy.special), scikit-image or matplotlib."""
     code = (
         "import sys, biplanar_reg.cases.run\n"
         "print(sorted(m for m in ('biplanar_reg.ssm.dense', 'biplanar_reg.ssm.correspond', "
-        "'biplanar_reg.ssm.quality', 'scipy.sparse.linalg', 'scipy.sparse.csgraph', 'skimage', "
-        "'matplotlib', 'biplanar_reg.report') if m in sys.modules))\n"
+        "'biplanar_reg.ssm.quality', 'biplanar_reg.ssm.build', 'biplanar_reg.ssm.population', "
+        "'biplanar_reg.io.volumes', "
+        "'scipy.sparse.linalg', 'scipy.sparse.csgraph', 'skimage', "
+        "'matplotlib', 'biplanar_reg.report', 'scipy.spatial', 'scipy.ndimage', 'scipy.special') "
+        "if m in sys.modules))\n"
     )
     run = subprocess.run(
         [sys.executable, "-c", code],
@@ -54,3 +58,30 @@ def test_registration_leaves_model_building_unloaded():
     )
     assert run.returncode == 0, run.stderr
     assert run.stdout.strip() == "[]"
+
+
+def test_registration_of_a_sample_case_leaves_scipy_spatial_and_ndimage_unloaded(tmp_path):
+    """A mesh registration, its metrics and its exports use neither ``scipy.spatial`` nor
+    ``scipy.ndimage`` (nor ``scipy.special``, which both load): rotations are
+    :mod:`biplanar_reg.io.transforms`', the outline matching's nearest neighbours
+    :class:`~biplanar_reg.registration.outline_match.NearestPoints`, and the annotation tools
+    that filter images import ``scipy.ndimage`` when they run."""
+    case = ROOT / "sample_cases" / "synthetic_demo"
+    code = (
+        "import sys\n"
+        "from biplanar_reg.cases.run import run_case_dir\n"
+        f"run_case_dir({str(case)!r}, {str(tmp_path / 'out')!r}, report=False)\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[:2] in "
+        "(['scipy', 'spatial'], ['scipy', 'ndimage'], ['scipy', 'special'])))\n"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        timeout=300,
+    )
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip().splitlines()[-1] == "[]"
+    assert (tmp_path / "out" / "registered.ply").is_file()

@@ -23,7 +23,8 @@ from .image import XrayImage, load_image, read_image_size
 from .livewire import livewire  # noqa: E402
 
 #: The other semi-automatic tools and the radiograph renderer, imported on first use (a
-#: case's registration uses none of them; ``livewire`` imports scikit-image only when it runs).
+#: case's registration uses none of them; ``livewire`` imports scikit-image and scipy.ndimage
+#: only when it runs).
 _LAZY = {
     "Radiograph": ".render",
     "render_radiograph": ".render",

@@ -5,9 +5,12 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from scipy import ndimage
 
 from .._validate import check_positive
+
+# scipy.ndimage (and scipy.special, which it loads: ~0.1 CPU s together) is imported inside
+# the functions that use it: the package imports this module, and a case's registration
+# calls none of them (tests/test_lazy_imports.py).
 
 __all__ = ["edge_cost"]
 
@@ -18,6 +21,8 @@ ONSET_POWERS = (0.0, 0.5)
 
 def gradient_magnitude(display: np.ndarray, sigma_px: float = 1.5) -> np.ndarray:
     """Gaussian-derivative gradient magnitude of a (H, W) image (units: display / pixel)."""
+    from scipy import ndimage
+
     sigma = check_positive("sigma_px", sigma_px)
     return ndimage.gaussian_gradient_magnitude(np.asarray(display, float), sigma, mode="nearest")
 
@@ -132,6 +137,8 @@ def edge_onset_offsets(
         Fraction of the profile's variance explained by that fit (0 when no onset with the
         bone attenuating fits).
     """
+    from scipy import ndimage
+
     s, s0, tmpl = _unit_templates(
         float(half_width_px),
         float(max_shift_px),

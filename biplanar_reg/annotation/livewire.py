@@ -12,11 +12,14 @@ of a blurred bone lies about one blur width inside its true outline."""
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
 
 from .._validate import as_array
 from .features import edge_cost, edge_onset_offsets, gradient_magnitude
 from .image import XrayImage, as_display
+
+# scipy.ndimage (and scipy.special, which it loads: ~0.1 CPU s together) is imported inside
+# the functions that use it: the package imports this module, and a case's registration
+# calls none of them (tests/test_lazy_imports.py).
 
 __all__ = ["livewire", "refine_to_outline"]
 
@@ -88,6 +91,8 @@ def _gradient_at(
     norm : (K,) array
         Its length (``ok = norm > 1e-12`` marks points with a usable direction).
     """
+    from scipy import ndimage
+
     gy, gx = np.gradient(ndimage.gaussian_filter(image, sigma_px))
     rows, cols = uv[:, 1], uv[:, 0]
     nx = ndimage.map_coordinates(gx, [rows, cols], order=1, mode="nearest")
@@ -102,6 +107,8 @@ def refine_subpixel(grad: np.ndarray, uv: np.ndarray, sigma_px: float = 1.0) -> 
     ridge's cross direction); the peak is a parabola through ``grad`` at -1, 0, +1 px along it,
     and the move is clamped to 1 px so a noisy fit cannot jump to another edge.
     """
+    from scipy import ndimage
+
     g, nn = _gradient_at(grad, uv, sigma_px)
     ok = nn > 1e-12
     nx = np.where(ok, g[:, 0] / np.where(ok, nn, 1), 0.0)
@@ -168,6 +175,8 @@ def refine_to_outline(
     (K, 2) array
         Refined points, pixels (u, v).
     """
+    from scipy import ndimage
+
     _check_bone(bone)
     max_shift, half_width = 4.0, 6.0
     # work on a crop around the points (the filters below cost most on 1760 x 1760 images)
@@ -287,6 +296,8 @@ def livewire(
     ValueError
         Non-finite anchors, anchors outside the image, too few anchors, unknown ``bone``.
     """
+    from scipy import ndimage
+
     disp = as_display(image)
     h, w = disp.shape
     pts = as_array("anchors", anchors, (None, 2))

@@ -48,11 +48,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..errors import CalibrationFormatError
 from ..io.atomic import atomic_path
 from ..io.dicomfile import read_dicom
+from ..io.transforms import rotation_from_rotvec
 from .views import PerspectiveView, View
 
 if TYPE_CHECKING:
@@ -171,11 +171,10 @@ def view_from_dicom(path: Path | str, name: str = "") -> PerspectiveView:
 def _carm_axes(primary_deg: float, secondary_deg: float) -> tuple[np.ndarray, np.ndarray]:
     """World directions (LPS) of the detector's +u and +v for the C-arm angles (no flips)."""
     # primary about the patient's z axis, then secondary about the rotated +u
-    rot_a = Rotation.from_rotvec(np.radians(primary_deg) * np.array([0.0, 0.0, 1.0]))
-    u_axis = rot_a.apply(_LETTERS["L"])
-    rot = Rotation.from_rotvec(-np.radians(secondary_deg) * u_axis) * rot_a
-    u_dir, v_dir = rot.apply(np.array([_LETTERS["L"], _LETTERS["F"]], dtype=float))
-    return u_dir, v_dir
+    rot_a = rotation_from_rotvec(np.radians(primary_deg) * np.array([0.0, 0.0, 1.0]))
+    u_axis = rot_a @ _LETTERS["L"]
+    rot = rotation_from_rotvec(-np.radians(secondary_deg) * u_axis) @ rot_a
+    return rot @ _LETTERS["L"], rot @ _LETTERS["F"]
 
 
 def _view_from_geometry(

@@ -34,9 +34,9 @@ import logging
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..errors import CalibrationFormatError
+from ..io.transforms import euler_from_rotation, rotation_from_euler
 from ._textio import fmt, is_numeric_line, parse_numbers, read_lines
 from .views import PerspectiveView, View
 
@@ -194,7 +194,7 @@ def read_mayacam1(path: Path | str, name: str = "") -> PerspectiveView:
     if Z == 0:
         raise CalibrationFormatError(f"{path}: line {lines[3][0]} (u0, v0, Z): zero focal length")
     f = abs(Z)
-    M = Rotation.from_euler("ZYX", angles[::-1], degrees=True).as_matrix()
+    M = rotation_from_euler("ZYX", angles[::-1])
     R = _FLIP_YZ @ M.T
     K = np.array([[f, 0.0, u0 - 1.0], [0.0, f, H - v0], [0.0, 0.0, 1.0]])
     return PerspectiveView(K=K, R=R, t=-R @ C, image_size=(int(W), int(H)), name=name)
@@ -223,7 +223,7 @@ def format_mayacam1(view: View) -> str:
     f = 0.5 * (K[0, 0] + K[1, 1])
     u0, v0, Z = K[0, 2] + 1.0, H - K[1, 2], -f
     M = view.R.T @ _FLIP_YZ
-    rz, ry, rx = Rotation.from_matrix(M).as_euler("ZYX", degrees=True)
+    rz, ry, rx = euler_from_rotation(M, "ZYX")
     s = _IMAGE_PLANE_SCALE
     rows = [
         view.centre,

@@ -21,11 +21,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..io import read_mesh
 from ..io.atomic import atomic_write_json, atomic_write_text
-from ..io.transforms import ANGLE_SEQUENCE, relative_pose, write_kinematics_csv, write_tra
+from ..io.transforms import (
+    ANGLE_SEQUENCE,
+    euler_from_rotation,
+    relative_pose,
+    write_kinematics_csv,
+    write_tra,
+)
 from .case import Case
 from .contact import PENETRATION_WARN_MM, penetration
 from .outputs import BONES_DIR, atomic_output_dir, autoscoper_exports
@@ -106,9 +111,7 @@ def _relative(names, poses, frame_names) -> list[dict[str, Any]]:
                         "frame": fn,
                         "pose": T,
                         "translation_mm": T[:3, 3],
-                        "angles_deg": Rotation.from_matrix(T[:3, :3]).as_euler(
-                            ANGLE_SEQUENCE, degrees=True
-                        ),
+                        "angles_deg": euler_from_rotation(T[:3, :3], ANGLE_SEQUENCE),
                     }
                     for fn, T in zip(frame_names, rel, strict=True)
                 ],

@@ -35,8 +35,7 @@ from ..errors import CaseError
 from ..io import read_mesh
 from ..io.jsonfile import read_json
 from ..registration import RegistrationOptions, ViewObservations
-from ..ssm import ShapeModel, build_ssm, synthesise_population
-from ..ssm.population import FAMILIES
+from ..ssm import ShapeModel
 
 __all__ = [
     "Case",
@@ -60,7 +59,7 @@ UNIT_SCALE = {"mm": 1.0, "m": 1000.0}
 MODEL_DEFAULTS: dict[str, Any] = {
     "population_size": 9,
     "population_seed": 0,
-    "population_families": list(FAMILIES),
+    "population_families": None,  # all of biplanar_reg.ssm.population.FAMILIES
     "population_strength": 1.0,
     "ssm_variance": 0.98,
 }
@@ -534,7 +533,11 @@ def _load_model(ctx: _Ctx, doc: dict, scale: float) -> tuple[ShapeModel, dict, d
         if faces is None:
             raise ctx.error("[model] template", f"{path.name}: a template needs faces (a mesh)")
         _check_template_faces(ctx, path, faces)
-        settings = dict(MODEL_DEFAULTS)
+        # imported here: model building (~10 ms to import) is only for the template route
+        from ..ssm import build_ssm, synthesise_population
+        from ..ssm.population import FAMILIES
+
+        settings = dict(MODEL_DEFAULTS, population_families=list(FAMILIES))
         for key in ("population_size", "population_seed"):
             settings[key] = ctx.bounded(table, key, "[model]", int, settings[key])
         for key in ("population_strength", "ssm_variance"):

@@ -27,6 +27,7 @@ import csv
 import io
 import math
 import os
+import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -37,12 +38,16 @@ from .jsonfile import read_json
 
 __all__ = [
     "ANGLE_SEQUENCE",
+    "euler_from_rotation",
     "read_itk_tfm",
     "read_kinematics_csv",
     "read_markups_json",
     "read_tra",
     "relative_pose",
     "rigid_pose",
+    "rotation_from_euler",
+    "rotation_from_rotvec",
+    "rotvec_from_rotation",
     "write_itk_tfm",
     "write_kinematics_csv",
     "write_markups_json",
@@ -50,17 +55,10 @@ __all__ = [
 ]
 
 
-def _rotation():
-    """scipy's ``Rotation``, imported on first use (``scipy.spatial`` takes ~0.4 s to import,
-    and importing :mod:`biplanar_reg.io` for an atomic write should not pay it)."""
-    from scipy.spatial.transform import Rotation
-
-    return Rotation
-
-
-#: scipy ``Rotation`` sequence of the kinematics angles: intrinsic (upper case) X, then Y', then
-#: Z'' (Cardan), so ``R = Rx(rx) @ Ry(ry) @ Rz(rz)``; with bone axes along anatomical axes this
-#: is the flexion / ab-adduction / axial-rotation order of Grood & Suntay (1983).
+#: Euler sequence (scipy ``Rotation`` notation) of the kinematics angles: intrinsic (upper
+#: case) X, then Y', then Z'' (Cardan), so ``R = Rx(rx) @ Ry(ry) @ Rz(rz)``; with bone axes
+#: along anatomical axes this is the flexion / ab-adduction / axial-rotation order of Grood &
+#: Suntay (1983).
 ANGLE_SEQUENCE = "XYZ"
 
 _RIGID_TOL = 1e-6  # orthonormality of a pose's rotation block
@@ -74,6 +72,224 @@ _LPS_RAS = np.diag([-1.0, -1.0, 1.0])
 def _g(x: float) -> str:
     """A float with every digit needed to read it back exactly (``NaN`` as Autoscoper writes)."""
     return "NaN" if math.isnan(x) else repr(float(x))
+
+
+# ----------------------------------------------------------------------------- rotations
+# SciPy's ``Rotation`` conversions used by the package, redone step for step: the same unit
+# quaternion in between, the same floating-point operations in the same order, libm's sin, cos,
+# atan2 and hypot, so every result is bitwise SciPy's (``tests/io/test_rotations.py`` compares
+# them). Why not SciPy: ``scipy.spatial`` costs ~0.12 CPU s to import on top of the SciPy
+# modules a registration needs, and a registration needs nothing else of it.
+
+_DEG = math.pi / 180.0  # np.deg2rad's factor
+_RAD = 180.0 / math.pi  # np.rad2deg's factor
+_AXES = {"x": 0, "y": 1, "z": 2}
+_GIMBAL = (
+    "Gimbal lock detected. Setting third angle to zero since it is not possible to uniquely "
+    "determine all angles."
+)
+
+Quaternion = tuple[float, float, float, float]  # (x, y, z, w): scalar last, unit norm
+
+
+def _euler_axes(seq: str) -> tuple[list[int], bool]:
+    """Axis indices (x=0, y=1, z=2) of a three-axis Euler sequence, and whether it is
+    intrinsic (upper case: ``"XYZ"``) rather than extrinsic (lower case: ``"xyz"``)."""
+    low = seq.lower()
+    if (
+        len(seq) != 3
+        or not (seq.isupper() or seq.islower())
+        or any(c not in _AXES for c in low)
+        or low[0] == low[1]
+        or low[1] == low[2]
+    ):
+        raise ValueError(
+            f"Euler sequence {seq!r}: expected 3 axes of 'xyz' (extrinsic) or 'XYZ' "
+            "(intrinsic), consecutive axes different"
+        )
+    return [_AXES[c] for c in low], seq.isupper()
+
+
+def _quat_mul(p: Quaternion, q: Quaternion) -> Quaternion:
+    """Hamilton product ``p q``: the rotation ``q`` followed by ``p``."""
+    cx = p[1] * q[2] - p[2] * q[1]
+    cy = p[2] * q[0] - p[0] * q[2]
+    cz = p[0] * q[1] - p[1] * q[0]
+    return (
+        p[3] * q[0] + q[3] * p[0] + cx,
+        p[3] * q[1] + q[3] * p[1] + cy,
+        p[3] * q[2] + q[3] * p[2] + cz,
+        p[3] * q[3] - p[0] * q[0] - p[1] * q[1] - p[2] * q[2],
+    )
+
+
+def _quat_matrix(q: Quaternion) -> np.ndarray:
+    """The 3x3 rotation matrix of a unit quaternion."""
+    x, y, z, w = q
+    x2, y2, z2, w2 = x * x, y * y, z * z, w * w
+    xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
+    return np.array(
+        [
+            [x2 - y2 - z2 + w2, 2 * (xy - zw), 2 * (xz + yw)],
+            [2 * (xy + zw), -x2 + y2 - z2 + w2, 2 * (yz - xw)],
+            [2 * (xz - yw), 2 * (yz + xw), -x2 - y2 + z2 + w2],
+        ]
+    )
+
+
+def _matrix_quat(matrix: np.ndarray) -> Quaternion:
+    """Unit quaternion of a 3x3 rotation matrix: orthonormalised by SVD first when its Gram
+    matrix is off the identity (1e-12 off the diagonal); a non-positive determinant is an
+    error. The branch on the largest of the diagonal and the trace keeps it accurate."""
+    M = np.array(matrix, dtype=float).reshape(1, 3, 3)
+    if np.linalg.det(M)[0] <= 0:
+        raise ValueError(f"not a rotation (non-positive determinant): {M[0].tolist()}")
+    if not np.all(np.isclose(M @ M.transpose(0, 2, 1), np.eye(3), atol=1e-12)):
+        U, _, Vt = np.linalg.svd(M)
+        M = U @ Vt
+    m = M[0].tolist()
+    trace = m[0][0] + m[1][1] + m[2][2]
+    decision = (m[0][0], m[1][1], m[2][2], trace)
+    choice = 0
+    for n in (1, 2, 3):  # the first largest
+        if decision[n] > decision[choice]:
+            choice = n
+    if choice == 3:
+        q = [m[2][1] - m[1][2], m[0][2] - m[2][0], m[1][0] - m[0][1], 1 + trace]
+    else:
+        i = choice
+        j, k = (i + 1) % 3, (i + 2) % 3
+        q = [0.0] * 4
+        q[i] = 1 - trace + 2 * m[i][i]
+        q[j] = m[j][i] + m[i][j]
+        q[k] = m[k][i] + m[i][k]
+        q[3] = m[k][j] - m[j][k]
+    norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return (q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm)
+
+
+def _quat_euler(q: Quaternion, axes: list[int], intrinsic: bool) -> tuple[list[float], bool]:
+    """Euler angles (radians, in ``(-pi, pi]`` but the second of a Tait-Bryan sequence in
+    ``[-pi/2, pi/2]``) of a unit quaternion, by Bernardes & Viollet (2022, PLoS ONE 17(11):
+    e0276302); and whether the sequence is in gimbal lock (the third angle is then 0)."""
+    i, j, k = axes[::-1] if intrinsic else axes
+    symmetric = i == k  # proper Euler (e.g. ZXZ) rather than Tait-Bryan
+    if symmetric:
+        k = 3 - i - j
+    sign = (i - j) * (j - k) * (k - i) // 2  # parity of the permutation (i, j, k)
+    if symmetric:
+        a, b, c, d = q[3], q[i], q[j], q[k] * sign
+    else:
+        a, b, c, d = q[3] - q[j], q[i] + q[k] * sign, q[j] + q[3], q[k] * sign - q[i]
+    angles = [0.0, 2 * math.atan2(float(np.hypot(c, d)), float(np.hypot(a, b))), 0.0]
+    lock = abs(angles[1]) <= 1e-7 or abs(angles[1] - math.pi) <= 1e-7
+    half_sum, half_diff = math.atan2(b, a), math.atan2(d, c)
+    first, third = (2, 0) if intrinsic else (0, 2)
+    if not lock:
+        angles[first] = half_sum - half_diff
+        angles[third] = half_sum + half_diff
+    elif abs(angles[1]) <= 1e-7:
+        angles[0] = 2 * half_sum
+    else:
+        angles[0] = 2 * half_diff * (1 if intrinsic else -1)
+    if not symmetric:
+        angles[third] *= sign
+        angles[1] -= math.pi / 2
+    for n in range(3):
+        if angles[n] < -math.pi:
+            angles[n] += 2 * math.pi
+        elif angles[n] > math.pi:
+            angles[n] -= 2 * math.pi
+    return angles, lock
+
+
+def rotation_from_euler(seq: str, angles_deg: Sequence[float] | np.ndarray) -> np.ndarray:
+    """The rotation matrix of three Euler angles.
+
+    Parameters
+    ----------
+    seq : str
+        Axis sequence in SciPy ``Rotation`` notation: upper case intrinsic (``"XYZ"``:
+        ``R = Rx(a0) @ Ry(a1) @ Rz(a2)``), lower case extrinsic (``"xyz"``:
+        ``R = Rz(a2) @ Ry(a1) @ Rx(a0)``).
+    angles_deg : (3,) array_like
+        Angles, degrees.
+
+    Returns
+    -------
+    (3, 3) array
+        Bitwise ``Rotation.from_euler(seq, angles_deg, degrees=True).as_matrix()``.
+    """
+    axes, intrinsic = _euler_axes(seq)
+    rad = np.asarray(angles_deg, dtype=float).reshape(3) * _DEG
+    elems = []
+    for axis, angle in zip(axes, rad.tolist(), strict=True):
+        e = [0.0, 0.0, 0.0, math.cos(angle / 2)]
+        e[axis] = math.sin(angle / 2)
+        elems.append((e[0], e[1], e[2], e[3]))
+    q = elems[0]
+    for elem in elems[1:]:
+        q = _quat_mul(q, elem) if intrinsic else _quat_mul(elem, q)
+    return _quat_matrix(q)
+
+
+def euler_from_rotation(R: np.ndarray, seq: str) -> np.ndarray:
+    """Euler angles (degrees) of rotation matrices: the inverse of :func:`rotation_from_euler`.
+
+    Parameters
+    ----------
+    R : (..., 3, 3) array
+        Rotation matrices (orthonormalised first when they are not, see ``_matrix_quat``).
+    seq : str
+        Axis sequence, as in :func:`rotation_from_euler`.
+
+    Returns
+    -------
+    (..., 3) array
+        Degrees; bitwise ``Rotation.from_matrix(R).as_euler(seq, degrees=True)``, with its
+        ranges (the middle angle of a Tait-Bryan sequence in [-90, 90]) and its warning when a
+        matrix is in gimbal lock (the third angle is then set to 0).
+    """
+    axes, intrinsic = _euler_axes(seq)
+    R = np.asarray(R, dtype=float)
+    flat = R.reshape(-1, 3, 3)
+    out = np.empty((len(flat), 3))
+    locked = False
+    for n, M in enumerate(flat):
+        angles, lock = _quat_euler(_matrix_quat(M), axes, intrinsic)
+        out[n] = angles
+        locked |= lock
+    if locked:
+        warnings.warn(_GIMBAL, UserWarning, stacklevel=2)
+    return (out * _RAD).reshape(R.shape[:-2] + (3,))
+
+
+def rotation_from_rotvec(rotvec: Sequence[float] | np.ndarray) -> np.ndarray:
+    """Rotation matrix of an axis-angle vector (radians; its norm is the angle): bitwise
+    ``Rotation.from_rotvec(rotvec).as_matrix()`` (Taylor terms below 1e-3 rad)."""
+    x, y, z = np.asarray(rotvec, dtype=float).reshape(3).tolist()
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle <= 1e-3:
+        angle2 = angle * angle
+        scale = 0.5 - angle2 / 48 + angle2 * angle2 / 3840
+    else:
+        scale = math.sin(angle / 2) / angle
+    return _quat_matrix((scale * x, scale * y, scale * z, math.cos(angle / 2)))
+
+
+def rotvec_from_rotation(R: np.ndarray) -> np.ndarray:
+    """Axis-angle vector (radians, angle in [0, pi]) of a 3x3 rotation matrix: the inverse of
+    :func:`rotation_from_rotvec`; bitwise ``Rotation.from_matrix(R).as_rotvec()``."""
+    x, y, z, w = _matrix_quat(R)
+    if w < 0 or (w == 0 and (x < 0 or (x == 0 and (y < 0 or (y == 0 and z < 0))))):
+        x, y, z, w = -x, -y, -z, -w  # the quaternion with w >= 0: angle in [0, pi]
+    angle = 2 * math.atan2(math.sqrt(x * x + y * y + z * z), w)
+    if angle <= 1e-3:
+        angle2 = angle * angle
+        scale = 2 + angle2 / 12 + 7 * angle2 * angle2 / 2880
+    else:
+        scale = angle / math.sin(angle / 2)
+    return np.array([scale * x, scale * y, scale * z])
 
 
 def rigid_pose(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
@@ -402,7 +618,7 @@ def _rows(frames: Sequence[int], body: str, reference: str, P: np.ndarray) -> li
         if np.isnan(T).any():
             vals = [math.nan] * 6
         else:
-            vals = [*T[:3, 3], *_rotation().from_matrix(T[:3, :3]).as_euler(ANGLE_SEQUENCE, True)]
+            vals = [*T[:3, 3], *euler_from_rotation(T[:3, :3], ANGLE_SEQUENCE)]
         out.append([str(f), body, reference, *(_g(v) for v in vals)])
     return out
 
@@ -456,7 +672,7 @@ def _pose_from_row(path: Path, lineno: int, row: list[str]) -> np.ndarray:
         return np.full((4, 4), np.nan)
     if not all(math.isfinite(x) for x in v):
         raise ValueError(f"{path}: line {lineno}: NaN/inf in a tracked row")
-    R = _rotation().from_euler(ANGLE_SEQUENCE, v[3:], degrees=True).as_matrix()
+    R = rotation_from_euler(ANGLE_SEQUENCE, v[3:])
     return rigid_pose(R, v[:3])
 
 

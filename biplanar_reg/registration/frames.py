@@ -40,8 +40,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from ..io.transforms import rotation_from_rotvec, rotvec_from_rotation
 from ..ssm.model import ShapeModel
 from .frames_uncertainty import frame_linearisations, frames_vertex_sd, shape_sd
 from .gsft import nearest_point_to_rays
@@ -230,8 +230,8 @@ def _neighbour_pose(f: int, Rs: dict, ts: dict, c: np.ndarray) -> tuple[np.ndarr
         g = (before or after)[0]
         return Rs[g].copy(), ts[g].copy()
     s = (f - a) / (b - a)  # in (0, 1) between them, > 1 beyond b
-    rel = Rotation.from_matrix(Rs[b] @ Rs[a].T).as_rotvec()
-    R = Rotation.from_rotvec(s * rel).as_matrix() @ Rs[a]
+    rel = rotvec_from_rotation(Rs[b] @ Rs[a].T)
+    R = rotation_from_rotvec(s * rel) @ Rs[a]
     ca, cb = Rs[a] @ c + ts[a], Rs[b] @ c + ts[b]
     return R, (1 - s) * ca + s * cb - R @ c
 
@@ -293,7 +293,7 @@ def _rotated_starts(R, t, c) -> list[tuple[np.ndarray, np.ndarray]]:
     centre = R @ c + t
     out = []
     for rv in np.vstack([np.eye(3), -np.eye(3)]) * np.deg2rad(RETRY_DEG):
-        Rs = Rotation.from_rotvec(rv).as_matrix() @ R
+        Rs = rotation_from_rotvec(rv) @ R
         out.append((Rs, centre - Rs @ c))
     return out
 

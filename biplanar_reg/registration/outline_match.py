@@ -7,10 +7,11 @@ One boosting iteration (the seed paper's third method):
 
 1. find the model's outline points in every view with contours, thinned to about
    ``silhouette_points`` per view;
-2. match each to the nearest point of the annotated outline in pixel space (a 2D KD-tree over the
-   outline resampled at 1 px); drop matches farther than ``gate_px`` and matches that land on
-   the first or last ``END_MARGIN_PX`` of an open contour (the annotation says nothing beyond
-   its ends, so a model point there is most likely outside the annotated part);
+2. match each to the nearest point of the annotated outline in pixel space (a KD-tree over the
+   outline resampled at 1 px, :class:`NearestPoints`); drop matches farther than
+   ``gate_px`` and matches that land on the first or last ``END_MARGIN_PX`` of an open contour
+   (the annotation says nothing beyond its ends, so a model point there is most likely outside
+   the annotated part);
 3. re-solve G-SfT with the landmarks and the matched outline points as observations.
 
 The iteration cost used to pick the best iterate and to stop does not depend on the matches:
@@ -25,8 +26,8 @@ import threading
 from collections import OrderedDict
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..annotation.clean import resample_polyline
 from ..calibration.views import View
@@ -39,17 +40,126 @@ __all__ = ["model_outline"]
 END_MARGIN_PX = 3.0
 
 
+class NearestPoints:
+    """Exact k-nearest-neighbour queries among fixed 2D points (pixels).
+
+    OpenCV's FLANN single KD-tree (an exact search, in float32) proposes the ``k + EXTRA``
+    nearest points of each query. Where the float32 distances of the first ``k + 1`` are
+    farther apart than a generous bound on float32 rounding, FLANN's order is the exact one
+    (and that of the float64 squared distances ``dx * dx + dy * dy`` of SciPy's ``cKDTree``)
+    and no point left out can come before the k-th; the other queries rank their proposals by
+    those float64 distances, and the k first are the answer when the k-th is nearer than the
+    last proposal's float32 distance less that bound. The few queries still undecided (and
+    non-finite ones) are compared with all points. Neighbours and their order are therefore
+    ``cKDTree``'s (ties aside): it replaced one because ``scipy.spatial`` costs ~0.05-0.12 CPU
+    s to import, and it is as fast on a registration's outlines (``docs/registration.md``).
+
+    Parameters
+    ----------
+    points : (M, 2) array
+        The points, pixels.
+    """
+
+    #: Proposals beyond ``k``: margin for the float32 ranking.
+    EXTRA = 2
+    #: Most numbers in one chunk of the all-points comparison.
+    CHUNK = 500_000
+
+    def __init__(self, points: np.ndarray) -> None:
+        self.points = np.asarray(points, dtype=float).reshape(-1, 2)
+        self.xs = np.ascontiguousarray(self.points[:, 0])
+        self.ys = np.ascontiguousarray(self.points[:, 1])
+        self._index = None  # the FLANN index, built on the first query that needs it
+        self._scale = float(np.abs(self.points).max()) if len(self.points) else 0.0
+
+    def query(self, q: np.ndarray, k: int) -> np.ndarray:
+        """Indices (Q, k) of the ``k`` (at most the number of points) nearest points of each
+        query ``q`` (Q, 2), nearest first."""
+        q = np.asarray(q, dtype=float).reshape(-1, 2)
+        k = min(k, len(self.points))
+        kk = min(k + self.EXTRA, len(self.points))
+        if k == 0 or len(q) == 0 or kk == len(self.points):
+            return self._all(q, np.arange(len(q)), k)
+        rows = np.flatnonzero(np.isfinite(q).all(axis=1))
+        qf = q if len(rows) == len(q) else q[rows]
+        out = np.zeros((len(q), k), dtype=np.int64)
+        proven = np.zeros(len(q), bool)
+        if len(rows):
+            cand, ok = self._proposed(qf, k, kk)
+            out[rows[ok]] = cand[ok]
+            proven[rows[ok]] = True
+        rest = np.flatnonzero(~proven)
+        if len(rest):
+            out[rest] = self._all(q, rest, k)
+        return out
+
+    def _proposed(self, q: np.ndarray, k: int, kk: int) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k`` nearest of the ``kk`` FLANN proposals of each (finite) query, nearest
+        first (Q, k), and whether they are proven to be the ``k`` nearest of all (Q,)."""
+        if self._index is None:
+            self._index = cv2.flann_Index(
+                self.points.astype(np.float32), {"algorithm": _FLANN_KDTREE_SINGLE}
+            )
+        cand, d32 = self._index.knnSearch(q.astype(np.float32), kk)
+        cand = cand.astype(np.int64)
+        # Bounds of each proposal's exact distance from its float32 one: the coordinates'
+        # rounding moves a distance by at most 2 sqrt(2) 2^-24 |x| < 1e-6 |x|, the float32
+        # squared distance's rounding is well within 1e-5 relative (both generous).
+        slack = 1e-6 * max(self._scale, float(np.abs(q).max()))
+        d = np.sqrt(d32.astype(float))
+        low = d * (1.0 - 1e-5) - slack  # every point not proposed is at least as far as low[-1]
+        high = d * (1.0 + 1e-5) + slack
+        # Most queries: the first k + 1 proposals' distance intervals are apart, so FLANN's
+        # order is the exact order (and that of the float64 distances, whose rounding is far
+        # smaller), and no point beyond can come before the k-th.
+        apart = (high[:, :k] < low[:, 1 : k + 1]).all(axis=1)
+        top = cand[:, :k].copy()
+        near = np.flatnonzero(~apart)
+        if len(near):  # near ties: rank the proposals by their float64 distances
+            c = cand[near]
+            dx = self.xs.take(c) - q[near, :1]
+            dy = self.ys.take(c) - q[near, 1:]
+            d2 = dx * dx + dy * dy
+            r = np.arange(len(near))[:, None]
+            rank = np.argsort(d2, axis=1, kind="stable")[:, :k]
+            top[near] = c[r, rank]
+            apart[near] = np.sqrt(d2[r[:, 0], rank[:, -1]]) < low[near, -1]
+        return top, apart
+
+    def _all(self, q: np.ndarray, rows: np.ndarray, k: int) -> np.ndarray:
+        """The ``k`` nearest points of queries ``q[rows]`` by comparing all points."""
+        out = np.zeros((len(rows), k), dtype=np.int64)
+        if k == 0:
+            return out
+        step = max(1, self.CHUNK // len(self.xs))
+        everything = np.arange(len(self.xs))
+        for s in range(0, len(rows), step):
+            r = rows[s : s + step]
+            dx, dy = self.xs - q[r, :1], self.ys - q[r, 1:]
+            d2 = dx * dx + dy * dy
+            idx = np.broadcast_to(everything, d2.shape)
+            if d2.shape[1] > k:
+                part = np.argpartition(d2, k - 1, axis=1)[:, :k]
+                d2, idx = np.take_along_axis(d2, part, 1), np.take_along_axis(idx, part, 1)
+            out[s : s + step] = np.take_along_axis(idx, np.argsort(d2, axis=1, kind="stable"), 1)
+        return out
+
+
+#: FLANN's exact single KD-tree (``FLANN_INDEX_KDTREE_SINGLE``).
+_FLANN_KDTREE_SINGLE = 4
+
+
 @dataclass(frozen=True)
 class Segments:
-    """2D line segments ``a -> b`` with a KD-tree over their midpoints for nearest queries."""
+    """2D line segments ``a -> b`` with their midpoints indexed for nearest queries."""
 
     a: np.ndarray  # (S, 2)
     b: np.ndarray  # (S, 2)
-    tree: cKDTree
+    midpoints: NearestPoints
 
     @classmethod
     def build(cls, a: np.ndarray, b: np.ndarray) -> Segments:
-        return cls(a, b, cKDTree(0.5 * (a + b)))
+        return cls(a, b, NearestPoints(0.5 * (a + b)))
 
     def nearest(self, p: np.ndarray, k: int = 8) -> tuple[np.ndarray, ...]:
         """Nearest point on the segments to each of ``p`` (P, 2).
@@ -59,8 +169,7 @@ class Segments:
         nearest midpoints, exact when segments are shorter than the distances between them.
         """
         k = min(k, len(self.a))
-        _, cand = self.tree.query(p, k=k)
-        cand = cand.reshape(len(p), k)
+        cand = self.midpoints.query(p, k)
         # (P, k) arrays per coordinate rather than (P, k, 2) ones: numpy is slow on length-2
         # axes. The arithmetic is that of the 2-vector form, term by term (b - a per segment
         # is the same number whether taken before or after the gather), so the result is
@@ -233,7 +342,9 @@ def match_outline(
     keep &= cos >= np.cos(np.deg2rad(max_angle_deg))
     if mutual and np.any(keep):
         # the foot point's nearest model outline point must be the same model point
-        _, back = cKDTree(p).query(foot)
+        # (the outline's thinned points: a few hundred, so all pairs are compared)
+        dx, dy = foot[:, :1] - p[:, 0], foot[:, 1:] - p[:, 1]
+        back = np.argmin(dx * dx + dy * dy, axis=1)
         keep &= back == np.arange(len(p))
     return outline.ids[keep], foot[keep], seg[keep], dist[keep]
 

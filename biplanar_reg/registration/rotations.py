@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..io.transforms import rotvec_from_rotation
+
 __all__: list[str] = []
 
 
@@ -44,6 +46,4 @@ def rotation_angle(R1: np.ndarray, R2: np.ndarray | None = None) -> float:
 
 def so3_log(R: np.ndarray) -> np.ndarray:
     """Axis-angle vector (radians) of the rotation ``R``: the inverse of :func:`so3_exp`."""
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(np.asarray(R, dtype=float)).as_rotvec()
+    return rotvec_from_rotation(R)
