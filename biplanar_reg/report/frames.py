@@ -37,9 +37,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from ..io.transforms import ANGLE_SEQUENCE
+from ..io.transforms import ANGLE_SEQUENCE, euler_from_rotation
 from .advice import flag_advice
 from .case_report import ReportView
 from .figures import overlay_figure
@@ -74,7 +73,7 @@ def kinematics_components(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     rotation through 180 deg does not jump by 360) and translations (F, 3) mm of (F, 4, 4)
     model -> world poses."""
     P = np.asarray(poses, float)
-    angles = Rotation.from_matrix(P[:, :3, :3]).as_euler(ANGLE_SEQUENCE, degrees=True)
+    angles = euler_from_rotation(P[:, :3, :3], ANGLE_SEQUENCE)
     return np.unwrap(angles, period=360.0, axis=0), P[:, :3, 3].copy()
 
 
