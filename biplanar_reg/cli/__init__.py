@@ -30,7 +30,6 @@ import sys
 import traceback
 from collections.abc import Sequence
 
-from .. import __version__
 from ..errors import CommandError, SolverFailure
 
 __all__ = ["main"]
@@ -46,6 +45,20 @@ COMMAND_MODULES: tuple[str, ...] = (
 )
 
 log = logging.getLogger("biplanar_reg")
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: prints the installed version, read only when asked for (see
+    ``biplanar_reg.__getattr__``)."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, **kwargs: object) -> None:
+        super().__init__(option_strings, dest, nargs=0, help="show the version and exit")
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:  # noqa: ANN001
+        from .. import __version__
+
+        sys.stdout.write(f"biplanar-reg {__version__}\n")  # on stdout, as argparse's own
+        parser.exit()
 
 
 def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
@@ -64,7 +77,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
         description="Register statistical bone models to calibrated biplanar X-rays "
         "(silhouette-boosted Generalised Shape-from-Template).",
     )
-    parser.add_argument("--version", action="version", version=f"biplanar-reg {__version__}")
+    parser.add_argument("--version", action=_VersionAction)
     parser.add_argument(
         "-v",
         "--verbose",

@@ -11,7 +11,6 @@ from typing import Any
 
 import jinja2
 
-from .. import __version__
 from ..io.atomic import atomic_write_text
 
 __all__ = ["render_template", "write_page"]
@@ -32,6 +31,8 @@ def _environment() -> jinja2.Environment:
 
 def render_template(name: str, **context: Any) -> str:
     """Render the template ``name`` (in ``biplanar_reg/report/templates``) to a string."""
+    from .. import __version__  # read on first use (package metadata)
+
     return _environment().get_template(name).render(version=__version__, **context)
 
 
