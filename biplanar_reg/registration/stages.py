@@ -217,8 +217,12 @@ def start_from_landmarks(
     problem: Problem, weights: np.ndarray | None, memo: FitMemo | None = None
 ) -> Start:
     """A fresh start with the landmarks weighted by ``weights``: solve, then
-    :func:`choose_start`."""
-    return choose_start(problem, Start(landmark_solve(problem, weights), weights), memo)
+    :func:`choose_start` (given a ``memo``, the one it holds for these weights: e.g. the
+    start without a landmark :func:`robust_start` tried, wanted again once the boosting
+    rejects that landmark)."""
+    if memo is not None:
+        return memo.start(problem, weights)
+    return choose_start(problem, Start(landmark_solve(problem, weights), weights))
 
 
 def _landmark_only_start(problem: Problem, start: Start, memo: FitMemo | None) -> Start:
@@ -383,9 +387,11 @@ class FitMemo:
     start with the same weights take the same steps until the weights differ: the boosting
     after :func:`reweighted_start` (or :func:`robust_start`) retraces the full boosted fit that
     chose its start, and a full fit from a start retraces the short fit :func:`choose_start`
-    ran from it. With one memo shared by them each step is computed once; a step taken from
-    the memo is the very object a computation would have produced again (the same inputs, the
-    same code), so the registration's results are the same, bitwise.
+    ran from it. The starts themselves (:func:`start_from_landmarks`, a function of the
+    weights) are kept too, so a start wanted twice is the same object and its fits hit. With
+    one memo shared by them each step is computed once; a step taken from the memo is the
+    very object a computation would have produced again (the same inputs, the same code), so
+    the registration's results are the same, bitwise.
 
     Keys hold the identity of the (frozen) results and matches; the memo keeps every object it
     keys on, so an identity is never reused by another object while the memo lives. One memo
@@ -398,11 +404,21 @@ class FitMemo:
         self._costs: dict[tuple[int, frozenset[int]], float] = {}
         self._matches: dict[tuple[int, bool, frozenset[int]], Matches] = {}
         self._solves: dict[tuple[int, int, bytes | None], GsftResult] = {}
+        self._starts: dict[bytes | None, Start] = {}
 
     def _id(self, obj: object) -> int:
         """``id(obj)``, ``obj`` kept alive so the identity stays its own."""
         self._kept[id(obj)] = obj
         return id(obj)
+
+    def start(self, problem: Problem, weights: np.ndarray | None) -> Start:
+        """:func:`start_from_landmarks` with ``weights`` (None: all 1), its fits through this
+        memo."""
+        key = _weights_key(weights)
+        if key not in self._starts:
+            res = landmark_solve(problem, weights)
+            self._starts[key] = choose_start(problem, Start(res, weights), self)
+        return self._starts[key]
 
     def outlines(self, problem: Problem, result: GsftResult) -> dict[int, ModelOutline]:
         """:meth:`.problem.Problem.outlines` of ``result``."""
@@ -440,8 +456,7 @@ class FitMemo:
     ) -> GsftResult:
         """The convex solve of the landmarks weighted by ``weights`` (None: all 1) and
         ``matches``, started and warm-started from ``result``."""
-        w = None if weights is None else np.asarray(weights, dtype=float).tobytes()
-        key = (self._id(result), self._id(matches), w)
+        key = (self._id(result), self._id(matches), _weights_key(weights))
         if key not in self._solves:
             lm = weighted_landmark_rays(problem, weights)
             rays = RayObservations.concatenate([lm, matches.rays])
@@ -449,6 +464,11 @@ class FitMemo:
                 problem.model, rays, problem.options, start=result, warm=result
             )
         return self._solves[key]
+
+
+def _weights_key(weights: np.ndarray | None) -> bytes | None:
+    """Landmark weights as a dictionary key (their float64 bytes; None stays None)."""
+    return None if weights is None else np.asarray(weights, dtype=float).tobytes()
 
 
 @dataclass

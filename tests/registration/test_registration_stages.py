@@ -209,6 +209,9 @@ def test_a_fit_retraced_with_the_memo_takes_every_step_from_it(blunder, monkeypa
     other = boost(p, start.result, np.ones(len(p.landmarks)), 1, detect=False, memo=memo)
     assert len(calls) == 1  # other weights: a step of its own
     assert other.best.cost != first.best.cost
+    # a start from the landmarks is a function of the weights: wanted again, the same object
+    n_calls = len(calls)
+    assert memo.start(p, w) is memo.start(p, w.copy()) and len(calls) > n_calls
 
 
 def test_the_memo_leaves_the_robust_start_and_boosting_unchanged(blunder, monkeypatch):
