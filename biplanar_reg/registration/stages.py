@@ -9,7 +9,8 @@ calls them:
    re-solve, repeat); with ``robust``, the landmarks' robust weights are re-estimated after
    every solve by graduated non-convexity (:mod:`.blunders`), and when the set of rejected
    landmarks changes the boosting restarts with the new weights from the better of the
-   landmark-only solve with them and that of every landmark (:func:`reweighted_start`);
+   landmark-only solve with them and that of every landmark (:func:`reweighted_start`; the
+   boosting then retraces the winner's fit, its steps taken from a :class:`FitMemo`);
 4. :func:`refine_final`: the final local refinement of the registration objective itself, then
    one reweighting of the landmarks at the refined fit (refined again if the rejected set
    changed).
