@@ -26,7 +26,15 @@ from .options import IterationRecord, RegistrationOptions
 from .outline_match import outline_distances
 from .problem import Problem, make_problem
 from .rotations import project_to_so3
-from .stages import Refined, boost, landmark_start, pose_start, refine_final, robust_start
+from .stages import (
+    FitMemo,
+    Refined,
+    boost,
+    landmark_start,
+    pose_start,
+    refine_final,
+    robust_start,
+)
 from .uncertainty import registration_uncertainty
 from .view_poses import (
     PosedViews,
@@ -256,12 +264,13 @@ def _register_posed(model, posed, poses, opts, silhouettes, say, start_pose):
     refinement with the corrected views."""
     c = None if start_pose is None else model.mean.mean(axis=0) @ start_pose[0].T + start_pose[1]
     problem = make_problem(model, posed.views, opts, silhouettes, say, c)
+    memo = FitMemo()  # the start's boosted fits, retraced by the boosting (stages.FitMemo)
     if start_pose is not None:
         start = pose_start(problem, *start_pose)
         unweighted = None
     else:
         unweighted = landmark_start(problem)
-        start = robust_start(problem, unweighted)
+        start = robust_start(problem, unweighted, memo)
         unweighted = unweighted.result
     detect = opts.robust and len(problem.landmarks) > 0
     run = boost(
@@ -271,6 +280,7 @@ def _register_posed(model, posed, poses, opts, silhouettes, say, start_pose):
         opts.max_iterations,
         detect=detect,
         unweighted=unweighted,
+        memo=memo,
     )
     final = refine_final(problem, run)
     if poses == "known" or not problem.use_outlines:

@@ -9,7 +9,8 @@ calls them:
    re-solve, repeat); with ``robust``, the landmarks' robust weights are re-estimated after
    every solve by graduated non-convexity (:mod:`.blunders`), and when the set of rejected
    landmarks changes the boosting restarts with the new weights from the better of the
-   landmark-only solve with them and that of every landmark (:func:`reweighted_start`);
+   landmark-only solve with them and that of every landmark (:func:`reweighted_start`; the
+   boosting then retraces the winner's fit, its steps taken from a :class:`FitMemo`);
 4. :func:`refine_final`: the final local refinement of the registration objective itself, then
    one reweighting of the landmarks at the refined fit (refined again if the rejected set
    changed).
@@ -44,6 +45,7 @@ from .rays import RayObservations
 __all__ = [
     "Start",
     "BoostRun",
+    "FitMemo",
     "Refined",
     "landmark_start",
     "pose_start",
@@ -139,7 +141,7 @@ def rigid_mean_start(
     )
 
 
-def choose_start(problem: Problem, start: Start) -> Start:
+def choose_start(problem: Problem, start: Start, memo: FitMemo | None = None) -> Start:
     """Keep ``start``, or, when it is unreliable, the rigid mean-shape start if its short
     boosted fit explains the outlines and landmarks better. The short fit of the start kept is
     returned with it.
@@ -152,6 +154,8 @@ def choose_start(problem: Problem, start: Start) -> Start:
     solution down: measured (``benchmarks/results/robust_start.md``, every comparison with the
     rule off), the rigid start won up to a redundancy of 12 (5 of 30 comparisons there) and
     never from 14 on (0 of 55, including the knee-sized case at 18).
+
+    ``memo`` (:class:`FitMemo`) holds the short fits' steps for the fits that retrace them.
     """
     opts = problem.options
     res = start.result
@@ -167,8 +171,8 @@ def choose_start(problem: Problem, start: Start) -> Start:
         return start
     alt = rigid_mean_start(problem, res, start.weights)
     n = opts.consensus_iterations
-    full = boost(problem, res, start.weights, n, detect=False).best
-    other = boost(problem, alt, start.weights, n, detect=False).best
+    full = boost(problem, res, start.weights, n, detect=False, memo=memo).best
+    other = boost(problem, alt, start.weights, n, detect=False, memo=memo).best
     problem.say(f"start: landmark-only {full.cost:.3g}, rigid mean shape {other.cost:.3g}")
     if other.cost < full.cost:
         return Start(alt, start.weights, other)
@@ -210,25 +214,36 @@ def pose_start(problem: Problem, rotation: np.ndarray, translation: np.ndarray) 
     return Start(res)
 
 
-def start_from_landmarks(problem: Problem, weights: np.ndarray | None) -> Start:
+def start_from_landmarks(
+    problem: Problem, weights: np.ndarray | None, memo: FitMemo | None = None
+) -> Start:
     """A fresh start with the landmarks weighted by ``weights``: solve, then
-    :func:`choose_start`."""
+    :func:`choose_start` (given a ``memo``, the one it holds for these weights: e.g. the
+    start without a landmark :func:`robust_start` tried, wanted again once the boosting
+    rejects that landmark)."""
+    if memo is not None:
+        return memo.start(problem, weights)
     return choose_start(problem, Start(landmark_solve(problem, weights), weights))
 
 
-def _landmark_only_start(problem: Problem, start: Start) -> Start:
+def _landmark_only_start(problem: Problem, start: Start, memo: FitMemo | None) -> Start:
     """``start`` with robust weights from the landmarks alone (graduated non-convexity without
     outlines): when some landmark is rejected, the start :func:`reweighted_start` chooses for
     them; otherwise ``start`` through :func:`choose_start`."""
     weights, _ = gnc_weights(problem, start.result, RayObservations.empty())
     if not rejected_landmarks(problem, weights):
-        return choose_start(problem, start)
+        return choose_start(problem, start, memo)
     names = [problem.landmarks.names[i] for i in sorted(rejected_landmarks(problem, weights))]
     problem.say(f"robust start: rejected {names}")
-    return reweighted_start(problem, weights, start.result)
+    return reweighted_start(problem, weights, start.result, memo)
 
 
-def reweighted_start(problem: Problem, weights: np.ndarray, unweighted: GsftResult) -> Start:
+def reweighted_start(
+    problem: Problem,
+    weights: np.ndarray,
+    unweighted: GsftResult,
+    memo: FitMemo | None = None,
+) -> Start:
     """A start for new landmark ``weights``: the landmark-only solve with them
     (:func:`start_from_landmarks`) or ``unweighted`` (the landmark-only solve of every landmark
     weighing 1) with them, whichever boosted fit (``max_iterations``, the same weights, no
@@ -240,24 +255,29 @@ def reweighted_start(problem: Problem, weights: np.ndarray, unweighted: GsftResu
     blunder but pinned down by more data. Both fits weigh the landmarks alike, so their costs
     compare; they run as long as the boosting itself because a short fit (one iteration) from
     the better start was measured to look worse (a realistic case, 7 mm instead of 1.1 mm).
+
+    Given the boosting's ``memo`` (:class:`FitMemo`), the two fits' steps are kept there: the
+    boosting that goes on from the start returned retraces the winner's fit (the same start,
+    weights and matching) until its reweighting changes the weights, and takes those steps
+    from the memo instead of solving them again (the same results, bitwise).
     """
-    own = start_from_landmarks(problem, weights).result
+    own = start_from_landmarks(problem, weights, memo).result
     n = problem.options.max_iterations
-    own_cost = boost(problem, own, weights, n, detect=False).best.cost
-    alt_cost = boost(problem, unweighted, weights, n, detect=False).best.cost
+    own_cost = boost(problem, own, weights, n, detect=False, memo=memo).best.cost
+    alt_cost = boost(problem, unweighted, weights, n, detect=False, memo=memo).best.cost
     problem.say(f"reweighted start: landmark-only {own_cost:.3g}, all landmarks' {alt_cost:.3g}")
     return Start(unweighted if alt_cost < own_cost else own, weights)
 
 
-def _short_fit(problem: Problem, start: Start) -> Iterate:
+def _short_fit(problem: Problem, start: Start, memo: FitMemo | None) -> Iterate:
     """The best iterate of a short boosted fit from ``start`` (reused if already run)."""
     if start.short_fit is not None:
         return start.short_fit
     n = problem.options.consensus_iterations
-    return boost(problem, start.result, start.weights, n, detect=False).best
+    return boost(problem, start.result, start.weights, n, detect=False, memo=memo).best
 
 
-def robust_start(problem: Problem, start: Start) -> Start:
+def robust_start(problem: Problem, start: Start, memo: FitMemo | None = None) -> Start:
     """The start of the robust fit: the lowest robust cost over a few starts.
 
     The robust objective is not convex, and with few landmarks a blunder spoils the
@@ -278,25 +298,28 @@ def robust_start(problem: Problem, start: Start) -> Start:
     by chance (measured: one out-of-span trial then rejected a good landmark and missed the
     blunder). No landmark is rejected here: the boosting's reweighting decides that from the
     chosen start.
+
+    Pass the same ``memo`` (:class:`FitMemo`) to the :func:`boost` that goes on from the start
+    returned: it then takes the steps these fits already computed from it.
     """
     if not problem.options.robust:
-        return choose_start(problem, start)
-    chosen = _landmark_only_start(problem, start)
+        return choose_start(problem, start, memo)
+    chosen = _landmark_only_start(problem, start, memo)
     n_lm = len(problem.landmarks)
     if not (problem.use_outlines and n_lm >= 5):
         return chosen
     candidates = suspicious_landmarks(problem, start.result)
     if not candidates:
         return chosen
-    fit = _short_fit(problem, chosen)
+    fit = _short_fit(problem, chosen, memo)
     chosen = Start(chosen.result, chosen.weights, fit)
     base_cost = robust_cost(problem, fit.result, fit.outlines)
     best, best_cost, left_out = chosen, problem.options.consensus_margin * base_cost, None
     for i in candidates:
         w = np.ones(n_lm)
         w[i] = 0.0
-        alt = start_from_landmarks(problem, w)
-        fit = _short_fit(problem, alt)
+        alt = start_from_landmarks(problem, w, memo)
+        fit = _short_fit(problem, alt, memo)
         cost = robust_cost(problem, fit.result, fit.outlines)
         if cost < best_cost:
             best, best_cost, left_out = alt, cost, i
@@ -356,6 +379,99 @@ def match_outlines(
     return Matches(RayObservations.concatenate(parts), frozenset(key))
 
 
+class FitMemo:
+    """What boosted fits computed at each fit, for the boosted fits that retrace them.
+
+    A boosted fit is a chain of deterministic steps: at fit ``r`` the model's outlines and the
+    iteration cost, then the matches (given whether the gate is the wide one and the rejected
+    landmarks) and the solve with the landmark weights from ``r``. Two fits from the same
+    start with the same weights take the same steps until the weights differ: the boosting
+    after :func:`reweighted_start` (or :func:`robust_start`) retraces the full boosted fit that
+    chose its start, and a full fit from a start retraces the short fit :func:`choose_start`
+    ran from it. The starts themselves (:func:`start_from_landmarks`, a function of the
+    weights) are kept too, so a start wanted twice is the same object and its fits hit. With
+    one memo shared by them each step is computed once; a step taken from the memo is the
+    very object a computation would have produced again (the same inputs, the same code), so
+    the registration's results are the same, bitwise.
+
+    Keys hold the identity of the (frozen) results and matches; the memo keeps every object it
+    keys on, so an identity is never reused by another object while the memo lives. One memo
+    serves one :class:`.problem.Problem` (one registration: a few dozen results).
+    """
+
+    def __init__(self) -> None:
+        self._kept: dict[int, object] = {}
+        self._outlines: dict[int, dict[int, ModelOutline]] = {}
+        self._costs: dict[tuple[int, frozenset[int]], float] = {}
+        self._matches: dict[tuple[int, bool, frozenset[int]], Matches] = {}
+        self._solves: dict[tuple[int, int, bytes | None], GsftResult] = {}
+        self._starts: dict[bytes | None, Start] = {}
+
+    def _id(self, obj: object) -> int:
+        """``id(obj)``, ``obj`` kept alive so the identity stays its own."""
+        self._kept[id(obj)] = obj
+        return id(obj)
+
+    def start(self, problem: Problem, weights: np.ndarray | None) -> Start:
+        """:func:`start_from_landmarks` with ``weights`` (None: all 1), its fits through this
+        memo."""
+        key = _weights_key(weights)
+        if key not in self._starts:
+            res = landmark_solve(problem, weights)
+            self._starts[key] = choose_start(problem, Start(res, weights), self)
+        return self._starts[key]
+
+    def outlines(self, problem: Problem, result: GsftResult) -> dict[int, ModelOutline]:
+        """:meth:`.problem.Problem.outlines` of ``result``."""
+        key = self._id(result)
+        if key not in self._outlines:
+            self._outlines[key] = problem.outlines(result)
+        return self._outlines[key]
+
+    def cost(
+        self,
+        problem: Problem,
+        result: GsftResult,
+        outlines: dict[int, ModelOutline],
+        rejected: frozenset[int],
+    ) -> float:
+        """:meth:`.problem.Problem.cost` of ``result`` with ``outlines`` (its
+        :meth:`outlines`, or none without outlines: either way a function of ``result``)."""
+        key = (self._id(result), rejected)
+        if key not in self._costs:
+            self._costs[key] = problem.cost(result, outlines, rejected)
+        return self._costs[key]
+
+    def matches(
+        self, problem: Problem, result: GsftResult, wide: bool, rejected: frozenset[int]
+    ) -> Matches:
+        """:func:`match_outlines` at ``result`` with its :meth:`outlines`."""
+        key = (self._id(result), wide, rejected)
+        if key not in self._matches:
+            outlines = self.outlines(problem, result)
+            self._matches[key] = match_outlines(problem, result, outlines, wide, rejected)
+        return self._matches[key]
+
+    def solve(
+        self, problem: Problem, result: GsftResult, weights: np.ndarray | None, matches: Matches
+    ) -> GsftResult:
+        """The convex solve of the landmarks weighted by ``weights`` (None: all 1) and
+        ``matches``, started and warm-started from ``result``."""
+        key = (self._id(result), self._id(matches), _weights_key(weights))
+        if key not in self._solves:
+            lm = weighted_landmark_rays(problem, weights)
+            rays = RayObservations.concatenate([lm, matches.rays])
+            self._solves[key] = solve(
+                problem.model, rays, problem.options, start=result, warm=result
+            )
+        return self._solves[key]
+
+
+def _weights_key(weights: np.ndarray | None) -> bytes | None:
+    """Landmark weights as a dictionary key (their float64 bytes; None stays None)."""
+    return None if weights is None else np.asarray(weights, dtype=float).tobytes()
+
+
 @dataclass
 class _BoostState:
     """The boosting loop's state (private to :func:`boost`)."""
@@ -364,6 +480,7 @@ class _BoostState:
     weights: np.ndarray | None
     best: Iterate
     tried: set[frozenset[int]]  # rejected sets boosting has (re)started from
+    memo: FitMemo  # the steps computed so far (shared with the fits that chose the start)
     unweighted: GsftResult | None = None  # the landmark-only solve of every landmark
     k: int = 0
     k_start: int = 0  # iteration of the last (re)start from a landmark-only solve
@@ -387,9 +504,9 @@ def _restart(problem: Problem, s: _BoostState, weights: np.ndarray) -> None:
     s.tried.add(s.rejected(problem))
     s.k_start = s.k + 1
     if s.unweighted is None:
-        s.result = start_from_landmarks(problem, weights).result
+        s.result = start_from_landmarks(problem, weights, s.memo).result
     else:
-        s.result = reweighted_start(problem, weights, s.unweighted).result
+        s.result = reweighted_start(problem, weights, s.unweighted, s.memo).result
     s.prev_key, s.prev_cost, s.n_matches = None, np.inf, 0
     s.best = Iterate(np.inf, 0, s.result)
     names = [problem.landmarks.names[i] for i in sorted(s.rejected(problem))]
@@ -405,17 +522,16 @@ def _converged(problem: Problem, s: _BoostState, cost: float, max_iterations: in
     return s.k - s.k_start >= 2 and abs(s.prev_cost - cost) <= tol * max(s.prev_cost, 1e-12)
 
 
-def _boost_step(problem: Problem, s: _BoostState, outlines, detect: bool) -> bool:
-    """Match, re-solve and (with ``detect``) re-estimate the landmark weights; False when the
-    matches are those of the previous iteration (the same solution would come back)."""
+def _boost_step(problem: Problem, s: _BoostState, detect: bool) -> bool:
+    """Match, re-solve (both through the memo) and (with ``detect``) re-estimate the landmark
+    weights; False when the matches are those of the previous iteration (the same solution
+    would come back)."""
     rejected = s.rejected(problem)
-    matches = match_outlines(problem, s.result, outlines, s.k == s.k_start, rejected)
+    matches = s.memo.matches(problem, s.result, s.k == s.k_start, rejected)
     if matches.key == s.prev_key:
         return False
     s.prev_key, s.n_matches = matches.key, len(matches.key)
-    lm = weighted_landmark_rays(problem, s.weights)
-    rays = RayObservations.concatenate([lm, matches.rays])
-    s.result = solve(problem.model, rays, problem.options, start=s.result, warm=s.result)
+    s.result = s.memo.solve(problem, s.result, s.weights, matches)
     if detect:
         weights, _ = gnc_weights(problem, s.result, matches.rays)
         now = rejected_landmarks(problem, weights)
@@ -434,6 +550,7 @@ def boost(
     *,
     detect: bool,
     unweighted: GsftResult | None = None,
+    memo: FitMemo | None = None,
 ) -> BoostRun:
     """Convex outline iterations from ``result`` (iteration 0 is ``result`` itself).
 
@@ -444,17 +561,21 @@ def boost(
     (given ``unweighted``, the landmark-only solve of every landmark: from
     :func:`reweighted_start`, the better of the two starts).
     Without outlines the weights are estimated once from the landmarks alone.
+
+    Outlines, costs, matches and solves go through ``memo`` (:class:`FitMemo`; default: a
+    new one): a fit that retraces one run with the same memo takes its steps from it.
     """
     if detect and not problem.use_outlines:
         weights, result = _landmarks_only_weights(problem, result)
-    s = _BoostState(result, weights, Iterate(np.inf, 0, result), set(), unweighted)
+    memo = FitMemo() if memo is None else memo
+    s = _BoostState(result, weights, Iterate(np.inf, 0, result), set(), memo, unweighted)
     s.tried.add(s.rejected(problem))
     records: list[IterationRecord] = []
     iterates: list[np.ndarray] = []
     t_it = time.perf_counter()
     while True:
-        outlines = problem.outlines(s.result) if problem.use_outlines else {}
-        cost = problem.cost(s.result, outlines, s.rejected(problem))
+        outlines = s.memo.outlines(problem, s.result) if problem.use_outlines else {}
+        cost = s.memo.cost(problem, s.result, outlines, s.rejected(problem))
         iterates.append(s.result.vertices)
         records.append(
             IterationRecord(
@@ -467,7 +588,7 @@ def boost(
             break
         s.prev_cost = cost
         t_it = time.perf_counter()
-        if not _boost_step(problem, s, outlines, detect):
+        if not _boost_step(problem, s, detect):
             break
         s.k += 1
         problem.say(

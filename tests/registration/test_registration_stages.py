@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from registration_problems import clean_views, problem_for, with_blunder
 
-from biplanar_reg.registration import RegistrationOptions, register_views
+from biplanar_reg.registration import RegistrationOptions, register_views, stages
 from biplanar_reg.registration.blunders import (
     gm_weights,
     gnc_weights,
@@ -22,6 +22,7 @@ from biplanar_reg.registration.blunders import (
 from biplanar_reg.registration.problem import make_problem, solve
 from biplanar_reg.registration.stages import (
     BoostRun,
+    FitMemo,
     Start,
     boost,
     choose_start,
@@ -164,6 +165,77 @@ def test_boost_records_are_consecutive_and_its_best_is_the_lowest_cost(clean):
     assert run.best.cost < 0.5 * costs[0]  # the outlines help
     np.testing.assert_array_equal(run.best.result.vertices, run.iterates[run.best.index])
     assert set(run.best.outlines) == set(p.targets)
+
+
+def _counting_solves(monkeypatch) -> list[int]:
+    """Count the convex solves of :mod:`.stages` (one entry per call)."""
+    calls: list[int] = []
+    real = stages.solve
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(stages, "solve", counted)
+    return calls
+
+
+def _same_run(a: BoostRun, b: BoostRun) -> None:
+    """Bitwise the same boosting: records (but their seconds), iterates and best iterate."""
+    assert [(r.index, r.kind, r.n_matches, r.cost, r.certificate) for r in a.records] == [
+        (r.index, r.kind, r.n_matches, r.cost, r.certificate) for r in b.records
+    ]
+    assert len(a.iterates) == len(b.iterates)
+    for x, y in zip(a.iterates, b.iterates, strict=True):
+        np.testing.assert_array_equal(x, y)
+    assert (a.best.index, a.best.cost) == (b.best.index, b.best.cost)
+    np.testing.assert_array_equal(a.weights, b.weights)
+
+
+def test_a_fit_retraced_with_the_memo_takes_every_step_from_it(blunder, monkeypatch):
+    """A second boosted fit from the same start and weights with the same memo solves nothing
+    and returns the very same iterates."""
+    p, start = blunder
+    w = np.ones(len(p.landmarks))
+    w[0] = 0.0
+    n = p.options.max_iterations
+    memo = FitMemo()
+    first = boost(p, start.result, w, n, detect=False, memo=memo)
+    calls = _counting_solves(monkeypatch)
+    again = boost(p, start.result, w, n, detect=False, memo=memo)
+    assert calls == [] and len(first.records) >= 3
+    assert all(x is y for x, y in zip(first.iterates, again.iterates, strict=True))
+    assert again.best.result is first.best.result
+    other = boost(p, start.result, np.ones(len(p.landmarks)), 1, detect=False, memo=memo)
+    assert len(calls) == 1  # other weights: a step of its own
+    assert other.best.cost != first.best.cost
+    # a start from the landmarks is a function of the weights: wanted again, the same object
+    n_calls = len(calls)
+    assert memo.start(p, w) is memo.start(p, w.copy()) and len(calls) > n_calls
+
+
+def test_the_memo_leaves_the_robust_start_and_boosting_unchanged(blunder, monkeypatch):
+    """The pipeline of ``register._register_posed`` (the robust start, then the boosting that
+    may restart through ``reweighted_start``) with one shared memo gives the same results,
+    bitwise, as without one, with fewer solves (the boosting retraces the fit that chose its
+    start)."""
+    p, start = blunder
+    n = p.options.max_iterations
+    calls = _counting_solves(monkeypatch)
+    plain = robust_start(p, start)
+    run_plain = boost(p, plain.result, plain.weights, n, detect=True, unweighted=start.result)
+    n_plain = len(calls)
+    memo = FitMemo()
+    shared = robust_start(p, start, memo)
+    run_shared = boost(
+        p, shared.result, shared.weights, n, detect=True, unweighted=start.result, memo=memo
+    )
+    n_shared = len(calls) - n_plain
+    np.testing.assert_array_equal(plain.weights, shared.weights)
+    np.testing.assert_array_equal(plain.result.vertices, shared.result.vertices)
+    _same_run(run_plain, run_shared)
+    assert rejected_landmarks(p, run_shared.weights) == frozenset({0})
+    assert n_shared + len(run_shared.records) - 1 <= n_plain
 
 
 def test_boost_restarts_without_a_blunder_it_detects(blunder):
