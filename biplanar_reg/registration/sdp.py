@@ -332,6 +332,11 @@ class KnownPoseIPM:
         self.nz = nt + 3
         self.D = D
         self.Dt = np.column_stack([D, np.ones(K)])
+        # observation-major copy: the products W_jq Dt_j of kkt_factor with rows of K
+        # contiguous entries (2.5x faster than broadcasting over the rows of Dt), into a
+        # buffer reused every iteration (a fresh 1.3 MB array per iteration costs page faults)
+        self._DtT = np.ascontiguousarray(self.Dt.T)
+        self._WDt = np.empty((6, self.Dt.shape[1], K))
         self.d = directions
         # V x d = V[:, (1, 2, 0)] * d[:, (2, 0, 1)] - V[:, (2, 0, 1)] * d[:, (1, 2, 0)]
         self._d201 = directions[:, [2, 0, 1]]
@@ -428,10 +433,11 @@ class KnownPoseIPM:
         dsum = d1 + d2
         omega = (4.0 * d1 * d2 / dsum).reshape(self.K, 3)
         # sum_j W_j[r, r2] Dt_j Dt_j' for the 6 pairs r <= r2
-        Wp = _ray_weights(self.d, omega, d4)
+        WpT = _ray_weights(self.d, omega, d4)
         # one (p, K) x (K, 6p) product (measured faster than a (6, K) x (K, p(p+1)/2) product
         # with precomputed Dt_ja Dt_jb: a 6-row product streams the larger matrix at a poor rate)
-        blocks = self.Dt.T @ (Wp[:, :, None] * self.Dt[:, None, :]).reshape(self.K, -1)
+        np.multiply(WpT[:, None, :], self._DtT[None, :, :], out=self._WDt)
+        blocks = self._DtT @ self._WDt.reshape(-1, self.K).T
         lay = self._lay
         # the upper triangle of H, C order: its transpose is H's lower triangle in Fortran order,
         # what the Cholesky reads (half of the assembly work, no copy)
@@ -453,19 +459,19 @@ class KnownPoseIPM:
 
 def _ray_weights(d: np.ndarray, omega: np.ndarray, d_depth: np.ndarray) -> np.ndarray:
     """Upper triangles ``(00, 01, 02, 11, 12, 22)`` of the 3 x 3 matrices
-    ``W_j = [d_j]_x' diag(omega_j) [d_j]_x + d_depth_j d_j d_j'`` (K, 6), C order.
+    ``W_j = [d_j]_x' diag(omega_j) [d_j]_x + d_depth_j d_j d_j'``, one row per entry: (6, K).
 
     Written out entry by entry: a batched (K, 3, 3) matmul is several times slower.
     """
     d0, d1, d2 = d[:, 0], d[:, 1], d[:, 2]
     w0, w1, w2 = omega[:, 0], omega[:, 1], omega[:, 2]
-    W = np.empty((len(d), 6))
-    W[:, 0] = w1 * d2 * d2 + w2 * d1 * d1 + d_depth * d0 * d0
-    W[:, 1] = (d_depth - w2) * d0 * d1
-    W[:, 2] = (d_depth - w1) * d0 * d2
-    W[:, 3] = w0 * d2 * d2 + w2 * d0 * d0 + d_depth * d1 * d1
-    W[:, 4] = (d_depth - w0) * d1 * d2
-    W[:, 5] = w0 * d1 * d1 + w1 * d0 * d0 + d_depth * d2 * d2
+    W = np.empty((6, len(d)))
+    W[0] = w1 * d2 * d2 + w2 * d1 * d1 + d_depth * d0 * d0
+    W[1] = (d_depth - w2) * d0 * d1
+    W[2] = (d_depth - w1) * d0 * d2
+    W[3] = w0 * d2 * d2 + w2 * d0 * d0 + d_depth * d1 * d1
+    W[4] = (d_depth - w0) * d1 * d2
+    W[5] = w0 * d1 * d1 + w1 * d0 * d0 + d_depth * d2 * d2
     return W
 
 
