@@ -403,10 +403,22 @@ class KnownPoseIPM:
     def G(self, x: np.ndarray) -> np.ndarray:
         z = x[: self.nz]
         V = self.points(z)
-        Bz = self._xd(V).ravel()
-        e = x[self.nz :]
-        depth = np.einsum("ki,ki->k", V, self.d)
-        return np.concatenate([Bz - e, -Bz - e, -depth, -x[: self.nt]])
+        return self._G_of(z, x[self.nz :], V, self._xd(V).ravel())
+
+    def _G_of(self, z: np.ndarray, e: np.ndarray, V: np.ndarray, Bz: np.ndarray) -> np.ndarray:
+        """``G x`` for ``x = (z, e)`` from the points ``V`` of ``z`` and ``Bz = V x d``
+        (written into one array: no per-part temporaries and concatenation)."""
+        m, K = 3 * self.K, self.K
+        out = np.empty(2 * m + K + self.nt)
+        np.subtract(Bz, e, out=out[:m])
+        u2 = out[m : 2 * m]
+        np.negative(Bz, out=u2)
+        u2 -= e
+        depth = out[2 * m : 2 * m + K]
+        np.einsum("ki,ki->k", V, self.d, out=depth)
+        np.negative(depth, out=depth)
+        np.negative(z[: self.nt], out=out[2 * m + K :])
+        return out
 
     def Gt(self, u: np.ndarray) -> np.ndarray:
         m = 3 * self.K
@@ -446,13 +458,17 @@ class KnownPoseIPM:
         flat[lay.svec_triu] = skron_triu(psd_T[0])
         flat[lay.h_index] += blocks.reshape(-1).take(lay.h_take) * lay.h_coef
         fac = dense_kkt_factor(Hu.T, self.A_full)
-        ratio = (d2 - d1) / dsum
+        d21 = d2 - d1
+        ratio = d21 / dsum
 
-        def solve(bx: np.ndarray, by: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        def solve(bx: np.ndarray, by: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             bz, be = bx[: self.nz], bx[self.nz :]
             z, y = fac(bz - self._Bt(ratio * be), by)
-            e = (be - (d2 - d1) * self._B(z)) / dsum
-            return np.concatenate([z, e]), y
+            V = self.points(z)
+            Bz = self._xd(V).ravel()
+            e = (be - d21 * Bz) / dsum
+            # G x from the points already at hand (the solver needs it next)
+            return np.concatenate([z, e]), y, self._G_of(z, e, V, Bz)
 
         return solve
 
