@@ -309,7 +309,7 @@ def _max_step(cones: _Cones, sc: _Scaling, dt: np.ndarray) -> float:
     m = cones.n_lp
     worst = 0.0
     if m:
-        worst = max(worst, float(np.max(-dt[:m] / sc.lam_lp)))
+        worst = max(worst, -float(np.min(dt[:m] / sc.lam_lp)))  # max(-x) = -min(x) exactly
     for n, sl, isq_outer in zip(cones.sizes, cones.slices, sc.isq_outer, strict=True):
         X = smat(dt[sl], n) * isq_outer
         worst = max(worst, -_min_eigval(X))
@@ -515,7 +515,12 @@ def dense_kkt_factor(H: np.ndarray, A: np.ndarray):
     """
     dH = np.diag(H)
     dsc = 1.0 / np.sqrt(np.maximum(dH, 1e-12 * max(1.0, float(np.max(dH)))))
-    Hs = np.multiply(H, np.outer(dsc, dsc), order="F" if H.flags.f_contiguous else "C")
+    # dsc_i dsc_j is symmetric bit for bit (a product commutes), so a Fortran-ordered H is
+    # scaled through its C-ordered transpose: one contiguous pass, no mixed-order iteration
+    outer = np.multiply.outer(dsc, dsc)
+    Hc = H.T if H.flags.f_contiguous else H
+    Hs = np.multiply(Hc, outer)
+    Hs = Hs.T if H.flags.f_contiguous else Hs
     As = A * dsc[None, :]
     # LAPACK directly: scipy's cho_factor / cho_solve wrappers cost more than the work here.
     # With Hs = L L' and Y = L^-1 As', the Schur complement is Y'Y (one triangular solve

@@ -385,14 +385,20 @@ class KnownPoseIPM:
 
     def _xd(self, V: np.ndarray) -> np.ndarray:
         """Row-wise ``V_j x d_j`` (K, 3)."""
-        return V.take(_P120, axis=1) * self._d201 - V.take(_P201, axis=1) * self._d120
+        out = V.take(_P120, axis=1)
+        out *= self._d201
+        b = V.take(_P201, axis=1)
+        b *= self._d120
+        out -= b
+        return out
 
     def _B(self, z: np.ndarray) -> np.ndarray:
         return self._xd(self.points(z)).ravel()
 
-    def _Vt(self, gV: np.ndarray) -> np.ndarray:
-        """Adjoint of :meth:`points`: gradient (K, 3) on the points -> gradient on ``z``."""
-        out = np.zeros(self.nz)
+    def _Vt(self, gV: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Adjoint of :meth:`points`: gradient (K, 3) on the points -> gradient on ``z``
+        (into ``out``, of length ``nz``, when given)."""
+        out = np.zeros(self.nz) if out is None else out
         out[self._lay.zidx] = (self.Dt.T @ gV).T.ravel() * self._lay.zcoef  # distinct indices
         return out
 
@@ -424,11 +430,14 @@ class KnownPoseIPM:
         m = 3 * self.K
         u1, u2 = u[:m], u[m : 2 * m]
         u4, u3 = u[2 * m : 2 * m + self.K], u[2 * m + self.K :]
-        out = np.empty(self.nz + m)
-        gV = self._xd((u2 - u1).reshape(self.K, 3)) - u4[:, None] * self.d
-        out[: self.nz] = self._Vt(gV)
+        out = np.zeros(self.nz + m)
+        gV = self._xd((u2 - u1).reshape(self.K, 3))
+        gV -= u4[:, None] * self.d
+        self._Vt(gV, out[: self.nz])
         out[: self.nt] -= u3
-        out[self.nz :] = -(u1 + u2)
+        e = out[self.nz :]
+        np.add(u1, u2, out=e)
+        np.negative(e, out=e)
         return out
 
     def A(self, x: np.ndarray) -> np.ndarray:
