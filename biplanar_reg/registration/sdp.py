@@ -341,6 +341,7 @@ class KnownPoseIPM:
         # V x d = V[:, (1, 2, 0)] * d[:, (2, 0, 1)] - V[:, (2, 0, 1)] * d[:, (1, 2, 0)]
         self._d201 = directions[:, [2, 0, 1]]
         self._d120 = directions[:, [1, 2, 0]]
+        self._dT = np.ascontiguousarray(directions.T)  # contiguous components, for kkt_factor
         lay = _layout(n_modes)
         self.kpat, self.cpat, self.A_eq, self.b = lay.kpat, lay.cpat, lay.A_eq, lay.b
         self.A_full = lay.A_full
@@ -454,7 +455,7 @@ class KnownPoseIPM:
         dsum = d1 + d2
         omega = (4.0 * d1 * d2 / dsum).reshape(self.K, 3)
         # sum_j W_j[r, r2] Dt_j Dt_j' for the 6 pairs r <= r2
-        WpT = _ray_weights(self.d, omega, d4)
+        WpT = _ray_weights(self._dT, omega.T.copy(), d4)
         # one (p, K) x (K, 6p) product (measured faster than a (6, K) x (K, p(p+1)/2) product
         # with precomputed Dt_ja Dt_jb: a 6-row product streams the larger matrix at a poor rate)
         np.multiply(WpT[:, None, :], self._DtT[None, :, :], out=self._WDt)
@@ -482,15 +483,17 @@ class KnownPoseIPM:
         return solve
 
 
-def _ray_weights(d: np.ndarray, omega: np.ndarray, d_depth: np.ndarray) -> np.ndarray:
+def _ray_weights(dT: np.ndarray, omegaT: np.ndarray, d_depth: np.ndarray) -> np.ndarray:
     """Upper triangles ``(00, 01, 02, 11, 12, 22)`` of the 3 x 3 matrices
     ``W_j = [d_j]_x' diag(omega_j) [d_j]_x + d_depth_j d_j d_j'``, one row per entry: (6, K).
 
-    Written out entry by entry: a batched (K, 3, 3) matmul is several times slower.
+    ``dT`` and ``omegaT`` are (3, K): component-major, so that every operation below runs on
+    contiguous rows. Written out entry by entry: a batched (K, 3, 3) matmul is several times
+    slower.
     """
-    d0, d1, d2 = d[:, 0], d[:, 1], d[:, 2]
-    w0, w1, w2 = omega[:, 0], omega[:, 1], omega[:, 2]
-    W = np.empty((6, len(d)))
+    d0, d1, d2 = dT
+    w0, w1, w2 = omegaT
+    W = np.empty((6, len(d_depth)))
     W[0] = w1 * d2 * d2 + w2 * d1 * d1 + d_depth * d0 * d0
     W[1] = (d_depth - w2) * d0 * d1
     W[2] = (d_depth - w1) * d0 * d2
