@@ -307,7 +307,7 @@ def depth_reward(directions: np.ndarray, weights: np.ndarray, reward: float) -> 
     return -reward * rate * m
 
 
-_P120, _P201 = np.array([1, 2, 0]), np.array([2, 0, 1])  # arrays: take is 3x faster
+_P120, _P201 = np.array([1, 2, 0]), np.array([2, 0, 1])  # the cross product's cyclic shifts
 
 
 class KnownPoseIPM:
@@ -339,8 +339,13 @@ class KnownPoseIPM:
         self._WDt = np.empty((6, self.Dt.shape[1], K))
         self.d = directions
         # V x d = V[:, (1, 2, 0)] * d[:, (2, 0, 1)] - V[:, (2, 0, 1)] * d[:, (1, 2, 0)]
-        self._d201 = directions[:, [2, 0, 1]]
-        self._d120 = directions[:, [1, 2, 0]]
+        self._d201 = directions[:, [2, 0, 1]].ravel()
+        self._d120 = directions[:, [1, 2, 0]].ravel()
+        # flat indices of V[:, (1, 2, 0)] and V[:, (2, 0, 1)]: a flat take costs a tenth of
+        # ``take(..., axis=1)``, which copies the (K, 3) array element by element
+        rows3 = 3 * np.arange(K)[:, None]
+        self._i120 = (rows3 + _P120).ravel()
+        self._i201 = (rows3 + _P201).ravel()
         self._dT = np.ascontiguousarray(directions.T)  # contiguous components, for kkt_factor
         lay = _layout(n_modes)
         self.kpat, self.cpat, self.A_eq, self.b = lay.kpat, lay.cpat, lay.A_eq, lay.b
@@ -386,12 +391,13 @@ class KnownPoseIPM:
 
     def _xd(self, V: np.ndarray) -> np.ndarray:
         """Row-wise ``V_j x d_j`` (K, 3)."""
-        out = V.take(_P120, axis=1)
+        flat = V.ravel()
+        out = flat.take(self._i120)
         out *= self._d201
-        b = V.take(_P201, axis=1)
+        b = flat.take(self._i201)
         b *= self._d120
         out -= b
-        return out
+        return out.reshape(self.K, 3)
 
     def _B(self, z: np.ndarray) -> np.ndarray:
         return self._xd(self.points(z)).ravel()
