@@ -337,9 +337,6 @@ class KnownPoseIPM:
         # buffer reused every iteration (a fresh 1.3 MB array per iteration costs page faults)
         self._DtT = np.ascontiguousarray(self.Dt.T)
         self._WDt = np.empty((6, self.Dt.shape[1], K))
-        # the reduced matrix and skron's scratch, reused every iteration for the same reason
-        self._Hu = np.empty((self.nz, self.nz))
-        self._skron_work = np.empty((2, nt, nt))
         self.d = directions
         # V x d = V[:, (1, 2, 0)] * d[:, (2, 0, 1)] - V[:, (2, 0, 1)] * d[:, (1, 2, 0)]
         self._d201 = directions[:, [2, 0, 1]].ravel()
@@ -478,9 +475,8 @@ class KnownPoseIPM:
         lay = self._lay
         # the upper triangle of H, C order: its transpose is H's lower triangle in Fortran order,
         # what the Cholesky reads (the data blocks' half of the assembly work, no copy)
-        Hu = self._Hu
-        Hu.fill(0.0)
-        skron(psd_T[0], out=Hu[: self.nt, : self.nt], work=self._skron_work)  # no scatter
+        Hu = np.zeros((self.nz, self.nz))
+        Hu[: self.nt, : self.nt] = skron(psd_T[0])  # the whole block: a copy, no scatter
         flat = Hu.reshape(-1)
         flat[lay.h_index] += blocks.reshape(-1).take(lay.h_take) * lay.h_coef
         fac = dense_kkt_factor(Hu.T, self.A_full)
