@@ -31,7 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import SolverFailure
-from .ipm import dense_kkt_factor, skron, smat, svec
+from .ipm import dense_kkt_factor, skron_triu, smat, svec
 from .lifting import (
     gram_size,
     point_map_pattern,
@@ -474,10 +474,10 @@ class KnownPoseIPM:
         blocks = self._DtT @ self._WDt.reshape(-1, self.K).T
         lay = self._lay
         # the upper triangle of H, C order: its transpose is H's lower triangle in Fortran order,
-        # what the Cholesky reads (the data blocks' half of the assembly work, no copy)
+        # what the Cholesky reads (half of the assembly work, no copy)
         Hu = np.zeros((self.nz, self.nz))
-        Hu[: self.nt, : self.nt] = skron(psd_T[0])  # the whole block: a copy, no scatter
         flat = Hu.reshape(-1)
+        flat[lay.svec_triu] = skron_triu(psd_T[0])
         flat[lay.h_index] += blocks.reshape(-1).take(lay.h_take) * lay.h_coef
         fac = dense_kkt_factor(Hu.T, self.A_full)
         d21 = d2 - d1
@@ -526,6 +526,7 @@ class _Layout:
     A_eq: np.ndarray  # rotation rows on svec(Delta)
     A_full: np.ndarray  # the same on z = (svec Delta, t)
     b: np.ndarray
+    svec_triu: np.ndarray  # flat indices of the PSD block's upper triangle in the (nz, nz) H
     h_index: np.ndarray  # see _data_block_layout
     h_coef: np.ndarray
     h_take: np.ndarray
@@ -540,11 +541,13 @@ def _layout(n_modes: int) -> _Layout:
     if n_modes not in _LAYOUTS:
         n = gram_size(n_modes)
         nt = svec_size(n)
+        nz = nt + 3
         kpat, cpat = point_map_pattern(n_modes)
         zidx = np.concatenate([np.append(kpat[r], nt + r) for r in range(3)])
         zcoef = np.concatenate([np.append(cpat[r], 1.0) for r in range(3)])
         A_rot, b = rotation_constraints(n)
         A_eq = A_rot.toarray()
+        rows, cols = np.triu_indices(nt)
         _LAYOUTS[n_modes] = _Layout(
             kpat,
             cpat,
@@ -553,6 +556,7 @@ def _layout(n_modes: int) -> _Layout:
             A_eq,
             np.hstack([A_eq, np.zeros((len(b), 3))]),
             b,
+            rows * nz + cols,
             *_data_block_layout(zidx, zcoef, nt),
         )
     return _LAYOUTS[n_modes]
