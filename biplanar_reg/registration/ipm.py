@@ -142,7 +142,8 @@ class ConicProblem(Protocol):
     def kkt_factor(self, d_lp: np.ndarray, psd_T: list[np.ndarray]):
         """Prepare to solve ``[H A'; A 0] (x, y) = (bx, by)`` with
         ``H = G' D G``, ``D = diag(d_lp) (+) (X -> T X T for each PSD block)``;
-        returns a callable ``(bx, by) -> (x, y)``."""
+        returns a callable ``(bx, by) -> (x, y, G x)`` (``G x`` too: the solver needs it
+        next, and a structured solve has most of it at hand)."""
         ...
 
 
@@ -308,7 +309,7 @@ def _max_step(cones: _Cones, sc: _Scaling, dt: np.ndarray) -> float:
     m = cones.n_lp
     worst = 0.0
     if m:
-        worst = max(worst, float(np.max(-dt[:m] / sc.lam_lp)))
+        worst = max(worst, -float(np.min(dt[:m] / sc.lam_lp)))  # max(-x) = -min(x) exactly
     for n, sl, isq_outer in zip(cones.sizes, cones.slices, sc.isq_outer, strict=True):
         X = smat(dt[sl], n) * isq_outer
         worst = max(worst, -_min_eigval(X))
@@ -319,8 +320,7 @@ def _kkt3(prob, cones, sc, solve, rhs):
     """Solve ``A'dy + G'dz = bx``, ``A dx = by``, ``G dx - W'W dz = bz`` through the reduced
     factorisation ``solve`` of ``[G'(W'W)^-1 G  A'; A  0]``."""
     bx, by, bz = rhs
-    dx, dy = solve(bx + prob.Gt(_apply(cones, sc, bz, "D")), by)
-    Gdx = prob.G(dx)
+    dx, dy, Gdx = solve(bx + prob.Gt(_apply(cones, sc, bz, "D")), by)
     dz = _apply(cones, sc, Gdx - bz, "D")
     return dx, dy, dz, Gdx
 
@@ -372,10 +372,9 @@ def _starting_point(prob: ConicProblem, cones: _Cones) -> _Point:
     e = cones.identity()
     ident = [np.eye(n) for n in cones.sizes]
     solve = prob.kkt_factor(np.ones(cones.n_lp), ident)
-    x, _ = solve(prob.Gt(prob.h), prob.b)
-    s = prob.h - prob.G(x)
-    xd, y = solve(-prob.c, np.zeros_like(prob.b))
-    z = prob.G(xd)
+    x, _, Gx = solve(prob.Gt(prob.h), prob.b)
+    s = prob.h - Gx
+    _, y, z = solve(-prob.c, np.zeros_like(prob.b))  # z = G xd
     for v in (s, z):
         a = cones.min_eig(v)
         if a <= 0:
@@ -516,7 +515,12 @@ def dense_kkt_factor(H: np.ndarray, A: np.ndarray):
     """
     dH = np.diag(H)
     dsc = 1.0 / np.sqrt(np.maximum(dH, 1e-12 * max(1.0, float(np.max(dH)))))
-    Hs = np.multiply(H, np.outer(dsc, dsc), order="F" if H.flags.f_contiguous else "C")
+    # dsc_i dsc_j is symmetric bit for bit (a product commutes), so a Fortran-ordered H is
+    # scaled through its C-ordered transpose: one contiguous pass, no mixed-order iteration
+    outer = np.multiply.outer(dsc, dsc)
+    Hc = H.T if H.flags.f_contiguous else H
+    Hs = np.multiply(Hc, outer)
+    Hs = Hs.T if H.flags.f_contiguous else Hs
     As = A * dsc[None, :]
     # LAPACK directly: scipy's cho_factor / cho_solve wrappers cost more than the work here.
     # With Hs = L L' and Y = L^-1 As', the Schur complement is Y'Y (one triangular solve

@@ -91,8 +91,9 @@ def test_the_structured_kkt_solve_is_the_dense_one():
     kkt = np.block([[G.T @ Dm @ G, A.T], [A, np.zeros((len(A), len(A)))]])
     bx, by = rng.normal(size=nx), rng.normal(size=len(A))
     ref = np.linalg.solve(kkt, np.concatenate([bx, by]))
-    x, y = ipm.kkt_factor(d_lp, [T])(bx, by)
+    x, y, Gx = ipm.kkt_factor(d_lp, [T])(bx, by)
     assert np.allclose(np.concatenate([x, y]), ref, rtol=1e-7, atol=1e-8 * np.abs(ref).max())
+    assert np.array_equal(Gx, ipm.G(x))  # the same products, not only the same numbers
 
 
 def _rays(model, n_obs, seed):
