@@ -247,7 +247,9 @@ def reweighted_start(
     """A start for new landmark ``weights``: the landmark-only solve with them
     (:func:`start_from_landmarks`) or ``unweighted`` (the landmark-only solve of every landmark
     weighing 1) with them, whichever boosted fit (``max_iterations``, the same weights, no
-    reweighting) explains the data better (the lower cost).
+    reweighting) explains the data better (the lower cost). Without a rejected landmark (every
+    weight 1) the two are the same solve, and ``unweighted`` is returned without fitting
+    (``sample_cases/synthetic_radius_known``: 32 -> 20 outline iterations, the same result).
 
     Why both: without the rejected landmarks the landmarks left may no longer fix the pose
     (e.g. 5 landmarks, 2 of them in one view, for 6 pose and 6 shape parameters), and their
@@ -261,6 +263,8 @@ def reweighted_start(
     weights and matching) until its reweighting changes the weights, and takes those steps
     from the memo instead of solving them again (the same results, bitwise).
     """
+    if np.all(weights == 1.0):  # no landmark rejected: the two starts are one
+        return Start(unweighted, weights)
     own = start_from_landmarks(problem, weights, memo).result
     n = problem.options.max_iterations
     own_cost = boost(problem, own, weights, n, detect=False, memo=memo).best.cost

@@ -415,3 +415,15 @@ def test_start_is_frozen(clean):
     assert isinstance(start, Start)
     with pytest.raises(AttributeError):
         start.weights = None  # type: ignore[misc]
+
+
+def test_reweighted_start_without_a_rejection_is_the_unweighted_solve(clean, monkeypatch):
+    p, start, _ = clean
+    ones = np.ones(len(p.landmarks))
+    calls = _counting_solves(monkeypatch)
+    chosen = stages.reweighted_start(p, ones, start.result)
+    assert chosen.result is start.result and calls == []  # one start: nothing to choose
+    weights = ones.copy()
+    weights[0] = 0.0
+    stages.reweighted_start(p, weights, start.result)
+    assert len(calls) > 0  # a rejection: the two starts' fits are run
