@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from ..annotation import Contour, Landmark, ViewAnnotations
-from .raster_plot import Axes, Canvas, LegendEntry, data_limits
+from .raster_plot import Axes, Canvas, LegendEntry, data_limits, draw_legend
 
 __all__ = ["overlay_figure", "histogram_figure", "convergence_figure"]
 
@@ -426,10 +426,7 @@ def convergence_figure(
         ylabel="certificate (lambda2 / lambda1)", ylabel_rgb="tab:green", right=True, frame=False
     )
     # one legend for both axes, placed where neither's data are
-    ax._drawn += ax2._drawn
-    from .raster_plot import draw_legend
-
-    draw_legend(ax, ax.legend_entries + ax2.legend_entries, "best", 7)
+    draw_legend(ax, ax.legend_entries + ax2.legend_entries, "best", 7, also_avoid=[ax2])
     if two:
         left = x0 + 1.6 * width
         axl = canvas.axes(

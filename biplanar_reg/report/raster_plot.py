@@ -1049,11 +1049,13 @@ def draw_legend(
     size_pt: float,
     alpha: float = 0.8,
     anchor: tuple[float, float] | None = None,
+    also_avoid: Sequence[Axes] = (),
 ) -> tuple[int, int, int, int]:
     """A legend box (white at ``alpha``, light grey edge) with one row per entry, placed at
     ``loc`` inside the axes (matplotlib's names; ``"best"``: the first of matplotlib's order
-    that covers the fewest drawn data points), or with ``anchor`` (axes fractions) at its
-    left middle. Returns its pixel box."""
+    that covers the fewest data points drawn on ``ax`` and on the axes ``also_avoid``, e.g. a
+    twin axis sharing the box), or with ``anchor`` (axes fractions) at its left middle.
+    Returns its pixel box."""
     c = ax.canvas
     fs = c.px(size_pt)
     rows = [c.text_extent(e.label, size_pt) for e in entries]
@@ -1066,7 +1068,7 @@ def draw_legend(
         left = int(round(x0 + anchor[0] * (x1 - x0)))
         top = int(round(y1 - anchor[1] * (y1 - y0) - height / 2))
     else:
-        left, top = _legend_place(ax, loc, width, height, 0.5 * fs)
+        left, top = _legend_place(ax, loc, width, height, 0.5 * fs, also_avoid)
     box = (left, top, left + width, top + height)
     c.rect(box, face="white", face_alpha=alpha)
     c.rect(box, edge="lightgrey")
@@ -1079,7 +1081,9 @@ def draw_legend(
     return box
 
 
-def _legend_place(ax: Axes, loc: str, width: int, height: int, margin: float) -> tuple[int, int]:
+def _legend_place(
+    ax: Axes, loc: str, width: int, height: int, margin: float, also_avoid: Sequence[Axes] = ()
+) -> tuple[int, int]:
     """Top-left pixel of a legend ``width`` x ``height`` at ``loc`` within the axes."""
     x0, y0, x1, y1 = ax.box
     m = int(round(margin))
@@ -1093,7 +1097,7 @@ def _legend_place(ax: Axes, loc: str, width: int, height: int, margin: float) ->
 
     if loc != "best":
         return corner(loc)
-    pts = _dense(ax._drawn)
+    pts = _dense(ax._drawn + [p for other in also_avoid for p in other._drawn])
     best, where = None, corner(_LEGEND_ORDER[0])
     for name in _LEGEND_ORDER:
         left, top = corner(name)
