@@ -15,6 +15,20 @@ from biplanar_reg._lazy import lazy_getattr
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def _last_line_of(code: str, timeout: float) -> str:
+    """The last line ``code`` prints in a fresh interpreter with this tree first on the path."""
+    run = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        timeout=timeout,
+    )
+    assert run.returncode == 0, run.stderr
+    return run.stdout.strip().splitlines()[-1]
+
+
 def test_lazy_name_is_imported_once_and_cached(monkeypatch):
     pkg = types.ModuleType("lazy_pkg_for_test")
     pkg.__path__ = []  # a package
@@ -48,16 +62,7 @@ def test_registration_leaves_model_building_unloaded():
         "'matplotlib', 'biplanar_reg.report', 'scipy.spatial', 'scipy.ndimage', 'scipy.special') "
         "if m in sys.modules))\n"
     )
-    run = subprocess.run(
-        [sys.executable, "-c", code],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-        timeout=120,
-    )
-    assert run.returncode == 0, run.stderr
-    assert run.stdout.strip() == "[]"
+    assert _last_line_of(code, timeout=120) == "[]"
 
 
 def test_registration_of_a_sample_case_leaves_scipy_spatial_and_ndimage_unloaded(tmp_path):
@@ -74,14 +79,5 @@ def test_registration_of_a_sample_case_leaves_scipy_spatial_and_ndimage_unloaded
         "print(sorted(m for m in sys.modules if m.split('.')[:2] in "
         "(['scipy', 'spatial'], ['scipy', 'ndimage'], ['scipy', 'special'])))\n"
     )
-    run = subprocess.run(
-        [sys.executable, "-c", code],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-        timeout=300,
-    )
-    assert run.returncode == 0, run.stderr
-    assert run.stdout.strip().splitlines()[-1] == "[]"
+    assert _last_line_of(code, timeout=300) == "[]"
     assert (tmp_path / "out" / "registered.ply").is_file()
