@@ -101,6 +101,29 @@ def _top_limits(values: np.ndarray) -> tuple[float, float]:
     return 0.0, data_limits(np.concatenate([np.ravel(values), [0.0]]))[1]
 
 
+def _per_frame_axes(names: Sequence[str], ylim: tuple[float, float]) -> tuple[Canvas, Axes]:
+    """A 700 x 320 px canvas with one gridded axes of per-frame values (frame index on x)."""
+    size = (700, 320)
+    canvas = Canvas(*size)
+    ax = canvas.axes(_box(size, 0.09, 0.98, 0.2, 0.9), ylim=ylim)
+    _frame_axis(ax, names)
+    ax.draw_grid()
+    return canvas, ax
+
+
+def _finish_per_frame(ax: Axes, ylabel: str, title: str, legend: str) -> None:
+    """Labels, title and legend of a :func:`_per_frame_axes` plot."""
+    ax.finish(
+        xlabel="frame index",
+        ylabel=ylabel,
+        title=title,
+        title_pt=9,
+        legend=legend,
+        legend_pt=7,
+        grid=True,
+    )
+
+
 def _residuals_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> None:
     """``frames_residuals.png`` (700 x 320 px): landmark and contour RMS (px) per frame."""
     names = [f["name"] for f in frames]
@@ -108,25 +131,18 @@ def _residuals_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> None:
     lm = np.array([_nan(f["landmark_rms_px"]) for f in frames])
     ct = np.array([_nan(f["contour_rms_px"]) for f in frames])
     nb = np.array([f["started_from"] != "landmarks" for f in frames])
-    size = (700, 320)
-    canvas = Canvas(*size)
     top = np.nanmax(np.concatenate([lm, ct, [1.0]]))
-    ax = canvas.axes(_box(size, 0.09, 0.98, 0.2, 0.9), ylim=(0.0, 1.2 * top))
-    _frame_axis(ax, names)
-    ax.draw_grid()
+    canvas, ax = _per_frame_axes(names, (0.0, 1.2 * top))
     for y, colour, label in ((lm, "tab:green", "landmarks"), (ct, "tab:red", "contours")):
         ax.plot(idx, y, colour, lw_pt=1.0)
         ax.plot(idx[~nb], y[~nb], colour, marker="o", line=False, label=f"{label} RMS")
         if nb.any():
             ax.plot(idx[nb], y[nb], colour, marker="o", face="white", line=False)
-    ax.finish(
-        ylabel="reprojection RMS (px)",
-        xlabel="frame index",
-        title="residuals per frame (hollow: pose started from the neighbours)",
-        title_pt=9,
-        legend="lower right",
-        legend_pt=7,
-        grid=True,
+    _finish_per_frame(
+        ax,
+        "reprojection RMS (px)",
+        "residuals per frame (hollow: pose started from the neighbours)",
+        "lower right",
     )
     canvas.save(path)
 
@@ -220,8 +236,6 @@ def _gt_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> bool:
     if not any(gt):
         return False
     idx = np.arange(len(frames))
-    size = (700, 320)
-    canvas = Canvas(*size)
     series = [
         (np.array([_nan(g.get(key)) for g in gt]), colour, label)
         for key, colour, label in (
@@ -231,22 +245,12 @@ def _gt_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> bool:
         )
     ]
     series = [s for s in series if np.isfinite(s[0]).any()]
-    ax = canvas.axes(
-        _box(size, 0.09, 0.98, 0.2, 0.9),
-        ylim=_top_limits(np.concatenate([y for y, _, _ in series])),
-    )
-    _frame_axis(ax, [f["name"] for f in frames])
-    ax.draw_grid()
+    ylim = _top_limits(np.concatenate([y for y, _, _ in series]))
+    canvas, ax = _per_frame_axes([f["name"] for f in frames], ylim)
     for y, colour, label in series:
         ax.plot(idx, y, colour, marker="o", ms_pt=4, lw_pt=1.0, label=label)
-    ax.finish(
-        xlabel="frame index",
-        ylabel="error to ground truth (mm)",
-        title="registered bone vs ground truth per frame",
-        title_pt=9,
-        legend="best",
-        legend_pt=7,
-        grid=True,
+    _finish_per_frame(
+        ax, "error to ground truth (mm)", "registered bone vs ground truth per frame", "best"
     )
     canvas.save(path)
     return True
