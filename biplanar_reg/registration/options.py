@@ -46,6 +46,7 @@ _RANGES = {
     "rejected_sigma_factor": (1.0, np.inf, True),
     "gnc_factor": (1.0, np.inf, False),
     "joint_outline_sigma_factor": (1.0, np.inf, True),
+    "unknown_outline_sigma_factor": (1.0, np.inf, True),
 }
 
 #: Options of the former heuristic blunder handling (leave-one-out tests, consensus, cap,
@@ -168,7 +169,7 @@ readmit_sigmas : None
         ``2 L - (6 + modes) < rigid_start_redundancy`` (:func:`.stages.choose_start`;
         0 to 10000, 0: never).
     joint_outline_sigma_factor : float
-        ``poses = "refine"``/``"unknown"``: the outline sigma of the joint refinement of the
+        ``poses = "refine"``: the outline sigma of the joint refinement of the
         views on the outlines is this multiple of the other stages' (>= 1). With every view's
         pose free, the outlines' systematic errors (a bone outside the model's span, an
         overlapping bone, samples correlated along the outline) are absorbed by the view poses
@@ -178,6 +179,15 @@ readmit_sigmas : None
         residuals do not show it (they stay near the click noise), so it is a fixed factor.
         5 was measured to help on realistic cases but to hurt on exact outlines of a bone
         inside the span (``benchmarks/pose_modes.py``), hence the default 1.
+    unknown_outline_sigma_factor : float
+        ``poses = "unknown"``: the same factor for its joint refinement (>= 1; default 5).
+        Without any calibration, 3 landmarks per view fix each view's pose given the shape
+        with no redundancy, so the outlines alone set the relative pose and, through the shape
+        weights, the bone's size, which free view poses leave unobserved: at full weight
+        their systematic errors shrank or grew the bone by up to 27 % and turned the second
+        view by up to 17 deg on ``benchmarks/realistic.py`` unknown-3. 5 was chosen on seeds
+        0-7 and checked on seeds 8-15 (aligned vertex RMS / known-3 median 3.17 -> 1.84 and
+        2.69 -> 1.63; docs/registration.md, "Outlines in the pose modes").
     pose_prior_at_bone : bool
         ``poses = "refine"``: the calibration prior's position term is the move of the bone
         (the centre of the first registration) through each view's correction, rather than
@@ -232,6 +242,7 @@ readmit_sigmas : None
     certificate_flag: float | None = None
     rigid_start_redundancy: int = 14
     joint_outline_sigma_factor: float = 1.0
+    unknown_outline_sigma_factor: float = 5.0
     pose_prior_at_bone: bool = False
     refine_landmark_weight: float = 1.0
 

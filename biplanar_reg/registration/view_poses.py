@@ -15,7 +15,8 @@ camera frame. Both run in two steps:
 2. after the registration with those views, a joint refinement of every view's pose and the
    shape on the landmarks and outlines (:func:`.outline_fit.refine_poses_on_outlines` with
    one pose per view and its residuals kept in pixels, so that shrinking the scene towards
-   the sources does not pay), with, for
+   the sources does not pay; the outlines weigh less in ``unknown``, where nothing else
+   sets the relative pose, :func:`joint_sigma_factor`), with, for
    ``refine``, a Gaussian prior on the corrections (``pose_sigma_deg``, ``pose_sigma_mm``): a
    view's depth along its own axis is hardly seen in its image, so without it the bone's
    position in the world would drift by centimetres.
@@ -194,11 +195,20 @@ def _composed(view_R, view_t, Ro, to, Rg, tg):
     return view_R @ Rc, view_R @ (to - Rc @ tg) + view_t
 
 
-def _joint_terms(problem: Problem) -> list[OutlineTerm]:
+def joint_sigma_factor(options: RegistrationOptions, poses: str) -> float:
+    """The outline sigma factor of the joint refinement of the views in pose mode ``poses``
+    (``"refine"``: ``joint_outline_sigma_factor``; ``"unknown"``:
+    ``unknown_outline_sigma_factor``, larger by default: nothing but the outlines sets the
+    relative pose and the size there, see :class:`.options.RegistrationOptions`)."""
+    if poses == "unknown":
+        return options.unknown_outline_sigma_factor
+    return options.joint_outline_sigma_factor
+
+
+def _joint_terms(problem: Problem, k: float) -> list[OutlineTerm]:
     """The outline terms with the fixed gate ``gate_px`` (so that the objectives of several
-    starts compare), their sigmas ``joint_outline_sigma_factor`` times the registration's."""
+    starts compare), their sigmas ``k`` times the registration's."""
     opts = problem.options
-    k = opts.joint_outline_sigma_factor
     return [
         OutlineTerm(
             problem.views[i].view,
@@ -282,7 +292,9 @@ def refine_views_on_outlines(
 ) -> tuple[list[ViewObservations], GsftResult, float]:
     """Step 2 of the module docstring: every view's pose (the first's is the gauge) and the
     shape refined on the landmarks and outlines, from ``result`` (one pose for every view)
-    and from each of ``starts`` (per-view poses); the lowest objective is kept.
+    and from each of ``starts`` (per-view poses); the lowest objective is kept. ``prior``:
+    ``poses = "refine"`` (the calibration prior on the corrections); otherwise ``"unknown"``
+    (no prior; the outline sigma factor of :func:`joint_sigma_factor` for that mode).
 
     Returns the views with the corrected extrinsics, the result posed in the gauge's world and
     the refinement's objective.
@@ -302,7 +314,8 @@ def refine_views_on_outlines(
         [v.view.to_camera(c[None])[0, 2] if hasattr(v.view, "centre") else np.nan for v in views]
     )
     fit_args = (problem, rejected, pose_prior, depths)
-    best = _best_joint_fit(fit_args, _joint_terms(problem), [(*tiled, result.weights), *starts])
+    terms = _joint_terms(problem, joint_sigma_factor(opts, "refine" if prior else "unknown"))
+    best = _best_joint_fit(fit_args, terms, [(*tiled, result.weights), *starts])
     if best is None:  # no plausible correction: keep the registration with the given views
         problem.say("joint view refinement: no correction within the calibration prior")
         return list(views), result, np.nan

@@ -63,6 +63,7 @@ BAD = {
     "pose_sigma_mm": [0.0, -5.0, math.nan],
     "rigid_start_redundancy": [-1, 10_001, 1.5],
     "joint_outline_sigma_factor": [0.5, 0.0, math.inf, math.nan],
+    "unknown_outline_sigma_factor": [0.5, 0.0, math.inf, math.nan],
     "refine_landmark_weight": [0.0, -1.0, math.inf],
 }
 
@@ -177,7 +178,8 @@ def _other_value(key, default):
     if isinstance(default, int):
         return default + 1
     # these must stay at or above 1
-    return default * (2.0 if key in ("gnc_factor", "joint_outline_sigma_factor") else 0.5)
+    at_least_one = ("gnc_factor", "joint_outline_sigma_factor", "unknown_outline_sigma_factor")
+    return default * (2.0 if key in at_least_one else 0.5)
 
 
 def _toml(value) -> str:
