@@ -159,6 +159,9 @@ def time_stages(trees, case, repeats, work):
             script = work / "stages.py"
             script.write_text(STAGES)
             _, _, out = child(tree, [str(script), str(case)], work, threads=1)
+            if not out.strip():  # a tree older than the stage functions: no stage row
+                print(f"stages: {label} ({tree}) has no stage functions; skipped", flush=True)
+                continue
             raw.setdefault(label, []).append(json.loads(out.strip().splitlines()[-1]))
     return {
         label: {s: median_pair([r[s] for r in runs]) for s in runs[0]}
@@ -203,8 +206,10 @@ def git_rev(tree: Path) -> str:
 
 def fmt_pair(ref: tuple[float, float] | None, new: tuple[float, float] | None) -> str:
     """``ref -> new (ratio)`` of CPU and wall."""
-    if ref is None or new is None:
-        return "-"
+    if new is None:
+        return "- | -"
+    if ref is None:
+        return f"- -> {new[0]:.2f} | - -> {new[1]:.2f}"
     cr = f"{ref[0] / new[0]:.2f}x" if new[0] > 0 else "-"
     return f"{ref[0]:.2f} -> {new[0]:.2f} ({cr}) | {ref[1]:.2f} -> {new[1]:.2f}"
 
@@ -254,12 +259,15 @@ def report(args, trees, reg, stages, batch, knee_size, total) -> str:
         "|---|---|---|",
     ]
     for stage in stages[new]:
-        lines.append(f"| {stage} | {fmt_pair(stages[ref].get(stage), stages[new][stage])} |")
+        ref_stage = stages.get(ref, {}).get(stage)
+        lines.append(f"| {stage} | {fmt_pair(ref_stage, stages[new][stage])} |")
     tot = {
         k: (sum(v[0] for v in st.values()), sum(v[1] for v in st.values()))
         for k, st in stages.items()
     }
-    lines.append(f"| **sum** | {fmt_pair(tot[ref], tot[new])} |")
+    lines.append(f"| **sum** | {fmt_pair(tot.get(ref), tot[new])} |")
+    if ref not in stages:
+        lines += ["", f"({ref}: a tree without the stage functions, so '-' in its column.)"]
     lines += [
         "",
         "Stages: imports = `biplanar_reg.cases.run` and the case loader; load = `load_case`; "
