@@ -167,6 +167,21 @@ def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     return (src - cs) @ (Vt.T @ D @ U.T).T + cd
 
 
+def _similarity(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, float]:
+    """``src`` (N, 3) moved by its best similarity fit onto ``dst`` (Umeyama), and its scale.
+
+    With free view poses two views fix the scene only up to scale (the size then comes from
+    the model's prior alone), so ``unknown`` is also compared after this alignment.
+    """
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    a, b = src - cs, dst - cd
+    U, S, Vt = np.linalg.svd(a.T @ b)
+    d = np.array([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ np.diag(d) @ U.T
+    scale = float((S * d).sum() / np.sum(a**2))
+    return scale * a @ R.T + cd, scale
+
+
 def _rms(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
 
@@ -190,9 +205,12 @@ def _metrics(job: dict, res) -> dict:
     blunder = job["blunder"]
     bad = (blunder["view"], blunder["landmark"]) if blunder else None
     rejected = [tuple(r) for r in res.rejected]
+    sim, scale = _similarity(res.vertices, truth_res)
     return {
         "world_mm": _rms(res.vertices, truth_res),
         "aligned_mm": _rms(_kabsch(res.vertices, truth_res), truth_res),
+        "similarity_mm": _rms(sim, truth_res),
+        "scale": scale,
         "view_rot_err_deg": rot_err,
         "good_rejected": [list(r) for r in rejected if r != bad],
         "blunder_caught": None if bad is None else bad in rejected,
@@ -308,6 +326,8 @@ def summarise(jobs: list[dict], results: list[dict], condition: str) -> dict[str
         if by.get(("known-3", r["seed"]), {}).get("status") == "ok"
     ]
     rot = [e for r in ok for e in r["view_rot_err_deg"]]
+    sim = [r for r in ok if "similarity_mm" in r]  # records of older runs lack it
+    size = [abs(1.0 / r["scale"] - 1.0) * 100.0 for r in sim]
     caught = [r["blunder_caught"] for r in ok if r["blunder_caught"] is not None]
     return cell | {
         "world": _med_max(world),
@@ -315,6 +335,8 @@ def summarise(jobs: list[dict], results: list[dict], condition: str) -> dict[str
         "aligned": _med_max(aligned),
         "aratio": _med_max([a / floor[r["seed"]] for a, r in zip(aligned, ok, strict=True)], 2),
         "vs_known": "-" if condition == "known-3" or not ref else _med_max(ref, 2),
+        "similarity": _med_max([r["similarity_mm"] for r in sim]) if sim else "-",
+        "size": _med_max(size, 1) if sim else "-",
         "good_rej": str(sum(len(r["good_rejected"]) for r in ok)),
         "caught": f"{sum(caught)}/{len(caught)}" if caught else "-",
         "flipped": f"{sum(e > FLIP_DEG for e in rot)} (max {max(rot):.1f} deg)" if rot else "-",
@@ -329,6 +351,8 @@ COLUMNS = [
     ("aligned", "aligned RMS mm"),
     ("aratio", "aligned / floor"),
     ("vs_known", "/ known-3 (same seed)"),
+    ("similarity", "similarity-aligned RMS mm"),
+    ("size", "size error % (med / max)"),
     ("good_rej", "good rejected"),
     ("caught", "blunder caught"),
     ("flipped", "view rot > 45 deg"),
@@ -493,12 +517,12 @@ def _targets(jobs: list[dict], results: list[dict]) -> list[str]:
     by = {(r["condition"], r["seed"]): r for r in results if r["status"] == "ok"}
     seeds = sorted(floor)
 
-    def ratios(cond: str, key: str, ref: str | None) -> list[float]:
+    def ratios(cond: str, key: str, ref: str | None, ref_key: str | None = None) -> list[float]:
         out = []
         for s in seeds:
             r, k = by.get((cond, s)), by.get((ref, s)) if ref else None
-            if r is not None and (ref is None or k is not None):
-                out.append(r[key] / (k[key] if ref else floor[s]))
+            if r is not None and key in r and (ref is None or k is not None):
+                out.append(r[key] / (k[ref_key or key] if ref else floor[s]))
         return out
 
     def verdict(values: list[float], limit: float, what: str) -> str:
@@ -539,6 +563,13 @@ def _targets(jobs: list[dict], results: list[dict]) -> list[str]:
             ratios("unknown-3", "aligned_mm", "known-3"),
             1.25,
             "unknown-3 aligned RMS / known-3 aligned RMS",
+        ),
+        "* "
+        + verdict(
+            ratios("unknown-3", "similarity_mm", "known-3", "aligned_mm"),
+            1.25,
+            "unknown-3 similarity-aligned RMS / known-3 aligned RMS (size not judged: free "
+            "poses leave the scale to the model's prior)",
         ),
         f"* unknown view rotations flipped (> {FLIP_DEG:.0f} deg): "
         f"{sum(e > FLIP_DEG for e in flips)} of {len(flips)}",
