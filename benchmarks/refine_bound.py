@@ -301,8 +301,9 @@ def render(rows: list[dict], args, seconds: float, refine: bool) -> str:
         f"total {seconds:.0f} s. See the script's docstring for the columns.",
         "",
         "Correction directions of the second view (the bone's pose and shape eliminated), "
-        "standard deviation in mm of world vertex RMS, ascending, and the weakest one as "
-        "rotation (deg) / bone-centre translation (mm) per standard deviation:",
+        "standard deviation in mm of the vertex RMS by which the correction moves the bone, "
+        "ascending, and the weakest one as rotation (deg) / bone-centre translation (mm) per "
+        "standard deviation:",
         "",
         "| seed | sd of the 6 directions (mm RMS) | weakest: deg / mm | weakest sd x5 |"
         " injected error deg / mm (mm RMS) | along weak: mm RMS (bone mm, deg) |",
