@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 
 from ..ssm.model import ShapeModel
+from .calibration_subspace import fit_seen_corrections
 from .gsft import GsftResult
 from .observations import ViewObservations
 from .options import RegistrationOptions
@@ -302,7 +303,16 @@ def refine_views_on_outlines(
         [v.view.to_camera(c[None])[0, 2] if hasattr(v.view, "centre") else np.nan for v in views]
     )
     fit_args = (problem, rejected, pose_prior, depths)
-    best = _best_joint_fit(fit_args, _joint_terms(problem), [(*tiled, result.weights), *starts])
+    terms = _joint_terms(problem)
+    if pose_prior is not None and opts.pose_prior_at_bone:
+        # a calibration accurate at the bone: correct only the directions the images see
+        # better than it (calibration_subspace), the rest stays at the given calibration
+        best, _ = fit_seen_corrections(
+            problem, (*tiled, result.weights), rejected, pose_prior, depths, terms,
+            max_iter=max(opts.refine_iterations, 30), tol=1e-6, max_rejected=JOINT_MAX_REJECTED,
+        )  # fmt: skip
+    else:
+        best = _best_joint_fit(fit_args, terms, [(*tiled, result.weights), *starts])
     if best is None:  # no plausible correction: keep the registration with the given views
         problem.say("joint view refinement: no correction within the calibration prior")
         return list(views), result, np.nan
