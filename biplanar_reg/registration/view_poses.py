@@ -18,7 +18,9 @@ camera frame. Both run in two steps:
    the sources does not pay), with, for
    ``refine``, a Gaussian prior on the corrections (``pose_sigma_deg``, ``pose_sigma_mm``): a
    view's depth along its own axis is hardly seen in its image, so without it the bone's
-   position in the world would drift by centimetres.
+   position in the world would drift by centimetres. With the prior at the bone
+   (``pose_prior_at_bone``) the corrections are fitted only along the directions the images
+   see better than the prior (:mod:`.calibration_subspace`), from the given calibrations.
 """
 
 from __future__ import annotations
