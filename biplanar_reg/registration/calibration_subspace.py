@@ -32,6 +32,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import eigh
 
+from ..calibration.views import View
+from ..ssm.model import ShapeModel
 from .outline_fit import (
     OutlineFitResult,
     OutlineTerm,
@@ -42,6 +44,7 @@ from .outline_fit import (
     _retract_poses,
 )
 from .problem import Problem
+from .rays import RayObservations
 from .refine import levenberg_marquardt
 
 __all__: list[str] = []
@@ -51,7 +54,7 @@ def _skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
-def correction_basis(state, c: np.ndarray) -> np.ndarray:
+def correction_basis(state: tuple[np.ndarray, ...], c: np.ndarray) -> np.ndarray:
     """``T`` ((6 P + M) square): the step of the joint fit's state (per pose: rotation
     vector, translation of the pose's origin; then the weights) from the step
     ``(xi_0, delta_1, ..., delta_{P-1}, dw)``: the gauge's (view 0's) pose step ``xi_0``,
@@ -69,7 +72,15 @@ def correction_basis(state, c: np.ndarray) -> np.ndarray:
 
 
 def correction_information(
-    model, landmarks, terms: list[OutlineTerm], state, c, pixels, depths, prior_weight, he
+    model: ShapeModel,
+    landmarks: RayObservations,
+    terms: list[OutlineTerm],
+    state: tuple[np.ndarray, np.ndarray, np.ndarray],
+    c: np.ndarray,
+    pixels: list[View],
+    depths: np.ndarray,
+    prior_weight: float,
+    he: object | None,
 ) -> np.ndarray:
     """The information (Gauss-Newton ``J^T J``, 6 (P - 1) square) of the landmarks, the
     outlines and the shape prior on the non-gauge views' corrections (coordinates of the
@@ -89,7 +100,7 @@ def correction_information(
     )
 
 
-def prior_information(state, c: np.ndarray, prior: PosePrior) -> np.ndarray:
+def prior_information(state: tuple[np.ndarray, ...], c: np.ndarray, prior: PosePrior) -> np.ndarray:
     """The information (6 (P - 1) square, coordinates of :func:`correction_information`) of
     the calibration prior on the corrections at ``state``."""
     P = len(state[0])
@@ -98,7 +109,9 @@ def prior_information(state, c: np.ndarray, prior: PosePrior) -> np.ndarray:
     return J[:, 6 : 6 * P].T @ J[:, 6 : 6 * P]
 
 
-def seen_directions(info: np.ndarray, prior_info: np.ndarray, ratio: float):
+def seen_directions(
+    info: np.ndarray, prior_info: np.ndarray, ratio: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Split the corrections' space by the generalised eigenproblem ``info v = lam prior v``:
     along ``v`` the images' standard deviation is ``1 / sqrt(lam)`` times the prior's.
 
