@@ -6,19 +6,22 @@ Cases: :func:`biplanar_reg.simulate.realistic.make_realistic_case` on the defaul
 radiographs; open livewire-traced outlines, 60-80 % of each view's; 1.5 px click noise). One
 seeded case per seed, the same for every condition (only the condition's change differs):
 
-==========  ======  ====  ===============================================================
-condition   poses   /view what changes
-==========  ======  ====  ===============================================================
-known-3     known   3     nothing (the reference of the others)
-known-5     known   5
-blunder-3   known   3     one landmark (random view) moved U(30, 60) px
-calib-3     known   3     second view's pose off by U(1, 2) deg and U(3, 5) mm about the
-                          bone (the error ignored: what ``refine`` has to fix)
-refine-3    refine  3     the same calibration error, ``poses="refine"``
-refine-5    refine  5
-unknown-3   unknown 3     no calibration error; extrinsics not used
-unknown-5   unknown 5
-==========  ======  ====  ===============================================================
+=============  ======  ====  ===========================================================
+condition      poses   /view what changes
+=============  ======  ====  ===========================================================
+known-3        known   3     nothing (the reference of the others)
+known-5        known   5
+blunder-3      known   3     one landmark (random view) moved U(30, 60) px
+calib-3        known   3     second view's pose off by U(1, 2) deg and U(3, 5) mm about the
+                             bone (the error ignored: what ``refine`` has to fix)
+refine-3       refine  3     the same calibration error, ``poses="refine"``
+refine-5       refine  5
+unknown-3      unknown 3     no calibration error; extrinsics not used
+unknown-5      unknown 5
+refine-3-bone  refine  3     refine-3 with ``pose_prior_at_bone=True`` (the calibration prior
+                             on the bone's move: the error model of these cases)
+refine-5-bone  refine  5
+=============  ======  ====  ===========================================================
 
 Per condition: median / max vertex RMS in the world frame (mm; for ``unknown`` the result's
 frame is the first view's camera frame, and the truth is mapped into it with the first view's
@@ -70,6 +73,13 @@ CONDITIONS: dict[str, tuple[str, int, bool, bool]] = {
     "refine-5": ("refine", 5, False, True),
     "unknown-3": ("unknown", 3, False, False),
     "unknown-5": ("unknown", 5, False, False),
+    "refine-3-bone": ("refine", 3, False, True),
+    "refine-5-bone": ("refine", 5, False, True),
+}
+#: conditions registered with non-default options (``RegistrationOptions`` keywords)
+CONDITION_OPTIONS: dict[str, dict] = {
+    "refine-3-bone": {"pose_prior_at_bone": True},
+    "refine-5-bone": {"pose_prior_at_bone": True},
 }
 QUICK = ("known-3", "blunder-3", "refine-3", "unknown-3")
 FLIP_DEG = 45.0
@@ -100,6 +110,7 @@ def job_doc(case, seed: int, condition: str, mean_fit_mm: float) -> dict:
         "seed": seed,
         "condition": condition,
         "poses": poses,
+        "options": CONDITION_OPTIONS.get(condition, {}),
         "floor_mm": case.floor_mm,
         "mean_fit_mm": mean_fit_mm,
         "truth": case.truth_vertices.tolist(),
@@ -254,7 +265,7 @@ def run_worker(bundle: Path, out: Path) -> None:
     from threadpoolctl import threadpool_limits
 
     import biplanar_reg
-    from biplanar_reg.registration import register_views
+    from biplanar_reg.registration import RegistrationOptions, register_views
     from biplanar_reg.ssm import ShapeModel
 
     z = np.load(bundle / "model.npz")
@@ -272,7 +283,8 @@ def run_worker(bundle: Path, out: Path) -> None:
             c0 = time.process_time()
             doc = {"seed": job["seed"], "condition": job["condition"]}
             try:
-                res = register_views(model, views, poses=job["poses"])
+                opts = RegistrationOptions(**job.get("options", {}))
+                res = register_views(model, views, poses=job["poses"], options=opts)
                 doc.update(_metrics(job, res), status="ok")
             except ValueError as exc:
                 doc.update(status="refused", message=str(exc).splitlines()[0])

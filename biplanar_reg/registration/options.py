@@ -194,8 +194,10 @@ readmit_sigmas : None
         the move of the view's source. A calibration made with an object in the imaging volume
         (e.g. a calibration cube) is most accurate there: its errors are small at the bone and
         largest at the source (a 1 deg turn about the bone moves a source 1 m away by 17 mm).
-        Default false: ``benchmarks/pose_modes.py`` (errors turning about the source) needs the
-        prior on the sources.
+        With it, the joint fit corrects only the directions of the corrections that the images
+        see better than half the prior (:mod:`.calibration_subspace`); the others keep the
+        given calibration. Default false: ``benchmarks/pose_modes.py`` (errors turning about
+        the source) needs the prior on the sources.
     refine_landmark_weight : float
         In the final refinement (:func:`.stages.refine_once`) the landmarks' weight
         (``1 / sigma^2``) is multiplied by this (> 0). The landmarks carry what the outlines of

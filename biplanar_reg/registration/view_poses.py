@@ -19,7 +19,9 @@ camera frame. Both run in two steps:
    sets the relative pose, :func:`joint_sigma_factor`), with, for
    ``refine``, a Gaussian prior on the corrections (``pose_sigma_deg``, ``pose_sigma_mm``): a
    view's depth along its own axis is hardly seen in its image, so without it the bone's
-   position in the world would drift by centimetres.
+   position in the world would drift by centimetres. With the prior at the bone
+   (``pose_prior_at_bone``) the corrections are fitted only along the directions the images
+   see better than the prior (:mod:`.calibration_subspace`), from the given calibrations.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import cv2
 import numpy as np
 
 from ..ssm.model import ShapeModel
+from .calibration_subspace import fit_seen_corrections
 from .gsft import GsftResult
 from .observations import ViewObservations
 from .options import RegistrationOptions
@@ -315,7 +318,15 @@ def refine_views_on_outlines(
     )
     fit_args = (problem, rejected, pose_prior, depths)
     terms = _joint_terms(problem, joint_sigma_factor(opts, "refine" if prior else "unknown"))
-    best = _best_joint_fit(fit_args, terms, [(*tiled, result.weights), *starts])
+    if pose_prior is not None and opts.pose_prior_at_bone:
+        # a calibration accurate at the bone: correct only the directions the images see
+        # better than it (calibration_subspace), the rest stays at the given calibration
+        best, _ = fit_seen_corrections(
+            problem, (*tiled, result.weights), rejected, pose_prior, depths, terms,
+            max_iter=max(opts.refine_iterations, 30), tol=1e-6, max_rejected=JOINT_MAX_REJECTED,
+        )  # fmt: skip
+    else:
+        best = _best_joint_fit(fit_args, terms, [(*tiled, result.weights), *starts])
     if best is None:  # no plausible correction: keep the registration with the given views
         problem.say("joint view refinement: no correction within the calibration prior")
         return list(views), result, np.nan
