@@ -12,18 +12,20 @@ from biplanar_reg.registration.view_starts import HOP_DEG, hop_starts
 from biplanar_reg.simulate import boosting_case
 
 
-def test_unknown_poses_do_not_stop_in_a_compensating_shape_minimum(model):
-    """``benchmarks/pose_modes.py unknown`` seed 3 (3 landmarks per view, 80 % outlines): every
-    start of the joint fit is >= 21 deg off in relative rotation and the best one stopped 8.3
-    deg off (objective 11.2 against 7.4 from the true poses); a 30 deg hop finds 0.4 deg."""
-    views, _ = boosting_case(model, 3, fraction=0.8, noise_px=0.5)
+@pytest.mark.parametrize("seed", [1, 3])
+def test_unknown_poses_do_not_stop_in_a_compensating_shape_minimum(model, seed):
+    """``benchmarks/pose_modes.py unknown`` seeds 1 and 3 (3 landmarks per view, 80 %
+    outlines): every start of the joint fit is >= 21 deg off in relative rotation and the best
+    fit stopped with the second view turned 78.1 deg (seed 1) or 8.3 deg (seed 3); the hops
+    reach 1.3 and 0.4 deg."""
+    views, _ = boosting_case(model, seed, fraction=0.8, noise_px=0.5)
     res = register_views(model, views, poses="unknown")
     truth = views[1].view.R @ views[0].view.R.T  # the second view relative to the first
     err = np.degrees(rotation_angle(res.view_poses["cam2"]["R"], truth))
     assert err < 2.0
 
 
-def test_hop_starts_turn_each_non_gauge_view_about_the_centroid(model):
+def test_hop_starts_turn_each_view_about_the_centroid(model):
     rng = np.random.default_rng(0)
     Rs = np.array([so3_exp(rng.normal(size=3)) for _ in range(3)])
     ts = rng.normal(scale=50.0, size=(3, 3))
@@ -43,10 +45,10 @@ def test_hop_starts_turn_each_non_gauge_view_about_the_centroid(model):
     )
     cams = [so3_exp(rng.normal(size=3)) for _ in range(3)]
     starts = hop_starts(fit, model, cams)
-    assert len(starts) == 2 * 6  # two non-gauge views, 3 axes, both signs
+    assert len(starts) == 3 * 6  # every view (the gauge's too), 3 axes, both signs
     c = model.instance(w).mean(axis=0)
     for k, (R2, t2, w2) in enumerate(starts):
-        x = 1 + k // 6
+        x = k // 6
         np.testing.assert_array_equal(w2, w)
         for y in range(3):
             if y != x:
