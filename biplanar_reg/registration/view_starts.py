@@ -7,10 +7,10 @@ views and shape then stops in another minimum with a compensating shape: 8 deg o
 (objective 11.2 against 7.4 from the true poses, ``benchmarks/pose_modes.py unknown`` seed
 3) or a view turned 78 deg (56.6 against 2.5, seed 1). A single view hardly sees its bone's
 tilt in depth (a turn about an axis in its image plane), so the search turns each view's
-object pose in turn by :data:`HOP_DEG` about its camera's axes (through the shape's
-centroid), fits briefly from each, fully from the lowest :data:`HOP_KEEP`, and hops again
-from a fit that lowered the objective by a clear margin (:data:`HOP_GAIN`), for at most
-:data:`HOP_ROUNDS` rounds (seed 1: 78.1 -> 72.6 -> 1.3 deg). A joint fit that no hop
+object pose in turn by :data:`HOP_TURNS_DEG` about its camera's in-image axes (through the
+shape's centroid), fits briefly from each, fully from the lowest :data:`HOP_KEEP`, and hops
+again from a fit that lowered the objective by a clear margin (:data:`HOP_GAIN`), for at
+most :data:`HOP_ROUNDS` rounds (seed 1: 78.1 -> 72.6 -> 1.3 deg). A joint fit that no hop
 improves is returned bitwise unchanged.
 """
 
@@ -23,10 +23,15 @@ from .rotations import so3_exp
 
 __all__: list[str] = []
 
-#: Rotation (deg) of a hop about each camera axis, both signs: wider than the joint fit's
-#: basin around a compensating-shape minimum (30 deg hops fixed seed 3 of
-#: ``benchmarks/pose_modes.py unknown`` but not seed 1; 60 deg fixes both).
-HOP_DEG = 60.0
+#: The turns (deg) of a hop about each of :data:`HOP_AXES`: 60 deg either way, wider than the
+#: joint fit's basin around a compensating-shape minimum (30 deg hops fixed seed 3 of
+#: ``benchmarks/pose_modes.py unknown`` but not seed 1), and the half turn of a view's
+#: mirror ambiguity (seed 13 stopped 139 deg off, a tilt of the first view in depth).
+HOP_TURNS_DEG = (60.0, -60.0, 180.0)
+#: The camera axes a hop turns about: the two in the image plane (a tilt in depth, which one
+#: silhouette hardly sees); a turn about the optical axis shows in the silhouette, and the
+#: joint fit corrects it from the landmarks and outline.
+HOP_AXES = (0, 1)
 #: Iterations of a hop's short fit (enough to fall into a basin, not to converge).
 HOP_SHORT_ITER = 8
 #: Short fits (lowest objective first) refined fully.
@@ -38,10 +43,11 @@ HOP_ROUNDS = 4
 
 
 def hop_starts(fit: OutlineFitResult, model, camera_rotations: list[np.ndarray]) -> list:
-    """Starts around ``fit``: every view's object pose in turn rotated by :data:`HOP_DEG`
-    (both signs) about each axis of its camera frame (``camera_rotations[x]``, world ->
-    camera), through the fitted shape's centroid; the shape and the other views unchanged
-    (the gauge's too: only the relative poses matter, the result is re-posed in its frame).
+    """Starts around ``fit``: every view's object pose in turn rotated by each of
+    :data:`HOP_TURNS_DEG` about each of :data:`HOP_AXES` of its camera frame
+    (``camera_rotations[x]``, world -> camera), through the fitted shape's centroid; the
+    shape and the other views unchanged (the gauge's turns too: only the relative poses
+    matter, and the result is re-posed in the gauge's frame).
 
     Returns a list of ``(Rs (P, 3, 3), ts (P, 3) mm, w (M,))`` object-to-world poses.
     """
@@ -49,9 +55,9 @@ def hop_starts(fit: OutlineFitResult, model, camera_rotations: list[np.ndarray])
     out = []
     for x in range(len(fit.rotations)):
         C = camera_rotations[x]
-        for axis in np.eye(3):
-            for sign in (1.0, -1.0):
-                turn = C.T @ so3_exp(sign * np.deg2rad(HOP_DEG) * axis) @ C  # world frame
+        for axis in np.eye(3)[list(HOP_AXES)]:
+            for deg in HOP_TURNS_DEG:
+                turn = C.T @ so3_exp(np.deg2rad(deg) * axis) @ C  # world frame
                 Rs, ts = fit.rotations.copy(), fit.translations.copy()
                 centre = Rs[x] @ c + ts[x]
                 Rs[x] = turn @ Rs[x]

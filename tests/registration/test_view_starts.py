@@ -8,7 +8,7 @@ import pytest
 from biplanar_reg.registration import register_views
 from biplanar_reg.registration.outline_fit import OutlineFitResult
 from biplanar_reg.registration.rotations import rotation_angle, so3_exp
-from biplanar_reg.registration.view_starts import HOP_DEG, hop_starts
+from biplanar_reg.registration.view_starts import HOP_AXES, HOP_TURNS_DEG, hop_starts
 from biplanar_reg.simulate import boosting_case
 
 
@@ -45,18 +45,23 @@ def test_hop_starts_turn_each_view_about_the_centroid(model):
     )
     cams = [so3_exp(rng.normal(size=3)) for _ in range(3)]
     starts = hop_starts(fit, model, cams)
-    assert len(starts) == 3 * 6  # every view (the gauge's too), 3 axes, both signs
+    n = len(HOP_AXES) * len(HOP_TURNS_DEG)
+    assert len(starts) == 3 * n  # every view in turn (the gauge's too)
     c = model.instance(w).mean(axis=0)
     for k, (R2, t2, w2) in enumerate(starts):
-        x = k // 6
+        x, axis, deg = (
+            k // n,
+            HOP_AXES[k % n // len(HOP_TURNS_DEG)],
+            HOP_TURNS_DEG[k % len(HOP_TURNS_DEG)],
+        )
         np.testing.assert_array_equal(w2, w)
         for y in range(3):
             if y != x:
                 np.testing.assert_array_equal(R2[y], Rs[y])
                 np.testing.assert_array_equal(t2[y], ts[y])
-        assert np.degrees(rotation_angle(R2[x], Rs[x])) == pytest.approx(HOP_DEG)
+        assert np.degrees(rotation_angle(R2[x], Rs[x])) == pytest.approx(abs(deg))
         np.testing.assert_allclose(R2[x] @ c + t2[x], Rs[x] @ c + ts[x], atol=1e-9)
-        # the turn's axis is one of the camera's axes
+        # in view x's camera frame, a turn about the camera's axis ``axis``
         turn = cams[x] @ R2[x] @ Rs[x].T @ cams[x].T
-        axis = np.array([turn[2, 1] - turn[1, 2], turn[0, 2] - turn[2, 0], turn[1, 0] - turn[0, 1]])
-        assert np.max(np.abs(axis)) == pytest.approx(np.linalg.norm(axis))
+        assert turn[axis, axis] == pytest.approx(1.0)
+        assert np.trace(turn) == pytest.approx(1.0 + 2.0 * np.cos(np.deg2rad(deg)))
