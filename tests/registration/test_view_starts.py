@@ -12,12 +12,11 @@ from biplanar_reg.registration.view_starts import HOP_AXES, HOP_TURNS_DEG, hop_s
 from biplanar_reg.simulate import boosting_case
 
 
-@pytest.mark.parametrize("seed", [1, 3])
+@pytest.mark.parametrize("seed", [1, 3, 13])
 def test_unknown_poses_do_not_stop_in_a_compensating_shape_minimum(model, seed):
-    """``benchmarks/pose_modes.py unknown`` seeds 1 and 3 (3 landmarks per view, 80 %
-    outlines): every start of the joint fit is >= 21 deg off in relative rotation and the best
-    fit stopped with the second view turned 78.1 deg (seed 1) or 8.3 deg (seed 3); the hops
-    reach 1.3 and 0.4 deg."""
+    """``benchmarks/pose_modes.py unknown`` seeds 1, 3 and 13 (3 landmarks per view, 80 %
+    outlines): without the hops the joint fit stopped with the second view turned 78.1, 8.3
+    and 142.9 deg (every start >= 21 deg off); the hops reach 1.3, 0.4 and 0.8 deg."""
     views, _ = boosting_case(model, seed, fraction=0.8, noise_px=0.5)
     res = register_views(model, views, poses="unknown")
     truth = views[1].view.R @ views[0].view.R.T  # the second view relative to the first
