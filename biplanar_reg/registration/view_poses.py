@@ -47,6 +47,7 @@ from .problem import Problem, with_pose
 from .rays import RayObservations
 from .rotations import rotation_angle
 from .unknown_poses import UnknownPoseView, solve_gsft_unknown_poses
+from .view_starts import hop_joint_fit
 
 __all__: list[str] = []
 
@@ -327,6 +328,9 @@ def refine_views_on_outlines(
         )  # fmt: skip
     else:
         best = _best_joint_fit(fit_args, terms, [(*tiled, result.weights), *starts])
+    if not prior and best is not None:  # unknown: a hop search around it (view_starts.py)
+        n_iter = max(opts.refine_iterations, 30)
+        best = hop_joint_fit(fit_args, terms, best, n_iter, JOINT_MAX_REJECTED)
     if best is None:  # no plausible correction: keep the registration with the given views
         problem.say("joint view refinement: no correction within the calibration prior")
         return list(views), result, np.nan
