@@ -273,7 +273,8 @@ def report(args, trees, reg, stages, batch, knee_size, total) -> str:
         "Stages: imports = `biplanar_reg.cases.run` and the case loader; load = `load_case`; "
         "registration = `register_views` (solver, outline matching, refinement); metrics = "
         "contour errors and ground-truth surface metrics; report imports = the report package "
-        "(matplotlib, Jinja2); report = `write_case_report` (figures, 3D render, HTML). The "
+        "(matplotlib and Jinja2 up to 5f5b503; Pillow and Jinja2 since); report = "
+        "`write_case_report` (figures, 3D render, HTML). The "
         "interpreter start (~0.05 s) is outside the sum.",
         "",
         f"## 3. `biplanar-reg batch` of {args.batch} knee-sized cases, `--workers 2`",
