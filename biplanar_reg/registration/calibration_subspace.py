@@ -42,6 +42,7 @@ from .outline_fit import (
     _PoseFit,
     _prior_jacobian,
     _retract_poses,
+    fit_result,
 )
 from .problem import Problem
 from .rays import RayObservations
@@ -159,20 +160,7 @@ def fit_in_subspace(fit_args, start, kept: np.ndarray, c: np.ndarray, **kw) -> O
     (Rs, ts, w), cost0, cost, iterations, converged = levenberg_marquardt(
         state0, fit.residuals, jacobian, retract, **kw
     )
-    _, aux = fit.residuals((Rs, ts, w))
-    return OutlineFitResult(
-        rotation=Rs[0],
-        translation=ts[0],
-        weights=w,
-        vertices=model.instance(w) @ Rs[0].T + ts[0],
-        cost_before=cost0,
-        cost_after=cost,
-        iterations=iterations,
-        converged=converged,
-        n_active=0 if aux is None else aux[1],
-        rotations=Rs,
-        translations=ts,
-    )
+    return fit_result(model, fit, (Rs, ts, w), cost0, cost, iterations, converged)
 
 
 #: A direction of the corrections is corrected only when the images' standard deviation

@@ -356,6 +356,35 @@ class _PoseFit:
         return _stacked_jacobian(state, aux[0], self.model.n_modes, self.sqrt_lam, self.prior)
 
 
+def fit_result(
+    model: ShapeModel,
+    fit: _PoseFit,
+    state: tuple[np.ndarray, np.ndarray, np.ndarray],
+    cost0: float,
+    cost: float,
+    iterations: int,
+    converged: bool,
+) -> OutlineFitResult:
+    """The :class:`OutlineFitResult` of a finished pose fit at ``state`` (per-group object ->
+    world poses, mm, and the weights): group 0's pose and vertices (world, mm), every group's
+    poses, and the active outline terms at ``state``."""
+    Rs, ts, w = state
+    _, aux = fit.residuals(state)
+    return OutlineFitResult(
+        rotation=Rs[0],
+        translation=ts[0],
+        weights=w,
+        vertices=model.instance(w) @ Rs[0].T + ts[0],
+        cost_before=cost0,
+        cost_after=cost,
+        iterations=iterations,
+        converged=converged,
+        n_active=0 if aux is None else aux[1],
+        rotations=Rs,
+        translations=ts,
+    )
+
+
 def refine_poses_on_outlines(
     model: ShapeModel,
     start: tuple[np.ndarray, np.ndarray, np.ndarray],
@@ -434,20 +463,7 @@ def refine_poses_on_outlines(
         max_rejected=max_rejected,
         callback=None if callback is None else lambda s, c, aux: callback(s, c, aux[1]),
     )
-    _, aux = fit.residuals((Rs, ts, w))
-    return OutlineFitResult(
-        rotation=Rs[0],
-        translation=ts[0],
-        weights=w,
-        vertices=model.instance(w) @ Rs[0].T + ts[0],
-        cost_before=cost0,
-        cost_after=cost,
-        iterations=iterations,
-        converged=converged,
-        n_active=0 if aux is None else aux[1],
-        rotations=Rs,
-        translations=ts,
-    )
+    return fit_result(model, fit, (Rs, ts, w), cost0, cost, iterations, converged)
 
 
 def refine_on_outlines(
