@@ -47,12 +47,9 @@ from .outline_fit import (
 from .problem import Problem
 from .rays import RayObservations
 from .refine import levenberg_marquardt
+from .rotations import skew
 
 __all__: list[str] = []
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 def correction_basis(state: tuple[np.ndarray, ...], c: np.ndarray) -> np.ndarray:
@@ -67,8 +64,8 @@ def correction_basis(state: tuple[np.ndarray, ...], c: np.ndarray) -> np.ndarray
     for x in range(1, P):
         T[6 * x : 6 * x + 6, :6] = np.eye(6)
         # a turn about the gauge's origin (or about c) is one about view x's origin plus a shift
-        T[6 * x + 3 : 6 * x + 6, :3] = -_skew(ts[x] - ts[0])
-        T[6 * x + 3 : 6 * x + 6, 6 * x : 6 * x + 3] = -_skew(ts[x] - c)
+        T[6 * x + 3 : 6 * x + 6, :3] = -skew(ts[x] - ts[0])
+        T[6 * x + 3 : 6 * x + 6, 6 * x : 6 * x + 3] = -skew(ts[x] - c)
     return T
 
 

@@ -41,13 +41,12 @@ from .outline_fit import (
     OutlineTerm,
     PosePrior,
     prior_residuals,
-    refine_poses_on_outlines,
 )
 from .problem import Problem, with_pose
 from .rays import RayObservations
 from .rotations import rotation_angle
 from .unknown_poses import UnknownPoseView, solve_gsft_unknown_poses
-from .view_starts import hop_joint_fit
+from .view_starts import hop_joint_fit, joint_fit
 
 __all__: list[str] = []
 
@@ -183,6 +182,9 @@ def estimate_view_poses(
                 f"got {len(v.landmark_ids)}"
             )
         return PosedViews(views, {"mode": poses}, [])
+    if poses == "refine" and options.pose_prior_at_bone:
+        # corrected from the given calibrations only (calibration_subspace): no starts
+        return PosedViews(views, {"mode": poses}, [])
     est, starts = _gsft_p(model, views, options)
     starts += _pnp_starts(model, views)
     if poses == "refine":
@@ -255,30 +257,16 @@ def _same_state(a, b) -> bool:
     return all(np.allclose(x, y, rtol=0.0, atol=1e-9) for x, y in zip(a, b, strict=True))
 
 
-def _best_joint_fit(fit_args, terms: list[OutlineTerm], starts: list):
+def _best_joint_fit(fit_args, terms: list[OutlineTerm], starts: list, max_iter: int):
     """The lowest-objective joint fit from ``starts`` that the calibration prior's gate lets
     through (None when none does)."""
-    problem, rejected, pose_prior, depths = fit_args
-    opts, P = problem.options, len(problem.views)
+    problem, pose_prior = fit_args[0], fit_args[2]
     best, done = None, []
     for i, start in enumerate(starts):
         if not _in_front(problem, start) or any(_same_state(start, s) for s in done):
             continue  # behind a source, or a start already fitted (candidates repeat)
         done.append(start)
-        fit = refine_poses_on_outlines(
-            problem.model,
-            start,
-            problem.landmark_rays(rejected),
-            terms,
-            pose_of_view=np.arange(P),
-            pixels=[v.view for v in problem.views],
-            prior=pose_prior,
-            prior_weight=opts.prior_weight,
-            max_iter=max(opts.refine_iterations, 30),
-            he=problem.topology,
-            max_rejected=JOINT_MAX_REJECTED,
-            depths=depths,
-        )
+        fit = joint_fit(fit_args, terms, start, max_iter, JOINT_MAX_REJECTED)
         problem.say(f"joint view refinement from start {i}: objective {fit.cost_after:.4g}")
         if pose_prior is not None and _implausible(fit, pose_prior):
             continue  # the outlines' many samples outweigh the prior: gate it
@@ -319,17 +307,17 @@ def refine_views_on_outlines(
     )
     fit_args = (problem, rejected, pose_prior, depths)
     terms = _joint_terms(problem, joint_sigma_factor(opts, "refine" if prior else "unknown"))
+    n_iter = max(opts.refine_iterations, 30)
     if pose_prior is not None and opts.pose_prior_at_bone:
         # a calibration accurate at the bone: correct only the directions the images see
         # better than it (calibration_subspace), the rest stays at the given calibration
         best, _ = fit_seen_corrections(
             problem, (*tiled, result.weights), rejected, pose_prior, depths, terms,
-            max_iter=max(opts.refine_iterations, 30), tol=1e-6, max_rejected=JOINT_MAX_REJECTED,
+            max_iter=n_iter, tol=1e-6, max_rejected=JOINT_MAX_REJECTED,
         )  # fmt: skip
     else:
-        best = _best_joint_fit(fit_args, terms, [(*tiled, result.weights), *starts])
+        best = _best_joint_fit(fit_args, terms, [(*tiled, result.weights), *starts], n_iter)
     if not prior and best is not None:  # unknown: a hop search around it (view_starts.py)
-        n_iter = max(opts.refine_iterations, 30)
         best = hop_joint_fit(fit_args, terms, best, n_iter, JOINT_MAX_REJECTED)
     if best is None:  # no plausible correction: keep the registration with the given views
         problem.say("joint view refinement: no correction within the calibration prior")

@@ -66,9 +66,11 @@ def hop_starts(fit: OutlineFitResult, model, camera_rotations: list[np.ndarray])
     return out
 
 
-def _joint_fit(fit_args, terms: list[OutlineTerm], start, max_iter: int, max_rejected: int):
-    """The joint refinement of every view's pose and the shape (no prior: ``unknown``)."""
-    problem, rejected, _, depths = fit_args
+def joint_fit(fit_args, terms: list[OutlineTerm], start, max_iter: int, max_rejected: int):
+    """The joint refinement of every view's pose and the shape from ``start``, with the
+    calibration prior of ``fit_args = (problem, rejected, prior, depths)`` (None for
+    ``unknown``) and the views' residuals in pixels."""
+    problem, rejected, prior, depths = fit_args
     return refine_poses_on_outlines(
         problem.model,
         start,
@@ -76,7 +78,7 @@ def _joint_fit(fit_args, terms: list[OutlineTerm], start, max_iter: int, max_rej
         terms,
         pose_of_view=np.arange(len(problem.views)),
         pixels=[v.view for v in problem.views],
-        prior=None,
+        prior=prior,
         prior_weight=problem.options.prior_weight,
         max_iter=max_iter,
         he=problem.topology,
@@ -91,13 +93,13 @@ def _hop_round(fit_args, terms, best: OutlineFitResult, max_iter: int, max_rejec
     problem = fit_args[0]
     cams = [v.view.R for v in problem.views]
     short = [
-        _joint_fit(fit_args, terms, s, HOP_SHORT_ITER, max_rejected)
+        joint_fit(fit_args, terms, s, HOP_SHORT_ITER, max_rejected)
         for s in hop_starts(best, problem.model, cams)
     ]
     short.sort(key=lambda f: f.cost_after)
     out = best
     for f in short[:HOP_KEEP]:
-        full = _joint_fit(
+        full = joint_fit(
             fit_args, terms, (f.rotations, f.translations, f.weights), max_iter, max_rejected
         )
         problem.say(f"joint view refinement, hop: objective {full.cost_after:.4g}")
