@@ -156,7 +156,7 @@ def straightforward_problem(D, origins, directions, eps, n_modes):
     A_rot, b_rot = rotation_constraints(n)
     iu, ju = np.triu_indices(n)
     k, coef = svec_index(iu, ju)
-    A = A_rot.toarray()
+    A = A_rot
     A_vec = np.zeros((A.shape[0], n * n))
     A_vec[:, ju * n + iu] = A[:, k] / coef[None, :]
     cons = [sp.csr_matrix(A_vec) @ cp.vec(Delta, order="F") == b_rot]

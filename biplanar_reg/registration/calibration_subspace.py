@@ -30,7 +30,6 @@ stacked over the non-gauge views.
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import eigh
 
 from ..calibration.views import View
 from ..ssm.model import ShapeModel
@@ -117,6 +116,8 @@ def seen_directions(
     images' standard deviation is below ``ratio`` times the prior's, and every direction's
     standard deviation ratio (ascending).
     """
+    from scipy.linalg import eigh  # here: only the bone-prior path gets here (~0.27 s import)
+
     lam, V = eigh(info, prior_info)
     order = np.argsort(-lam)
     lam, V = lam[order], V[:, order]

@@ -28,14 +28,14 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
-import scipy.linalg as sla
-from scipy.linalg.lapack import dgesvd as _gesvd
-from scipy.linalg.lapack import dpotrf as _potrf
-from scipy.linalg.lapack import dpotrs as _potrs
-from scipy.linalg.lapack import dsyevr as _syevr
-from scipy.linalg.lapack import dtrtrs as _trtrs
+
+from ._lapack import lapack
 
 __all__: list[str] = []
+
+_LAPACK = lapack()  # SciPy's routines, without the 0.27 s import of scipy.linalg (see _lapack)
+_gesvd, _potrf, _potrs = _LAPACK.dgesvd, _LAPACK.dpotrf, _LAPACK.dpotrs
+_syevr, _trtrs = _LAPACK.dsyevr, _LAPACK.dtrtrs
 
 
 # -- svec algebra ---------------------------------------------------------------------------------
@@ -551,6 +551,8 @@ def _lu_kkt_factor(H: np.ndarray, A: np.ndarray, dsc: np.ndarray):
     K[:n, :n] = H * dsc[:, None] * dsc[None, :]
     K[:n, n:] = (A * dsc[None, :]).T
     K[n:, :n] = K[:n, n:].T
+    import scipy.linalg as sla  # a rare path: its import cost only where it runs
+
     lu = sla.lu_factor(K, check_finite=False)
 
     def solve(bx: np.ndarray, by: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -19,7 +19,6 @@ Everything the solver needs is linear in ``Delta``:
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 
 __all__: list[str] = []
 
@@ -65,14 +64,15 @@ def _r(r: int, c: int) -> int:
     return 1 + 3 * r + c
 
 
-def rotation_constraints(n: int) -> tuple[sp.csr_matrix, np.ndarray]:
+def rotation_constraints(n: int) -> tuple[np.ndarray, np.ndarray]:
     """Linear equalities ``A @ x == b`` on the triangle vector of the Gram matrix.
 
     Rows: ``Delta[0, 0] = 1``; ``R R^T = I`` (6); the redundant ``R^T R = I`` (5: its last
     diagonal row follows from the traces); ``r_a x r_b = r_c`` in cyclic order (9), i.e. ``R``
     equals its cofactor matrix, which forces ``det R = +1``. Each product ``R[a] R[b]`` is read
     from the rotation block of ``Delta`` and each linear term from its first row. The 21 rows are
-    linearly independent (an interior-point KKT system needs that).
+    linearly independent (an interior-point KKT system needs that). ``A`` is dense, (21, nt):
+    small, and dense keeps SciPy's sparse module (~0.14 CPU s to import) off the register path.
     """
     rows: list[dict[int, float]] = []
     rhs: list[float] = []
@@ -103,14 +103,10 @@ def rotation_constraints(n: int) -> tuple[sp.csr_matrix, np.ndarray]:
                 [(_r(a, k1), _r(b, k2), 1.0), (_r(a, k2), _r(b, k1), -1.0), (0, _r(c, k), -1.0)],
                 0.0,
             )
-    nt = svec_size(n)
-    data, ri, ci = [], [], []
+    A = np.zeros((len(rows), svec_size(n)))
     for i, row in enumerate(rows):
         for k, v in row.items():
-            ri.append(i)
-            ci.append(k)
-            data.append(v)
-    A = sp.csr_matrix((data, (ri, ci)), shape=(len(rows), nt))
+            A[i, k] = v
     return A, np.asarray(rhs)
 
 

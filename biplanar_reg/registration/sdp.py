@@ -28,7 +28,6 @@ from dataclasses import dataclass
 
 import clarabel
 import numpy as np
-import scipy.sparse as sp
 
 from ..errors import SolverFailure
 from .ipm import dense_kkt_factor, skron_triu, smat, svec
@@ -168,11 +167,13 @@ class KnownPoseSDP:
         row2 = row_d + K
         psd_rows = row2 + np.arange(nt)
         psd_cols = np.arange(nt)
-        rot = A_rot.tocoo()
-        all_rows = np.concatenate([rot.row, vd_rows, *ineq_rows, psd_rows])
-        all_cols = np.concatenate([rot.col, vd_cols, *ineq_cols, psd_cols])
+        rot_row, rot_col = np.nonzero(A_rot)  # row-major, as a COO of the rows would be
+        all_rows = np.concatenate([rot_row, vd_rows, *ineq_rows, psd_rows])
+        all_cols = np.concatenate([rot_col, vd_cols, *ineq_cols, psd_cols])
         self.n_con = row2 + nt
         # permutation from our COO order to CSC data order (no duplicates by construction)
+        import scipy.sparse as sp  # Clarabel's path only: the IPM's register path goes without
+
         order = sp.csc_matrix(
             (np.arange(1, len(all_rows) + 1, dtype=float), (all_rows, all_cols)),
             shape=(self.n_con, self.n_var),
@@ -183,7 +184,7 @@ class KnownPoseSDP:
         self._perm = order.data.astype(np.int64) - 1
         self._A = order
         self._static_vals = {
-            "rot": rot.data,
+            "rot": A_rot[rot_row, rot_col],
             "vd_one": np.ones(3 * K),
             "vd_t": -np.ones(3 * K),
             "psd": -np.ones(nt),
@@ -258,6 +259,8 @@ class KnownPoseSDP:
         q = self._objective(data)
         t0 = time.perf_counter()
         if self._solver is None:
+            import scipy.sparse as sp
+
             A = sp.csc_matrix((A_data, self._A.indices, self._A.indptr), shape=self._A.shape)
             self._solver = clarabel.DefaultSolver(
                 self._P, q, A, b, self._cones, self._make_settings()
@@ -546,7 +549,7 @@ def _layout(n_modes: int) -> _Layout:
         zidx = np.concatenate([np.append(kpat[r], nt + r) for r in range(3)])
         zcoef = np.concatenate([np.append(cpat[r], 1.0) for r in range(3)])
         A_rot, b = rotation_constraints(n)
-        A_eq = A_rot.toarray()
+        A_eq = A_rot
         rows, cols = np.triu_indices(nt)
         _LAYOUTS[n_modes] = _Layout(
             kpat,

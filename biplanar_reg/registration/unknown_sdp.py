@@ -26,7 +26,6 @@ from dataclasses import dataclass
 
 import clarabel
 import numpy as np
-import scipy.sparse as sp
 
 from .lifting import svec_index, svec_to_matrix
 from .sdp import KnownPoseData, KnownPoseSDP, SolverFailure
@@ -95,6 +94,8 @@ def solve_multiview_sdp(
     SolverFailure
         Clarabel did not reach (reduced-accuracy) optimality.
     """
+    import scipy.sparse as sp  # here: the modules that import this one run without it
+
     A_blocks, b_parts, q_parts, cones = [], [], [], []
     offsets = []
     sdps = []

@@ -38,7 +38,7 @@ def test_cholesky_kkt_solve_matches_lu_on_a_badly_scaled_system():
     solution, also when the diagonal spans 12 orders of magnitude (as near the optimum)."""
     rng = np.random.default_rng(0)
     n = 30
-    A_eq = rotation_constraints(n)[0].toarray()[:, :n]
+    A_eq = rotation_constraints(n)[0][:, :n]
     A_eq = A_eq[np.abs(A_eq).sum(axis=1) > 0][:5]
     B = rng.normal(size=(n, n)) * np.logspace(-6, 6, n)[None, :]
     H = B.T @ B + np.diag(np.logspace(-6, 6, n))
