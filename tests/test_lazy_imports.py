@@ -84,3 +84,19 @@ def test_registration_of_a_sample_case_leaves_scipy_subpackages_unloaded(tmp_pat
     )
     assert _last_line_of(code, timeout=300) == "[]"
     assert (tmp_path / "out" / "registered.ply").is_file()
+
+
+def test_lapack_routines_are_scipys_own_and_scipy_linalg_stays_unloaded():
+    """The IPM's LAPACK routines load without ``scipy.linalg``; importing it afterwards reuses
+    the same extension module, so they are the very objects of ``scipy.linalg.lapack``."""
+    code = (
+        "import sys\n"
+        "from biplanar_reg.registration._lapack import lapack\n"
+        "mod = lapack()\n"
+        "before = 'scipy.linalg' in sys.modules\n"
+        "from scipy.linalg import lapack as public\n"
+        "same = all(getattr(mod, f) is getattr(public, f) for f in "
+        "('dpotrf', 'dpotrs', 'dtrtrs', 'dsyevr', 'dgesvd'))\n"
+        "print(before, same)\n"
+    )
+    assert _last_line_of(code, timeout=60) == "False True"

@@ -1,43 +1,12 @@
-"""The IPM's LAPACK routines: SciPy's own, loaded without importing ``scipy.linalg``."""
+"""The IPM's LAPACK routines: SciPy's own, loaded without importing ``scipy.linalg``
+(``tests/test_lazy_imports.py`` checks that in a fresh interpreter)."""
 
 from __future__ import annotations
-
-import os
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from biplanar_reg.registration import _lapack
-
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def test_routines_are_scipys_own_and_scipy_linalg_stays_unloaded():
-    """Loading the routines leaves ``scipy.linalg`` unimported; importing it afterwards reuses
-    the same extension module, so the functions are the very objects of ``scipy.linalg.lapack``."""
-    code = (
-        "import sys\n"
-        "from biplanar_reg.registration._lapack import lapack\n"
-        "mod = lapack()\n"
-        "before = 'scipy.linalg' in sys.modules\n"
-        "from scipy.linalg import lapack as public\n"
-        "same = all(getattr(mod, f) is getattr(public, f) for f in "
-        "('dpotrf', 'dpotrs', 'dtrtrs', 'dsyevr', 'dgesvd'))\n"
-        "print(before, same)\n"
-    )
-    run = subprocess.run(
-        [sys.executable, "-c", code],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-        timeout=60,
-    )
-    assert run.returncode == 0, run.stderr
-    assert run.stdout.split() == ["False", "True"]
 
 
 @pytest.mark.parametrize("failure", ["raises", "not found"])
