@@ -371,9 +371,7 @@ def _run_dask(
         raise ValueError(f"--scheduler {address}: cannot connect ({exc})") from None
     try:
         futures = {
-            client.submit(
-                process_case, c, o, *extra, pure=False, key=f"case-{i}-{Path(c).name}"
-            ): c
+            client.submit(process_case, c, o, *extra, pure=False, key=f"case-{i}-{Path(c).name}"): c
             for i, (c, o) in enumerate(jobs)
         }
         for fut in as_completed(futures):

@@ -1047,8 +1047,7 @@ def _load_bones(ctx: _Ctx, doc: dict, case_id: str, units: str, scale: float) ->
     common.update(poses=poses, silhouettes=silhouettes, warnings=ctx.warnings)
     common["mesh_formats"] = mesh_formats
     bones = [
-        Case(**common, **_one_bone(ctx, i, t, doc, views, reg, scale))
-        for i, t in enumerate(tables)
+        Case(**common, **_one_bone(ctx, i, t, doc, views, reg, scale)) for i, t in enumerate(tables)
     ]
     names = [b.bone for b in bones]
     if len(set(names)) != len(names):

@@ -217,9 +217,7 @@ def _radiograph_dirs(case: Any) -> list[Path | None]:
     return out
 
 
-def autoscoper_exports(
-    tmp: Path, out: Path, case: Any, poses: dict[str, np.ndarray]
-) -> list[Path]:
+def autoscoper_exports(tmp: Path, out: Path, case: Any, poses: dict[str, np.ndarray]) -> list[Path]:
     """``autoscoper/``: the trial ``.cfg`` (one volume per bone), MayaCam 2.0 per view, and
     ``Tracking/<id>_<bone>.tra`` per bone (``poses``: bone name -> (F, 4, 4) model -> world).
 

@@ -413,8 +413,12 @@ def register_case(
         from .bones import register_bones_case
 
         return register_bones_case(
-            case, out_dir, include_phi=include_phi, load_seconds=load_seconds,
-            progress=progress, report=report,
+            case,
+            out_dir,
+            include_phi=include_phi,
+            load_seconds=load_seconds,
+            progress=progress,
+            report=report,
         )
     if case.frames:
         return register_frames_case(
@@ -806,9 +810,7 @@ def register_frames_case(
         props = mesh_properties(sd0 if sd0 is not None and np.isfinite(sd0).all() else None)
         write_mesh(tmp / "registered.ply", res.frame_vertices(0), case.model.faces, props)
         write_mesh(tmp / "registered_model.ply", res.vertices, case.model.faces)
-        doc["exports"] = write_pose_exports(
-            tmp, out_dir, case, res.poses(), res.frame_vertices(0)
-        )
+        doc["exports"] = write_pose_exports(tmp, out_dir, case, res.poses(), res.frame_vertices(0))
         if report:
             t2 = time.perf_counter()
             doc["report"] = _write_frames_report(tmp, case, frames, res, doc)

@@ -141,9 +141,7 @@ def piece_anchors(piece: np.ndarray, closed: bool, anchors: np.ndarray | None) -
     return out if len(out) >= need else None
 
 
-def erase_stretch(
-    uv: np.ndarray, closed: bool, a: np.ndarray, b: np.ndarray
-) -> list[np.ndarray]:
+def erase_stretch(uv: np.ndarray, closed: bool, a: np.ndarray, b: np.ndarray) -> list[np.ndarray]:
     """``uv`` without the stretch between its points nearest to ``a`` and ``b`` (both
     dropped); for a closed contour the shorter of the two stretches. Pieces of < 3 points
     are dropped; the result is open."""
@@ -242,8 +240,7 @@ class OutlineTools:
         def change(contours: list[Contour], saved: list[Any]) -> None:
             if index is not None and not 0 <= index < len(contours):
                 raise NotFound(
-                    f"views.{view}.contours[{index}]: no such contour ({len(contours)} in the "
-                    "view)"
+                    f"views.{view}.contours[{index}]: no such contour ({len(contours)} in the view)"
                 )
             old = (None, None) if index is None else (contours[index], saved[index])
             pieces = make(*old)
@@ -302,8 +299,7 @@ class OutlineTools:
             anchors = None if entry is None else np.asarray(entry["anchors"], float)
             pieces = erase_stretch(np.asarray(contour.uv, float), contour.closed, a, b)
             return [
-                (Contour(p, False), _entry(p, piece_anchors(p, False, anchors)))
-                for p in pieces
+                (Contour(p, False), _entry(p, piece_anchors(p, False, anchors))) for p in pieces
             ]
 
         return self._replace(view, int(index), make)

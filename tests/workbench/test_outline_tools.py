@@ -88,8 +88,10 @@ def test_circle_zone_cuts_the_saved_contour_and_the_loader_sees_it(client):
     c, case = client
     before = np.asarray(_saved(case)[0]["uv"])
     centre = before[len(before) // 2]
-    r = c.post(f"/api/views/{VIEW}/exclusions", json={"circle": {"center": centre.tolist(),
-                                                                  "radius_px": 6}})
+    r = c.post(
+        f"/api/views/{VIEW}/exclusions",
+        json={"circle": {"center": centre.tolist(), "radius_px": 6}},
+    )
     assert r.status_code == 200, r.text
     doc = r.json()
     assert doc["added"] == 1 and doc["cut"] == [0] and len(doc["zones"]) == 1
@@ -128,8 +130,7 @@ def test_brush_and_polygon_zones(client):
     uv = np.asarray(_saved(case)[0]["uv"])
     k = len(uv) // 3
     stroke = uv[k : k + 10 : 3].tolist()
-    r = c.post(f"/api/views/{VIEW}/exclusions", json={"brush": {"points": stroke,
-                                                                 "radius_px": 3}})
+    r = c.post(f"/api/views/{VIEW}/exclusions", json={"brush": {"points": stroke, "radius_px": 3}})
     assert r.status_code == 200, r.text
     assert r.json()["cut"] == [0]
     p = uv[-6] + np.array([[-4, -4], [4, -4], [4, 4], [-4, 4]])
@@ -145,8 +146,10 @@ def test_brush_and_polygon_zones(client):
     "body, field",
     [
         ({}, "body: give exactly one"),
-        ({"circle": {"center": [10, 10], "radius_px": 5}, "polygon": [[0, 0], [1, 0], [1, 1]]},
-         "body: give exactly one"),
+        (
+            {"circle": {"center": [10, 10], "radius_px": 5}, "polygon": [[0, 0], [1, 0], [1, 1]]},
+            "body: give exactly one",
+        ),
         ({"circle": {"center": [10, 10]}}, "circle.radius_px"),
         ({"circle": {"center": [10, 10], "radius_px": -1}}, "circle.radius_px"),
         ({"circle": {"center": [900, 10], "radius_px": 3}}, "circle.center"),
