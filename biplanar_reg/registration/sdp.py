@@ -341,6 +341,7 @@ class KnownPoseIPM:
         self._DtT = np.ascontiguousarray(self.Dt.T)
         self._WDt = np.empty((6, self.Dt.shape[1], K))
         self._Hu = np.zeros((self.nz, self.nz))  # the reduced matrix's upper triangle
+        self._Hs = np.empty((self.nz, self.nz))  # its scaled form and Cholesky factor
         self.d = directions
         # V x d = V[:, (1, 2, 0)] * d[:, (2, 0, 1)] - V[:, (2, 0, 1)] * d[:, (1, 2, 0)]
         self._d201 = directions[:, [2, 0, 1]].ravel()
@@ -488,7 +489,7 @@ class KnownPoseIPM:
         flat[lay.svec_triu] = skron_triu(psd_T[0])
         flat[lay.h_outside] = 0.0
         flat[lay.h_index] += blocks.reshape(-1).take(lay.h_take) * lay.h_coef
-        fac = dense_kkt_factor(Hu.T, self.A_full)
+        fac = dense_kkt_factor(Hu.T, self.A_full, self._Hs)  # valid until the next call
         d21 = d2 - d1
         ratio = d21 / dsum
 
