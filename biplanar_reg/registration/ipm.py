@@ -143,7 +143,9 @@ class ConicProblem(Protocol):
         """Prepare to solve ``[H A'; A 0] (x, y) = (bx, by)`` with
         ``H = G' D G``, ``D = diag(d_lp) (+) (X -> T X T for each PSD block)``;
         returns a callable ``(bx, by) -> (x, y, G x)`` (``G x`` too: the solver needs it
-        next, and a structured solve has most of it at hand)."""
+        next, and a structured solve has most of it at hand), valid until the next call
+        (the problem may keep its buffers: the solver uses each factorisation in its own
+        iteration only)."""
         ...
 
 
@@ -276,7 +278,8 @@ def _lam_prod(cones: _Cones, sc: _Scaling, u: np.ndarray, divide: bool) -> np.nd
     """``lambda o u`` (divide=False) or ``lambda \\ u`` (divide=True) in the scaled space."""
     m = cones.n_lp
     out = np.empty_like(u)
-    out[:m] = u[:m] / sc.lam_lp if divide else u[:m] * sc.lam_lp
+    # into the output (a temporary and its copy cost a 7K-long pass more at K observations)
+    (np.divide if divide else np.multiply)(u[:m], sc.lam_lp, out=out[:m])
     for sl, half in zip(cones.slices, sc.lam_half, strict=True):
         # elementwise with (lam_i + lam_j) / 2: the same in svec coordinates, no smat/svec
         out[sl] = u[sl] / half if divide else u[sl] * half
@@ -287,7 +290,7 @@ def _sprod(cones: _Cones, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Jordan product ``a o b`` (elementwise; (XY + YX)/2 for matrices)."""
     m = cones.n_lp
     out = np.empty_like(a)
-    out[:m] = a[:m] * b[:m]
+    np.multiply(a[:m], b[:m], out=out[:m])
     for n, sl in zip(cones.sizes, cones.slices, strict=True):
         X, Y = smat(a[sl], n), smat(b[sl], n)
         XY = X @ Y
@@ -297,7 +300,7 @@ def _sprod(cones: _Cones, a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def _lam_sq(cones: _Cones, sc: _Scaling) -> np.ndarray:
     out = np.empty(cones.dim)
-    out[: cones.n_lp] = sc.lam_lp**2
+    np.multiply(sc.lam_lp, sc.lam_lp, out=out[: cones.n_lp])  # lam**2 is this product
     for n, sl, lam in zip(cones.sizes, cones.slices, sc.lam_psd, strict=True):
         i, j = _triu(n)[:2]
         out[sl] = np.where(i == j, lam.take(i) ** 2, 0.0)  # svec(diag(lam^2))
@@ -502,10 +505,14 @@ def solve_conic(
     )
 
 
-def dense_kkt_factor(H: np.ndarray, A: np.ndarray):
+def dense_kkt_factor(H: np.ndarray, A: np.ndarray, work: np.ndarray | None = None):
     """Factor ``[H A'; A 0]`` for a small dense positive definite ``H`` of which only the lower
     triangle is read (pass a Fortran-ordered ``H`` to spare LAPACK a copy); returns
     ``(bx, by) -> (x, y)``.
+
+    ``work``, a C-ordered float array of ``H``'s shape, receives the scaled matrix and its
+    Cholesky factor instead of a fresh array (at M = 32 a fresh 6.5 MB array per iteration
+    costs page faults); the returned solve then holds it and is valid until ``work`` is reused.
 
     ``H`` is symmetrically Jacobi-scaled (near the optimum its entries span many orders of
     magnitude) and factored by Cholesky; the equalities are eliminated through the small
@@ -517,9 +524,9 @@ def dense_kkt_factor(H: np.ndarray, A: np.ndarray):
     dsc = 1.0 / np.sqrt(np.maximum(dH, 1e-12 * max(1.0, float(np.max(dH)))))
     # dsc_i dsc_j is symmetric bit for bit (a product commutes), so a Fortran-ordered H is
     # scaled through its C-ordered transpose: one contiguous pass, no mixed-order iteration
-    outer = np.multiply.outer(dsc, dsc)
+    outer = np.multiply.outer(dsc, dsc, out=work)
     Hc = H.T if H.flags.f_contiguous else H
-    Hs = np.multiply(Hc, outer)
+    Hs = np.multiply(Hc, outer, out=outer)  # in place: one 242 kB temporary fewer at n = 174
     Hs = Hs.T if H.flags.f_contiguous else Hs
     As = A * dsc[None, :]
     # LAPACK directly: scipy's cho_factor / cho_solve wrappers cost more than the work here.

@@ -340,6 +340,8 @@ class KnownPoseIPM:
         # buffer reused every iteration (a fresh 1.3 MB array per iteration costs page faults)
         self._DtT = np.ascontiguousarray(self.Dt.T)
         self._WDt = np.empty((6, self.Dt.shape[1], K))
+        self._Hu = np.zeros((self.nz, self.nz))  # the reduced matrix's upper triangle
+        self._Hs = np.empty((self.nz, self.nz))  # its scaled form and Cholesky factor
         self.d = directions
         # V x d = V[:, (1, 2, 0)] * d[:, (2, 0, 1)] - V[:, (2, 0, 1)] * d[:, (1, 2, 0)]
         self._d201 = directions[:, [2, 0, 1]].ravel()
@@ -445,7 +447,8 @@ class KnownPoseIPM:
         m = 3 * self.K
         u1, u2 = u[:m], u[m : 2 * m]
         u4, u3 = u[2 * m : 2 * m + self.K], u[2 * m + self.K :]
-        out = np.zeros(self.nz + m)
+        out = np.empty(self.nz + m)
+        out[: self.nz] = 0.0  # the e part is written whole below: no zero fill of it
         gV = self._xd((u2 - u1).reshape(self.K, 3))
         for k in range(3):  # column by column: a (K, 1) x (K, 3) broadcast runs buffered
             gV[:, k] -= u4 * self._dT[k]
@@ -478,11 +481,15 @@ class KnownPoseIPM:
         lay = self._lay
         # the upper triangle of H, C order: its transpose is H's lower triangle in Fortran order,
         # what the Cholesky reads (half of the assembly work, no copy)
-        Hu = np.zeros((self.nz, self.nz))
+        # into a buffer kept by the problem (a fresh zeroed 242 kB matrix per iteration cost a
+        # memset of its every byte): its lower triangle stays zero, the skron entries are
+        # overwritten, and the data-block targets outside them are reset before the sum
+        Hu = self._Hu
         flat = Hu.reshape(-1)
         flat[lay.svec_triu] = skron_triu(psd_T[0])
+        flat[lay.h_outside] = 0.0
         flat[lay.h_index] += blocks.reshape(-1).take(lay.h_take) * lay.h_coef
-        fac = dense_kkt_factor(Hu.T, self.A_full)
+        fac = dense_kkt_factor(Hu.T, self.A_full, self._Hs)  # valid until the next call
         d21 = d2 - d1
         ratio = d21 / dsum
 
@@ -491,9 +498,12 @@ class KnownPoseIPM:
             z, y = fac(bz - self._Bt(ratio * be), by)
             V = self.points(z)
             Bz = self._xd(V).ravel()
-            e = (be - d21 * Bz) / dsum
+            x = np.empty(len(bx))  # (z, e) written in place: no concatenation copy
+            x[: self.nz] = z
+            e = x[self.nz :]
+            np.divide(be - d21 * Bz, dsum, out=e)
             # G x from the points already at hand (the solver needs it next)
-            return np.concatenate([z, e]), y, self._G_of(z, e, V, Bz)
+            return x, y, self._G_of(z, e, V, Bz)
 
         return solve
 
@@ -533,6 +543,7 @@ class _Layout:
     h_index: np.ndarray  # see _data_block_layout
     h_coef: np.ndarray
     h_take: np.ndarray
+    h_outside: np.ndarray  # the h_index targets outside svec_triu (zeroed per assembly)
 
 
 _LAYOUTS: dict[int, _Layout] = {}
@@ -551,6 +562,8 @@ def _layout(n_modes: int) -> _Layout:
         A_rot, b = rotation_constraints(n)
         A_eq = A_rot
         rows, cols = np.triu_indices(nt)
+        svec_triu = rows * nz + cols
+        h_index, h_coef, h_take = _data_block_layout(zidx, zcoef, nt)
         _LAYOUTS[n_modes] = _Layout(
             kpat,
             cpat,
@@ -559,8 +572,11 @@ def _layout(n_modes: int) -> _Layout:
             A_eq,
             np.hstack([A_eq, np.zeros((len(b), 3))]),
             b,
-            rows * nz + cols,
-            *_data_block_layout(zidx, zcoef, nt),
+            svec_triu,
+            h_index,
+            h_coef,
+            h_take,
+            np.setdiff1d(h_index, svec_triu),
         )
     return _LAYOUTS[n_modes]
 

@@ -96,6 +96,42 @@ def test_the_structured_kkt_solve_is_the_dense_one():
     assert np.array_equal(Gx, ipm.G(x))  # the same products, not only the same numbers
 
 
+def test_the_kkt_factor_buffers_carry_nothing_between_iterations():
+    """``KnownPoseIPM`` assembles the reduced matrix into a buffer it keeps (and factors it in
+    another): a factorisation after one at another scaling is bitwise that of a fresh problem,
+    and ``dense_kkt_factor`` with a work array is bitwise the one without."""
+    model = synthetic_bone_model(2, seed=0)
+    rays = _rays(model, 8, seed=7)
+    D = np.random.default_rng(8).normal(size=(8, 9))
+
+    def problem():
+        return KnownPoseIPM(KnownPoseData(D, rays, np.ones(8), 0.01))
+
+    rng = np.random.default_rng(9)
+    used, fresh = problem(), problem()
+    scalings = []
+    for _ in range(2):
+        L = rng.normal(size=(used.n, used.n))
+        scalings.append((rng.uniform(0.01, 100.0, used.n_lp), [L @ L.T + 0.1 * np.eye(used.n)]))
+    bx, by = rng.normal(size=len(used.c)), rng.normal(size=len(used.b))
+    used.kkt_factor(*scalings[0])(bx, by)
+    for got, want in zip(
+        used.kkt_factor(*scalings[1])(bx, by), fresh.kkt_factor(*scalings[1])(bx, by), strict=True
+    ):
+        assert np.array_equal(got, want)
+    n = 12
+    B = rng.normal(size=(n, n))
+    H = np.asfortranarray(B.T @ B + np.eye(n))
+    A_eq = rng.normal(size=(3, n))
+    work = np.full((n, n), np.nan)  # stale contents must not matter
+    for got, want in zip(
+        dense_kkt_factor(H, A_eq, work)(bx[:n], by[:3]),
+        dense_kkt_factor(H, A_eq)(bx[:n], by[:3]),
+        strict=True,
+    ):
+        assert np.array_equal(got, want)
+
+
 def _rays(model, n_obs, seed):
     rng = np.random.default_rng(seed)
     w = rng.normal(size=model.n_modes)
