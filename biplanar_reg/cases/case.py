@@ -707,6 +707,9 @@ def _load_annotations(
     if start:  # a start pose: outlines alone may register (register_views checks the total)
         return ann, path
     n_obs = sum(len(va.landmarks) for va in ann.views.values())
+    outlined = [name for name, va in ann.views.items() if va.contours]
+    if n_obs >= 2 and outlined:  # few landmarks: the start is searched on the outlines
+        return ann, path
     if n_obs < MIN_LANDMARK_OBSERVATIONS:
         raise ctx.error(
             "[annotations] file",

@@ -35,6 +35,7 @@ COUNT_RANGES: dict[str, tuple[int, int]] = {
     "consensus_iterations": (1, 1000),
     "blunder_refine_iterations": (1, 10_000),
     "rigid_start_redundancy": (0, 10_000),
+    "noise_rounds": (0, 100),
 }
 # fields that must be fractions in (0, 1]
 _FRACTIONS = ("landmark_weight", "rejection_weight", "consensus_margin")
@@ -206,6 +207,18 @@ readmit_sigmas : None
         it where the model spans the truth and the outlines are accurate (silhouette benchmark,
         a sample case), so the default 1 keeps the convex stages' weighting
         (benchmarks/results/realistic_known_levers.md).
+    noise : {"estimated", "stated"}
+        ``"estimated"``: each annotation group's noise (the landmarks of each view, the
+        outline of each view) is estimated from the residuals, iterated with the final
+        refinement (variance-component estimation, :mod:`.noise`); the stated sigmas keep
+        only their ratios within a landmark group. ``"stated"``: the stated landmark sigmas
+        and ``contour_sigma_px`` are used as they are.
+    noise_rounds : int
+        Most refinements with re-estimated sigmas (0 to 100).
+    start_landmark_sigma_px : float
+        With ``noise = "estimated"``: the landmarks' sigmas until the noise is estimated
+        (their median; the stated ratios kept), and the reference of the estimate's prior
+        (:mod:`.noise`), pixels.
     """
 
     landmark_weight: float = 0.5
@@ -247,6 +260,9 @@ readmit_sigmas : None
     unknown_outline_sigma_factor: float = 5.0
     pose_prior_at_bone: bool = False
     refine_landmark_weight: float = 1.0
+    noise: str = "estimated"
+    noise_rounds: int = 5
+    start_landmark_sigma_px: float = 2.0
 
     def __post_init__(self) -> None:
         for key, new in DEPRECATED_OPTIONS.items():
@@ -274,8 +290,16 @@ readmit_sigmas : None
             _check_field(f.name, getattr(self, f.name), f.default)
 
 
+#: Fields that take one of a few words.
+CHOICES: dict[str, tuple[str, ...]] = {"noise": ("estimated", "stated")}
+
+
 def _check_field(key: str, value: object, default: object) -> None:
     """Raise ``ValueError`` naming ``key`` when ``value`` is not a valid option value."""
+    if key in CHOICES:
+        if value not in CHOICES[key]:
+            raise ValueError(f"{key}: expected one of {list(CHOICES[key])}, got {value!r}")
+        return
     if isinstance(default, bool):
         if not isinstance(value, (bool, np.bool_)):
             raise ValueError(f"{key}: expected true or false, got {value!r}")

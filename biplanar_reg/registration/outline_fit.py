@@ -513,3 +513,4 @@ def refine_on_outlines(
         he=he,
         callback=cb,
     )
+

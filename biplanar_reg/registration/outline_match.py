@@ -200,6 +200,7 @@ class OutlineTarget:
     points: np.ndarray  # (P, 2) the resampled points (for distances)
     usable: np.ndarray  # (P,) False within end_margin_px of an open polyline's ends
     end_margin_px: float = END_MARGIN_PX
+    contour: np.ndarray | None = None  # (P,) index of each point's contour
 
     def usable_foot(self, seg: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Whether foot points (segment, position) lie away from the ends of open contours."""
@@ -215,8 +216,8 @@ def prepare_outline(
 ) -> OutlineTarget | None:
     """Resample a view's contours (``Contour(uv, closed)``) for matching; None if there are none.
     Points within ``end_margin_px`` of an open contour's ends are marked unusable."""
-    A, B, arc, length, open_, pts, usable = [], [], [], [], [], [], []
-    for c in contours:
+    A, B, arc, length, open_, pts, usable, owner = [], [], [], [], [], [], [], []
+    for k, c in enumerate(contours):
         p = resample_polyline(c.uv, spacing_px, closed=c.closed)
         q = np.vstack([p, p[:1]]) if c.closed else p
         seg_len = np.linalg.norm(np.diff(q, axis=0), axis=1)
@@ -235,6 +236,7 @@ def prepare_outline(
         )
         pts.append(p)
         usable.append(ok)
+        owner.append(np.full(len(p), k))
     if not A:
         return None
     return OutlineTarget(
@@ -245,6 +247,7 @@ def prepare_outline(
         np.vstack(pts),
         np.concatenate(usable),
         float(end_margin_px),
+        np.concatenate(owner),
     )
 
 

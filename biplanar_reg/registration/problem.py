@@ -12,7 +12,7 @@ Frames and units: world frame, mm; image quantities in pixels.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -54,9 +54,17 @@ class Landmarks:
     uv: np.ndarray
     sigma_px: np.ndarray
     names: list[tuple[str, str]]
+    stated_ratio: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.rays)
+
+    def ratios(self) -> np.ndarray:
+        """Each landmark's stated sigma over the median stated sigma (what the noise estimate
+        keeps of the statement: :mod:`.noise`)."""
+        if self.stated_ratio is not None:
+            return self.stated_ratio
+        return self.sigma_px / float(np.median(self.sigma_px)) if len(self) else np.zeros(0)
 
     def px_errors(self, views: list[ViewObservations], vertices: np.ndarray) -> np.ndarray:
         """Reprojection error (px) of each landmark for registered ``vertices`` (N, 3)."""
@@ -99,6 +107,9 @@ class Problem:
         The model mesh's half-edge table (computed once).
     mm_per_px : dict
         ``{view index: pixel size at the object, mm}``.
+    outline_spacing : dict
+        ``{view index: px}``: the outline's samples count as independent once every this many
+        pixels along it (``contour_spacing_px``, or the estimate of :mod:`.noise`).
     outline_sigma : dict
         ``{view index: sigma of one outline match, mm}`` (weighted by ``1 - landmark_weight``).
     say : callable
@@ -115,6 +126,11 @@ class Problem:
     mm_per_px: dict[int, float]
     outline_sigma: dict[int, float]
     say: Callable[[str], None]
+    outline_spacing: dict[int, float] = field(default_factory=dict)
+
+    def spacing(self, view: int) -> float:
+        """The spacing (px) at which view ``view``'s outline samples count as independent."""
+        return self.outline_spacing.get(view, self.options.contour_spacing_px)
 
     def landmark_rays(self, rejected: frozenset[int]) -> RayObservations:
         """Landmark rays with the solver's sigmas: divided by ``sqrt(2 lambda)`` for the
@@ -195,6 +211,19 @@ def rough_centre(
     return res.vertices.mean(axis=0)
 
 
+def _normalised(landmarks: Landmarks, options: RegistrationOptions) -> Landmarks:
+    """The landmarks with their stated sigmas scaled so that their median is
+    ``start_landmark_sigma_px`` (their ratios kept): with the noise estimated from the data,
+    the stated scale must not decide the convex stages' start either."""
+    k = options.start_landmark_sigma_px / float(np.median(landmarks.sigma_px))
+    return replace(
+        landmarks,
+        rays=landmarks.rays.with_sigmas(landmarks.rays.sigmas * k),
+        sigma_px=landmarks.sigma_px * k,
+        stated_ratio=landmarks.ratios(),
+    )
+
+
 def make_problem(
     model: ShapeModel,
     views: list[ViewObservations],
@@ -213,11 +242,14 @@ def make_problem(
     use_outlines = use_outlines and bool(targets)
     mmpp = {i: float(mm_per_pixel(views[i].view, centre)[0]) for i in targets}
     w_out = np.sqrt(2.0 * max(1.0 - options.landmark_weight, 1e-12))
+    landmarks = stack_landmarks(views, centre)
+    if options.noise == "estimated" and len(landmarks):
+        landmarks = _normalised(landmarks, options)
     return Problem(
         model=model,
         views=views,
         options=options,
-        landmarks=stack_landmarks(views, centre),
+        landmarks=landmarks,
         targets=targets,
         use_outlines=use_outlines,
         topology=mesh_topology(model) if use_outlines else None,

@@ -22,6 +22,7 @@ from ..ssm.model import ShapeModel
 from .blunders import rejected_landmarks
 from .gsft import GsftResult
 from .observations import ViewObservations
+from .pose_search import few_landmarks_centre, search_start
 from .options import IterationRecord, RegistrationOptions
 from .outline_match import outline_distances
 from .problem import Problem, make_problem
@@ -152,11 +153,15 @@ def _check_views(
             "start: not used with poses = 'unknown' (the result's world frame is the first "
             "view's camera frame, estimated from the landmarks)"
         )
-    if n_lm < 4 and not (start is not None and n_out >= 2):
+    distinct = len(np.unique(np.concatenate([v.landmark_ids for v in views])))
+    few = n_lm < 4 or distinct < 3
+    if few and start is None and n_out >= 1 and n_lm >= 2 and poses != "unknown":
+        pass  # a start is searched for on the outlines (pose_search)
+    elif n_lm < 4 and not (start is not None and n_out >= 2):
         raise ValueError(
             f"landmarks: at least 4 landmark observations in total are needed to initialise "
-            f"the registration, got {n_lm} (or give a start pose and outlines in 2 views, "
-            f"got outlines in {n_out})"
+            f"the registration, got {n_lm} (or 2 with outlines, or a start pose and outlines "
+            f"in 2 views, got outlines in {n_out})"
         )
     if poses != "known" and n_out == 0 and not enough_landmarks(model, views, model.n_modes):
         need = (6 * len(views) + model.n_modes + 1) // 2
@@ -263,7 +268,13 @@ def _register_posed(model, posed, poses, opts, silhouettes, say, start_pose):
     with outlines, followed by the joint refinement of the views on the outlines and a final
     refinement with the corrected views."""
     c = None if start_pose is None else model.mean.mean(axis=0) @ start_pose[0].T + start_pose[1]
+    few = start_pose is None and not _enough_landmark_points(posed.views)
+    if few:  # the landmark-only solve cannot place the bone: near the landmark rays
+        c = few_landmarks_centre(posed.views)
     problem = make_problem(model, posed.views, opts, silhouettes, say, c)
+    if few:
+        found = search_start(problem)
+        start_pose = (found.rotation, found.translation)
     memo = FitMemo()  # the start's boosted fits, retraced by the boosting (stages.FitMemo)
     if start_pose is not None:
         start = pose_start(problem, *start_pose)
@@ -272,7 +283,8 @@ def _register_posed(model, posed, poses, opts, silhouettes, say, start_pose):
         unweighted = landmark_start(problem)
         start = robust_start(problem, unweighted, memo)
         unweighted = unweighted.result
-    detect = opts.robust and len(problem.landmarks) > 0
+    # blunder restarts start from the landmarks alone: not possible with few of them
+    detect = opts.robust and len(problem.landmarks) > 0 and not few
     run = boost(
         problem,
         start.result,
@@ -283,6 +295,7 @@ def _register_posed(model, posed, poses, opts, silhouettes, say, start_pose):
         memo=memo,
     )
     final = refine_final(problem, run)
+    problem = final.problem or problem
     if poses == "known" or not problem.use_outlines:
         return problem, final
     if poses == "unknown" and enough_landmarks(model, posed.views, model.n_modes):
@@ -296,7 +309,15 @@ def _register_posed(model, posed, poses, opts, silhouettes, say, start_pose):
     say(f"views refined on the outlines: objective {obj:.4g}")
     problem = make_problem(model, views, opts, silhouettes, say, res.vertices.mean(axis=0))
     run = boost(problem, res, final.weights, 0, detect=False)
-    return problem, refine_final(problem, run)
+    final = refine_final(problem, run)
+    return final.problem or problem, final
+
+
+def _enough_landmark_points(views: list[ViewObservations]) -> bool:
+    """Whether the landmarks can start the registration alone: 4 observations of at least 3
+    distinct model points (else :func:`.pose_search.search_start` finds the start)."""
+    ids = np.concatenate([v.landmark_ids for v in views]) if views else np.zeros(0, int)
+    return len(ids) >= 4 and len(np.unique(ids)) >= 3
 
 
 def relaxation_gap_px(problem: Problem, res: GsftResult) -> float:

@@ -37,6 +37,7 @@ from .blunders import (
 )
 from .gsft import GsftResult
 from .options import IterationRecord
+from .noise import GroupNoise, estimate_noise as noise_groups, settled, used_sigma, with_noise
 from .outline_fit import OutlineTerm, refine_on_outlines
 from .outline_match import ModelOutline, adaptive_gate, match_outline, outline_distances
 from .problem import Problem, solve, with_pose
@@ -101,6 +102,8 @@ class Refined:
     iterates: list[np.ndarray]
     best_index: int
     weights: np.ndarray | None
+    problem: Problem | None = None  # with the estimated sigmas (noise = "estimated")
+    noise: list[GroupNoise] = field(default_factory=list)
 
 
 # -- 1. landmarks only ---------------------------------------------------------------------
@@ -622,7 +625,7 @@ def outline_terms(problem: Problem, outlines: dict[int, ModelOutline]) -> list[O
         OutlineTerm(
             problem.views[i].view,
             t,
-            problem.outline_sigma[i] * np.sqrt(opts.contour_spacing_px),
+            problem.outline_sigma[i] * np.sqrt(problem.spacing(i)),
             min(
                 opts.gate_px, adaptive_gate(outline_distances(outlines[i], t), opts.match_floor_px)
             ),
@@ -720,7 +723,44 @@ def refine_final(problem: Problem, run: BoostRun) -> Refined:
             problem.say(f"reweighted at the refined fit: rejected {names or 'none'}")
             res, fit = refine_once(problem, res, problem.outlines(res), weights, record)
             weights = reweight(problem, res.vertices)
+    noise: list[GroupNoise] = []
+    if problem.options.noise == "estimated":
+        problem, res, weights, noise = estimate_noise(problem, res, weights, record)
     best_index = best.index
     if records[-1].kind == "local":
         best_index, outlines = records[-1].index, problem.outlines(res)
-    return Refined(res, outlines, records, iterates, best_index, weights)
+    return Refined(res, outlines, records, iterates, best_index, weights, problem, noise)
+
+
+def estimate_noise(problem: Problem, result: GsftResult, weights: np.ndarray | None, record=None):
+    """Each annotation group's noise from the residuals, iterated with the refinement
+    (:mod:`.noise`): estimate the groups' sigmas and outline correlation lengths at the fit,
+    refine again from the fit with them and reweight the landmarks, until every one changes
+    by less than ``NOISE_TOL`` (at most ``noise_rounds`` refinements).
+
+    Returns the problem with the estimated sigmas, the result, the landmark weights and the
+    last estimate's groups.
+    """
+    opts = problem.options
+    groups: list[GroupNoise] = []
+    for _ in range(opts.noise_rounds + 1):
+        groups = noise_groups(problem, result, weights)
+        if not groups or settled(problem, groups, NOISE_TOL):
+            break
+        problem = with_noise(problem, groups)
+        result, _ = refine_once(problem, result, problem.outlines(result), weights, record)
+        if opts.robust and len(problem.landmarks) > 0:
+            weights = reweight(problem, result.vertices)
+    problem.say(
+        "noise estimated: "
+        + ", ".join(
+            f"{g.kind} {problem.views[g.view].name} {g.sigma_px:.2g} px"
+            + (f" (correlated over {g.spacing:.0f} px)" if g.kind == "outline" else "")
+            for g in groups
+        )
+    )
+    return problem, result, weights, groups
+
+
+#: The noise estimate has settled when no group's sigma changes by more than this (relative).
+NOISE_TOL = 0.05

@@ -1,0 +1,300 @@
+"""A start pose from few landmarks and the outlines: a search over rotations.
+
+People can identify few landmarks on real radiographs: a styloid's tip in both views and a
+corner in one, say. Observations of fewer than 3 distinct model points leave the pose of even
+the rigid mean shape undetermined (e.g. two points fix all but the rotation about the line
+through them), so the landmark-only G-SfT cannot start the registration; the outlines can
+decide what the landmarks leave open. The search (:func:`search_start`):
+
+1. every rotation of a near-uniform grid on SO(3) (:func:`rotation_grid`, super-Fibonacci
+   spirals, Alexa 2022), the mean shape's translation for it by least squares on the landmark
+   rays (closed form), and its landmark reprojection error;
+2. the rotations whose landmark error is within what the grid's spacing explains of the best
+   one (a rotation of the grid is up to half a spacing from the family the landmarks allow;
+   at most ``MAX_SCORED`` of them) are scored on the outlines: the mean of the squared
+   distances of the annotated outline samples to the posed mean shape's outline, each capped
+   at ``SEARCH_GATE_PX``, plus the landmarks' capped squared errors (pixels);
+3. the best few, a grid spacing apart, are refined rigidly on landmarks and outlines
+   (:func:`.outline_fit.refine_on_outlines` with the modes left out) and the one with the
+   lowest score after refinement is the start.
+
+Frames and units: world frame of the views, mm; image quantities in pixels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..outline import outline_edges
+from ..ssm.model import ShapeModel
+from .gsft import nearest_point_to_rays
+from .observations import ViewObservations, landmark_rays
+from .outline_fit import OutlineTerm, refine_on_outlines
+from .outline_match import nearest_on_outline
+from .problem import Problem
+
+__all__: list[str] = []
+
+#: Rotations in the search grid (about 10 deg between neighbours).
+GRID_SIZE = 4096
+#: At most this many rotations (the best by a fast stand-in score) are scored on the outlines.
+MAX_SCORED = 40
+#: The stand-in score's model outline: the convex hull of about this many projected vertices.
+PROXY_VERTICES = 300
+#: The stand-in score uses at most this many samples of a view's annotated outline.
+PROXY_SAMPLES = 100
+#: Rotations refined rigidly on the outlines.
+REFINED = 4
+#: Cap of each squared pixel distance in the search's score (pixels): a start 10 deg off the
+#: bone leaves its outline tens of pixels from the annotated one.
+SEARCH_GATE_PX = 40.0
+
+
+def rotation_grid(n: int) -> np.ndarray:
+    """``n`` rotations (n, 3, 3) spread near-uniformly over SO(3): super-Fibonacci spirals
+    (M. Alexa, "Super-Fibonacci Spirals: Fast, Low-Discrepancy Sampling of SO(3)", CVPR 2022);
+    deterministic."""
+    s = np.arange(n) + 0.5
+    r, R = np.sqrt(s / n), np.sqrt(1.0 - s / n)
+    alpha = 2.0 * np.pi * s / np.sqrt(2.0)
+    beta = 2.0 * np.pi * s / 1.533751168755204288118041
+    w, x, y, z = r * np.sin(alpha), r * np.cos(alpha), R * np.sin(beta), R * np.cos(beta)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=1,
+    )
+
+
+def grid_spacing(n: int) -> float:
+    """Typical angle (radians) between a rotation and its nearest neighbour in a uniform grid of
+    ``n`` rotations: the radius of a geodesic ball of SO(3) holding ``1 / n`` of its volume
+    (``(t - sin t) / pi = 1 / n``)."""
+    lo, hi = 0.0, np.pi
+    for _ in range(60):
+        t = 0.5 * (lo + hi)
+        lo, hi = (t, hi) if (t - np.sin(t)) / np.pi < 1.0 / n else (lo, t)
+    return lo
+
+
+@dataclass(frozen=True)
+class SearchResult:
+    """The start found (model -> world, mm) and what the search saw."""
+
+    rotation: np.ndarray
+    translation: np.ndarray
+    score: float  # the capped mean squared pixel distance of the start (see module doc)
+    n_scored: int  # rotations scored on the outlines
+
+
+def few_landmarks_centre(views: list[ViewObservations]) -> np.ndarray:
+    """Roughly where the bone is (world, mm) from few landmarks: where their rays meet when
+    two views see them; with landmarks in one view only (their rays meet at its source),
+    the point of their mean ray nearest to the other views' central rays (the views look at
+    the bone)."""
+    rays = landmark_rays(views)
+    seen = np.unique(rays.view_index)
+    if len(seen) >= 2:
+        return nearest_point_to_rays(rays.origins, rays.directions)
+    centre_px = [np.array(v.view.image_size, float) / 2 - 0.5 for v in views]
+    others = [v.view.rays(c[None]) for v, c, i in zip(views, centre_px, range(len(views))) if i not in seen]
+    d = rays.directions.mean(axis=0)
+    d /= np.linalg.norm(d)
+    o = rays.origins[0]
+    if not others:  # one view in all: half-way along its rays to the image plane's scale
+        return o + d * float(np.mean([np.linalg.norm(v.view.centre) for v in views if hasattr(v.view, "centre")] or [1000.0]))
+    O = np.vstack([o[None]] + [x[0] for x in others])
+    D = np.vstack([d[None]] + [x[1] for x in others])
+    p = nearest_point_to_rays(O, D)
+    return o + d * max(float((p - o) @ d), 1.0)  # on the landmarks' mean ray, in front
+
+
+def landmarks_fix_pose(problem: Problem) -> bool:
+    """Whether the landmarks alone fix the rigid pose: observations of at least 3 distinct
+    model points, 4 in all (what the landmark-only G-SfT needs)."""
+    ids = problem.landmarks.rays.vertex_ids
+    return len(ids) >= 4 and len(np.unique(ids)) >= 3
+
+
+def _translations(problem: Problem, rotations: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """The least-squares translation (n, 3) of the landmark points ``points`` (L, 3, model
+    frame) rotated by each rotation onto their rays: ``t = A^-1 sum_i P_i (o_i - R m_i)``,
+    ``P_i = I - d_i d_i^T`` weighted by the rays' inverse variances."""
+    rays = problem.landmarks.rays
+    w = 1.0 / np.square(rays.sigmas)
+    P = np.eye(3)[None] - rays.directions[:, :, None] * rays.directions[:, None, :]
+    P *= w[:, None, None]
+    A = P.sum(axis=0)
+    rotated = np.einsum("nab,lb->nla", rotations, points)  # (n, L, 3)
+    b = np.einsum("lab,lb->a", P, rays.origins)[None] - np.einsum("lab,nlb->na", P, rotated)
+    return np.linalg.solve(A, b.T).T
+
+
+def _in_front(problem: Problem, points_world: np.ndarray) -> np.ndarray:
+    """Whether every point of each candidate (n, K, 3) lies in front of every view's source
+    (n,) bool (views without a source: always)."""
+    n = points_world.shape[0]
+    ok = np.ones(n, bool)
+    for v in problem.views:
+        if hasattr(v.view, "centre"):
+            z = v.view.to_camera(points_world.reshape(-1, 3))[:, 2].reshape(n, -1)
+            ok &= np.all(z > 0, axis=1)
+    return ok
+
+
+def _landmark_errors(problem: Problem, points_world: np.ndarray) -> np.ndarray:
+    """Reprojection errors (n, L), pixels, of landmark points posed per candidate (n, L, 3);
+    infinite for a candidate with a point behind a view's source."""
+    rays, uv = problem.landmarks.rays, problem.landmarks.uv
+    n, L = points_world.shape[:2]
+    err = np.full((n, L), np.inf)
+    ok = _in_front(problem, points_world)
+    for i, v in enumerate(problem.views):
+        sel = np.flatnonzero(rays.view_index == i)
+        if len(sel) == 0 or not ok.any():
+            continue
+        px = v.view.project(points_world[ok][:, sel].reshape(-1, 3)).reshape(-1, len(sel), 2)
+        err[np.ix_(ok, sel)] = np.linalg.norm(px - uv[sel][None], axis=2)
+    return err
+
+
+def _outline_score(problem: Problem, vertices: np.ndarray, lm_err: np.ndarray) -> float:
+    """The search's score of posed vertices: mean capped squared pixel distance of the
+    annotated outline samples to the model outline, plus that of the landmark errors."""
+    gate2 = SEARCH_GATE_PX**2
+    score = float(np.mean(np.minimum(lm_err**2, gate2))) if lm_err.size else 0.0
+    for i, target in problem.targets.items():
+        q = target.points[target.usable]
+        e, uv = outline_edges(vertices, problem.views[i].view, problem.model.faces,
+                              topology=problem.topology)  # fmt: skip
+        d2 = np.full(len(q), gate2) if len(e) == 0 else nearest_on_outline(e, uv, q)[1] ** 2
+        score += float(np.mean(np.minimum(d2, gate2)))
+    return score
+
+
+def _distinct(rotations: np.ndarray, order: np.ndarray, min_angle: float, k: int) -> list[int]:
+    """The first ``k`` of ``order`` that are at least ``min_angle`` (radians) apart."""
+    kept: list[int] = []
+    for j in order:
+        far = all(
+            np.arccos(np.clip((np.trace(rotations[j] @ rotations[i].T) - 1) / 2, -1, 1))
+            >= min_angle
+            for i in kept
+        )
+        if far:
+            kept.append(int(j))
+        if len(kept) == k:
+            break
+    return kept
+
+
+def _refine(problem: Problem, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mean shape's pose refined rigidly on the landmarks and the outlines (gate
+    :data:`SEARCH_GATE_PX`)."""
+    model = problem.model
+    rigid = ShapeModel(model.mean, model.modes[:0], faces=model.faces)
+    opts = problem.options
+    terms = [
+        OutlineTerm(
+            problem.views[i].view,
+            target,
+            problem.outline_sigma[i] * np.sqrt(problem.spacing(i)),
+            SEARCH_GATE_PX,
+            problem.mm_per_px[i],
+            i,
+        )
+        for i, target in problem.targets.items()
+    ]
+    fit = refine_on_outlines(
+        rigid, (R, t, np.zeros(0)), problem.landmark_rays(frozenset()), terms,
+        max_iter=20, he=problem.topology,
+    )  # fmt: skip
+    return fit.rotation, fit.translation
+
+
+def _proxy_scores(problem: Problem, Rs, ts, err, cand: np.ndarray) -> np.ndarray:
+    """A fast stand-in for :func:`_outline_score` of many candidates: the model's outline is
+    taken as the convex hull of a few hundred of its projected vertices and the annotated
+    outline as at most :data:`PROXY_SAMPLES` of its samples (the rank, not the value,
+    matters: the best are scored exactly)."""
+    mean = problem.model.mean
+    sub = mean[:: max(1, len(mean) // PROXY_VERTICES)]
+    gate2 = SEARCH_GATE_PX**2
+    targets = []
+    for i, target in problem.targets.items():
+        q = target.points[target.usable]
+        targets.append((problem.views[i].view, q[:: max(1, len(q) // PROXY_SAMPLES)]))
+    out = np.empty(len(cand))
+    for k, j in enumerate(cand):
+        score = float(np.mean(np.minimum(err[j] ** 2, gate2))) if err.shape[1] else 0.0
+        posed = sub @ Rs[j].T + ts[j]
+        for view, q in targets:
+            hull = cv2.convexHull(view.project(posed).astype(np.float32))[:, 0].astype(float)
+            d2 = _polygon_distance2(q, hull)
+            score += float(np.mean(np.minimum(d2, gate2)))
+        out[k] = score
+    return out
+
+
+def _polygon_distance2(q: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Squared distance (Q,) of points ``q`` (Q, 2) to a closed polygon's edges (P, 2)."""
+    a, b = poly, np.roll(poly, -1, axis=0)
+    ab = b - a
+    ln2 = np.maximum(np.sum(ab * ab, axis=1), 1e-12)
+    t = np.clip(((q[:, None, :] - a[None]) * ab[None]).sum(axis=2) / ln2, 0.0, 1.0)
+    foot = a[None] + t[..., None] * ab[None]
+    return np.min(np.sum((q[:, None, :] - foot) ** 2, axis=2), axis=1)
+
+
+def search_start(problem: Problem, n_grid: int = GRID_SIZE) -> SearchResult:
+    """The start pose of the mean shape from the landmarks and the outlines (module doc).
+
+    Needs landmark rays that fix a translation for every rotation (at least 2 observations,
+    not all along one ray) and outlines in some view (the problem's targets).
+    """
+    model = problem.model
+    ids = problem.landmarks.rays.vertex_ids
+    pts = model.mean[ids]
+    Rs = rotation_grid(n_grid)
+    ts = _translations(problem, Rs, pts)
+    err = _landmark_errors(problem, np.einsum("nab,lb->nla", Rs, pts) + ts[:, None])
+    rms = np.sqrt(np.mean(err**2, axis=1))
+    # the whole mean shape must lie in front of every view (its box's corners)
+    lo, hi = model.mean.min(axis=0), model.mean.max(axis=0)
+    corners = np.array([[a, b, c] for a in (lo[0], hi[0]) for b in (lo[1], hi[1]) for c in (lo[2], hi[2])])
+    rms[~_in_front(problem, np.einsum("nab,lb->nla", Rs, corners) + ts[:, None])] = np.inf
+    if not np.isfinite(rms).any():
+        raise ValueError(
+            "landmarks: no pose of the mean shape puts it in front of every view's source at "
+            "its landmarks (check the landmark names and views)"
+        )
+    # a grid rotation is up to about half a spacing from the family the landmarks allow:
+    # its landmark error grows by up to that angle times the landmarks' lever arm
+    spacing = grid_spacing(n_grid)
+    lever = float(np.max(np.linalg.norm(pts - pts.mean(axis=0), axis=1)))
+    slack = max(spacing * lever / min(problem.mm_per_px.values()), 5.0)
+    cand = np.flatnonzero(rms <= rms.min() + slack)
+    proxy = _proxy_scores(problem, Rs, ts, err, cand)
+    cand = cand[np.argsort(proxy, kind="stable")][:MAX_SCORED]
+    scores = np.array(
+        [_outline_score(problem, model.mean @ Rs[j].T + ts[j], err[j]) for j in cand]
+    )
+    best = _distinct(Rs, cand[np.argsort(scores, kind="stable")], spacing, REFINED)
+    results = []
+    for j in best:
+        R, t = _refine(problem, Rs[j], ts[j])
+        V = model.mean @ R.T + t
+        e = _landmark_errors(problem, V[ids][None])[0]
+        results.append((_outline_score(problem, V, e), R, t))
+    score, R, t = min(results, key=lambda r: r[0])
+    problem.say(
+        f"start search: {len(proxy)} of {n_grid} rotations fit the landmarks within "
+        f"{slack:.0f} px, scored on the outlines; best score {score:.3g} px^2"
+    )
+    return SearchResult(R, t, score, len(proxy))
