@@ -36,7 +36,7 @@ import numpy as np
 
 from .metrics import _Triangles
 
-__all__ = ["Cap", "Cuts", "detect_cuts", "cut_region", "CUT_BAND_MM"]
+__all__ = ["Cap", "Cuts", "detect_cuts", "cut_region", "cut_distance", "CUT_BAND_MM"]
 
 #: Default width (mm) of the band next to a cut left out of the region of interest
 #: (:func:`cut_region`; docs/cases.md says how it was measured).

@@ -20,7 +20,7 @@ from ..annotation.clean import distance_to_polyline
 from ..outline import outline_polylines
 from ..registration import ViewObservations
 
-__all__ = ["model_outlines"]
+__all__ = ["model_outlines", "surface_metrics"]
 
 #: Points sampled on each surface for the surface-distance statistics.
 SURFACE_SAMPLES = 20000

@@ -29,6 +29,8 @@ from .._validate import did_you_mean
 from ..io.jsonfile import read_json
 from .cuts import CUT_BAND_MM, cut_distance, detect_cuts
 
+__all__ = ["RegionSpec", "read_region", "region_mask"]
+
 #: The keys of a region file.
 REGION_KEYS = ("vertices", "landmark", "within_mm", "exclude_cut", "band_mm")
 

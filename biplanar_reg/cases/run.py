@@ -743,7 +743,12 @@ def _frames_ground_truth(case: Case, res: FrameRegistrationResult):
 #: signed means.
 _POOL_RMS = ("vertex_rms_mm", "surface_rms_mm", "roi_vertex_rms_mm", "roi_surface_rms_mm")
 _POOL_MAX = ("vertex_max_mm", "surface_max_mm", "roi_vertex_max_mm", "roi_surface_max_mm")
-_POOL_MEAN = ("surface_signed_mean_mm", "roi_signed_mean_mm")
+_POOL_MEAN = (
+    "surface_mean_mm",
+    "surface_signed_mean_mm",
+    "roi_surface_mean_mm",
+    "roi_signed_mean_mm",
+)
 
 
 def _pool_frames(have: list[dict[str, Any]]) -> dict[str, Any]:
