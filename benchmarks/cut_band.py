@@ -15,6 +15,15 @@ measures, against the distance from that cap (on the model's mean shape,
    of the squared vertex error. The truth is first aligned as ``register`` does for
    ``up_to_pose`` cases; a multi-frame case contributes its frame 0 (``registered.ply``).
 
+3. **detection**: the two tests of :func:`~biplanar_reg.cases.cuts.detect_cuts` on every
+   plane its directions lead to, for surfaces with a cut (the sample cases' templates, mean
+   shapes and ground truths; the radius and ulna CTs extracted at several resolutions,
+   :func:`biplanar_reg.ssm.bone_surface`; each also rotated) and without (spheres, an
+   ellipsoid, capsules, the synthetic bone-like model): the prism ratio (cross-section 1 mm
+   inside / 4 mm inside) and the flat fraction (triangles on the plane / cross-section 4 mm
+   inside) of the found caps, and the largest prism ratio of any plane of a surface without a
+   cut.
+
 Run ``python benchmarks/cut_band.py`` (about a minute on two cores); writes
 ``benchmarks/results/cut_band.md``.
 """
@@ -41,6 +50,8 @@ from biplanar_reg.io import read_mesh
 from biplanar_reg.io.atomic import atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[1]
+#: Voxel size of the wrist CTs (column, row, slice), mm (sample_cases/reference.py).
+CT_VOXEL_MM = (0.39625, 0.39625, 0.625)
 CASES = (
     "wrist_radius",
     "synthetic_radius_known",
@@ -135,6 +146,92 @@ def _profile(V, F, G, GF, mean, cuts) -> tuple[np.ndarray, np.ndarray]:
     on_mean = np.einsum("ki,kij->kj", bary, mean[F[face]])
     caps = np.vstack([F[c.faces] for c in cuts.caps])
     return point_to_surface(on_mean, mean, caps), point_to_surface(pts, G, GF)
+
+
+def _zoo() -> tuple[dict, dict]:
+    """Surfaces ``{name: (vertices, faces)}`` with a cut and without."""
+    import trimesh
+    from scipy.spatial.transform import Rotation
+
+    from biplanar_reg.io import read_volume
+    from biplanar_reg.simulate import synthetic_bone_model
+    from biplanar_reg.ssm import ShapeModel, bone_surface
+
+    cut = {}
+    for p in sorted((ROOT / "sample_cases").glob("*/model/*.npz")):
+        m = ShapeModel.load(p)
+        cut[f"{p.parts[-3]} {p.stem} mean"] = (m.mean.reshape(-1, 3), m.faces)
+    for p in sorted((ROOT / "sample_cases").glob("*/gt/*.ply")):
+        if p.parts[-3] != "synthetic_demo":
+            cut[f"{p.parts[-3]} {p.name}"] = read_mesh(p)
+    cut["radius_template.ply"] = read_mesh(
+        ROOT / "sample_cases/wrist_radius/model/radius_template.ply"
+    )
+    for bone in ("radius", "ulna"):
+        vol = read_volume(
+            ROOT / f"sample_cases/wrist_radius/data/{bone}_ct.tif", voxel_size=CT_VOXEL_MM
+        )
+        for n in (300, 1000, 4000, None):
+            s = bone_surface(vol, target_vertices=n)
+            cut[f"{bone} CT, target_vertices={n}"] = (s.vertices, s.faces)
+    R = Rotation.from_rotvec([0.5, -0.9, 0.4]).as_matrix()
+    cut.update({f"{k}, rotated": (np.asarray(v) @ R.T, f) for k, (v, f) in list(cut.items())})
+    ico = trimesh.creation.icosphere(3, radius=10.0)
+    cap = trimesh.creation.capsule(height=40.0, radius=8.0, count=[32, 32])
+    bone = synthetic_bone_model(8, seed=0)
+    none = {
+        "sphere r 10": (ico.vertices, ico.faces),
+        "ellipsoid 10 x 15 x 40": (ico.vertices * [1.0, 1.5, 4.0], ico.faces),
+        "capsule r 8": (cap.vertices, cap.faces),
+        "synthetic bone-like model, mean": (bone.mean.reshape(-1, 3), bone.faces),
+    }
+    for k in range(3):
+        w = np.zeros(bone.n_modes)
+        w[k] = 2.5
+        none[f"synthetic bone-like model, +2.5 sd mode {k}"] = (bone.instance(w), bone.faces)
+    return cut, none
+
+
+def _planes(V, F) -> list[tuple[float, float, np.ndarray]]:
+    """(prism ratio, flat fraction, triangles) of every plane the directions of
+    ``detect_cuts`` lead to."""
+    from biplanar_reg.cases import cuts as c
+
+    geo = c._Faces(np.asarray(V, float), np.asarray(F, np.int64))
+    out, seen = [], set()
+    for n in c._directions(geo):
+        plane = c._plane(geo, n)
+        if plane is None or plane[1].tobytes() in seen:
+            continue
+        seen.add(plane[1].tobytes())
+        n, on = plane
+        top = float(np.max(geo.V @ n))
+        deep = c._section_area(geo, n, top - c.SECTION_DEPTH_MM)
+        if deep > 0:
+            near = c._section_area(geo, n, top - c.NEAR_DEPTH_MM)
+            out.append((near / deep, float(geo.area[on].sum()) / deep, on))
+    return out
+
+
+def _detection_rows() -> list[str]:
+    cut, none = _zoo()
+    lines = [
+        "| surface | caps found | prism ratio of the caps | flat fraction of the caps | "
+        "largest prism ratio of any plane apart from the caps |",
+        "|---|---|---|---|---|",
+    ]
+    for name, (V, F) in {**cut, **none}.items():
+        cuts = detect_cuts(V, F)
+        prism = [c.near_section_mm2 / c.section_mm2 for c in cuts.caps]
+        flat = [c.area_mm2 / c.section_mm2 for c in cuts.caps]
+        taken = np.concatenate([c.faces for c in cuts.caps] + [np.zeros(0, np.int64)])
+        other = [p for p, _, on in _planes(V, F) if not np.isin(on, taken).any()]
+        lines.append(
+            f"| {name} | {len(cuts.caps)} | {', '.join(f'{p:.2f}' for p in prism) or '-'} | "
+            f"{', '.join(f'{x:.2f}' for x in flat) or '-'} | "
+            f"{max(other) if other else float('nan'):.2f} |"
+        )
+    return lines
 
 
 def _bin_rows(rows: list[dict]) -> list[str]:
@@ -267,6 +364,11 @@ def main() -> None:
             *_sweep_rows(rows),
             "",
             *_per_bone(rows),
+            "",
+            "Detection (`detect_cuts`: a cap passes when its prism ratio is at least "
+            "`MIN_PRISM` = 0.9 and its flat fraction at least `MIN_CAP_FRACTION` = 0.4):",
+            "",
+            *_detection_rows(),
             "",
         ]
     )

@@ -352,3 +352,39 @@ def test_summary_rows_and_the_worst_bone_take_the_new_metrics(tmp_path):
         == labels.index("region of interest: surface distance, RMS") - 1
     )
     assert ("region of interest", "9 vertices, 90.0% of the surface: without the cut", "") in rows
+
+
+def test_a_bone_names_its_region_in_its_ground_truth_table(tmp_path):
+    from biplanar_reg.cases import CaseError
+
+    case = Path(shutil.copytree(ROOT / "wrist_radius_ulna", tmp_path / "two"))
+    toml = case / "case.toml"
+    old = 'ground_truth = {mesh = "gt/ulna.ply"}'
+    toml.write_text(toml.read_text().replace(old, old[:-1] + ', region = "ulna_roi.json"}'))
+    (case / "ulna_roi.json").write_text(json.dumps({"landmark": "nope", "within_mm": 9}))
+    with pytest.raises(CaseError, match=r"\(ulna\) \[ground_truth\] region: ulna_roi.json: landm"):
+        load_case(case)
+    (case / "ulna_roi.json").write_text(json.dumps({"vertices": [3, 4], "exclude_cut": False}))
+    radius, ulna = load_case(case).bones
+    assert radius.ground_truth.region is None
+    np.testing.assert_array_equal(ulna.ground_truth.region.vertices, [3, 4])
+
+
+def test_a_region_empty_on_the_registered_shape_is_a_case_error(tmp_path):
+    """``within_mm`` is measured on the registered shape: a region the mean shape fills but
+    the registered one does not is refused after the registration (nothing is written then:
+    the outputs are written after the metrics)."""
+    from biplanar_reg.cases import CaseError
+    from biplanar_reg.cases.run import _roi
+
+    model = load_case(ROOT / "synthetic_radius_known").model
+    mean = model.mean.reshape(-1, 3)
+    tip = model.landmarks["distal_tip"]
+    v = int(np.argsort(np.linalg.norm(mean - mean[tip], axis=1))[10])  # a vertex near the tip
+    within = 1.5 * float(np.linalg.norm(mean[v] - mean[tip]))
+    doc = {"vertices": [v], "landmark": "distal_tip", "within_mm": within}
+    case = load_case(_case(tmp_path, doc))
+    mask, roi = _roi(case, mean)
+    assert mask.sum() == 1 and roi["file"] == "region.json"
+    with pytest.raises(CaseError, match="region.json: selects no vertex of the registered shape"):
+        _roi(case, 2.0 * mean)
