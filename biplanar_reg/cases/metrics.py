@@ -7,7 +7,9 @@ outline code loads anyway, only for points far from the surface). The sources ar
 sampled uniformly by area on each surface (seeded; the same points as
 ``trimesh.sample.sample_surface``), so the statistics are symmetric: ``surface_*`` pool
 registered -> ground truth and ground truth -> registered distances. Neither VTK nor trimesh is
-imported (their imports cost more than the metrics).
+imported (their imports cost more than the metrics). The signed statistics take the registered
+surface's samples with the sign of :mod:`biplanar_reg.cases.signed`; the ``roi_*`` ones the
+same samples restricted to a region of interest (:func:`surface_metrics`, docs/cases.md).
 """
 
 from __future__ import annotations
