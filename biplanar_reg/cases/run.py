@@ -740,7 +740,7 @@ def _frames_ground_truth(case: Case, res: FrameRegistrationResult):
 
 #: Per-frame ground-truth metrics pooled over the frames (each frame has as many vertices and
 #: samples, the same region): the RMS of the RMS values, the max of the max, the mean of the
-#: signed means.
+#: means.
 _POOL_RMS = ("vertex_rms_mm", "surface_rms_mm", "roi_vertex_rms_mm", "roi_surface_rms_mm")
 _POOL_MAX = ("vertex_max_mm", "surface_max_mm", "roi_vertex_max_mm", "roi_surface_max_mm")
 _POOL_MEAN = (
