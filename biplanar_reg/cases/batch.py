@@ -60,13 +60,23 @@ SUMMARY_COLUMNS = (
     "surface_rms_mm",
     "surface_p95_mm",
     "surface_max_mm",
+    "surface_signed_mean_mm",
+    "roi_vertex_rms_mm",
+    "roi_surface_mean_mm",
+    "roi_surface_rms_mm",
+    "roi_surface_p95_mm",
+    "roi_surface_max_mm",
+    "roi_signed_mean_mm",
     "landmark_rms_px",
     "contour_rms_px",
     "certificate",
     "n_flags",
     "flags",
 )
-_NUMERIC = SUMMARY_COLUMNS[3:13]
+#: The numeric columns (summary_stats.csv): "seconds" to "n_flags".
+_NUMERIC = SUMMARY_COLUMNS[SUMMARY_COLUMNS.index("seconds") : SUMMARY_COLUMNS.index("flags")]
+#: The columns taken from result.json["metrics"].
+_METRIC_COLUMNS = _NUMERIC[1 : _NUMERIC.index("certificate")]
 _MAX_WORKER_DEATHS = 2
 #: Largest ``workers`` accepted.
 MAX_WORKERS = 1024
@@ -84,7 +94,7 @@ def read_record(case_name: str, out_dir: Path, status: str, seconds: float | Non
     m = doc.get("metrics", {})
     row: dict[str, Any] = {"case": case_name, "status": status, "reason": ""}
     row["seconds"] = seconds if seconds is not None else doc.get("timings", {}).get("total")
-    for key in _NUMERIC[1:-1]:
+    for key in _METRIC_COLUMNS:
         row[key] = m.get(key)
     row["certificate"] = doc.get("certificate")
     row["n_flags"] = len(doc.get("flags", []))

@@ -56,6 +56,14 @@ WORST_METRICS = (
     "surface_rms_mm",
     "surface_p95_mm",
     "surface_max_mm",
+    "surface_signed_mean_mm",
+    "roi_vertex_rms_mm",
+    "roi_vertex_max_mm",
+    "roi_surface_mean_mm",
+    "roi_surface_rms_mm",
+    "roi_surface_p95_mm",
+    "roi_surface_max_mm",
+    "roi_signed_mean_mm",
     "vertex_rms_to_floor",
 )
 
@@ -121,13 +129,14 @@ def _relative(names, poses, frame_names) -> list[dict[str, Any]]:
 
 
 def _worst(docs: dict[str, dict[str, Any]]) -> dict[str, Any]:
-    """The case's ``metrics``: each of :data:`WORST_METRICS`, the largest over the bones."""
+    """The case's ``metrics``: each of :data:`WORST_METRICS`, the largest over the bones (of a
+    signed bias, ``*_signed_mean_mm``, the largest in magnitude, with its sign)."""
     out: dict[str, Any] = {}
     for key in WORST_METRICS:
         vals = [d["metrics"].get(key) for d in docs.values()]
         vals = [v for v in vals if v is not None]
         if vals:
-            out[key] = max(vals)
+            out[key] = max(vals, key=abs) if "_signed_" in key else max(vals)
     return out
 
 
@@ -239,7 +248,8 @@ def _index_html(
         else ""
     )
     num = lambda v: "" if v is None else f"{v:.3g}"  # noqa: E731
-    keys = [k for k in ("landmark_rms_px", "contour_rms_px", "vertex_rms_mm", "surface_rms_mm")]
+    keys = ["landmark_rms_px", "contour_rms_px", "vertex_rms_mm", "surface_rms_mm"]
+    keys += ["roi_surface_rms_mm", "roi_signed_mean_mm"]
     rows = []
     for n, b in doc["bones"].items():
         link = f'<a href="{e(b["report"])}">{e(n)}</a>' if b["report"] else e(n)

@@ -22,7 +22,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -36,6 +36,9 @@ from ..io import read_mesh
 from ..io.jsonfile import read_json
 from ..registration import RegistrationOptions, ViewObservations
 from ..ssm import ShapeModel
+
+if TYPE_CHECKING:
+    from .region import RegionSpec
 
 __all__ = [
     "Case",
@@ -98,7 +101,7 @@ _KEYS = {
     "model": {"ssm", "template", "landmarks", *MODEL_DEFAULTS},
     "views": {"name", "calibration", "calibration_format", "dlt_column", "image", "image_frame"},
     "annotations": {"file"},
-    "ground_truth": {"mesh", "up_to_pose", "model_from_truth"},
+    "ground_truth": {"mesh", "up_to_pose", "model_from_truth", "region"},
     "outputs": {"mesh_formats", "bone"},
 }
 _KEYS[""].add("outputs")  # the export options (docs/exports.md)
@@ -174,6 +177,9 @@ class GroundTruth:
     #: extension ``[ground_truth] model_from_truth = true``: the model was built from this very
     #: surface (e.g. a harmonic population of the subject's own CT), so errors are optimistic
     model_from_truth: bool = False
+    #: extension ``[ground_truth] region``: the region of interest of the ``roi_*`` metrics
+    #: (None: the default, the surface without its cut; :mod:`biplanar_reg.cases.region`)
+    region: RegionSpec | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -750,7 +756,29 @@ def _load_ground_truth(ctx: _Ctx, doc: dict, scale: float, model: ShapeModel) ->
             "[ground_truth] mesh",
             f"{path.name} is {ratio:.3g} times the model's size: units contradict the model's",
         )
-    return GroundTruth(path, verts, faces, up_to_pose, from_truth)
+    region = _load_region(ctx, table, model)
+    return GroundTruth(path, verts, faces, up_to_pose, from_truth, region)
+
+
+def _load_region(ctx: _Ctx, table: dict, model: ShapeModel) -> RegionSpec | None:
+    """``[ground_truth] region`` (extension): a region file, checked against the model, whose
+    region must hold a vertex of the mean shape (``within_mm`` of a landmark is measured on
+    the registered shape later; on the mean shape here)."""
+    path = ctx.path(table, "region", "[ground_truth]", required=False)
+    if path is None:
+        return None
+    from .region import read_region, region_mask
+
+    where = "[ground_truth] region"
+    try:
+        spec = read_region(path, model.n_vertices, model.landmarks)
+    except (ValueError, OSError) as exc:
+        raise ctx.error(where, f"{path.name}: {_one_line(exc)}") from None
+    mean = model.mean.reshape(-1, 3)
+    mask, desc = region_mask(spec, mean, model.faces, mean)
+    if not mask.any():
+        raise ctx.error(where, f"{path.name}: selects no vertex ({desc['defined_by']})")
+    return spec
 
 
 def _header(ctx: _Ctx, doc: dict) -> tuple[str, str]:

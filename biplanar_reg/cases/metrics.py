@@ -7,10 +7,14 @@ outline code loads anyway, only for points far from the surface). The sources ar
 sampled uniformly by area on each surface (seeded; the same points as
 ``trimesh.sample.sample_surface``), so the statistics are symmetric: ``surface_*`` pool
 registered -> ground truth and ground truth -> registered distances. Neither VTK nor trimesh is
-imported (their imports cost more than the metrics).
+imported (their imports cost more than the metrics). The signed statistics take the registered
+surface's samples with the sign of :mod:`biplanar_reg.cases.signed`; the ``roi_*`` ones the
+same samples restricted to a region of interest (:func:`surface_metrics`, docs/cases.md).
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 
@@ -18,7 +22,7 @@ from ..annotation.clean import distance_to_polyline
 from ..outline import outline_polylines
 from ..registration import ViewObservations
 
-__all__ = ["model_outlines"]
+__all__ = ["model_outlines", "surface_metrics"]
 
 #: Points sampled on each surface for the surface-distance statistics.
 SURFACE_SAMPLES = 20000
@@ -90,15 +94,21 @@ class _Surface:
             self.grid = _Grid(lo, hi)
         self._trees: list | None = None  # the fallback's KD-trees, built when first needed
 
-    def distance(self, points: np.ndarray) -> np.ndarray:
-        """Unsigned distance (mm) from each point (K, 3) to the surface (exact)."""
+    def distance(self, points: np.ndarray, *, nearest: bool = False):
+        """Unsigned distance (mm) from each point (K, 3) to the surface (exact).
+
+        With ``nearest`` also the index (K,) of a triangle at that distance (the first found
+        of equally near ones; -1 for a surface without triangles): ``(distance, triangle)``.
+        """
         P = np.asarray(points, float).reshape(-1, 3)
+        face = np.full(len(P), -1, np.int64) if nearest else None
         if len(P) == 0 or self.triangles is None:
+            d = np.zeros(len(P))
             if len(P) and len(self.vertices):
                 from scipy.spatial import cKDTree
 
-                return cKDTree(self.vertices).query(P)[0]
-            return np.zeros(len(P))
+                d = cKDTree(self.vertices).query(P)[0]
+            return (d, face) if nearest else d
         Pt = np.ascontiguousarray(P.T)
         best = np.full(len(P), np.inf)
         proven = np.zeros(len(P), bool)
@@ -107,37 +117,46 @@ class _Surface:
         order = order[np.searchsorted(cell[order], 0) :]  # outside the grid: step 3
         for i in range(0, len(order), _BLOCK):
             b = order[i : i + _BLOCK]
-            best[b], proven[b] = self._grid_distance(np.take(Pt, b, axis=1))
+            best[b], proven[b], found = self._grid_distance(np.take(Pt, b, axis=1), nearest)
+            if nearest:
+                face[b] = found
         rest = np.flatnonzero(~proven)
         if len(rest):
-            best[rest] = self._kd_distance(P[rest])
-        return best
+            if nearest:
+                found = np.full(len(rest), -1, np.int64)
+                best[rest] = self._kd_distance(P[rest], found)
+                face[rest] = found
+            else:
+                best[rest] = self._kd_distance(P[rest])
+        return (best, face) if nearest else best
 
-    def _grid_distance(self, Pt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _grid_distance(self, Pt: np.ndarray, nearest: bool = False):
         """Steps 1 and 2 (class doc) for points ``Pt`` (3, K), mm, in the grid: the distance
-        (mm) of each to the triangles of its cell and of the neighbour cells it needs, and
-        whether that is proven to be the distance to the surface (else an upper bound, or
-        inf)."""
+        (mm) of each to the triangles of its cell and of the neighbour cells it needs, whether
+        that is proven to be the distance to the surface (else an upper bound, or inf), and
+        with ``nearest`` the triangle at that distance (else None)."""
         grid = self.grid
         cell, index, gap = grid.locate(Pt)
         best2 = np.full(len(cell), np.inf)  # squared (mm^2) while searching
-        self._nearest(Pt, np.arange(len(cell)), cell, best2, ranked=True)
+        face = np.full(len(cell), -1, np.int64) if nearest else None
+        self._nearest(Pt, np.arange(len(cell)), cell, best2, ranked=True, face=face)
         best = np.sqrt(best2)
         proven = best <= np.minimum(gap[0], gap[1]).min(axis=0) - grid.tol
         need = np.flatnonzero(~proven)
         if len(need):
             rho = np.minimum(best[need], grid.h)
             k, nb = grid.neighbours(index[:, need], gap[:, :, need], rho + grid.tol)
-            self._nearest(Pt, need[k], nb, best2, ranked=False)
+            self._nearest(Pt, need[k], nb, best2, ranked=False, face=face)
             best[need] = np.sqrt(best2[need])
             proven[need] = best[need] <= rho
-        return best, proven
+        return best, proven, face
 
-    def _nearest(self, Pt, q: np.ndarray, cells: np.ndarray, best2: np.ndarray, ranked: bool):
+    def _nearest(self, Pt, q, cells, best2: np.ndarray, ranked: bool, face=None) -> None:
         """Lower ``best2`` (K,), the squared distances (mm^2), in place to those of points
         ``q`` (of ``Pt`` (3, K)) to the triangles of cells ``cells`` (both (L,)) that could be
         nearer; ``ranked`` (``q`` ascending): first the triangle of the nearest enclosing
-        sphere centre of each point, then those that it does not exclude."""
+        sphere centre of each point, then those that it does not exclude. ``face`` (K,), if
+        given, is kept the triangle of each point's ``best2``."""
         n, f = self.grid.pairs(cells)
         # each point once per candidate (a repeat: cheaper than a take per pair)
         p = np.repeat(np.take(Pt, q, axis=1), n, axis=1)
@@ -152,33 +171,40 @@ class _Surface:
             once = np.ones(len(first), bool)  # one per point (two triangles may share a centre)
             once[1:] = pq[first[1:]] != pq[first[:-1]]
             first = first[once]
-            self._measure(np.take(p, first, axis=1), f[first], pq[first], best2)
+            self._measure(np.take(p, first, axis=1), f[first], pq[first], best2, face)
             d2[first] = np.inf  # measured
         # no nearer than the enclosing sphere: only those with |q - c| - r <= best
         reach = np.repeat(np.take(np.sqrt(best2), q), n) + g[3]
         sel = np.flatnonzero(d2 <= reach * reach)
-        self._measure(np.take(p, sel, axis=1), f[sel], pq[sel], best2)
+        self._measure(np.take(p, sel, axis=1), f[sel], pq[sel], best2, face)
 
-    def _measure(self, p: np.ndarray, f: np.ndarray, q: np.ndarray, best2: np.ndarray) -> None:
+    def _measure(self, p, f: np.ndarray, q: np.ndarray, best2: np.ndarray, face=None) -> None:
         """Lower ``best2`` (K,), mm^2, in place to the squared distance of points ``p``
         (3, L), mm, to triangles ``f`` (L,) (points ``q`` (L,) of ``best2``): by the plane
         where the point projects into the triangle, else exactly unless the plane bound
-        exceeds ``best2``."""
+        exceeds ``best2``; ``face`` (K,), if given, follows ``best2``."""
         tri = self.triangles
         inside, low2 = tri.plane_bound(p, f)
-        np.minimum.at(best2, q, np.where(inside, low2, np.inf))
+        d2 = np.where(inside, low2, np.inf)
+        np.minimum.at(best2, q, d2)
+        if face is not None:
+            _follow(face, best2, q, f, d2)
         # a hair of slack: a bound equal to best up to rounding is measured (and NaN: a
         # degenerate triangle, which only its edges measure)
         far = low2 > np.take(best2, q) * (1.0 + 1e-9)
         rest = np.flatnonzero(~(inside | far))
         if len(rest):  # outside the triangle: the nearest point is on an edge
-            np.minimum.at(best2, q[rest], tri.edge_distance2(np.take(p, rest, axis=1), f[rest]))
+            d2 = tri.edge_distance2(np.take(p, rest, axis=1), f[rest])
+            np.minimum.at(best2, q[rest], d2)
+            if face is not None:
+                _follow(face, best2, q[rest], f[rest], d2)
 
-    def _kd_distance(self, P: np.ndarray) -> np.ndarray:
+    def _kd_distance(self, P: np.ndarray, face: np.ndarray | None = None) -> np.ndarray:
         """Exact distance (mm) of points (K, 3) by KD-trees of the enclosing spheres' centres:
         a first estimate ``best`` (the triangles of the three nearest centres) bounds the
         distance from above; every triangle that could be nearer has ``|q - c| <= best + r``,
-        and a KD-tree of the centres (one per size group) finds those."""
+        and a KD-tree of the centres (one per size group) finds those. ``face`` (K,), if
+        given, receives the triangle of each distance."""
         from scipy.spatial import cKDTree
 
         tri = self.triangles
@@ -189,14 +215,28 @@ class _Surface:
                 self._trees.append((group, cKDTree(centre[group])))
         k = min(3, tri.n)
         near = self._trees[0].query(P, k=k)[1].reshape(len(P), k)
-        best = tri.distance(np.repeat(P, k, axis=0), near.ravel()).reshape(-1, k).min(axis=1)
+        first = tri.distance(np.repeat(P, k, axis=0), near.ravel()).reshape(-1, k)
+        best = first.min(axis=1)
+        if face is not None:
+            face[:] = near[np.arange(len(P)), np.argmin(first, axis=1)]
         for group, tree in self._trees[1:]:
             q, f = _candidates(tree, P, best + radius[group[-1]])
             f = group[f]
             keep = np.linalg.norm(P[q] - centre[f], axis=1) <= best[q] + radius[f]
             q, f = q[keep], f[keep]
-            np.minimum.at(best, q, tri.distance(P[q], f))
+            d = tri.distance(P[q], f)
+            np.minimum.at(best, q, d)
+            if face is not None:
+                _follow(face, best, q, f, d)
         return best
+
+
+def _follow(face: np.ndarray, best: np.ndarray, q: np.ndarray, f: np.ndarray, d: np.ndarray):
+    """After ``best`` (K,) took the minima of ``d`` (L,) at points ``q`` (L,): set ``face`` of
+    each point whose ``best`` is now one of those values to that triangle ``f`` (L,) (the
+    minimum is one of the values itself, so equality is exact)."""
+    hit = d == np.take(best, q)
+    face[q[hit]] = f[hit]
 
 
 class _Grid:
@@ -419,6 +459,14 @@ def sample_surface(
     seed=seed)`` (the same draws of ``numpy.random.default_rng(seed)``), without importing
     trimesh.
     """
+    return _sample_surface(vertices, faces, count, seed)[0]
+
+
+def _sample_surface(
+    vertices: np.ndarray, faces: np.ndarray, count: int, seed: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`sample_surface`'s points (count, 3), each one's triangle (count,) and its
+    barycentric coordinates there (count, 3)."""
     Vt = np.ascontiguousarray(np.asarray(vertices, float).T)
     F = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     a, b, c = (np.take(Vt, F[:, i], axis=1) for i in range(3))  # (3, T), by axis
@@ -434,7 +482,8 @@ def sample_surface(
     out = np.take(b - a, face_index, axis=1) * l1
     out += np.take(c - a, face_index, axis=1) * l2
     out += np.take(a, face_index, axis=1)
-    return np.ascontiguousarray(out.T)
+    bary = np.column_stack([1.0 - l1 - l2, l1, l2])
+    return np.ascontiguousarray(out.T), face_index, bary
 
 
 def summary_stats(values: np.ndarray) -> dict[str, float]:
@@ -450,6 +499,18 @@ def summary_stats(values: np.ndarray) -> dict[str, float]:
     }
 
 
+def signed_stats(values: np.ndarray) -> dict[str, float]:
+    """mean (the bias), 5th and 95th percentiles of signed errors."""
+    v = np.asarray(values, float)
+    if v.size == 0:
+        return {}
+    return {
+        "mean": float(v.mean()),
+        "p5": float(np.percentile(v, 5)),
+        "p95": float(np.percentile(v, 95)),
+    }
+
+
 def surface_metrics(
     vertices: np.ndarray,
     faces: np.ndarray | None,
@@ -458,34 +519,116 @@ def surface_metrics(
     *,
     samples: int = SURFACE_SAMPLES,
     seed: int = 0,
-) -> tuple[dict[str, float], np.ndarray | None]:
+    region: np.ndarray | None = None,
+) -> tuple[dict[str, Any], np.ndarray | None]:
     """Ground-truth metrics (mm) and the per-vertex error used to colour the registered mesh.
+
+    Parameters
+    ----------
+    vertices, faces : arrays
+        The registered surface, mm (``faces`` None: a point cloud).
+    gt_vertices, gt_faces : arrays
+        The ground truth in the same frame, mm (already aligned for a truth up to pose).
+    samples, seed : int
+        Points sampled on each surface (seeded: ``seed`` on the registered surface, ``seed +
+        1`` on the truth).
+    region : (N,) bool array, optional
+        A region of interest on the registered mesh's vertices (e.g.
+        :func:`biplanar_reg.cases.cut_region`); adds the ``roi_*`` keys, the same statistics
+        over the region only. A surface point belongs to the region when its nearest corner
+        (largest barycentric coordinate) does. On the ground truth: the same mask when the
+        vertex counts match (vertex i of the truth is vertex i of the model), else a truth
+        point belongs to the region when its nearest point on the registered surface does.
 
     Returns
     -------
     metrics : dict
-        ``vertex_rms_mm`` when the vertex counts match (vertex i against vertex i);
-        ``surface_mean_mm``, ``surface_rms_mm``, ``surface_p95_mm``, ``surface_max_mm``
-        (symmetric, see the module doc) when both surfaces have faces.
+        ``vertex_rms_mm``, ``vertex_max_mm`` when the vertex counts match (vertex i against
+        vertex i); when both surfaces have faces ``surface_mean_mm``, ``surface_rms_mm``,
+        ``surface_p95_mm``, ``surface_max_mm`` (symmetric, see the module doc) and
+        ``surface_signed_mean_mm``, ``surface_signed_p5_mm``, ``surface_signed_p95_mm``: the
+        signed distance of the registered surface's points to the truth, positive outside it
+        (:func:`biplanar_reg.cases.signed.signed_distance`; without them, and with
+        ``signed_distance_note`` saying why, when the truth's faces are not consistently
+        oriented). With ``region``: ``roi_vertex_rms_mm``, ``roi_vertex_max_mm``,
+        ``roi_surface_{mean,rms,p95,max}_mm``, ``roi_signed_{mean,p5,p95}_mm`` (none for an
+        empty region).
     vertex_error : (N,) array or None
         Distance of each registered vertex to the ground-truth surface (or to its
         corresponding vertex when the ground truth has no faces but the same count), mm.
+
+    Raises
+    ------
+    ValueError
+        ``region`` is not a boolean mask of the registered mesh's vertices.
     """
-    out: dict[str, float] = {}
+    V, G = np.asarray(vertices, float), np.asarray(gt_vertices, float)
+    mask = _region(region, len(V))
+    out: dict[str, Any] = {}
     per_vertex = None
-    if len(vertices) == len(gt_vertices):
-        d = np.linalg.norm(vertices - gt_vertices, axis=1)
+    same = len(V) == len(G)
+    if same:
+        d = np.linalg.norm(V - G, axis=1)
         out["vertex_rms_mm"] = float(np.sqrt(np.mean(d**2)))
         out["vertex_max_mm"] = float(d.max())
+        if mask is not None and mask.any():
+            out["roi_vertex_rms_mm"] = float(np.sqrt(np.mean(d[mask] ** 2)))
+            out["roi_vertex_max_mm"] = float(d[mask].max())
         per_vertex = d
     if faces is not None and gt_faces is not None:
-        a = sample_surface(vertices, faces, samples, seed)
-        b = sample_surface(gt_vertices, gt_faces, samples, seed + 1)
-        truth = _Surface(gt_vertices, gt_faces)  # prepared once for its two queries
-        pooled = np.concatenate([truth.distance(a), _Surface(vertices, faces).distance(b)])
-        out.update({f"surface_{k}_mm": v for k, v in summary_stats(pooled).items()})
-        per_vertex = truth.distance(vertices)
+        out.update(_surface_distances(V, faces, G, gt_faces, samples, seed, mask))
+        per_vertex = _Surface(G, gt_faces).distance(V)
     return out, per_vertex
+
+
+def _region(region: np.ndarray | None, n: int) -> np.ndarray | None:
+    if region is None:
+        return None
+    mask = np.asarray(region)
+    if mask.dtype != bool or mask.shape != (n,):
+        raise ValueError(
+            f"region: expected a boolean mask of the {n} registered vertices, got "
+            f"{mask.dtype} {mask.shape}"
+        )
+    return mask
+
+
+def _surface_distances(V, F, G, GF, samples: int, seed: int, mask) -> dict[str, Any]:
+    """The ``surface_*``, ``surface_signed_*`` and (with ``mask``) ``roi_surface_*`` and
+    ``roi_signed_*`` keys of :func:`surface_metrics`."""
+    from .signed import PseudoNormals, closest_barycentric
+
+    F, GF = np.asarray(F, np.int64), np.asarray(GF, np.int64)
+    a, a_face, a_bary = _sample_surface(V, F, samples, seed)
+    b, b_face, b_bary = _sample_surface(G, GF, samples, seed + 1)
+    truth, registered = _Surface(G, GF), _Surface(V, F)  # each prepared once
+    da, a_near = truth.distance(a, nearest=True)
+    carry = mask is not None and len(V) != len(G)  # the region reaches the truth by distance
+    db, b_near = registered.distance(b, nearest=True) if carry else (registered.distance(b), None)
+    out: dict[str, Any] = {
+        f"surface_{k}_mm": v for k, v in summary_stats(np.concatenate([da, db])).items()
+    }
+    try:
+        signed = da * PseudoNormals(G, GF).sign(a, a_near)
+    except ValueError as exc:
+        signed = None
+        out["signed_distance_note"] = f"not computed: the ground truth's {exc}"
+    if signed is not None:
+        out.update({f"surface_signed_{k}_mm": v for k, v in signed_stats(signed).items()})
+    if mask is None:
+        return out
+    in_a = mask[F[a_face, np.argmax(a_bary, axis=1)]]
+    if carry:  # the nearest corner of each truth point's nearest registered point
+        tri = F[b_near]
+        bary = closest_barycentric(b, V[tri[:, 0]], V[tri[:, 1]], V[tri[:, 2]])
+        in_b = mask[tri[np.arange(len(b)), np.argmax(bary, axis=1)]]
+    else:
+        in_b = mask[GF[b_face, np.argmax(b_bary, axis=1)]]
+    pooled = np.concatenate([da[in_a], db[in_b]])
+    out.update({f"roi_surface_{k}_mm": v for k, v in summary_stats(pooled).items()})
+    if signed is not None:
+        out.update({f"roi_signed_{k}_mm": v for k, v in signed_stats(signed[in_a]).items()})
+    return out
 
 
 def model_outlines(vertices: np.ndarray, faces: np.ndarray, view) -> list[np.ndarray]:

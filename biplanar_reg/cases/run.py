@@ -46,8 +46,14 @@ log = logging.getLogger(__name__)
 
 RESULT_FORMAT = "biplanar-reg/result@1"
 SURFACE_METHOD = (
-    "symmetric: 20000 area-uniform samples on each surface (trimesh, seeded), exact "
-    "point-to-triangle distance to the other surface (VTK implicit distance), pooled"
+    "symmetric: 20000 area-uniform samples on each surface (the points trimesh draws, "
+    "seeded), exact point-to-triangle distance to the other surface, pooled"
+)
+#: ``result.json["metrics"]["signed_distance_method"]`` (with the ``*_signed_*`` keys).
+SIGNED_METHOD = (
+    "the registered surface's samples, signed distance to the ground truth: positive "
+    "outside it (sign of the ground truth's angle-weighted pseudo-normal at the nearest "
+    "point); roi_*: the same over the region of interest (metrics['roi'])"
 )
 #: DICOM attributes shown with --include-phi (never read otherwise).
 PHI_TAGS = ("PatientName", "PatientID", "PatientBirthDate", "StudyDate", "AccessionNumber")
@@ -176,6 +182,8 @@ def _metrics(
     }
     if any(k.startswith("surface_") for k in gt_metrics):
         metrics["surface_distance_method"] = SURFACE_METHOD
+    if "surface_signed_mean_mm" in gt_metrics:
+        metrics["signed_distance_method"] = SIGNED_METHOD
     return metrics
 
 
@@ -315,9 +323,33 @@ def _ground_truth_metrics(
                 "the ground-truth metrics are measured after this alignment",
             }
         )
-    metrics, vertex_error = surface_metrics(res.vertices, case.model.faces, gt_vertices, gt.faces)
+    region, roi = _roi(case, res.vertices)
+    metrics, vertex_error = surface_metrics(
+        res.vertices, case.model.faces, gt_vertices, gt.faces, region=region
+    )
+    metrics["roi"] = roi
     metrics.update(_reference_fits(case, gt_vertices, metrics.get("vertex_rms_mm")))
     return metrics, vertex_error, alignment
+
+
+def _roi(case: Case, vertices: np.ndarray) -> tuple[np.ndarray | None, dict[str, Any]]:
+    """The region of interest of the ``roi_*`` metrics on the registered shape ``vertices``
+    (:func:`biplanar_reg.cases.region.region_mask`: the case's ``[ground_truth] region``, else
+    the surface without its cut) and its ``result.json["metrics"]["roi"]`` description; the
+    mask is None when it is empty (no ``roi_*`` metrics then), which a case's own region file
+    may not be."""
+    from .region import region_mask
+
+    spec = case.ground_truth.region if case.ground_truth is not None else None
+    mask, desc = region_mask(spec, case.model.mean.reshape(-1, 3), case.model.faces, vertices)
+    if mask.any():
+        return mask, desc
+    if spec is not None:
+        raise CaseError(
+            f"{case.case_file}: [ground_truth] region: {spec.path.name}: selects no vertex of "
+            f"the registered shape ({desc['defined_by']})"
+        )
+    return None, desc
 
 
 def _reference_fits(
@@ -606,6 +638,8 @@ def frames_result_document(
     metrics = {**_frames_metrics(res), **pooled}
     if any(per_frame):
         metrics["surface_distance_method"] = FRAME_SURFACE_METHOD
+    if "surface_signed_mean_mm" in metrics:
+        metrics["signed_distance_method"] = SIGNED_METHOD + ", per frame"
     return _jsonable(
         {
             "format": RESULT_FORMAT,
@@ -671,6 +705,7 @@ def _frames_ground_truth(case: Case, res: FrameRegistrationResult):
     from ..ssm import fit_model
     from .alignment import _kabsch as kabsch
 
+    region, roi = _roi(case, res.frame_vertices(0))  # one shape: the same in every frame
     per_frame, floor = [], None
     for f, gt in enumerate(truths):
         if gt is None:
@@ -682,6 +717,7 @@ def _frames_ground_truth(case: Case, res: FrameRegistrationResult):
             gt.vertices,
             gt.faces,
             samples=FRAME_SURFACE_SAMPLES,
+            region=region,
         )
         if len(gt.vertices) == case.model.n_vertices:
             floor = fit_model(case.model, gt.vertices).rms_mm if floor is None else floor
@@ -689,16 +725,8 @@ def _frames_ground_truth(case: Case, res: FrameRegistrationResult):
             if floor > 1e-6 and "vertex_rms_mm" in m:
                 m["vertex_rms_to_floor"] = m["vertex_rms_mm"] / floor
         per_frame.append(m)
-    pooled: dict[str, float] = {}
-    have = [m for m in per_frame if m is not None]
-    for key in ("vertex_rms_mm", "surface_rms_mm"):  # every frame has as many vertices/samples
-        vals = [m[key] for m in have if key in m]
-        if vals:
-            pooled[key] = float(np.sqrt(np.mean(np.square(vals))))
-    for key in ("vertex_max_mm", "surface_max_mm"):
-        vals = [m[key] for m in have if key in m]
-        if vals:
-            pooled[key] = float(np.max(vals))
+    pooled = _pool_frames([m for m in per_frame if m is not None])
+    pooled["roi"] = roi
     ref = next((g for g in truths if g is not None and len(g.vertices) == len(res.vertices)), None)
     if ref is not None:
         R, t = kabsch(res.vertices, ref.vertices)
@@ -708,6 +736,34 @@ def _frames_ground_truth(case: Case, res: FrameRegistrationResult):
         if floor > 1e-6:
             pooled["shape_vertex_rms_to_floor"] = pooled["shape_vertex_rms_mm"] / floor
     return per_frame, pooled
+
+
+#: Per-frame ground-truth metrics pooled over the frames (each frame has as many vertices and
+#: samples, the same region): the RMS of the RMS values, the max of the max, the mean of the
+#: means.
+_POOL_RMS = ("vertex_rms_mm", "surface_rms_mm", "roi_vertex_rms_mm", "roi_surface_rms_mm")
+_POOL_MAX = ("vertex_max_mm", "surface_max_mm", "roi_vertex_max_mm", "roi_surface_max_mm")
+_POOL_MEAN = (
+    "surface_mean_mm",
+    "surface_signed_mean_mm",
+    "roi_surface_mean_mm",
+    "roi_signed_mean_mm",
+)
+
+
+def _pool_frames(have: list[dict[str, Any]]) -> dict[str, Any]:
+    """The pooled ground-truth metrics of the frames with a truth (:data:`_POOL_RMS`, ...)."""
+    pooled: dict[str, Any] = {}
+    for keys, pool in (
+        (_POOL_RMS, lambda v: np.sqrt(np.mean(np.square(v)))),
+        (_POOL_MAX, np.max),
+        (_POOL_MEAN, np.mean),
+    ):
+        for key in keys:
+            vals = [m[key] for m in have if key in m]
+            if vals:
+                pooled[key] = float(pool(vals))
+    return pooled
 
 
 def _frames_report_views(case: Case, frames, res: FrameRegistrationResult, indices) -> list:

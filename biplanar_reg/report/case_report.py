@@ -65,6 +65,18 @@ _METRICS = (
     ("surface_rms_mm", "surface distance, RMS", "mm"),
     ("surface_p95_mm", "surface distance, 95th percentile", "mm"),
     ("surface_max_mm", "surface distance, max", "mm"),
+    ("surface_signed_mean_mm", "signed surface distance, mean (bias; + outside the truth)", "mm"),
+    ("surface_signed_p5_mm", "signed surface distance, 5th percentile", "mm"),
+    ("surface_signed_p95_mm", "signed surface distance, 95th percentile", "mm"),
+    ("roi_vertex_rms_mm", "region of interest: vertex RMS error", "mm"),
+    ("roi_vertex_max_mm", "region of interest: vertex max error", "mm"),
+    ("roi_surface_mean_mm", "region of interest: surface distance, mean", "mm"),
+    ("roi_surface_rms_mm", "region of interest: surface distance, RMS", "mm"),
+    ("roi_surface_p95_mm", "region of interest: surface distance, 95th percentile", "mm"),
+    ("roi_surface_max_mm", "region of interest: surface distance, max", "mm"),
+    ("roi_signed_mean_mm", "region of interest: signed surface distance, mean (bias)", "mm"),
+    ("roi_signed_p5_mm", "region of interest: signed surface distance, 5th percentile", "mm"),
+    ("roi_signed_p95_mm", "region of interest: signed surface distance, 95th percentile", "mm"),
     ("landmark_rms_px", "landmark reprojection error, RMS", "px"),
     ("landmark_max_px", "landmark reprojection error, max", "px"),
     ("contour_mean_px", "contour reprojection error, mean", "px"),
@@ -86,11 +98,22 @@ def metric_rows(doc: dict[str, Any]) -> list[tuple[str, str, str]]:
     rows = [
         (label, f"{m[key]:.4g}", unit) for key, label, unit in _METRICS if m.get(key) is not None
     ]
+    roi = m.get("roi")
+    if isinstance(roi, dict):  # what the region of interest is, before its rows
+        at = next((i for i, r in enumerate(rows) if r[0].startswith("region of interest")), None)
+        rows.insert(len(rows) if at is None else at, ("region of interest", roi_text(roi), ""))
     timings = doc.get("timings", {})
     for key in ("load", "registration", "metrics"):
         if key in timings:
             rows.append((f"time: {key}", f"{timings[key]:.2f}", "s"))
     return rows
+
+
+def roi_text(roi: dict[str, Any]) -> str:
+    """``metrics["roi"]`` in words: its size and what defined it."""
+    area = roi.get("fraction_area")
+    share = f", {area:.1%} of the surface" if area is not None else ""
+    return f"{roi.get('n_vertices', 0)} vertices{share}: {roi.get('defined_by', '')}"
 
 
 @dataclass(frozen=True, eq=False)

@@ -40,7 +40,7 @@ import numpy as np
 
 from ..io.transforms import ANGLE_SEQUENCE, euler_from_rotation
 from .advice import flag_advice
-from .case_report import ReportView
+from .case_report import ReportView, roi_text
 from .figures import overlay_figure
 from .html import embedded_figures, write_page
 from .raster_plot import Axes, Canvas, data_limits
@@ -241,6 +241,7 @@ def _gt_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> bool:
         for key, colour, label in (
             ("vertex_rms_mm", "tab:purple", "vertex RMS"),
             ("surface_rms_mm", "tab:brown", "surface distance RMS"),
+            ("roi_surface_rms_mm", "tab:orange", "surface distance RMS, region of interest"),
             ("model_floor_vertex_rms_mm", "grey", "model floor (vertex RMS)"),
         )
     ]
@@ -443,6 +444,14 @@ _POOLED = (
     ("vertex_max_mm", "vertex max error, over the frames", "mm"),
     ("surface_rms_mm", "surface distance RMS, over the frames", "mm"),
     ("surface_max_mm", "surface distance max, over the frames", "mm"),
+    ("surface_mean_mm", "surface distance mean, mean over the frames", "mm"),
+    ("surface_signed_mean_mm", "signed surface distance, mean (bias; + outside the truth)", "mm"),
+    ("roi_vertex_rms_mm", "region of interest: vertex RMS error, over the frames", "mm"),
+    ("roi_vertex_max_mm", "region of interest: vertex max error, over the frames", "mm"),
+    ("roi_surface_mean_mm", "region of interest: surface distance mean, over the frames", "mm"),
+    ("roi_surface_rms_mm", "region of interest: surface distance RMS, over the frames", "mm"),
+    ("roi_surface_max_mm", "region of interest: surface distance max, over the frames", "mm"),
+    ("roi_signed_mean_mm", "region of interest: signed surface distance, mean (bias)", "mm"),
     ("shape_vertex_rms_mm", "shape vs ground truth, vertex RMS (model frame, aligned)", "mm"),
     ("model_floor_vertex_rms_mm", "model floor: best rigid + model fit of the truth", "mm"),
     ("shape_vertex_rms_to_floor", "shape vertex RMS / model floor", "x"),
@@ -452,6 +461,9 @@ _POOLED = (
 def _metric_rows(doc: Mapping[str, Any]) -> list[tuple[str, str, str]]:
     m = doc.get("metrics", {})
     rows = [(label, f"{m[k]:.4g}", unit) for k, label, unit in _POOLED if m.get(k) is not None]
+    if isinstance(m.get("roi"), dict):  # what the region of interest is, before its rows
+        at = next((i for i, r in enumerate(rows) if r[0].startswith("region of interest")), None)
+        rows.insert(len(rows) if at is None else at, ("region of interest", roi_text(m["roi"]), ""))
     for key in ("load", "registration", "registration_uncertainty"):
         if key in doc.get("timings", {}):
             rows.append((f"time: {key}", f"{doc['timings'][key]:.2f}", "s"))

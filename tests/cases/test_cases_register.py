@@ -260,3 +260,23 @@ def test_outputs_table_adds_mesh_formats_and_names_the_bone(registered, tmp_path
     (copy / "case.toml").write_text(toml + '\n[outputs]\nmesh_formats = ["step"]\n')
     with pytest.raises(CaseError, match=r"\[outputs\] mesh_formats"):
         load_case(copy)
+
+
+def test_result_has_signed_and_region_of_interest_metrics(registered):
+    """The synthetic bone has no cut: its region of interest is the whole surface, so each
+    ``roi_*`` statistic repeats the whole surface's; the report lists them."""
+    _, out, doc = registered
+    m = doc["metrics"]
+    roi = m["roi"]
+    assert roi["n_vertices"] == 482 and roi["fraction_vertices"] == 1.0
+    assert roi["defined_by"] == "no cut found (the whole surface)" and roi["cut"]["caps"] == []
+    for key in ("surface_mean_mm", "surface_rms_mm", "surface_p95_mm", "surface_max_mm"):
+        assert m[f"roi_{key}"] == m[key]
+    assert m["roi_vertex_rms_mm"] == m["vertex_rms_mm"]
+    assert m["surface_signed_p5_mm"] <= m["surface_signed_mean_mm"] <= m["surface_signed_p95_mm"]
+    assert abs(m["surface_signed_mean_mm"]) <= m["surface_mean_mm"]
+    assert m["roi_signed_mean_mm"] == m["surface_signed_mean_mm"]
+    assert "pseudo-normal" in m["signed_distance_method"]
+    html = (out / "report.html").read_text()
+    assert "region of interest: surface distance, RMS" in html and "signed surface distance" in html
+    assert "482 vertices, 100.0% of the surface: no cut found" in html

@@ -3,6 +3,7 @@ case: one registration serves every test here."""
 
 from __future__ import annotations
 
+import csv
 import json
 import shutil
 from pathlib import Path
@@ -185,3 +186,29 @@ def test_register_writes_the_pose_exports_over_all_frames(registered):
     tracked = [p for p in doc["exports"] if p.startswith("autoscoper/Tracking/")]
     assert len(tracked) == 1
     np.testing.assert_allclose(read_tra(registered / tracked[0]), poses, atol=1e-9)
+
+
+def test_the_frames_report_their_region_of_interest_without_the_cut(batch):
+    """The sample bone is a CT-cropped radius: its region of interest leaves out the cut cap
+    and 5 mm next to it, in every frame, the pooled metrics and the batch summary."""
+    _, _, out = batch
+    doc = json.loads((out / CASE.name / "result.json").read_text())
+    m = doc["metrics"]
+    assert m["roi"]["cut"]["caps"] and 0.9 < m["roi"]["fraction_vertices"] < 1.0
+    assert "1 flat cap" in m["roi"]["defined_by"]
+    for fr in doc["frames"]:
+        g = fr["ground_truth_metrics"]
+        assert g["roi_surface_rms_mm"] < g["surface_rms_mm"]  # the cut's errors left out
+        assert g["roi_signed_p5_mm"] <= g["roi_signed_mean_mm"] <= g["roi_signed_p95_mm"]
+    assert m["roi_surface_rms_mm"] == pytest.approx(
+        np.sqrt(
+            np.mean([f["ground_truth_metrics"]["roi_surface_rms_mm"] ** 2 for f in doc["frames"]])
+        )
+    )
+    assert "surface_signed_mean_mm" in m and "per frame" in m["signed_distance_method"]
+    rows = list(csv.DictReader((out / "summary.csv").open()))
+    for key in ("roi_surface_rms_mm", "roi_vertex_rms_mm", "roi_signed_mean_mm"):
+        assert float(rows[0][key]) == pytest.approx(m[key], rel=1e-5), key
+    assert rows[0]["roi_surface_p95_mm"] == ""  # a percentile does not pool over frames
+    html = (out / CASE.name / "report.html").read_text()
+    assert "region of interest: surface distance RMS, over the frames" in html
