@@ -22,7 +22,7 @@ from ..ssm.model import ShapeModel
 from .blunders import rejected_landmarks
 from .gsft import GsftResult
 from .observations import ViewObservations
-from .pose_search import few_landmarks_centre, search_start
+from .start_search import few_landmarks_centre, search_start
 from .options import IterationRecord, RegistrationOptions
 from .outline_match import outline_distances
 from .problem import Problem, make_problem
