@@ -204,7 +204,7 @@ def two_landmark_search(
         raise ValueError(f"{obs.name}: no outline to search the pose on")
     focal = float(np.sqrt(abs(np.linalg.det(cam.K[:2, :2]))))
     depths = _nominal_depth(X, focal, target.points) / np.array(SCALES)
-    R, t = two_landmark_poses(XA, XB, d[0], d[1], depths)
+    R, t = two_landmark_poses(XA, XB, d[0], d[1], depths, ROLLS_DEG)
     scores = outline_scores(model, obs, R, t)
     order = np.argsort(scores, kind="stable")
     order = order[np.isfinite(scores[order])]

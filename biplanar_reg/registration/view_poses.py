@@ -268,8 +268,12 @@ def estimate_view_poses(
     views: list[ViewObservations],
     poses: str,
     options: RegistrationOptions,
+    outlines: bool = True,
 ) -> PosedViews:
-    """Step 1 of the module docstring for ``"refine"`` or ``"unknown"``."""
+    """Step 1 of the module docstring for ``"refine"`` or ``"unknown"`` (``outlines``: the
+    views' outlines are used); input without the information the mode needs in total is
+    refused first (:func:`check_pose_information`, a one-line ``ValueError``)."""
+    check_pose_information(model, views, poses, outlines)
     if poses == "unknown" and any(free_pose_parameters(v) > 0 for v in views):
         return _searched_view_poses(model, views)
     if any(len(v.landmark_ids) < 3 for v in views):
