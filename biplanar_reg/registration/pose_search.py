@@ -14,9 +14,10 @@ another bone does not decide. The best distinct poses are the view's starts for 
 refinement of the views (:func:`.view_poses.refine_views_on_outlines`).
 
 The depth is searched as a magnification about a first guess from the outline's size
-(:func:`_nominal_depth`). The mean shape stands for the bone: a bone far from it (in the
-tests' synthetic model, a few modes at 2-2.6 standard deviations, 7.8 mm RMS from the mean)
-scores better in a wrong pose than in its own, and the search then misses.
+(:func:`_nominal_depth`). The mean shape stands for the bone: a bone far from it scores
+better in a wrong pose than in its own, and the search then misses (``python
+benchmarks/few_landmarks.py 8``: 1 seed of 8 on the tests' synthetic bone, three modes at
+2-2.6 standard deviations, 7.8 mm RMS from the mean shape).
 
 Frames: each view's camera frame (OpenCV: x right, y down, z forward), mm; the searched view
 must be central (every ray from the source at the frame's origin: perspective).
@@ -31,6 +32,7 @@ import numpy as np
 from ..ssm.model import ShapeModel
 from .observations import ViewObservations
 from .outline_match import (
+    OutlineTarget,
     mesh_topology,
     model_outline,
     nearest_on_outline,
@@ -142,6 +144,24 @@ def is_central(obs: ViewObservations) -> bool:
     return bool(np.all(np.abs(o) < 1e-9))
 
 
+def outline_target(obs: ViewObservations) -> OutlineTarget | None:
+    """The view's annotated outline prepared for the distances, or None when it has no
+    samples to score (no outline, or open stretches within the end margin only)."""
+    target = prepare_outline(obs.contours)
+    return target if target is not None and np.any(target.usable) else None
+
+
+def searched_outline(obs: ViewObservations) -> OutlineTarget:
+    """:func:`outline_target`, a ``ValueError`` naming the view when there is none."""
+    target = outline_target(obs)
+    if target is None:
+        raise ValueError(
+            f"{obs.name}: poses = 'unknown': the view's outline is too short to search the "
+            "bone's pose on (trace more of it, or annotate 3 landmarks)"
+        )
+    return target
+
+
 def outline_scores(
     model: ShapeModel,
     obs: ViewObservations,
@@ -154,9 +174,7 @@ def outline_scores(
     outline's samples to the pose's projected outline (:data:`TRUNCATION_FRACTION` of the
     annotated outline's extent). Poses with a point at or behind the source score ``inf``."""
     cam = camera_view(obs).view
-    target = prepare_outline(obs.contours)
-    if target is None:
-        raise ValueError(f"{obs.name}: no outline to search the pose on")
+    target = searched_outline(obs)
     extent = float(np.max(np.ptp(target.points, axis=0)))
     cap = TRUNCATION_FRACTION * extent
     he = mesh_topology(model)
@@ -199,9 +217,7 @@ def two_landmark_search(
     _, d = cam.rays(obs.landmark_uv)
     X = model.mean
     XA, XB = X[ids[0]], X[ids[1]]
-    target = prepare_outline(obs.contours)
-    if target is None:
-        raise ValueError(f"{obs.name}: no outline to search the pose on")
+    target = searched_outline(obs)
     focal = float(np.sqrt(abs(np.linalg.det(cam.K[:2, :2]))))
     depths = _nominal_depth(X, focal, target.points) / np.array(SCALES)
     R, t = two_landmark_poses(XA, XB, d[0], d[1], depths, ROLLS_DEG)
@@ -273,9 +289,7 @@ def one_landmark_search(
     its best.
     """
     cam = camera_view(obs).view
-    target = prepare_outline(obs.contours)
-    if target is None:
-        raise ValueError(f"{obs.name}: no outline to search the pose on")
+    target = searched_outline(obs)
     focal = float(np.sqrt(abs(np.linalg.det(cam.K[:2, :2]))))
     cap = TRUNCATION_FRACTION * float(np.max(np.ptp(target.points, axis=0)))
     pts = target.points[target.usable]
@@ -312,6 +326,16 @@ def one_landmark_search(
     return [(R[k], t[k], float(scores[k])) for k in kept]
 
 
+#: Two landmarks whose rays are closer than this (rad) are searched as one.
+MIN_RAY_ANGLE = 1e-6
+
+
+def _same_ray(obs: ViewObservations) -> bool:
+    _, d = camera_view(obs).view.rays(obs.landmark_uv[:2])
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    return bool(np.arccos(np.clip(d[0] @ d[1], -1.0, 1.0)) < MIN_RAY_ANGLE)
+
+
 def search_view_pose(
     model: ShapeModel, obs: ViewObservations, keep: int = KEEP
 ) -> list[tuple[np.ndarray, np.ndarray, float]]:
@@ -327,8 +351,10 @@ def search_view_pose(
         landmark_uv=obs.landmark_uv[order],
         landmark_sigma_px=obs.landmark_sigma_px[order],
     )
-    if len(ids) == 2:
+    if len(ids) == 2 and not _same_ray(one):
         return two_landmark_search(model, one, keep)
+    if len(ids) == 2:  # clicked on one pixel: the second landmark adds nothing
+        return one_landmark_search(model, one, keep)
     if len(ids) == 1:
         return one_landmark_search(model, one, keep)
     raise ValueError(f"{obs.name}: the outline search takes 1 or 2 landmarks, got {len(ids)}")

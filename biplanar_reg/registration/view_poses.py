@@ -45,7 +45,7 @@ from .outline_fit import (
     PosePrior,
     prior_residuals,
 )
-from .pose_search import is_central, outline_scores, search_view_pose
+from .pose_search import is_central, outline_scores, outline_target, search_view_pose
 from .problem import Problem, with_pose
 from .rays import RayObservations
 from .rotations import rotation_angle
@@ -213,8 +213,14 @@ def unknown_pose_problem(v: ViewObservations, outlines: bool) -> str | None:
             f"least {need} landmark(s) in this view with its outline ({POSE_LANDMARKS} "
             "without)"
         )
-    if not (outlines and v.contours):
-        why = "has none" if not v.contours else "is not used (silhouettes off)"
+    if not (outlines and outline_target(v) is not None):
+        why = (
+            "has none"
+            if not v.contours
+            else "is not used (silhouettes off)"
+            if not outlines
+            else "is too short to search on"
+        )
         return (
             f"{head}, the other {free} need this view's outline, which {why}: trace it or "
             f"annotate {POSE_LANDMARKS} landmarks"
@@ -302,7 +308,7 @@ def _view_candidates(model: ShapeModel, v: ViewObservations, rays: RayObservatio
             f"{v.name}: poses = 'unknown': the landmarks of this view fix no pose of the mean "
             "shape in front of its source (are they on the right model points?)"
         )
-    if not v.contours:
+    if outline_target(v) is None:  # nothing to rank them by
         return [(R, t, 0.0) for R, t in cands]
     R, t = np.array([c[0] for c in cands]), np.array([c[1] for c in cands])
     scores = outline_scores(model, v, R, t)
@@ -316,6 +322,12 @@ def _searched_view_poses(model: ShapeModel, views: list[ViewObservations]) -> Po
     relative to the first view's camera), all of them start the joint refinement."""
     rays = _camera_rays(views)
     per_view = [_view_candidates(model, v, u.rays) for v, u in zip(views, rays, strict=True)]
+    for v, cands in zip(views, per_view, strict=True):
+        if not cands:
+            raise ValueError(
+                f"{v.name}: poses = 'unknown': the outline search found no pose of the mean "
+                "shape in front of the source that fits this view (annotate 3 landmarks)"
+            )
     combos = sorted(itertools.product(*per_view), key=lambda c: sum(x[2] for x in c))
     combos = combos[:MAX_PNP_STARTS]
     w = np.zeros(model.n_modes)

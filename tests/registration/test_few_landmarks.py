@@ -132,6 +132,27 @@ def test_a_view_with_two_landmarks_needs_its_outline(small):
         estimate_view_poses(small, bare, "unknown", RegistrationOptions())
 
 
+def test_an_outline_too_short_to_search_is_refused(small):
+    views, *_ = _case(small, 0, (3, 2))
+    uv = views[1].contours[0].uv[0] + np.array([[0.0, 0.0], [2.0, 0.0], [4.0, 0.5]])
+    stub = replace(views[1].contours[0], uv=uv, closed=False)  # 4 px: within the end margins
+    short = [views[0], replace(views[1], contours=[stub])]
+    with pytest.raises(
+        ValueError, match="the other 2 need this view's outline, which is too short"
+    ):
+        register_views(small, short, poses="unknown")
+
+
+def test_two_landmarks_on_one_pixel_are_searched_as_one(small, monkeypatch):
+    views, *_ = _case(small, 0, (3, 2))
+    obs = views[1]
+    same = replace(obs, landmark_uv=np.repeat(obs.landmark_uv[:1], 2, axis=0))
+    calls = []
+    monkeypatch.setattr(pose_search, "one_landmark_search", lambda m, o, k: calls.append(o) or [])
+    assert pose_search.search_view_pose(small, same) == []
+    assert len(calls) == 1 and list(calls[0].landmark_ids) == list(obs.landmark_ids)
+
+
 def test_a_view_without_landmarks_is_refused_in_unknown(small):
     views, *_ = _case(small, 0, (4, 0))
     with pytest.raises(
