@@ -21,7 +21,18 @@ unknown-5      unknown 5
 refine-3-bone  refine  3     refine-3 with ``pose_prior_at_bone=True`` (the calibration prior
                              on the bone's move: the error model of these cases)
 refine-5-bone  refine  5
+known-3+2      known   3+2   known-3 with the second view's last landmark removed
+unknown-3+2    unknown 3+2   unknown-3 with the second view's last landmark removed (its pose
+                             then comes from a search on its outline)
+known-3+1      known   3+1   known-3 with the second view's last two landmarks removed
+unknown-3+1    unknown 3+1   unknown-3 with the second view's last two landmarks removed
+unknown-2+2    unknown 2+2   unknown-3 with the first view's third landmark and the second
+                             view's first removed (3 distinct landmarks in all)
 =============  ======  ====  ===========================================================
+
+The ``+`` conditions are their ``-3`` condition's very case (the same draws) with landmarks
+taken away afterwards (the model landmarks are drawn in a random order per seed, so which one
+goes differs from seed to seed).
 
 Per condition: median / max vertex RMS in the world frame (mm; for ``unknown`` the result's
 frame is the first view's camera frame, and the truth is mapped into it with the first view's
@@ -75,6 +86,20 @@ CONDITIONS: dict[str, tuple[str, int, bool, bool]] = {
     "unknown-5": ("unknown", 5, False, False),
     "refine-3-bone": ("refine", 3, False, True),
     "refine-5-bone": ("refine", 5, False, True),
+    "known-3+2": ("known", 3, False, False),
+    "unknown-3+2": ("unknown", 3, False, False),
+    "known-3+1": ("known", 3, False, False),
+    "unknown-3+1": ("unknown", 3, False, False),
+    "unknown-2+2": ("unknown", 3, False, False),
+}
+#: conditions whose views keep only some of their landmarks after the case is made (the
+#: indices kept in the first and the second view)
+KEPT: dict[str, tuple[tuple[int, ...], tuple[int, ...]]] = {
+    "known-3+2": ((0, 1, 2), (0, 1)),
+    "unknown-3+2": ((0, 1, 2), (0, 1)),
+    "known-3+1": ((0, 1, 2), (0,)),
+    "unknown-3+1": ((0, 1, 2), (0,)),
+    "unknown-2+2": ((0, 1), (1, 2)),
 }
 #: conditions registered with non-default options (``RegistrationOptions`` keywords)
 CONDITION_OPTIONS: dict[str, dict] = {
@@ -133,6 +158,25 @@ def job_doc(case, seed: int, condition: str, mean_fit_mm: float) -> dict:
     }
 
 
+def _keep_landmarks(case, kept: tuple[tuple[int, ...], ...] | None):
+    """``case`` with only the landmarks ``kept[x]`` (indices) of its view ``x``."""
+    if kept is None:
+        return case
+    from dataclasses import replace
+
+    views = list(case.views)
+    for x, k in enumerate(kept):
+        v, k = views[x], list(k)
+        views[x] = replace(
+            v,
+            landmark_names=[v.landmark_names[i] for i in k],
+            landmark_ids=v.landmark_ids[k],
+            landmark_uv=v.landmark_uv[k],
+            landmark_sigma_px=v.landmark_sigma_px[k],
+        )
+    return replace(case, views=views)
+
+
 def make_bundle(folder: Path, seeds: list[int], conditions: list[str]) -> int:
     """Write ``model.npz`` and ``jobs.json`` (every seed x condition) into ``folder``; returns
     the number of jobs."""
@@ -162,6 +206,7 @@ def make_bundle(folder: Path, seeds: list[int], conditions: list[str]) -> int:
                 calibration_error=(deg, mm) if calib else (0.0, 0.0),
                 scene=scene,
             )
+            case = _keep_landmarks(case, KEPT.get(cond))
             mean_fit = model_floor(mean_only, case.truth_vertices)[0]
             jobs.append(job_doc(case, seed, cond, mean_fit))
         print(f"case {seed}: floor {case.floor_mm:.3f} mm ({time.perf_counter() - t0:.1f} s)")

@@ -78,6 +78,9 @@ MODEL_RANGES: dict[str, tuple[float, float, bool]] = {
 PLAUSIBLE_EXTENT_MM = (1.0, 2000.0)
 #: Fewest landmark observations (over all views) the registration can start from.
 MIN_LANDMARK_OBSERVATIONS = 4
+#: Smallest extent (px: the largest side of its bounding box) of the outline of a view that
+#: has no landmarks: below it, the view's annotation is a stray click, not an outline.
+MIN_OUTLINE_EXTENT_PX = 2.0
 #: Fewest views of a case, and fewest views with landmarks: the landmark-only start needs rays
 #: from two directions (from one view the depth along the rays is left to the shape prior:
 #: results off by centimetres, or points "behind the source").
@@ -698,6 +701,24 @@ def _annotations_path(ctx: _Ctx, doc: dict) -> Path:
     return ctx.path(ctx.table(doc, "annotations", required=True), "file", "[annotations]")
 
 
+def _check_outline_extents(ctx: _Ctx, key: str, path: Path, ann: Annotations) -> None:
+    """A view whose only annotation is an outline needs one of at least
+    :data:`MIN_OUTLINE_EXTENT_PX` (its bounding box's largest side): a smaller one is a stray
+    click that would pull the registration onto one spot."""
+    for name, va in ann.views.items():
+        if va.landmarks or not va.contours:
+            continue
+        extents = [float(np.max(np.ptp(c.uv, axis=0))) for c in va.contours]
+        if max(extents) < MIN_OUTLINE_EXTENT_PX:
+            i = int(np.argmax(extents))
+            raise ctx.error(
+                key,
+                f"{path.name}: views.{name}.contours[{i}]: the view's only annotation is a "
+                f"contour {extents[i]:.2g} px across (its bounding box's largest side); an "
+                f"outline needs at least {MIN_OUTLINE_EXTENT_PX:g} px",
+            )
+
+
 def _load_annotations(
     ctx: _Ctx, doc: dict, views: list[CaseView], landmarks: dict[str, int], start: bool = False
 ) -> tuple[Annotations, Path]:
@@ -710,6 +731,7 @@ def _load_annotations(
         )
     except ValueError as exc:
         raise ctx.error("[annotations] file", f"{path.name}: {_one_line(exc)}") from None
+    _check_outline_extents(ctx, "[annotations] file", path, ann)
     if start:  # a start pose: outlines alone may register (register_views checks the total)
         return ann, path
     n_obs = sum(len(va.landmarks) for va in ann.views.values())
@@ -926,6 +948,7 @@ def _one_frame(
         )
     except ValueError as exc:
         raise ctx.error(f"{where} annotations", f"{path.name}: {_one_line(exc)}") from None
+    _check_outline_extents(ctx, f"{where} annotations", path, ann)
     gt = _frame_ground_truth(ctx, table, where, scale, model)
     return CaseFrame(name, fviews, ann, path, gt)
 

@@ -157,9 +157,8 @@ def _cmd_snap(args: argparse.Namespace) -> int:
         for name, uv in points.items()
     }
     view = args.view or Path(args.image).stem
-    ann = Annotations(
-        {view: ViewAnnotations(landmarks={n: Landmark(r.uv, 1.0) for n, r in results.items()})}
-    )
+    landmarks = {n: Landmark(r.uv, args.sigma) for n, r in results.items()}
+    ann = Annotations({view: ViewAnnotations(landmarks=landmarks)})
     save_annotations(ann, args.output)
     report = {
         n: {"clicked": r.clicked.tolist(), "uv": r.uv.tolist(), "shift_px": r.shift_px}
@@ -273,6 +272,13 @@ def _build_snap(s: argparse.ArgumentParser, wanted: Wanted) -> None:
         help="search radius, px (5)",
     )
     s.add_argument("--mode", choices=SNAP_MODES, default="corner")
+    s.add_argument(
+        "--sigma",
+        type=number(float, 0, above=True),
+        default=1.0,
+        metavar="PX",
+        help="uncertainty written for the snapped landmarks (their sigma_px), px (1)",
+    )
     s.add_argument("--view", help="view name in the output (default: the image's file stem)")
     s.add_argument("--frame", type=number(int, 0, 100_000), default=0)
     s.add_argument("-o", "--output", required=True, help="output annotations JSON")

@@ -39,6 +39,7 @@ from .stages import (
 from .uncertainty import registration_uncertainty
 from .view_poses import (
     PosedViews,
+    check_pose_information,
     corrections,
     enough_landmarks,
     estimate_view_poses,
@@ -134,10 +135,15 @@ def _check_views(
 ) -> None:
     """Refuse input that cannot register: bad views, or too little information in total.
 
-    With a ``start`` pose, outlines in two views suffice (no landmarks needed); otherwise the
-    landmark-only start needs 4 landmark observations. ``"unknown"`` needs 3 landmarks in
-    every view for G-SfT-P, and without outlines enough landmarks for every view's pose and
-    the modes; ``"refine"`` without outlines needs the latter too.
+    Every mode estimates the bone's pose (6 parameters) and shape (the modes, held by their
+    prior); each landmark observation gives 2 equations, in whichever view it was clicked (a
+    landmark seen in one view only is one ray). The landmark-only start needs 4 landmark
+    observations of at least 3 different model points in total, or a ``start`` pose and
+    outlines in 2 views. ``"refine"`` and ``"unknown"`` also estimate every view's pose but
+    the first's (6 parameters each); :func:`.view_poses.check_pose_information` states what
+    they need in total: without outlines, landmarks for every parameter; for ``"unknown"``,
+    the bone's pose in each view from its landmarks (2 parameters each, 3 landmarks fix it)
+    and, with 1 or 2, its outline.
     """
     if not views:
         raise ValueError("views: at least one view is needed")
@@ -163,14 +169,14 @@ def _check_views(
             f"the registration, got {n_lm} (or 2 with outlines, or a start pose and outlines "
             f"in 2 views, got outlines in {n_out})"
         )
-    if poses != "known" and n_out == 0 and not enough_landmarks(model, views, model.n_modes):
-        need = (6 * len(views) + model.n_modes + 1) // 2
+    points = {int(i) for v in views for i in v.landmark_ids}
+    if start is None and len(points) < 3:
         raise ValueError(
-            f"poses: {poses!r} without outlines estimates {6 * (len(views) - 1)} view-pose "
-            f"parameters from the landmarks alone and needs at least {need} landmark "
-            f"observations for {len(views)} views and {model.n_modes} modes, got {n_lm}; "
-            "add outlines or use poses = 'known'"
+            f"landmarks: the {n_lm} landmark observations are of {len(points)} model point(s); "
+            "the landmark-only start needs at least 3 different landmarks in total (in any "
+            "views)"
         )
+    check_pose_information(model, views, poses, outlines)
 
 
 def landmark_errors(

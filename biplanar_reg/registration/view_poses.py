@@ -11,7 +11,10 @@ camera frame. Both run in two steps:
    given calibrations (``refine``) or G-SfT-P on the rigid mean shape (``unknown``, 3
    landmarks per view), whose mirror-ambiguous candidates the outline fit arbitrates, plus
    every combination of the views' single-view poses of the mean shape (P3P with 3 landmarks,
-   :func:`_pnp_starts`);
+   :func:`_pnp_starts`). ``unknown`` with 1 or 2 landmarks in a view poses the mean shape in
+   that view by a search on its outline (:mod:`.pose_search`), every other view by P3P, and
+   starts from the combinations, best outline score first (:func:`_searched_view_poses`);
+   what each mode needs in total is :func:`check_pose_information`'s;
 2. after the registration with those views, a joint refinement of every view's pose and the
    shape on the landmarks and outlines (:func:`.outline_fit.refine_poses_on_outlines` with
    one pose per view and its residuals kept in pixels, so that shrinking the scene towards
@@ -42,6 +45,7 @@ from .outline_fit import (
     PosePrior,
     prior_residuals,
 )
+from .pose_search import is_central, outline_scores, outline_target, search_view_pose
 from .problem import Problem, with_pose
 from .rays import RayObservations
 from .rotations import rotation_angle
@@ -167,20 +171,118 @@ def _with_poses(views, Rs, ts) -> list[ViewObservations]:
     ]
 
 
+#: Pose parameters of the bone in one view (object -> camera): what ``"unknown"`` estimates
+#: for every view.
+POSE_PARAMETERS = 6
+#: Landmarks that fix a view's pose of the mean shape on their own (P3P, up to its finite
+#: ambiguity); each landmark fixes 2 parameters.
+POSE_LANDMARKS = 3
+#: Pose parameters left free by a view's landmarks that its outline can resolve
+#: (:mod:`.pose_search`: two landmarks). Measured on ``benchmarks/realistic.py`` (see
+#: docs/unknown_poses.md).
+MAX_SEARCHED_PARAMETERS = 4
+
+
+def _n_distinct(v: ViewObservations) -> int:
+    return len(np.unique(v.landmark_ids))
+
+
+def free_pose_parameters(v: ViewObservations) -> int:
+    """The bone's pose parameters in view ``v`` that its landmarks leave free: 6 less 2 per
+    distinct landmark, 0 from 3 on."""
+    return max(POSE_PARAMETERS - 2 * _n_distinct(v), 0)
+
+
+def unknown_pose_problem(v: ViewObservations, outlines: bool) -> str | None:
+    """What keeps ``poses = "unknown"`` from estimating the bone's pose in view ``v`` (one
+    line naming the view), or None: its landmarks fix 2 of the 6 pose parameters each, and
+    its outline (``outlines``: outlines are used) the rest when at most
+    :data:`MAX_SEARCHED_PARAMETERS` are left."""
+    free = free_pose_parameters(v)
+    if free == 0:
+        return None
+    k = _n_distinct(v)
+    head = (
+        f"{v.name}: poses = 'unknown' estimates the bone's {POSE_PARAMETERS} pose parameters "
+        f"in every view; its {k} landmark(s) fix {2 * k}"
+    )
+    if free > MAX_SEARCHED_PARAMETERS:
+        need = POSE_LANDMARKS - MAX_SEARCHED_PARAMETERS // 2
+        return (
+            f"{head}, and an outline fixes at most {MAX_SEARCHED_PARAMETERS} more: annotate at "
+            f"least {need} landmark(s) in this view with its outline ({POSE_LANDMARKS} "
+            "without)"
+        )
+    if not (outlines and outline_target(v) is not None):
+        why = (
+            "has none"
+            if not v.contours
+            else "is not used (silhouettes off)"
+            if not outlines
+            else "is too short to search on"
+        )
+        return (
+            f"{head}, the other {free} need this view's outline, which {why}: trace it or "
+            f"annotate {POSE_LANDMARKS} landmarks"
+        )
+    return None
+
+
+def check_pose_information(
+    model: ShapeModel, views: list[ViewObservations], poses: str, outlines: bool
+) -> None:
+    """Refuse ``"refine"``/``"unknown"`` input that lacks the information the mode needs in
+    total (one-line ``ValueError`` naming the view or the count).
+
+    Both estimate ``6 (P - 1)`` view-pose parameters beyond the bone's pose (6) and the
+    shape's modes (``M``, held by their prior). Without outlines the landmarks alone must fix
+    them all: ``2 L >= 6 P + M`` for ``L`` landmark observations. ``"unknown"`` also needs
+    the bone's 6 pose parameters in each view (:func:`unknown_pose_problem`): 2 per distinct
+    landmark of the view, the rest (at most :data:`MAX_SEARCHED_PARAMETERS`) from its outline,
+    searched in point-source views only. ``"refine"`` starts from the given calibrations, so
+    any view may have fewer landmarks.
+    """
+    if poses == "known":
+        return
+    if poses == "unknown":
+        for v in views:
+            problem = unknown_pose_problem(v, outlines)
+            if problem is not None:
+                raise ValueError(problem)
+        searched = [v.name for v in views if free_pose_parameters(v) > 0]
+        for v in views:
+            if searched and not is_central(v):
+                raise ValueError(
+                    f"{v.name}: poses = 'unknown' with fewer than {POSE_LANDMARKS} landmarks "
+                    f"in {', '.join(searched)} poses the bone in every view from its own "
+                    "landmarks and outline, which needs point-source (perspective) views"
+                )
+    has_outlines = outlines and any(v.contours for v in views)
+    if not has_outlines and not enough_landmarks(model, views, model.n_modes):
+        n_lm = sum(len(v.landmark_ids) for v in views)
+        need = (6 * len(views) + model.n_modes + 1) // 2
+        raise ValueError(
+            f"poses: {poses!r} without outlines estimates {6 * (len(views) - 1)} view-pose "
+            f"parameters from the landmarks alone and needs at least {need} landmark "
+            f"observations for {len(views)} views and {model.n_modes} modes, got {n_lm}; "
+            "add outlines or use poses = 'known'"
+        )
+
+
 def estimate_view_poses(
     model: ShapeModel,
     views: list[ViewObservations],
     poses: str,
     options: RegistrationOptions,
+    outlines: bool = True,
 ) -> PosedViews:
-    """Step 1 of the module docstring for ``"refine"`` or ``"unknown"``."""
+    """Step 1 of the module docstring for ``"refine"`` or ``"unknown"`` (``outlines``: the
+    views' outlines are used); input without the information the mode needs in total is
+    refused first (:func:`check_pose_information`, a one-line ``ValueError``)."""
+    check_pose_information(model, views, poses, outlines)
+    if poses == "unknown" and any(free_pose_parameters(v) > 0 for v in views):
+        return _searched_view_poses(model, views)
     if any(len(v.landmark_ids) < 3 for v in views):
-        if poses == "unknown":
-            v = next(v for v in views if len(v.landmark_ids) < 3)
-            raise ValueError(
-                f"{v.name}: poses = 'unknown' needs at least 3 landmarks in every view, "
-                f"got {len(v.landmark_ids)}"
-            )
         return PosedViews(views, {"mode": poses}, [])
     if poses == "refine" and options.pose_prior_at_bone:
         # corrected from the given calibrations only (calibration_subspace): no starts
@@ -192,6 +294,53 @@ def estimate_view_poses(
     posed = _with_poses(views, est.view_rotations, est.view_translations)
     info = {"mode": "unknown", "certificates": _per_view(views, est.certificates)}
     return PosedViews(posed, info, [_in_world(posed, s) for s in starts])
+
+
+def _view_candidates(model: ShapeModel, v: ViewObservations, rays: RayObservations) -> list:
+    """The mean shape's poses in view ``v``'s camera frame (object -> camera) with their
+    outline scores (pixels; 0 without an outline), best first: P3P/SQPnP with 3 or more
+    landmarks, the outline search (:mod:`.pose_search`) with fewer."""
+    if free_pose_parameters(v) > 0:
+        return search_view_pose(model, v)
+    cands = _single_view_poses(model, rays)
+    if not cands:
+        raise ValueError(
+            f"{v.name}: poses = 'unknown': the landmarks of this view fix no pose of the mean "
+            "shape in front of its source (are they on the right model points?)"
+        )
+    if outline_target(v) is None:  # nothing to rank them by
+        return [(R, t, 0.0) for R, t in cands]
+    R, t = np.array([c[0] for c in cands]), np.array([c[1] for c in cands])
+    scores = outline_scores(model, v, R, t)
+    return sorted([(R[k], t[k], float(scores[k])) for k in range(len(cands))], key=lambda c: c[2])
+
+
+def _searched_view_poses(model: ShapeModel, views: list[ViewObservations]) -> PosedViews:
+    """``"unknown"`` when some view has fewer than 3 landmarks: every view's candidate poses
+    of the mean shape (:func:`_view_candidates`), their combinations ranked by the summed
+    outline score (at most :data:`MAX_PNP_STARTS`); the best poses the views (view poses
+    relative to the first view's camera), all of them start the joint refinement."""
+    rays = _camera_rays(views)
+    per_view = [_view_candidates(model, v, u.rays) for v, u in zip(views, rays, strict=True)]
+    for v, cands in zip(views, per_view, strict=True):
+        if not cands:
+            raise ValueError(
+                f"{v.name}: poses = 'unknown': the outline search found no pose of the mean "
+                "shape in front of the source that fits this view (annotate 3 landmarks)"
+            )
+    combos = sorted(itertools.product(*per_view), key=lambda c: sum(x[2] for x in c))
+    combos = combos[:MAX_PNP_STARTS]
+    w = np.zeros(model.n_modes)
+    states = [(np.array([c[0] for c in x]), np.array([c[1] for c in x]), w) for x in combos]
+    Rs, ts, _ = states[0]
+    # view x sees the object at P_x; in the first view's camera frame (the world) it is at
+    # P_0, so view x's extrinsics are P_x o P_0^-1
+    view_R = [R @ Rs[0].T for R in Rs]
+    view_t = [t - Rv @ ts[0] for Rv, t in zip(view_R, ts, strict=True)]
+    posed = _with_poses(views, view_R, view_t)
+    searched = [v.name for v in views if free_pose_parameters(v) > 0]
+    info = {"mode": "unknown", "outline_search": searched}
+    return PosedViews(posed, info, [_in_world(posed, s) for s in states])
 
 
 def _composed(view_R, view_t, Ro, to, Rg, tg):
