@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from biplanar_reg.io import atomic_write_json, read_json, read_mesh, read_volume, write_mesh
+from biplanar_reg.io import atomic_write_json, read_json, read_volume, write_mesh
 from biplanar_reg.ssm import ShapeModel, bone_surface, build_ssm, synthesise_population
 
 HERE = Path(__file__).resolve().parent
@@ -62,7 +62,10 @@ def radius_landmarks(v: np.ndarray) -> dict[str, int]:
     """
     x, y, z = v.T
     ulnar = np.flatnonzero(y > y.max() - 2.5)
-    return {"radial_styloid_tip": int(np.argmin(z)), "ulnar_corner": int(ulnar[np.argmin(z[ulnar])])}
+    return {
+        "radial_styloid_tip": int(np.argmin(z)),
+        "ulnar_corner": int(ulnar[np.argmin(z[ulnar])]),
+    }
 
 
 def ulna_landmarks(v: np.ndarray) -> dict[str, int]:
@@ -99,7 +102,9 @@ def deformed(vertices: np.ndarray) -> np.ndarray:
 def build_models() -> None:
     MODELS.mkdir(exist_ok=True)
     for bone, n in BONES.items():
-        surf = bone_surface(read_volume(DATA / f"{bone}_ct.tif", voxel_size=CT_VOXEL_MM), target_vertices=n)
+        surf = bone_surface(
+            read_volume(DATA / f"{bone}_ct.tif", voxel_size=CT_VOXEL_MM), target_vertices=n
+        )
         v, f = surf.vertices, np.asarray(surf.faces)
         marks = LANDMARKS[bone](v)
         write_mesh(MODELS / f"{bone}_template.ply", v, f)
@@ -110,7 +115,9 @@ def build_models() -> None:
             pop = synthesise_population(base, 9, seed=0)
             model = build_ssm(pop.shapes, faces=f, variance=0.98, landmarks=marks)
             ShapeModel.save(model, MODELS / f"{bone}_{name}_ssm.npz")
-        print(f"{bone}: {len(v)} vertices, landmarks {marks}, deformed RMS {_kabsch_rms(d, v):.3f} mm")
+        print(
+            f"{bone}: {len(v)} vertices, landmarks {marks}, deformed RMS {_kabsch_rms(d, v):.3f} mm"
+        )
 
 
 CASE_TOML = """format = "biplanar-reg/case@1"
@@ -160,7 +167,9 @@ def write_case(folder: Path, bone: str, template: str, annotations: Path | None)
     shutil.copy2(MODELS / f"{bone}_landmarks.json", folder / "model" / "landmarks.json")
     shutil.copy2(MODELS / f"{bone}_template.ply", folder / "model" / "truth.ply")
     if annotations is None:
-        atomic_write_json(folder / "annotations.json", {"format": "biplanar-reg/annotations@1", "views": {}})
+        atomic_write_json(
+            folder / "annotations.json", {"format": "biplanar-reg/annotations@1", "views": {}}
+        )
     else:
         atomic_write_json(folder / "annotations.json", read_json(annotations))
     toml = CASE_TOML.format(id=folder.name, from_truth="true" if template == "ct" else "false")

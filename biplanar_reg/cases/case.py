@@ -455,6 +455,10 @@ def registration_options(table: dict, ctx: _Ctx | None = None) -> RegistrationOp
             values[key] = value
         elif isinstance(default, (int, float)):
             values[key] = ctx.number(table, key, "[registration]", type(default), default)
+        elif isinstance(default, str):
+            if not isinstance(value, str):
+                raise ctx.error(where, f"expected a string, got {value!r}")
+            values[key] = value
         else:  # a field type this loader does not know: pass it through unchanged
             values[key] = value
     try:

@@ -152,14 +152,18 @@ def _view_entry(
     }
     lm = res.landmark_errors_px.get(o.name, {})
     ce = contour_errors_px
+    marks = res.noise.get("landmarks", {}).get(o.name, {})
     return {
         "R": pose["R"],
         "t": pose["t"],
         "centre": pose["centre"],
         "landmark_errors_px": lm,
         "landmark_rms_px": float(np.sqrt(np.mean(np.square(list(lm.values()))))) if lm else None,
+        "landmark_sigmas_px": {n: m["sigma_px"] for n, m in marks.items()},
+        "landmark_weights": {n: m["weight"] for n, m in marks.items()},
         "contour_errors_px": ce,
         "contour_error_stats_px": summary_stats(ce[np.isfinite(ce)]),
+        "outline_coverage": res.outline_coverage.get(o.name),
     }
 
 
@@ -259,6 +263,7 @@ def result_document(
             "model": _model_entry(case),
             "ground_truth": _ground_truth_entry(case),
             "uncertainty": uncertainty_summary(res.vertex_sd_mm),
+            "noise": {k: v for k, v in res.noise.items() if k != "landmarks"} or None,
             "warnings": case.warnings,
         }
     )

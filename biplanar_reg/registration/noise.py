@@ -26,8 +26,9 @@ outline counts as one independent sample per correlation length (the residuals' 
 autocorrelation time, at least ``contour_spacing_px``; :func:`.uncertainty.correlation_length`),
 and the fit weighs it so. The sigmas and correlation lengths are re-estimated at every
 refined fit until they settle. Landmark blunders are handled before the estimate (a rejected
-landmark, :mod:`.blunders`, is left out); the outlines' samples beyond their gate carry no
-weight either. No sigma is below ``MIN_SIGMA_PX``.
+landmark, :mod:`.blunders`, is left out, and so is one whose error stands far out from the
+others', :func:`.quality.disagreeing_landmarks`); the outlines' samples beyond their gate carry
+no weight either. No sigma is below ``MIN_SIGMA_PX``.
 
 Units: pixels for the reported sigmas; factors are dimensionless.
 """
@@ -41,6 +42,7 @@ import numpy as np
 from .outline_fit import OutlineTerm
 from .outline_match import adaptive_gate, outline_distances
 from .problem import Problem
+from .quality import disagreeing_landmarks
 from .uncertainty import correlation_length, linearise_fit
 
 __all__: list[str] = []
@@ -97,6 +99,9 @@ def estimate_noise(problem: Problem, result, weights: np.ndarray | None) -> list
     opts, lm = problem.options, problem.landmarks
     w = np.ones(len(lm)) if weights is None else np.asarray(weights, float)
     accepted = w >= opts.rejection_weight
+    if len(lm):  # a landmark far out from the others' errors would set its group's sigma
+        err = problem.landmark_px_errors(result.vertices)
+        accepted[disagreeing_landmarks(err, lm.ratios())] = False
     terms, views = _terms(problem, result)
     k_lm = np.sqrt(2.0 * opts.landmark_weight * opts.refine_landmark_weight)
     rays = lm.rays.select(accepted)

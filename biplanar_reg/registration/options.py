@@ -207,12 +207,15 @@ readmit_sigmas : None
         it where the model spans the truth and the outlines are accurate (silhouette benchmark,
         a sample case), so the default 1 keeps the convex stages' weighting
         (benchmarks/results/realistic_known_levers.md).
-    noise : {"estimated", "stated"}
-        ``"estimated"``: each annotation group's noise (the landmarks of each view, the
-        outline of each view) is estimated from the residuals, iterated with the final
-        refinement (variance-component estimation, :mod:`.noise`); the stated sigmas keep
-        only their ratios within a landmark group. ``"stated"``: the stated landmark sigmas
-        and ``contour_sigma_px`` are used as they are.
+    noise : str
+        ``"estimated"`` (default) or ``"stated"``. ``"estimated"``: each annotation group's
+        noise (the landmarks of each view, the outline of each view) is estimated from the
+        residuals, iterated with the final refinement (variance-component estimation,
+        :mod:`.noise`); the stated sigmas keep
+        only their ratios within a landmark group, so a click sigma stated as 1 or 3 px gives
+        the same result. ``"stated"``: the stated landmark sigmas and ``contour_sigma_px``
+        are used as they are. With ``poses`` other than ``"known"`` the noise is the stated
+        one (the view poses' joint fit was tuned with it; estimated noise measured worse).
     noise_rounds : int
         Most refinements with re-estimated sigmas (0 to 100).
     start_landmark_sigma_px : float
@@ -297,13 +300,21 @@ CHOICES: dict[str, tuple[str, ...]] = {"noise": ("estimated", "stated")}
 def _check_field(key: str, value: object, default: object) -> None:
     """Raise ``ValueError`` naming ``key`` when ``value`` is not a valid option value."""
     if key in CHOICES:
-        if value not in CHOICES[key]:
-            raise ValueError(f"{key}: expected one of {list(CHOICES[key])}, got {value!r}")
-        return
-    if isinstance(default, bool):
+        _check_choice(key, value)
+    elif isinstance(default, bool):
         if not isinstance(value, (bool, np.bool_)):
             raise ValueError(f"{key}: expected true or false, got {value!r}")
-        return
+    else:
+        _check_number(key, value)
+
+
+def _check_choice(key: str, value: object) -> None:
+    if value not in CHOICES[key]:
+        raise ValueError(f"{key}: expected one of {list(CHOICES[key])}, got {value!r}")
+
+
+def _check_number(key: str, value: object) -> None:
+    """Raise ``ValueError`` naming ``key`` when ``value`` is not a valid number for it."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
         raise ValueError(f"{key}: expected a number, got {value!r}")
     v = float(value)
@@ -342,7 +353,9 @@ class IterationRecord:
     increases within one refinement; a re-admitted landmark starts a second refinement whose
     objective includes it, so the costs may rise once there; ``n_matches`` the annotated
     outline samples within its gate; ``certificate`` is the last SDP's).
-    The two costs are not on one scale.
+    ``"noise"`` is an accepted step of a refinement with re-estimated sigmas (``noise =
+    "estimated"``): its objective has other sigmas, so its costs continue on their own scale.
+    The costs of different kinds are not on one scale.
     """
 
     index: int

@@ -77,6 +77,7 @@ class OutlineTerm:
     gate_px: float
     mm_per_px: float
     index: int = 0  # the view's index among the problem's views
+    sides: np.ndarray | None = None  # per contour: +1 left outside, -1 right outside, 0 unknown
 
 
 @dataclass(frozen=True)
@@ -145,6 +146,13 @@ def _outline_terms(
     off = np.einsum("ki,ki->k", n, Vc - o)
     cap = term.gate_px * term.mm_per_px
     active = np.abs(off) <= cap
+    if term.sides is not None and term.target.left is not None:
+        # a sample whose nearest model outline faces the other way (the contour's side known)
+        # is on the wrong side of the bone: no pull, as beyond the gate
+        side = term.target.orientation_of(term.sides, term.target.contour[term.target.usable])
+        outward = side[:, None] * term.target.left[term.target.usable]
+        facing = np.einsum("kc,kc->k", outward, np.column_stack([-tan[:, 1], tan[:, 0]]))
+        active &= (side == 0) | (facing > 0)
     res = np.column_stack([np.clip(off, -cap, cap), np.zeros(len(q))]) / term.sigma_mm
     basis = np.zeros((len(q), 3, 2))
     basis[:, :, 0] = n
@@ -513,4 +521,3 @@ def refine_on_outlines(
         he=he,
         callback=cb,
     )
-

@@ -201,6 +201,14 @@ class OutlineTarget:
     usable: np.ndarray  # (P,) False within end_margin_px of an open polyline's ends
     end_margin_px: float = END_MARGIN_PX
     contour: np.ndarray | None = None  # (P,) index of each point's contour
+    seg_contour: np.ndarray | None = None  # (S,) index of each segment's contour
+    left: np.ndarray | None = None  # (P, 2) unit normal to the left of each point's tangent
+
+    def orientation_of(self, signs: np.ndarray | None, contour: np.ndarray) -> np.ndarray:
+        """Per item of ``contour`` (contour indices) its contour's side sign (0: unknown)."""
+        if signs is None or len(signs) == 0:
+            return np.zeros(len(contour))
+        return np.asarray(signs, float)[contour]
 
     def usable_foot(self, seg: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Whether foot points (segment, position) lie away from the ends of open contours."""
@@ -216,7 +224,7 @@ def prepare_outline(
 ) -> OutlineTarget | None:
     """Resample a view's contours (``Contour(uv, closed)``) for matching; None if there are none.
     Points within ``end_margin_px`` of an open contour's ends are marked unusable."""
-    A, B, arc, length, open_, pts, usable, owner = [], [], [], [], [], [], [], []
+    A, B, arc, length, open_, pts, usable, owner, seg_owner, left = ([] for _ in range(10))
     for k, c in enumerate(contours):
         p = resample_polyline(c.uv, spacing_px, closed=c.closed)
         q = np.vstack([p, p[:1]]) if c.closed else p
@@ -237,6 +245,8 @@ def prepare_outline(
         pts.append(p)
         usable.append(ok)
         owner.append(np.full(len(p), k))
+        seg_owner.append(np.full(len(s0), k))
+        left.append(_left_normals(p, c.closed))
     if not A:
         return None
     return OutlineTarget(
@@ -248,7 +258,18 @@ def prepare_outline(
         np.concatenate(usable),
         float(end_margin_px),
         np.concatenate(owner),
+        np.concatenate(seg_owner),
+        np.vstack(left),
     )
+
+
+def _left_normals(p: np.ndarray, closed: bool) -> np.ndarray:
+    """Unit normals (P, 2) to the left of a polyline's direction at each point (image axes:
+    ``(-dv, du)`` for a direction ``(du, dv)``), from central differences."""
+    q = np.vstack([p[-1:], p, p[:1]]) if closed else np.vstack([p[:1], p, p[-1:]])
+    d = q[2:] - q[:-2]
+    n = np.column_stack([-d[:, 1], d[:, 0]])
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
 
 
 @dataclass(frozen=True)
@@ -265,12 +286,16 @@ class ModelOutline:
         Outline edges (vertex ids) for distances and drawing.
     tangent : (N, 2) array
         Unit outline tangent at outline vertices (0 elsewhere).
+    normal : (N, 2) array or None
+        Unit outward normal at outline vertices (0 elsewhere); None for a point model, whose
+        outline edges have no orientation.
     """
 
     ids: np.ndarray
     uv_all: np.ndarray
     edges: np.ndarray
     tangent: np.ndarray
+    normal: np.ndarray | None = None
 
 
 def model_outline(
@@ -302,7 +327,77 @@ def model_outline(
     edges, uv = outline_edges(vertices, view, model.faces, topology=he)
     tangent = outline_tangents(edges, uv)
     ids = subsample_evenly(np.unique(edges), uv, n_points) if len(edges) else np.zeros(0, int)
-    return ModelOutline(ids, uv, edges, tangent)
+    normal = None if model.faces is None else outward_normals(edges, uv)
+    return ModelOutline(ids, uv, edges, tangent, normal)
+
+
+def edge_normals(edges: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Outward unit normals (C, 2) of a mesh's directed outline edges: the projected bone lies
+    to the right of each edge's direction (the edges follow the front faces' winding,
+    :func:`biplanar_reg.outline.mesh_outline`), so outward is its left, ``(-dv, du)``."""
+    d = uv[edges[:, 1]] - uv[edges[:, 0]]
+    n = np.column_stack([-d[:, 1], d[:, 0]])
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+
+
+def outward_normals(edges: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Outward unit normal (N, 2) at each outline vertex of a mesh (mean of its edges'
+    :func:`edge_normals`; 0 at vertices on no edge)."""
+    out = np.zeros_like(uv)
+    if len(edges) == 0:
+        return out
+    n = edge_normals(edges, uv)
+    ends = edges.T.ravel()
+    for c in range(2):
+        out[:, c] = np.bincount(ends, np.tile(n[:, c], 2), minlength=len(uv))
+    nrm = np.linalg.norm(out, axis=1, keepdims=True)
+    return np.where(nrm > 1e-12, out / np.maximum(nrm, 1e-12), 0.0)
+
+
+#: A contour's side is decided when this share (by weight) of its samples agree.
+ORIENTATION_AGREEMENT = 0.75
+
+
+def contour_sides(outline: ModelOutline, target: OutlineTarget, gate_px: float) -> np.ndarray:
+    """Which side of each annotated contour the bone lies on, judged at the current fit.
+
+    Each usable sample within ``gate_px`` of the model outline votes with the sign of its
+    left normal along the outward normal of the model's outline edge nearest to it (weight
+    ``1 - (d / gate)^2``). A contour whose votes agree by ``ORIENTATION_AGREEMENT`` gets
+    ``+1`` (its left is outside the bone) or ``-1`` (its right is); otherwise 0 (unknown:
+    matching then ignores the side, as for point models).
+
+    Why: a traced stretch along one side of a bone says nothing about the other side. Matched
+    by distance and direction alone, the untraced side of the model outline, running parallel,
+    is pulled onto the traced stretch and the bone collapses; with the side known, a model
+    outline point only matches annotation facing the same way.
+
+    Returns
+    -------
+    (C,) array
+        Per contour of ``target`` (in its order), +1, -1 or 0.
+    """
+    n_contours = (
+        int(target.contour.max()) + 1 if target.contour is not None and len(target.contour) else 0
+    )
+    signs = np.zeros(n_contours)
+    if outline.normal is None or len(outline.edges) == 0 or target.left is None:
+        return signs
+    q = target.points[target.usable]
+    _, dist, seg, _ = nearest_on_outline(outline.edges, outline.uv_all, q)
+    n_model = edge_normals(outline.edges, outline.uv_all)[seg]
+    vote = np.sign(np.einsum("pc,pc->p", target.left[target.usable], n_model))
+    w = np.clip(1.0 - (dist / gate_px) ** 2, 0.0, None)
+    owner = target.contour[target.usable]
+    for c in range(n_contours):
+        sel = owner == c
+        total = float(w[sel].sum())
+        if total <= 0:
+            continue
+        agree = float((w[sel] * vote[sel]).sum()) / total
+        if abs(agree) >= 2 * ORIENTATION_AGREEMENT - 1:
+            signs[c] = np.sign(agree)
+    return signs
 
 
 #: Matches whose outline directions differ by more than this are dropped (degrees).
@@ -315,13 +410,17 @@ def match_outline(
     gate_px: float,
     mutual: bool = False,
     max_angle_deg: float = MAX_TANGENT_ANGLE_DEG,
+    sides: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Match model outline points to the nearest points of the annotated outline.
 
     A match is kept when it is within ``gate_px``, its foot point is not within
     the target's ``end_margin_px`` of an open contour's end, and the model outline's direction
     there agrees with the contour's within ``max_angle_deg`` (so the model's unannotated parts are
-    not pulled onto a nearby annotated stretch running the other way).
+    not pulled onto a nearby annotated stretch running the other way). With ``sides``
+    (:func:`contour_sides`: per contour, which side the bone lies on) the comparison is of the
+    outward normals, signed, wherever a contour's side is known: the model's untraced side
+    does not match a stretch traced along the other side.
 
     Returns
     -------
@@ -342,6 +441,12 @@ def match_outline(
     st = target.segments.b[seg] - target.segments.a[seg]
     st /= np.maximum(np.linalg.norm(st, axis=1, keepdims=True), 1e-12)
     cos = np.abs(np.einsum("pc,pc->p", st, outline.tangent[outline.ids]))
+    side = target.orientation_of(sides, target.seg_contour[seg]) if sides is not None else None
+    if side is not None and outline.normal is not None:
+        # where the contour's side is known, the outward normals must agree (signed)
+        outward = side[:, None] * np.column_stack([-st[:, 1], st[:, 0]])
+        signed = np.einsum("pc,pc->p", outward, outline.normal[outline.ids])
+        cos = np.where(side != 0, signed, cos)
     keep &= cos >= np.cos(np.deg2rad(max_angle_deg))
     if mutual and np.any(keep):
         # the foot point's nearest model outline point must be the same model point

@@ -127,6 +127,7 @@ class Problem:
     outline_sigma: dict[int, float]
     say: Callable[[str], None]
     outline_spacing: dict[int, float] = field(default_factory=dict)
+    centre: np.ndarray | None = None  # where the bone roughly is (world, mm)
 
     def spacing(self, view: int) -> float:
         """The spacing (px) at which view ``view``'s outline samples count as independent."""
@@ -256,6 +257,7 @@ def make_problem(
         mm_per_px=mmpp,
         outline_sigma={i: options.contour_sigma_px * mmpp[i] / w_out for i in targets},
         say=say,
+        centre=np.asarray(centre, float),
     )
 
 

@@ -22,10 +22,10 @@ from ..ssm.model import ShapeModel
 from .blunders import rejected_landmarks
 from .gsft import GsftResult
 from .observations import ViewObservations
-from .start_search import few_landmarks_centre, search_start
 from .options import IterationRecord, RegistrationOptions
 from .outline_match import outline_distances
 from .problem import Problem, make_problem
+from .quality import disagreeing_landmarks, outline_coverage, shape_plausibility
 from .rotations import project_to_so3
 from .stages import (
     FitMemo,
@@ -36,6 +36,7 @@ from .stages import (
     refine_final,
     robust_start,
 )
+from .start_search import few_landmarks_centre, search_start
 from .uncertainty import registration_uncertainty
 from .view_poses import (
     PosedViews,
@@ -93,6 +94,15 @@ class RegistrationResult:
     vertex_sd_mm : (N,) array or None
         Posterior standard deviation of each registered vertex, mm (RMS over the axes; pose,
         weights and model truncation: :mod:`.uncertainty`); None when it could not be formed.
+    noise : dict
+        ``{"method", "groups", "landmarks"}``: ``method`` ``"estimated"`` or ``"stated"``;
+        ``groups`` each annotation group's estimated noise (``kind`` landmarks/outline,
+        ``view``, ``sigma_px``, ``redundancy``, ``observations``, outlines' ``correlation_px``;
+        :mod:`.noise`); ``landmarks`` ``{view: {name: {"sigma_px", "weight"}}}``: the sigma
+        each landmark had in the final fit and its robust weight.
+    outline_coverage : dict
+        ``{view: {"covered", "sides", "one_sided", "untraced"}}``: the annotation's coverage of
+        the model's outline at the fit (:func:`.quality.outline_coverage`).
     """
 
     rotation: np.ndarray
@@ -114,6 +124,8 @@ class RegistrationResult:
     iterate_vertices: list = field(default_factory=list, repr=False)
     landmark_weights: dict = field(default_factory=dict)
     vertex_sd_mm: np.ndarray | None = field(default=None, repr=False)
+    noise: dict = field(default_factory=dict)
+    outline_coverage: dict = field(default_factory=dict)
 
 
 def _check_start(start: object) -> tuple[np.ndarray, np.ndarray] | None:
@@ -159,24 +171,29 @@ def _check_views(
             "start: not used with poses = 'unknown' (the result's world frame is the first "
             "view's camera frame, estimated from the landmarks)"
         )
-    distinct = len(np.unique(np.concatenate([v.landmark_ids for v in views])))
-    few = n_lm < 4 or distinct < 3
-    if few and start is None and n_out >= 1 and n_lm >= 2 and poses != "unknown":
-        pass  # a start is searched for on the outlines (pose_search)
-    elif n_lm < 4 and not (start is not None and n_out >= 2):
+    if start is None and poses != "unknown" and not _enough_landmark_points(views):
+        _check_few_landmarks(views, n_lm, n_out)
+    elif start is not None and n_lm < 4 and n_out < 2:
         raise ValueError(
-            f"landmarks: at least 4 landmark observations in total are needed to initialise "
-            f"the registration, got {n_lm} (or 2 with outlines, or a start pose and outlines "
-            f"in 2 views, got outlines in {n_out})"
-        )
-    points = {int(i) for v in views for i in v.landmark_ids}
-    if start is None and len(points) < 3:
-        raise ValueError(
-            f"landmarks: the {n_lm} landmark observations are of {len(points)} model point(s); "
-            "the landmark-only start needs at least 3 different landmarks in total (in any "
-            "views)"
+            f"landmarks: with a start pose, outlines in 2 views (or 4 landmark observations) "
+            f"are needed, got outlines in {n_out} and {n_lm} landmark observation(s)"
         )
     check_pose_information(model, views, poses, outlines)
+
+
+def _check_few_landmarks(views: list[ViewObservations], n_lm: int, n_out: int) -> None:
+    """Landmarks that cannot start the registration alone (fewer than 4 observations or 3
+    different points) start it with the outlines (:mod:`.start_search`): at least 2
+    observations, and outlines in 2 views (or in 1 when the landmarks are seen in 2)."""
+    seen = sum(1 for v in views if len(v.landmark_ids))
+    if n_lm >= 2 and (n_out >= 2 or (n_out == 1 and seen >= 2)):
+        return
+    points = len({int(i) for v in views for i in v.landmark_ids})
+    raise ValueError(
+        f"landmarks: {n_lm} landmark observation(s) of {points} model point(s) cannot start "
+        "the registration: give 4 observations of 3 different landmarks, or 2 observations "
+        f"and outlines in 2 views (got outlines in {n_out}), or a start pose"
+    )
 
 
 def landmark_errors(
@@ -242,6 +259,11 @@ def register_views(
         raise ValueError(f"poses: expected 'known', 'refine' or 'unknown', got {poses!r}")
     start_pose = _check_start(start)
     _check_views(model, views, poses, silhouettes, start_pose)
+    if poses != "known" and opts.noise == "estimated":
+        # the view poses' joint fit weighs the outlines by fixed factors measured with the
+        # stated noise (joint_outline_sigma_factor, unknown_outline_sigma_factor); estimated
+        # noise there was measured worse (docs/registration.md, "Noise of each group")
+        opts = replace(opts, noise="stated")
     say = progress or (lambda msg: None)
     t0 = time.perf_counter()
     pose_info: dict = {"mode": poses}
@@ -274,7 +296,7 @@ def _register_posed(model, posed, poses, opts, silhouettes, say, start_pose):
     with outlines, followed by the joint refinement of the views on the outlines and a final
     refinement with the corrected views."""
     c = None if start_pose is None else model.mean.mean(axis=0) @ start_pose[0].T + start_pose[1]
-    few = start_pose is None and not _enough_landmark_points(posed.views)
+    few = start_pose is None and poses != "unknown" and not _enough_landmark_points(posed.views)
     if few:  # the landmark-only solve cannot place the bone: near the landmark rays
         c = few_landmarks_centre(posed.views)
     problem = make_problem(model, posed.views, opts, silhouettes, say, c)
@@ -345,10 +367,16 @@ def relaxation_gap_px(problem: Problem, res: GsftResult) -> float:
 
 
 def _flags(
-    problem: Problem, res: GsftResult, rejected: frozenset[int], gap: float | None = None
+    problem: Problem,
+    res: GsftResult,
+    rejected: frozenset[int],
+    outlines: dict | None = None,
+    gap: float | None = None,
 ) -> list[str]:
     """Quality flags (not failures) of a result (``gap``: its :func:`relaxation_gap_px`,
-    computed when not given)."""
+    computed when not given; ``outlines``: the model's outlines at the fit, per view index).
+    Each says what is wrong and where; :data:`biplanar_reg.report.advice.FLAG_ADVICE` says
+    what to do."""
     opts, lm = problem.options, problem.landmarks
     flags: list[str] = []
     gap = relaxation_gap_px(problem, res) if gap is None else gap
@@ -361,11 +389,30 @@ def _flags(
         flags.append("local refinement did not converge")
     err = problem.landmark_px_errors(res.vertices)
     acc = [e for i, e in enumerate(err) if i not in rejected]
-    if acc and float(np.sqrt(np.mean(np.square(acc)))) > opts.reprojection_flag_px:
+    stated = opts.noise == "stated"
+    if stated and acc and float(np.sqrt(np.mean(np.square(acc)))) > opts.reprojection_flag_px:
         flags.append("large landmark reprojection error")
+    for i in disagreeing_landmarks(err, lm.ratios()) if len(lm) else []:
+        if int(i) not in rejected:
+            v, n = lm.names[i]
+            flags.append(f"landmark disagrees with the outlines: {v}/{n} by {err[i]:.0f} px")
     rej = [lm.names[i] for i in sorted(rejected)]
     if rej:
         flags.append("rejected observations: " + ", ".join(f"{v}/{n}" for v, n in rej))
+    for i, o in (outlines or {}).items():
+        cov = outline_coverage(o, problem.targets[i])
+        if cov.one_sided:
+            flags.append(
+                f"one-sided outline: {problem.views[i].name} (the bone's {cov.untraced_direction} "
+                "border is not traced)"
+            )
+    shape = shape_plausibility(problem.model, res.weights)
+    if shape.implausible:
+        vol = "" if shape.volume_z is None else f", volume {shape.volume_z:+.1f} sd"
+        flags.append(
+            f"shape outside the model's plausible range (Mahalanobis distance "
+            f"{np.sqrt(shape.mahalanobis2):.1f}, limit {np.sqrt(shape.limit2):.1f}{vol})"
+        )
     return flags
 
 
@@ -404,7 +451,7 @@ def _result(problem: Problem, final, outlines: dict, pose_info: dict, seconds: f
         silhouettes_px=outline_px,
         rejected=[problem.landmarks.names[i] for i in sorted(rejected)],
         view_poses=view_poses,
-        flags=_flags(problem, res, rejected),
+        flags=_flags(problem, res, rejected, outlines),
         timings={
             "total": seconds,
             "iterations": float(sum(r.seconds for r in final.records)),
@@ -413,4 +460,41 @@ def _result(problem: Problem, final, outlines: dict, pose_info: dict, seconds: f
         pose_info=pose_info,
         iterate_vertices=final.iterates,
         landmark_weights=_weights_by_view(problem, weights),
+        noise=_noise_entry(problem, final.noise, weights),
+        outline_coverage={
+            views[i].name: _coverage_entry(outline_coverage(o, problem.targets[i]))
+            for i, o in outlines.items()
+        },
     )
+
+
+def _noise_entry(problem: Problem, groups, weights: np.ndarray) -> dict:
+    """``{"method", "groups": [...], "landmarks": {view: {name: {"sigma_px", "weight"}}}}``:
+    the sigmas the final fit used (estimated or stated) and each landmark's robust weight."""
+    opts, lm = problem.options, problem.landmarks
+    k = np.sqrt(2.0 * opts.landmark_weight * opts.refine_landmark_weight)
+    marks: dict[str, dict[str, dict[str, float]]] = {v.name: {} for v in problem.views}
+    for (view, name), s, w in zip(lm.names, lm.sigma_px / k, weights, strict=True):
+        marks[view][name] = {"sigma_px": float(s), "weight": float(w)}
+    out_groups = [
+        {
+            "kind": g.kind,
+            "view": problem.views[g.view].name,
+            "sigma_px": g.sigma_px,
+            "redundancy": g.redundancy,
+            "observations": g.observations,
+            **({"correlation_px": g.spacing} if g.kind == "outline" else {}),
+        }
+        for g in groups
+    ]
+    return {"method": opts.noise, "groups": out_groups, "landmarks": marks}
+
+
+def _coverage_entry(cov) -> dict:
+    """One view's outline coverage as plain numbers (result.json)."""
+    return {
+        "covered": cov.covered,
+        "sides": list(cov.sides),
+        "one_sided": cov.one_sided,
+        "untraced": cov.untraced_direction or None,
+    }

@@ -36,10 +36,17 @@ from .blunders import (
     weighted_landmark_rays,
 )
 from .gsft import GsftResult
+from .noise import GroupNoise, settled, with_noise
+from .noise import estimate_noise as noise_groups
 from .options import IterationRecord
-from .noise import GroupNoise, estimate_noise as noise_groups, settled, used_sigma, with_noise
 from .outline_fit import OutlineTerm, refine_on_outlines
-from .outline_match import ModelOutline, adaptive_gate, match_outline, outline_distances
+from .outline_match import (
+    ModelOutline,
+    adaptive_gate,
+    contour_sides,
+    match_outline,
+    outline_distances,
+)
 from .problem import Problem, solve, with_pose
 from .rays import RayObservations
 
@@ -369,9 +376,12 @@ def match_outlines(
         lm_rms = float(np.median(np.concatenate(d)))
     gate = max(opts.gate_px, opts.wide_gate_factor * lm_rms) if wide else opts.gate_px
     found = {
-        i: match_outline(outlines[i], t, gate, opts.mutual, opts.max_tangent_angle_deg)
+        i: match_outline(
+            outlines[i], t, gate, opts.mutual, opts.max_tangent_angle_deg,
+            sides=contour_sides(outlines[i], t, gate),
+        )
         for i, t in problem.targets.items()
-    }
+    }  # fmt: skip
     all_d = np.concatenate([f[3] for f in found.values()])
     thr = gate if wide else adaptive_gate(all_d, opts.match_floor_px)
     parts, key = [], []
@@ -621,19 +631,24 @@ def outline_terms(problem: Problem, outlines: dict[int, ModelOutline]) -> list[O
     """The annotated outlines as refinement terms; each view's gate is the adaptive threshold
     of its current outline distances (at most ``gate_px``)."""
     opts = problem.options
-    return [
-        OutlineTerm(
-            problem.views[i].view,
-            t,
-            problem.outline_sigma[i] * np.sqrt(problem.spacing(i)),
-            min(
-                opts.gate_px, adaptive_gate(outline_distances(outlines[i], t), opts.match_floor_px)
-            ),
-            problem.mm_per_px[i],
-            i,
+    terms = []
+    for i, t in problem.targets.items():
+        gate = min(
+            opts.gate_px, adaptive_gate(outline_distances(outlines[i], t), opts.match_floor_px)
         )
-        for i, t in problem.targets.items()
-    ]
+        sides = contour_sides(outlines[i], t, opts.gate_px)
+        terms.append(
+            OutlineTerm(
+                problem.views[i].view,
+                t,
+                problem.outline_sigma[i] * np.sqrt(problem.spacing(i)),
+                gate,
+                problem.mm_per_px[i],
+                i,
+                sides,
+            )
+        )
+    return terms
 
 
 def refine_once(
@@ -677,11 +692,15 @@ def refine_once(
 
 
 class _Recorder:
-    """Appends one "local" record (and its vertices) per accepted refinement step."""
+    """Appends one record (and its vertices) per accepted refinement step, of ``kind``
+    ``"local"`` (the refinement) or ``"noise"`` (a refinement with re-estimated sigmas)."""
 
-    def __init__(self, problem: Problem, records, iterates, certificate: float) -> None:
+    def __init__(
+        self, problem: Problem, records, iterates, certificate: float, kind: str = "local"
+    ) -> None:
         self.problem, self.records, self.iterates = problem, records, iterates
         self.certificate = certificate
+        self.kind = kind
         self.t = time.perf_counter()
 
     def __call__(self, state, objective: float, n_active: int) -> None:
@@ -690,7 +709,7 @@ class _Recorder:
         index = self.records[-1].index + 1
         seconds = time.perf_counter() - self.t
         self.records.append(
-            IterationRecord(index, objective, n_active, self.certificate, seconds, "local")
+            IterationRecord(index, objective, n_active, self.certificate, seconds, self.kind)
         )
         self.t = time.perf_counter()
 
@@ -725,9 +744,10 @@ def refine_final(problem: Problem, run: BoostRun) -> Refined:
             weights = reweight(problem, res.vertices)
     noise: list[GroupNoise] = []
     if problem.options.noise == "estimated":
-        problem, res, weights, noise = estimate_noise(problem, res, weights, record)
+        rec = _Recorder(problem, records, iterates, res.certificate, "noise")
+        problem, res, weights, noise = estimate_noise(problem, res, weights, rec)
     best_index = best.index
-    if records[-1].kind == "local":
+    if records[-1].kind in ("local", "noise"):
         best_index, outlines = records[-1].index, problem.outlines(res)
     return Refined(res, outlines, records, iterates, best_index, weights, problem, noise)
 

@@ -46,6 +46,14 @@ MAX_SCORED = 40
 PROXY_VERTICES = 300
 #: The stand-in score uses at most this many samples of a view's annotated outline.
 PROXY_SAMPLES = 100
+#: Landmark error (pixels) the search allows beyond the best rotation's: clicks on real
+#: radiographs were 10-30 px off the point a model vertex projects to (the anatomical point is
+#: not quite the vertex, the template not quite the patient).
+LANDMARK_ALLOWANCE_PX = 40.0
+#: The landmark rays fix the translation poorly along a direction whose information is below
+#: this fraction of the best one's; the search then also tries these offsets along it (mm).
+WEAK_DEPTH_RATIO = 0.02
+DEPTH_STEPS_MM = (-40.0, -30.0, -20.0, -10.0, 0.0, 10.0, 20.0, 30.0, 40.0)
 #: Rotations refined rigidly on the outlines.
 REFINED = 4
 #: Cap of each squared pixel distance in the search's score (pixels): a start 10 deg off the
@@ -96,22 +104,27 @@ class SearchResult:
 def few_landmarks_centre(views: list[ViewObservations]) -> np.ndarray:
     """Roughly where the bone is (world, mm) from few landmarks: where their rays meet when
     two views see them; with landmarks in one view only (their rays meet at its source),
-    the point of their mean ray nearest to the other views' central rays (the views look at
-    the bone)."""
+    the point of their mean ray nearest to the other views' rays through the middle of their
+    annotated outline (or, without one, through the image centre)."""
     rays = landmark_rays(views)
-    seen = np.unique(rays.view_index)
+    seen = set(np.unique(rays.view_index).tolist())
     if len(seen) >= 2:
         return nearest_point_to_rays(rays.origins, rays.directions)
-    centre_px = [np.array(v.view.image_size, float) / 2 - 0.5 for v in views]
-    others = [v.view.rays(c[None]) for v, c, i in zip(views, centre_px, range(len(views))) if i not in seen]
     d = rays.directions.mean(axis=0)
     d /= np.linalg.norm(d)
     o = rays.origins[0]
-    if not others:  # one view in all: half-way along its rays to the image plane's scale
-        return o + d * float(np.mean([np.linalg.norm(v.view.centre) for v in views if hasattr(v.view, "centre")] or [1000.0]))
-    O = np.vstack([o[None]] + [x[0] for x in others])
-    D = np.vstack([d[None]] + [x[1] for x in others])
-    p = nearest_point_to_rays(O, D)
+    origins, dirs = [o], [d]
+    for i, v in enumerate(views):
+        if i in seen:
+            continue
+        pts = [c.uv for c in v.contours]
+        px = np.vstack(pts).mean(axis=0) if pts else np.array(v.view.image_size, float) / 2
+        oi, di = v.view.rays(px[None])
+        origins.append(oi[0])
+        dirs.append(di[0])
+    if len(origins) == 1:
+        raise ValueError("landmarks: seen in one view only, and no other view to place them")
+    p = nearest_point_to_rays(np.array(origins), np.array(dirs))
     return o + d * max(float((p - o) @ d), 1.0)  # on the landmarks' mean ray, in front
 
 
@@ -164,11 +177,13 @@ def _landmark_errors(problem: Problem, points_world: np.ndarray) -> np.ndarray:
     return err
 
 
-def _outline_score(problem: Problem, vertices: np.ndarray, lm_err: np.ndarray) -> float:
-    """The search's score of posed vertices: mean capped squared pixel distance of the
-    annotated outline samples to the model outline, plus that of the landmark errors."""
+def _outline_score(problem: Problem, vertices: np.ndarray) -> float:
+    """The search's score of posed vertices: the mean capped squared pixel distance of the
+    annotated outline samples to the model outline, summed over the views (the landmarks
+    only admit candidates: their errors on real radiographs are tens of pixels, the
+    outlines' a few)."""
     gate2 = SEARCH_GATE_PX**2
-    score = float(np.mean(np.minimum(lm_err**2, gate2))) if lm_err.size else 0.0
+    score = 0.0
     for i, target in problem.targets.items():
         q = target.points[target.usable]
         e, uv = outline_edges(vertices, problem.views[i].view, problem.model.faces,
@@ -199,7 +214,6 @@ def _refine(problem: Problem, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray,
     :data:`SEARCH_GATE_PX`)."""
     model = problem.model
     rigid = ShapeModel(model.mean, model.modes[:0], faces=model.faces)
-    opts = problem.options
     terms = [
         OutlineTerm(
             problem.views[i].view,
@@ -218,7 +232,7 @@ def _refine(problem: Problem, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray,
     return fit.rotation, fit.translation
 
 
-def _proxy_scores(problem: Problem, Rs, ts, err, cand: np.ndarray) -> np.ndarray:
+def _proxy_scores(problem: Problem, Rs, ts, cand: np.ndarray) -> np.ndarray:
     """A fast stand-in for :func:`_outline_score` of many candidates: the model's outline is
     taken as the convex hull of a few hundred of its projected vertices and the annotated
     outline as at most :data:`PROXY_SAMPLES` of its samples (the rank, not the value,
@@ -232,7 +246,7 @@ def _proxy_scores(problem: Problem, Rs, ts, err, cand: np.ndarray) -> np.ndarray
         targets.append((problem.views[i].view, q[:: max(1, len(q) // PROXY_SAMPLES)]))
     out = np.empty(len(cand))
     for k, j in enumerate(cand):
-        score = float(np.mean(np.minimum(err[j] ** 2, gate2))) if err.shape[1] else 0.0
+        score = 0.0
         posed = sub @ Rs[j].T + ts[j]
         for view, q in targets:
             hull = cv2.convexHull(view.project(posed).astype(np.float32))[:, 0].astype(float)
@@ -252,6 +266,45 @@ def _polygon_distance2(q: np.ndarray, poly: np.ndarray) -> np.ndarray:
     return np.min(np.sum((q[:, None, :] - foot) ** 2, axis=2), axis=1)
 
 
+def _with_depths(problem: Problem, Rs, ts, cand, pts):
+    """The candidates, each also moved along the direction the landmark rays fix worst, when
+    they fix it poorly (landmarks in one view: their rays meet at its source, and the depth
+    along them comes only from the landmarks' spread, which clicks 10-30 px off get wrong by
+    centimetres): :data:`DEPTH_STEPS_MM` offsets. Returns the extended rotations,
+    translations, landmark errors and candidate indices into them."""
+    rays = problem.landmarks.rays
+    P = np.eye(3)[None] - rays.directions[:, :, None] * rays.directions[:, None, :]
+    ev, vec = np.linalg.eigh((P / np.square(rays.sigmas)[:, None, None]).sum(axis=0))
+    if ev[0] >= WEAK_DEPTH_RATIO * ev[-1]:
+        return Rs, ts, _errors(problem, Rs, ts, pts), cand
+    # along the weak direction, about the rough centre's position (the least-squares
+    # translation is biased towards the source: ray distances shrink there)
+    u = vec[:, 0]
+    posed = np.einsum("nab,lb->na", Rs[cand], pts) / len(pts) + ts[cand]  # landmark centroids
+    to_centre = ((problem.centre - posed) @ u)[:, None] * u[None]
+    offsets = np.asarray(DEPTH_STEPS_MM)[:, None] * u[None]  # (D, 3)
+    R2 = np.repeat(Rs[cand], len(offsets), axis=0)
+    t2 = ((ts[cand] + to_centre)[:, None, :] + offsets[None]).reshape(-1, 3)
+    err = _errors(problem, R2, t2, pts)
+    ok = np.isfinite(err).all(axis=1) & _in_front(problem, _posed_corners(problem, R2, t2))
+    return R2, t2, err, np.flatnonzero(ok)
+
+
+def _posed_corners(problem: Problem, Rs, ts) -> np.ndarray:
+    """The mean shape's bounding-box corners posed by each ``(R, t)``: (n, 8, 3)."""
+    lo, hi = problem.model.mean.min(axis=0), problem.model.mean.max(axis=0)
+    box = np.array(
+        [[a, b, c] for a in (lo[0], hi[0]) for b in (lo[1], hi[1]) for c in (lo[2], hi[2])]
+    )
+    return np.einsum("nab,lb->nla", Rs, box) + ts[:, None]
+
+
+def _errors(problem: Problem, Rs, ts, pts) -> np.ndarray:
+    """Landmark errors (n, L), pixels, of the landmark points ``pts`` posed by each ``(R,
+    t)``; infinite where the pose puts a point behind a source."""
+    return _landmark_errors(problem, np.einsum("nab,lb->nla", Rs, pts) + ts[:, None])
+
+
 def search_start(problem: Problem, n_grid: int = GRID_SIZE) -> SearchResult:
     """The start pose of the mean shape from the landmarks and the outlines (module doc).
 
@@ -265,10 +318,7 @@ def search_start(problem: Problem, n_grid: int = GRID_SIZE) -> SearchResult:
     ts = _translations(problem, Rs, pts)
     err = _landmark_errors(problem, np.einsum("nab,lb->nla", Rs, pts) + ts[:, None])
     rms = np.sqrt(np.mean(err**2, axis=1))
-    # the whole mean shape must lie in front of every view (its box's corners)
-    lo, hi = model.mean.min(axis=0), model.mean.max(axis=0)
-    corners = np.array([[a, b, c] for a in (lo[0], hi[0]) for b in (lo[1], hi[1]) for c in (lo[2], hi[2])])
-    rms[~_in_front(problem, np.einsum("nab,lb->nla", Rs, corners) + ts[:, None])] = np.inf
+    rms[~_in_front(problem, _posed_corners(problem, Rs, ts))] = np.inf  # the whole bone in front
     if not np.isfinite(rms).any():
         raise ValueError(
             "landmarks: no pose of the mean shape puts it in front of every view's source at "
@@ -278,20 +328,17 @@ def search_start(problem: Problem, n_grid: int = GRID_SIZE) -> SearchResult:
     # its landmark error grows by up to that angle times the landmarks' lever arm
     spacing = grid_spacing(n_grid)
     lever = float(np.max(np.linalg.norm(pts - pts.mean(axis=0), axis=1)))
-    slack = max(spacing * lever / min(problem.mm_per_px.values()), 5.0)
+    slack = max(spacing * lever / min(problem.mm_per_px.values()), 5.0) + LANDMARK_ALLOWANCE_PX
     cand = np.flatnonzero(rms <= rms.min() + slack)
-    proxy = _proxy_scores(problem, Rs, ts, err, cand)
+    Rs, ts, err, cand = _with_depths(problem, Rs, ts, cand, pts)
+    proxy = _proxy_scores(problem, Rs, ts, cand)
     cand = cand[np.argsort(proxy, kind="stable")][:MAX_SCORED]
-    scores = np.array(
-        [_outline_score(problem, model.mean @ Rs[j].T + ts[j], err[j]) for j in cand]
-    )
+    scores = np.array([_outline_score(problem, model.mean @ Rs[j].T + ts[j]) for j in cand])
     best = _distinct(Rs, cand[np.argsort(scores, kind="stable")], spacing, REFINED)
     results = []
     for j in best:
         R, t = _refine(problem, Rs[j], ts[j])
-        V = model.mean @ R.T + t
-        e = _landmark_errors(problem, V[ids][None])[0]
-        results.append((_outline_score(problem, V, e), R, t))
+        results.append((_outline_score(problem, model.mean @ R.T + t), R, t))
     score, R, t = min(results, key=lambda r: r[0])
     problem.say(
         f"start search: {len(proxy)} of {n_grid} rotations fit the landmarks within "

@@ -32,6 +32,22 @@ FLAG_ADVICE: dict[str, str] = {
         "than the others do and were given weight 0 (landmark_weights in result.json): check "
         "each one's position and name in its view, then fix or delete it and register again."
     ),
+    "landmark disagrees with the outlines": (
+        "This landmark's error stands far out from the others' (4 of their robust sigmas): "
+        "check that the click is on the landmark's anatomical point in that view and that the "
+        "name is right (a point hidden by another bone is better left out), then register "
+        "again."
+    ),
+    "one-sided outline": (
+        "Only one side of the bone is traced in this view, so the other side rests on the "
+        "shape model and the landmarks: trace the other border where it can be seen (even a "
+        "short stretch), or add a landmark on that side."
+    ),
+    "shape outside the model's plausible range": (
+        "The registered shape is further from the model's mean than its population allows "
+        "(weights or volume): look for a traced stretch on the wrong edge or a misplaced "
+        "landmark, check the calibration, and check that the model is for this bone."
+    ),
     "local refinement did not converge": (
         "Raise refine_iterations in [registration] of case.toml and register again; if it "
         "persists, look for contour stretches far from the bone (contour table) and trim them."

@@ -332,10 +332,23 @@ def test_a_single_view_case_says_it_needs_two_views(case, capsys):
 
 
 def test_landmarks_in_one_view_only_say_two_views_are_needed(case, capsys):
-    _edit_json(case / "annotations.json", lambda d: d["views"]["cam2"].update(landmarks={}))
+    """Without outlines; with outlines a start is searched on them (the next test)."""
+
+    def one_view(d):
+        d["views"]["cam2"].update(landmarks={})
+        for v in d["views"].values():
+            v["contours"] = []
+
+    _edit_json(case / "annotations.json", one_view)
     err = _one_line_error(case, capsys)
     assert "[annotations] file: annotations.json: landmarks in 1 view (cam1)" in err
     assert "at least 2 views" in err
+
+
+def test_landmarks_in_one_view_with_outlines_load(case):
+    _edit_json(case / "annotations.json", lambda d: d["views"]["cam2"].update(landmarks={}))
+    loaded = load_case(case)
+    assert not loaded.annotations.views["cam2"].landmarks
 
 
 def test_a_degenerate_template_face_is_named_not_a_landmark_range_error(case, capsys):

@@ -28,8 +28,10 @@ BLUNDER = 2  # view 0's third landmark
 def redundant(model):
     """(clean problem, its landmark start, blunder problem, its landmark start)."""
     views = clean_views(model, 0, landmarks_per_view=PER_VIEW)[0]
-    p = problem_for(model, views)
-    b = problem_for(model, with_blunder(views, 0, BLUNDER))
+    # the screen in the stated sigmas (1 px): the blunder is 40 of them off
+    stated = RegistrationOptions(noise="stated")
+    p = problem_for(model, views, stated)
+    b = problem_for(model, with_blunder(views, 0, BLUNDER), stated)
     return p, landmark_start(p), b, landmark_start(b)
 
 
@@ -52,7 +54,7 @@ def test_suspicious_landmarks_are_the_contradicted_ones_most_suspicious_first(mo
     p, start, b, bstart = redundant
     assert suspicious_landmarks(p, start.result) == []
     assert suspicious_landmarks(b, bstart.result)[0] == BLUNDER
-    wide = problem_for(model, b.views, RegistrationOptions(robust_threshold=1e3))
+    wide = problem_for(model, b.views, RegistrationOptions(robust_threshold=1e3, noise="stated"))
     assert suspicious_landmarks(wide, bstart.result) == []  # nothing beyond the loss's width
 
 

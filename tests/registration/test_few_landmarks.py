@@ -175,13 +175,17 @@ def test_the_outline_search_needs_point_source_views(small):
         register_views(small, [views[0], replace(views[1], view=ortho)], poses="unknown")
 
 
-def test_the_landmark_start_needs_three_different_landmarks(small):
+def test_two_different_landmarks_start_from_the_outlines(small):
+    """4 observations of 2 model points cannot place the bone alone (a rotation about the line
+    through them is free); with outlines the start is searched on them (start_search), and
+    without outlines it is a clear error naming what is missing."""
     views, *_ = _case(small, 0, (2, 2))
     same = [views[0], replace(views[1], landmark_ids=views[0].landmark_ids.copy())]
+    bare = [replace(v, contours=[]) for v in same]
     with pytest.raises(
-        ValueError, match=r"^landmarks: the 4 landmark observations are of 2 model point\(s\)"
+        ValueError, match=r"^landmarks: 4 landmark observation\(s\) of 2 model point\(s\) cannot"
     ):
-        register_views(small, same)
+        register_views(small, bare)
 
 
 def test_refine_without_outlines_states_the_total(small):

@@ -100,7 +100,8 @@ def test_a_fit_whose_landmark_only_start_is_wrong_still_converges(model):
 def test_registration_result_is_the_refined_one(model):
     views, (*_, X) = boosting_case(model, 6, fraction=0.8)
     res = register_views(model, views)
-    assert res.iterations[-1].kind == "local" and res.best_iteration == res.iterations[-1].index
+    assert res.iterations[-1].kind in ("local", "noise")
+    assert res.best_iteration == res.iterations[-1].index
     np.testing.assert_allclose(res.iterate_vertices[-1], res.vertices)
     no_refine = register_views(model, views, options=RegistrationOptions(refine_iterations=0))
     assert _rms(res.vertices, X) < _rms(no_refine.vertices, X)
@@ -138,7 +139,7 @@ def test_boosting_with_other_camera_kinds(model, kind):
         views.append(vertex_landmarks(name, view, ids, view.project(X[ids]), contours))
     base = register_views(model, views, silhouettes=False)
     res = register_views(model, views)
-    assert res.iterations[-1].kind == "local"
+    assert res.iterations[-1].kind in ("local", "noise")  # refined (noise: with estimated sigmas)
     assert _rms(res.vertices, X) < min(0.1, 0.5 * _rms(base.vertices, X))
 
 

@@ -65,6 +65,9 @@ BAD = {
     "joint_outline_sigma_factor": [0.5, 0.0, math.inf, math.nan],
     "unknown_outline_sigma_factor": [0.5, 0.0, math.inf, math.nan],
     "refine_landmark_weight": [0.0, -1.0, math.inf],
+    "noise": ["estimate", "", 1.0],
+    "noise_rounds": [-1, 101, 1.5],
+    "start_landmark_sigma_px": [0.0, -2.0, math.inf, math.nan],
 }
 
 
@@ -103,6 +106,7 @@ COUNT_RANGES = {
     "blunder_refine_iterations": (1, 10_000),
     "consensus_iterations": (1, 1000),
     "rigid_start_redundancy": (0, 10_000),
+    "noise_rounds": (0, 100),
 }
 
 
@@ -164,6 +168,8 @@ def test_every_field_is_in_cases_md_with_its_default(key):
     default = FIELDS[key].default
     if isinstance(default, bool):
         assert found[0] == str(default).lower()
+    elif isinstance(default, str):
+        assert found[0] == f'"{default}"'
     else:
         assert float(found[0]) == pytest.approx(default, rel=1e-12)
 
@@ -177,12 +183,16 @@ def _other_value(key, default):
         return not default
     if isinstance(default, int):
         return default + 1
+    if key == "noise":
+        return "stated" if default == "estimated" else "estimated"
     # these must stay at or above 1
     at_least_one = ("gnc_factor", "joint_outline_sigma_factor", "unknown_outline_sigma_factor")
     return default * (2.0 if key in at_least_one else 0.5)
 
 
 def _toml(value) -> str:
+    if isinstance(value, str):
+        return f'"{value}"'
     return str(value).lower() if isinstance(value, bool) else repr(value)
 
 
@@ -258,7 +268,11 @@ def test_start_certificate_decides_the_start_choice(model, views):
         ({"relaxation_flag_px": 1e-3}, "relaxation not tight", True),
         ({"relaxation_flag_px": 1e6}, "relaxation not tight", False),
         ({}, "large landmark reprojection error", False),
-        ({"reprojection_flag_px": 1e-3}, "large landmark reprojection error", True),
+        (
+            {"reprojection_flag_px": 1e-3, "noise": "stated"},
+            "large landmark reprojection error",
+            True,
+        ),
     ],
 )
 def test_flag_thresholds(model, views, options, flag, present):
@@ -283,8 +297,10 @@ def test_iteration_counts(model, views):
     res = register_views(model, views, options=opts)
     kinds = [r.kind for r in res.iterations]
     assert kinds.count("sdp") <= 3 and 1 <= kinds.count("local") <= 2
+    assert kinds.count("noise") <= 2 * opts.noise_rounds  # refinements with estimated sigmas
     none = register_views(model, views, options=RegistrationOptions(max_iterations=0))
-    assert len(none.iterations) - [r.kind for r in none.iterations].count("local") == 1
+    kinds = [r.kind for r in none.iterations]
+    assert len(kinds) - kinds.count("local") - kinds.count("noise") == 1
 
 
 def test_silhouette_points_caps_the_model_outline(model, views, good_fit):

@@ -58,13 +58,18 @@ def test_predicted_sigmas_combine_clicks_and_truncation(scene):
 
 def test_an_out_of_span_model_keeps_every_good_landmark(scene):
     case = make_realistic_case(6, n_landmarks_per_view=5, scene=scene)
-    res = register_views(scene.model, case.views)
+    stated = RegistrationOptions(noise="stated")  # the landmarks' sigmas as stated (1.5 px)
+    res = register_views(scene.model, case.views, options=stated)
     errors = [e for per_view in res.landmark_errors_px.values() for e in per_view.values()]
     assert max(errors) > 8.0  # good landmarks several clicks' sigmas off: the model's span
     assert res.rejected == []
     assert all(w == 1.0 for pv in res.landmark_weights.values() for w in pv.values())
     # the case matters: without the truncation term the scale from the errors rejects one
-    assert len(register_views(_bare(scene.model), case.views).rejected) == 1
+    assert len(register_views(_bare(scene.model), case.views, options=stated).rejected) == 1
+    # with the noise estimated from the data (the default) every good landmark is kept,
+    # with or without the truncation term: the estimated sigma covers the span's residuals
+    assert register_views(scene.model, case.views).rejected == []
+    assert register_views(_bare(scene.model), case.views).rejected == []
 
 
 def test_a_40_px_blunder_is_dropped_and_the_fit_stays_close_to_the_clean_one(scene):
@@ -131,7 +136,8 @@ def test_a_model_that_understates_its_truncation_error_keeps_its_good_landmarks(
     # span at best, the model's truncation sd 0.44 mm at the median; one good landmark is 13 px
     # off at the fit. With the predicted sigmas alone it was rejected (vertex RMS 1.92 -> 2.92).
     model, views = _out_of_population_case(14)
-    res = register_views(model, views)
+    res = register_views(model, views, options=RegistrationOptions(noise="stated"))
+    assert register_views(model, views).rejected == []  # estimated noise: kept too
     assert model.truncation_sd is not None
     assert max(e for pv in res.landmark_errors_px.values() for e in pv.values()) > 10.0
     assert res.rejected == []
