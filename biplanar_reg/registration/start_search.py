@@ -31,7 +31,7 @@ import numpy as np
 from ..outline import outline_edges
 from ..ssm.model import ShapeModel
 from .gsft import nearest_point_to_rays
-from .observations import ViewObservations, landmark_rays
+from .observations import ViewObservations
 from .outline_fit import OutlineTerm, refine_on_outlines
 from .outline_match import nearest_on_outline
 from .problem import Problem
@@ -106,13 +106,16 @@ def few_landmarks_centre(views: list[ViewObservations]) -> np.ndarray:
     two views see them; with landmarks in one view only (their rays meet at its source),
     the point of their mean ray nearest to the other views' rays through the middle of their
     annotated outline (or, without one, through the image centre)."""
-    rays = landmark_rays(views)
-    seen = set(np.unique(rays.view_index).tolist())
+    seen = {i for i, v in enumerate(views) if len(v.landmark_ids)}
+    org, dirs_lm = zip(
+        *(views[i].view.rays(views[i].landmark_uv) for i in sorted(seen)), strict=True
+    )
+    org, dirs_lm = np.vstack(org), np.vstack(dirs_lm)
     if len(seen) >= 2:
-        return nearest_point_to_rays(rays.origins, rays.directions)
-    d = rays.directions.mean(axis=0)
+        return nearest_point_to_rays(org, dirs_lm)
+    d = dirs_lm.mean(axis=0)
     d /= np.linalg.norm(d)
-    o = rays.origins[0]
+    o = org[0]
     origins, dirs = [o], [d]
     for i, v in enumerate(views):
         if i in seen:

@@ -336,11 +336,21 @@ def _uncertainty_entry(
     }
 
 
-def _landmark_rows(doc: Mapping[str, Any]) -> list[tuple[str, str, float, bool, str]]:
-    """(view, landmark, error px, rejected, CSS class) of every landmark observation."""
+def _landmark_rows(doc: Mapping[str, Any]) -> list[tuple]:
+    """(view, landmark, error px, rejected, CSS class, sigma px or None, weight or None) of
+    every landmark observation; the sigma is the one the final fit gave it (estimated from
+    the data unless the noise was stated), the weight its robust weight."""
     options = doc["registration"].get("options") or {}
     return [
-        (view, name, err, [view, name] in doc["rejected"], _level(err, options))
+        (
+            view,
+            name,
+            err,
+            [view, name] in doc["rejected"],
+            _level(err, options),
+            (v.get("landmark_sigmas_px") or {}).get(name),
+            (v.get("landmark_weights") or {}).get(name),
+        )
         for view, v in doc["views"].items()
         for name, err in v["landmark_errors_px"].items()
     ]
@@ -370,6 +380,7 @@ def _write_html(
         model_from_truth=bool((doc.get("ground_truth") or {}).get("model_from_truth")),
         figures=embedded,
         landmark_rows=_landmark_rows(doc),
+        noise_groups=(doc.get("noise") or {}).get("groups") or [],
         contour_rows=contour_rows,
         thresholds={k: options.get(k) for _, k in _LEVELS},
         iterations=doc["iterations"],
