@@ -20,55 +20,28 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
-import subprocess
-import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
 from playwright.sync_api import sync_playwright
+from workbench_page import CHROMIUM, ROOT, idle, start_workbench, view_to_client
 
-ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "sample_cases" / "wrist_radius"
-CHROMIUM = "/usr/bin/chromium"
 N_ANCHORS = 6
-
-
-def _server(case: Path) -> tuple[subprocess.Popen, str]:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "biplanar_reg.cli", "workbench", str(case), "--no-browser"],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-    )  # fmt: skip
-    for line in proc.stdout:
-        if line.startswith("http://"):
-            threading.Thread(target=lambda: [*proc.stdout], daemon=True).start()
-            return proc, line.strip()
-    raise SystemExit("the workbench printed no URL")
-
-
-def _xy(page, view: str, uv) -> tuple[float, float]:
-    return tuple(page.evaluate("([v, u, w]) => window.workbench.viewToClient(v, u, w)",
-                               [view, float(uv[0]), float(uv[1])]))  # fmt: skip
-
-
-def _idle(page) -> None:
-    page.evaluate("() => window.workbench.idle()")
 
 
 def _landmarks(page, shipped: dict) -> None:
     for view, ann in shipped["views"].items():
         pts = np.array([lm["uv"] for lm in ann["landmarks"].values()])
-        page.mouse.move(*_xy(page, view, pts.mean(axis=0)))
+        page.mouse.move(*view_to_client(page, view, pts.mean(axis=0)))
         page.mouse.wheel(0, -400)
         for name, lm in ann["landmarks"].items():
             page.get_by_test_id(f"landmark-{name}").click()
-            page.mouse.click(*_xy(page, view, lm["uv"]))
-    _idle(page)
+            page.mouse.click(*view_to_client(page, view, lm["uv"]))
+    idle(page)
 
 
 def _trace(page, view: str, uv: np.ndarray) -> None:
@@ -81,10 +54,10 @@ def _trace(page, view: str, uv: np.ndarray) -> None:
     preview = "() => window.workbench.state.tools.outline.trace.preview !== null"
     for i, a in enumerate(anchors):
         if i:
-            page.mouse.move(*_xy(page, view, (anchors[i - 1] + a) / 2), steps=3)
+            page.mouse.move(*view_to_client(page, view, (anchors[i - 1] + a) / 2), steps=3)
             page.wait_for_function(preview)
         page.keyboard.down("Shift")  # an anchor even on top of another contour
-        page.mouse.click(*_xy(page, view, a))
+        page.mouse.click(*view_to_client(page, view, a))
         page.keyboard.up("Shift")
     page.keyboard.press("Enter")
     page.wait_for_function(
@@ -100,7 +73,7 @@ def run_once(browser, shipped: dict) -> dict:
         (case / "annotations.json").write_text(
             json.dumps({"format": "biplanar-reg/annotations@1", "views": {}})
         )
-        proc, url = _server(case)
+        proc, url = start_workbench(case)
         try:
             page = browser.new_page(viewport={"width": 1400, "height": 900})
             page.set_default_timeout(120_000)
@@ -112,7 +85,7 @@ def run_once(browser, shipped: dict) -> dict:
             for view, ann in shipped["views"].items():
                 for c in ann["contours"]:
                     _trace(page, view, np.asarray(c["uv"]))
-            _idle(page)
+            idle(page)
             t1 = time.perf_counter()
             page.get_by_test_id("register").click()
             page.wait_for_selector("[data-testid=register-panel][data-state='done']",

@@ -17,36 +17,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
-import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import numpy as np
 from playwright.sync_api import sync_playwright
 
-ROOT = Path(__file__).resolve().parents[2]
-CHROMIUM = "/usr/bin/chromium"
-
-
-def _server(case: Path) -> tuple[subprocess.Popen, str]:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "biplanar_reg.cli", "workbench", str(case), "--no-browser"],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-    )  # fmt: skip
-    for line in proc.stdout:
-        if line.startswith("http://"):
-            threading.Thread(target=lambda: [*proc.stdout], daemon=True).start()
-            return proc, line.strip()
-    raise SystemExit("the workbench printed no URL")
-
-
-def _xy(page, view: str, uv) -> tuple[float, float]:
-    return tuple(page.evaluate("([v, u, w]) => window.workbench.viewToClient(v, u, w)",
-                               [view, float(uv[0]), float(uv[1])]))  # fmt: skip
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/workbench_page.py
+from workbench_page import CHROMIUM, idle, start_workbench, view_to_client  # noqa: E402
 
 
 def _frame(page, view: str, pts: np.ndarray, margin: float) -> None:
@@ -65,8 +44,8 @@ def _landmarks(page, session: dict) -> None:
         _frame(page, view, pts, 60.0)
         for name, uv in marks.items():
             page.get_by_test_id(f"landmark-{name}").click()
-            page.mouse.click(*_xy(page, view, uv))
-            page.evaluate("() => window.workbench.idle()")
+            page.mouse.click(*view_to_client(page, view, uv))
+            idle(page)
 
 
 def _trace(page, view: str, anchors: np.ndarray) -> None:
@@ -76,10 +55,10 @@ def _trace(page, view: str, anchors: np.ndarray) -> None:
     preview = "() => window.workbench.state.tools.outline.trace.preview !== null"
     for i, a in enumerate(anchors):
         if i:
-            page.mouse.move(*_xy(page, view, (anchors[i - 1] + a) / 2), steps=3)
+            page.mouse.move(*view_to_client(page, view, (anchors[i - 1] + a) / 2), steps=3)
             page.wait_for_function(preview)
         page.keyboard.down("Shift")  # an anchor even on top of another contour
-        page.mouse.click(*_xy(page, view, a))
+        page.mouse.click(*view_to_client(page, view, a))
         page.keyboard.up("Shift")
     page.keyboard.press("Enter")
     page.wait_for_function(
@@ -90,7 +69,7 @@ def _trace(page, view: str, anchors: np.ndarray) -> None:
 
 def annotate(session: dict, case: Path, screenshots: Path | None = None) -> dict:
     """Run ``session`` through the workbench on ``case``; return the saved annotations."""
-    proc, url = _server(case)
+    proc, url = start_workbench(case)
     try:
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
@@ -103,7 +82,7 @@ def annotate(session: dict, case: Path, screenshots: Path | None = None) -> dict
             for view, contours in session["contours"].items():
                 for anchors in contours:
                     _trace(page, view, np.asarray(anchors, dtype=float))
-            page.evaluate("() => window.workbench.idle()")
+            idle(page)
             if screenshots is not None:
                 screenshots.mkdir(parents=True, exist_ok=True)
                 for view in session["contours"]:

@@ -84,7 +84,7 @@ class GroupNoise:
     spacing: float = 1.0
 
 
-def estimate_noise(problem: Problem, result, weights: np.ndarray | None) -> list[GroupNoise]:
+def group_noise(problem: Problem, result, weights: np.ndarray | None) -> list[GroupNoise]:
     """Every group's sigma at the fit ``result`` (module doc).
 
     Parameters
@@ -119,7 +119,7 @@ def estimate_noise(problem: Problem, result, weights: np.ndarray | None) -> list
         px[: len(lm_view)] *= np.repeat(scale, 2)
     spacing = {}
     for g, i in outline_groups:
-        px[lin.group == g] *= _outline_px(problem, i)
+        px[lin.group == g] *= problem.outline_sigma_px(i)
         spacing[i] = max(opts.contour_spacing_px, correlation_length(px[lin.group == g]))
     h = _leverages(problem, lin, outline_groups, spacing)
     groups = []
@@ -173,16 +173,6 @@ def _terms(problem: Problem, result) -> tuple[list[OutlineTerm], list[int]]:
     return terms, views
 
 
-def _outline_weight(problem: Problem) -> float:
-    """``sqrt(2 (1 - landmark_weight))``: the outline sigma in mm is the pixel sigma over this."""
-    return float(np.sqrt(2.0 * max(1.0 - problem.options.landmark_weight, 1e-12)))
-
-
-def _outline_px(problem: Problem, view: int) -> float:
-    """The outline sigma of view ``view`` in pixels (one sample)."""
-    return problem.outline_sigma[view] / problem.mm_per_px[view] * _outline_weight(problem)
-
-
 def with_noise(problem: Problem, groups: list[GroupNoise]) -> Problem:
     """``problem`` with the groups' estimated sigmas (landmarks: their stated ratios kept)
     and outline spacings."""
@@ -197,7 +187,7 @@ def with_noise(problem: Problem, groups: list[GroupNoise]) -> Problem:
             sig_mm[sel] *= new / sig_px[sel]
             sig_px[sel] = new
         else:
-            outline_sigma[g.view] *= g.sigma_px / _outline_px(problem, g.view)
+            outline_sigma[g.view] *= g.sigma_px / problem.outline_sigma_px(g.view)
             spacing[g.view] = g.spacing
     landmarks = replace(lm, rays=lm.rays.with_sigmas(sig_mm), sigma_px=sig_px) if len(lm) else lm
     return replace(
@@ -220,7 +210,7 @@ def used_sigma(problem: Problem, g: GroupNoise) -> float:
     """The sigma (px) ``problem`` uses for group ``g``, on :attr:`GroupNoise.sigma_px`'s scale
     (a view's landmarks all have it times their stated ratio)."""
     if g.kind == "outline":
-        return _outline_px(problem, g.view)
+        return problem.outline_sigma_px(g.view)
     lm = problem.landmarks
     i = int(np.flatnonzero(lm.rays.view_index == g.view)[0])
     return float(lm.sigma_px[i] / lm.ratios()[i])

@@ -129,6 +129,12 @@ class Problem:
     outline_spacing: dict[int, float] = field(default_factory=dict)
     centre: np.ndarray | None = None  # where the bone roughly is (world, mm)
 
+    def outline_sigma_px(self, view: int) -> float:
+        """View ``view``'s outline sigma of one sample in pixels (``outline_sigma`` is in mm and
+        weighted by ``1 - landmark_weight``)."""
+        w_out = np.sqrt(2.0 * max(1.0 - self.options.landmark_weight, 1e-12))
+        return self.outline_sigma[view] / self.mm_per_px[view] * w_out
+
     def spacing(self, view: int) -> float:
         """The spacing (px) at which view ``view``'s outline samples count as independent."""
         return self.outline_spacing.get(view, self.options.contour_spacing_px)

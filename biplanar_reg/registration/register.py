@@ -21,6 +21,7 @@ from ..outline import chain_edges
 from ..ssm.model import ShapeModel
 from .blunders import rejected_landmarks
 from .gsft import GsftResult
+from .noise import used_sigma
 from .observations import ViewObservations
 from .options import IterationRecord, RegistrationOptions
 from .outline_match import outline_distances
@@ -480,7 +481,7 @@ def _noise_entry(problem: Problem, groups, weights: np.ndarray) -> dict:
         {
             "kind": g.kind,
             "view": problem.views[g.view].name,
-            "sigma_px": g.sigma_px,
+            "sigma_px": used_sigma(problem, g),  # the sigma the final fit used
             "redundancy": g.redundancy,
             "observations": g.observations,
             **({"correlation_px": g.spacing} if g.kind == "outline" else {}),

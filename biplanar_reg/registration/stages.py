@@ -36,8 +36,7 @@ from .blunders import (
     weighted_landmark_rays,
 )
 from .gsft import GsftResult
-from .noise import GroupNoise, settled, with_noise
-from .noise import estimate_noise as noise_groups
+from .noise import GroupNoise, group_noise, settled, with_noise
 from .options import IterationRecord
 from .outline_fit import OutlineTerm, refine_on_outlines
 from .outline_match import (
@@ -764,7 +763,7 @@ def estimate_noise(problem: Problem, result: GsftResult, weights: np.ndarray | N
     opts = problem.options
     groups: list[GroupNoise] = []
     for _ in range(opts.noise_rounds + 1):
-        groups = noise_groups(problem, result, weights)
+        groups = group_noise(problem, result, weights)
         if not groups or settled(problem, groups, NOISE_TOL):
             break
         problem = with_noise(problem, groups)

@@ -8,15 +8,22 @@ decide what the landmarks leave open. The search (:func:`search_start`):
 
 1. every rotation of a near-uniform grid on SO(3) (:func:`rotation_grid`, super-Fibonacci
    spirals, Alexa 2022), the mean shape's translation for it by least squares on the landmark
-   rays (closed form), and its landmark reprojection error;
-2. the rotations whose landmark error is within what the grid's spacing explains of the best
-   one (a rotation of the grid is up to half a spacing from the family the landmarks allow;
-   at most ``MAX_SCORED`` of them) are scored on the outlines: the mean of the squared
+   rays (closed form), and its landmark reprojection error; rotations that put the bone
+   behind a view's source are dropped;
+2. the rotations whose landmark error is within ``LANDMARK_ALLOWANCE_PX`` plus what the grid's
+   spacing explains of the best one's (a grid rotation is up to half a spacing from the family
+   the landmarks allow) are kept; when the landmark rays fix the translation poorly along one
+   direction (landmarks in one view: their rays meet at its source), each is also moved along
+   it about where the other views' outlines place the bone (``DEPTH_STEPS_MM``);
+3. all of them are scored by a fast stand-in (:func:`_proxy_scores`: the convex hull of a few
+   hundred projected vertices against a subsample of the annotated outline), the best
+   ``MAX_SCORED`` by the outline itself (:func:`_outline_score`: the mean of the squared
    distances of the annotated outline samples to the posed mean shape's outline, each capped
-   at ``SEARCH_GATE_PX``, plus the landmarks' capped squared errors (pixels);
-3. the best few, a grid spacing apart, are refined rigidly on landmarks and outlines
+   at ``SEARCH_GATE_PX``; the landmarks only admit candidates, their errors on real
+   radiographs being tens of pixels);
+4. the best ``REFINED``, a grid spacing apart, are refined rigidly on landmarks and outlines
    (:func:`.outline_fit.refine_on_outlines` with the modes left out) and the one with the
-   lowest score after refinement is the start.
+   lowest outline score after refinement is the start.
 
 Frames and units: world frame of the views, mm; image quantities in pixels.
 """
@@ -129,13 +136,6 @@ def few_landmarks_centre(views: list[ViewObservations]) -> np.ndarray:
         raise ValueError("landmarks: seen in one view only, and no other view to place them")
     p = nearest_point_to_rays(np.array(origins), np.array(dirs))
     return o + d * max(float((p - o) @ d), 1.0)  # on the landmarks' mean ray, in front
-
-
-def landmarks_fix_pose(problem: Problem) -> bool:
-    """Whether the landmarks alone fix the rigid pose: observations of at least 3 distinct
-    model points, 4 in all (what the landmark-only G-SfT needs)."""
-    ids = problem.landmarks.rays.vertex_ids
-    return len(ids) >= 4 and len(np.unique(ids)) >= 3
 
 
 def _translations(problem: Problem, rotations: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -273,13 +273,13 @@ def _with_depths(problem: Problem, Rs, ts, cand, pts):
     """The candidates, each also moved along the direction the landmark rays fix worst, when
     they fix it poorly (landmarks in one view: their rays meet at its source, and the depth
     along them comes only from the landmarks' spread, which clicks 10-30 px off get wrong by
-    centimetres): :data:`DEPTH_STEPS_MM` offsets. Returns the extended rotations,
-    translations, landmark errors and candidate indices into them."""
+    centimetres): :data:`DEPTH_STEPS_MM` offsets. Returns the extended rotations and
+    translations and the candidate indices into them."""
     rays = problem.landmarks.rays
     P = np.eye(3)[None] - rays.directions[:, :, None] * rays.directions[:, None, :]
     ev, vec = np.linalg.eigh((P / np.square(rays.sigmas)[:, None, None]).sum(axis=0))
     if ev[0] >= WEAK_DEPTH_RATIO * ev[-1]:
-        return Rs, ts, _errors(problem, Rs, ts, pts), cand
+        return Rs, ts, cand
     # along the weak direction, about the rough centre's position (the least-squares
     # translation is biased towards the source: ray distances shrink there)
     u = vec[:, 0]
@@ -290,7 +290,7 @@ def _with_depths(problem: Problem, Rs, ts, cand, pts):
     t2 = ((ts[cand] + to_centre)[:, None, :] + offsets[None]).reshape(-1, 3)
     err = _errors(problem, R2, t2, pts)
     ok = np.isfinite(err).all(axis=1) & _in_front(problem, _posed_corners(problem, R2, t2))
-    return R2, t2, err, np.flatnonzero(ok)
+    return R2, t2, np.flatnonzero(ok)
 
 
 def _posed_corners(problem: Problem, Rs, ts) -> np.ndarray:
@@ -319,7 +319,7 @@ def search_start(problem: Problem, n_grid: int = GRID_SIZE) -> SearchResult:
     pts = model.mean[ids]
     Rs = rotation_grid(n_grid)
     ts = _translations(problem, Rs, pts)
-    err = _landmark_errors(problem, np.einsum("nab,lb->nla", Rs, pts) + ts[:, None])
+    err = _errors(problem, Rs, ts, pts)
     rms = np.sqrt(np.mean(err**2, axis=1))
     rms[~_in_front(problem, _posed_corners(problem, Rs, ts))] = np.inf  # the whole bone in front
     if not np.isfinite(rms).any():
@@ -333,7 +333,7 @@ def search_start(problem: Problem, n_grid: int = GRID_SIZE) -> SearchResult:
     lever = float(np.max(np.linalg.norm(pts - pts.mean(axis=0), axis=1)))
     slack = max(spacing * lever / min(problem.mm_per_px.values()), 5.0) + LANDMARK_ALLOWANCE_PX
     cand = np.flatnonzero(rms <= rms.min() + slack)
-    Rs, ts, err, cand = _with_depths(problem, Rs, ts, cand, pts)
+    Rs, ts, cand = _with_depths(problem, Rs, ts, cand, pts)
     proxy = _proxy_scores(problem, Rs, ts, cand)
     cand = cand[np.argsort(proxy, kind="stable")][:MAX_SCORED]
     scores = np.array([_outline_score(problem, model.mean @ Rs[j].T + ts[j]) for j in cand])

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy import sparse
-from scipy.sparse.csgraph import connected_components
 
 __all__: list[str] = []
 
@@ -35,6 +33,10 @@ def count_components(n_vertices: int, faces: np.ndarray) -> int:
     f = np.asarray(faces, dtype=np.int64)
     rows = np.concatenate([f[:, 0], f[:, 1], f[:, 2]])
     cols = np.concatenate([f[:, 1], f[:, 2], f[:, 0]])
+    # imported here: the registration uses signed_volume without loading scipy.sparse
+    from scipy import sparse
+    from scipy.sparse.csgraph import connected_components
+
     graph = sparse.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_vertices, n_vertices))
     _, labels = connected_components(graph, directed=False)
     return len(np.unique(labels[np.unique(f)]))

@@ -18,7 +18,7 @@ from biplanar_reg.registration.quality import (
     outline_coverage,
     shape_plausibility,
 )
-from biplanar_reg.simulate import biplanar_views, boosting_case, vertex_landmarks
+from biplanar_reg.simulate import boosting_case, vertex_landmarks
 
 
 def _rms(a, b) -> float:
@@ -155,8 +155,3 @@ def test_outline_coverage_counts_the_sides(model, scene):
     one = outline_coverage(o, prepare_outline(v.contours[:1]))
     assert min(full.sides) > 0.5 and not full.one_sided
     assert one.one_sided and one.untraced_direction in ("left", "right", "top", "bottom")
-
-
-def test_views_of_the_scene_are_the_biplanar_ones(scene):
-    both, *_ = scene
-    assert [v.name for v in both] == [v.name for v in biplanar_views(75.0)]

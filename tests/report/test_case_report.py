@@ -272,3 +272,23 @@ def test_page_says_when_the_model_was_built_from_the_ground_truth(no_truth, tmp_
         assert ("The model was built from this ground truth" in html) is from_truth
         assert "baseline: the mean shape alone, rigidly aligned, vertex RMS" in html
         assert '<td>vertex RMS error / model floor</td><td class="num">3.2</td>' in html
+
+
+def test_landmark_table_shows_each_landmarks_sigma_and_weight(no_truth):
+    """The report's landmark table: each landmark's sigma in the final fit and its robust
+    weight (result.json ``views.<view>.landmark_sigmas_px`` / ``landmark_weights``), and the
+    estimated noise of each group."""
+    _, out, doc = no_truth
+    html = (out / "report.html").read_text()
+    assert "<th>sigma (px)</th><th>weight</th>" in html
+    for view, v in doc["views"].items():
+        assert set(v["landmark_sigmas_px"]) == set(v["landmark_errors_px"])
+        for name, sigma in v["landmark_sigmas_px"].items():
+            weight = v["landmark_weights"][name]
+            row = f"<td>{view}</td><td>{name}</td>" + re.search(
+                rf"<td>{view}</td><td>{name}</td>(.*?)</tr>", html
+            ).group(1)
+            assert f"{sigma:.2f}" in row and f"{weight:.2g}" in row
+    groups = doc["noise"]["groups"]
+    assert doc["noise"]["method"] == "estimated" and groups
+    assert f"landmarks {groups[0]['view']} {groups[0]['sigma_px']:.2g} px" in html
