@@ -1,0 +1,890 @@
+"""A plain non-convex baseline (landmark PnP start + ICP-style silhouette fit), beside the pipeline.
+
+    python benchmarks/nonconvex_baseline.py [--seeds 8]
+        [--out benchmarks/results/nonconvex_baseline.md] [--no-wrist] [--from-json RUN.json]
+
+The baseline (:func:`fit_baseline`) is the straightforward local fit of an SSM to landmark
+clicks and traced outlines in calibrated views, as in Baka et al. 2011 and Zheng et al. 2009:
+none of the pipeline's registration stages (no convex relaxation, no robust landmark weights,
+no noise estimate). It uses the package's geometry only: the views' projection
+(:mod:`biplanar_reg.calibration`), the model (:class:`biplanar_reg.ssm.ShapeModel`) and the
+mesh outline (:func:`biplanar_reg.outline.mesh_outline`).
+
+1. **Start** (:func:`landmark_starts`): the rigid pose of the mean shape that minimises the
+   landmark reprojection error over all views (known view poses), by Levenberg-Marquardt from
+   the 24 axis-aligned rotations, placed at the point triangulated from the views' annotation
+   centres. Distinct solutions are ranked by the objective of step 2 (the landmarks plus the
+   truncated outline distances), the best ``n_starts`` are fitted, and the fit with the lowest
+   final objective is kept (with fewer than 3 landmarks the landmarks do not fix the pose, and
+   the outlines then choose).
+2. **Alternation** (:func:`fit_from`): project the current instance, take its outer occluding
+   contour per view, find for every annotated outline point (resampled every
+   ``outline_spacing_px``) the nearest point on the model outline, drop the worst
+   ``trim_fraction`` of each view and anything beyond the gate (``max(gate_px, gate_factor x
+   median distance)``), then solve least squares over the pose (rotation vector about the
+   mean's centroid, translation) and the SSM weights (standard-deviation units, prior
+   ``sum w^2``) on the landmark residuals (each divided by its stated click sigma) and the
+   outline residuals (point-to-outline-normal by default, or point-to-point; a fixed outline
+   sigma of ``outline_sigma_px`` = 2 px) with those correspondences fixed; repeat until the
+   correspondences settle or the instance moves less than ``tol_mm`` (``max_iterations`` at
+   most).
+
+The benchmark (:func:`main`) runs the baseline and the pipeline
+(:func:`biplanar_reg.registration.register_views`, default options, known poses) on the same
+inputs: the realistic synthetic cases of ``benchmarks/realistic.py`` (conditions known-3,
+known-5, blunder-3, known-3+2; truth in the world frame) and the real wrist cases of
+``benchmarks/real_wrist.py`` as annotated (radius and ulna, annotators a and b, the ``ct`` and
+``deformed`` templates; truth up to pose, so aligned RMS only). It writes a markdown table and
+the raw records (``.json``) beside it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from biplanar_reg.calibration.views import View
+from biplanar_reg.outline import HalfEdges, half_edges, mesh_outline
+from biplanar_reg.ssm import ShapeModel
+
+if TYPE_CHECKING:  # the input container only; no registration stage is used
+    from biplanar_reg.registration import ViewObservations
+
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / "benchmarks" / "results"
+
+
+# -- options and results --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class BaselineOptions:
+    """Settings of :func:`fit_baseline` (pixels unless stated).
+
+    Attributes
+    ----------
+    outline_sigma_px : float
+        Fixed sigma of an outline residual (the same for every view and point).
+    outline_spacing_px : float
+        Arc-length spacing at which the annotated outlines are resampled.
+    trim_fraction : float
+        Fraction of each view's correspondences dropped (the farthest).
+    gate_px, gate_factor : float
+        Correspondences farther than ``max(gate_px, gate_factor * median distance)`` are
+        dropped; ``gate_px`` also truncates the outline term of :func:`objective`.
+    metric : {"normal", "point"}
+        Outline residual: the distance along the model outline's normal (1 per point) or the
+        2-D point-to-point difference (2 per point).
+    max_iterations : int
+        Correspondence updates at most per start.
+    tol_mm : float
+        Stop when no vertex moves more than this between updates (mm).
+    n_starts : int
+        Start poses fitted (the best by :func:`objective` after the landmark start).
+    """
+
+    outline_sigma_px: float = 2.0
+    outline_spacing_px: float = 4.0
+    trim_fraction: float = 0.2
+    gate_px: float = 20.0
+    gate_factor: float = 3.0
+    metric: str = "normal"
+    max_iterations: int = 20
+    tol_mm: float = 1e-3
+    n_starts: int = 3
+
+
+@dataclass(frozen=True)
+class Observed:
+    """The annotations of all views, flattened.
+
+    Attributes
+    ----------
+    views : list of View
+        Calibrated views (world frame, mm).
+    lm_view : (L,) int array
+        View index of each landmark observation.
+    lm_ids : (L,) int array
+        Model vertex id of each landmark observation.
+    lm_uv : (L, 2) array
+        Clicked pixels ``(u, v)``.
+    lm_sigma : (L,) array
+        Stated click sigma of each landmark, pixels.
+    outline_uv : list of (P_x, 2) arrays
+        Annotated outline points of each view, resampled, pixels.
+    """
+
+    views: list[View]
+    lm_view: np.ndarray
+    lm_ids: np.ndarray
+    lm_uv: np.ndarray
+    lm_sigma: np.ndarray
+    outline_uv: list[np.ndarray]
+
+
+@dataclass(frozen=True)
+class Correspondences:
+    """Annotated outline points of one view paired with points on the model outline.
+
+    Attributes
+    ----------
+    a, b : (K,) int arrays
+        Vertex ids of the model-outline edge holding each paired point.
+    s : (K,) array
+        Position on the edge, in [0, 1] (the point is ``(1 - s) X_a + s X_b``).
+    uv : (K, 2) array
+        Annotated points, pixels.
+    normal : (K, 2) array
+        Unit normal of the model outline's edge in the image.
+    dist : (K,) array
+        Distance annotated point - model outline, pixels.
+    keep : (K,) bool array
+        Kept after trimming and gating.
+    """
+
+    a: np.ndarray
+    b: np.ndarray
+    s: np.ndarray
+    uv: np.ndarray
+    normal: np.ndarray
+    dist: np.ndarray
+    keep: np.ndarray
+
+
+@dataclass(frozen=True)
+class Pose:
+    """A rigid pose about the mean's centroid ``c``: ``X = R (S - c) + c + t`` (mm)."""
+
+    R: np.ndarray
+    t: np.ndarray
+
+
+@dataclass
+class BaselineResult:
+    """Outcome of :func:`fit_baseline`.
+
+    Attributes
+    ----------
+    vertices : (N, 3) array
+        Registered instance in the world frame, mm.
+    rotation, translation : (3, 3) array, (3,) array
+        Model-to-world pose: ``vertices = model.instance(weights) @ rotation.T + translation``.
+    weights : (M,) array
+        SSM weights, standard deviations.
+    objective : float
+        :func:`objective` of the result.
+    iterations : int
+        Correspondence updates of the kept start.
+    settled : bool
+        Whether the kept start stopped before ``max_iterations``.
+    n_candidates : int
+        Distinct landmark starts found (before keeping ``n_starts``).
+    start_objectives : list of float
+        Final objective of every start fitted.
+    """
+
+    vertices: np.ndarray
+    rotation: np.ndarray
+    translation: np.ndarray
+    weights: np.ndarray
+    objective: float
+    iterations: int
+    settled: bool
+    n_candidates: int
+    start_objectives: list[float] = field(default_factory=list)
+
+
+# -- inputs ---------------------------------------------------------------------------------------
+def resample(uv: np.ndarray, spacing: float) -> np.ndarray:
+    """Points every ``spacing`` (arc length, pixels) along a polyline ``uv`` (K, 2), both ends
+    included."""
+    seg = np.linalg.norm(np.diff(uv, axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(seg)])
+    if arc[-1] <= 0:
+        return uv[:1].copy()
+    n = max(int(np.ceil(arc[-1] / spacing)), 1) + 1
+    at = np.linspace(0.0, arc[-1], n)
+    return np.column_stack([np.interp(at, arc, uv[:, 0]), np.interp(at, arc, uv[:, 1])])
+
+
+def gather(views: Sequence[ViewObservations], spacing: float) -> Observed:
+    """Flatten the views' landmarks and outlines (outlines resampled every ``spacing`` px).
+
+    ``views``: objects with ``view``, ``landmark_ids``, ``landmark_uv``,
+    ``landmark_sigma_px`` and ``contours`` (each with ``uv``), e.g.
+    :class:`biplanar_reg.registration.ViewObservations`.
+    """
+    lm_view = [np.full(len(o.landmark_ids), x) for x, o in enumerate(views)]
+    outlines = []
+    for o in views:
+        pts = [resample(np.asarray(c.uv, float), spacing) for c in o.contours]
+        outlines.append(np.vstack(pts) if pts else np.zeros((0, 2)))
+    return Observed(
+        views=[o.view for o in views],
+        lm_view=np.concatenate(lm_view).astype(int),
+        lm_ids=np.concatenate([o.landmark_ids for o in views]).astype(int),
+        lm_uv=np.vstack([np.reshape(o.landmark_uv, (-1, 2)) for o in views]),
+        lm_sigma=np.concatenate([o.landmark_sigma_px for o in views]).astype(float),
+        outline_uv=outlines,
+    )
+
+
+# -- geometry -------------------------------------------------------------------------------------
+def posed(S: np.ndarray, pose: Pose, c: np.ndarray) -> np.ndarray:
+    """Model-frame points ``S`` (K, 3) moved by ``pose`` about the centroid ``c``: world, mm."""
+    return (S - c) @ pose.R.T + c + pose.t
+
+
+def nearest_on_segments(
+    p: np.ndarray, A: np.ndarray, B: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Nearest point on a set of 2-D segments for each query point.
+
+    Parameters
+    ----------
+    p : (P, 2) array
+        Query points, pixels.
+    A, B : (C, 2) arrays
+        Segment ends, pixels.
+
+    Returns
+    -------
+    index : (P,) int array
+        Segment of the nearest point.
+    s : (P,) array
+        Its position on the segment, in [0, 1] from ``A`` to ``B``.
+    dist : (P,) array
+        Distance to it, pixels.
+    """
+    AB = B - A
+    L2 = np.maximum(np.sum(AB * AB, axis=1), 1e-12)
+    rel = p[:, None, :] - A[None, :, :]
+    s = np.clip(np.einsum("pcj,cj->pc", rel, AB) / L2, 0.0, 1.0)
+    d2 = np.sum((rel - s[..., None] * AB) ** 2, axis=2)
+    index = np.argmin(d2, axis=1)
+    rows = np.arange(len(p))
+    return index, s[rows, index], np.sqrt(d2[rows, index])
+
+
+def trim(dist: np.ndarray, opts: BaselineOptions) -> np.ndarray:
+    """Kept correspondences (bool mask): not among the farthest ``trim_fraction`` and within
+    the gate ``max(gate_px, gate_factor * median)`` (pixels)."""
+    if len(dist) == 0:
+        return np.zeros(0, dtype=bool)
+    gate = max(opts.gate_px, opts.gate_factor * float(np.median(dist)))
+    cut = np.quantile(dist, 1.0 - opts.trim_fraction)
+    return (dist <= cut) & (dist <= gate)
+
+
+def correspondences(
+    X: np.ndarray,
+    faces: np.ndarray,
+    topology: HalfEdges,
+    view: View,
+    points: np.ndarray,
+    opts: BaselineOptions,
+) -> Correspondences | None:
+    """Pair annotated outline ``points`` (P, 2) px with the nearest point of the outline of the
+    mesh ``X`` (N, 3) mm in ``view``; None when either is empty."""
+    edges, uv = mesh_outline(X, faces, view, topology)
+    if len(points) == 0 or len(edges) == 0:
+        return None
+    A, B = uv[edges[:, 0]], uv[edges[:, 1]]
+    k, s, dist = nearest_on_segments(points, A, B)
+    d = B[k] - A[k]
+    normal = np.column_stack([-d[:, 1], d[:, 0]]) / np.maximum(
+        np.linalg.norm(d, axis=1, keepdims=True), 1e-12
+    )
+    a, b = edges[k, 0], edges[k, 1]
+    return Correspondences(a, b, s, points, normal, dist, trim(dist, opts))
+
+
+# -- least squares with frozen correspondences ----------------------------------------------------
+@dataclass(frozen=True)
+class _Block:
+    """Residuals of one view: points ``(1 - s) X_a + s X_b`` against pixels ``uv``, divided by
+    ``sigma``; ``normal`` (K, 2) projects the difference on the outline's normal (None: 2-D)."""
+
+    view: View
+    a: np.ndarray
+    b: np.ndarray
+    s: np.ndarray
+    uv: np.ndarray
+    sigma: np.ndarray
+    normal: np.ndarray | None = None
+
+
+def landmark_blocks(obs: Observed) -> list[_Block]:
+    """One 2-D residual block per view with landmarks (each over its click sigma)."""
+    out = []
+    for x, view in enumerate(obs.views):
+        m = obs.lm_view == x
+        if np.any(m):
+            ids = obs.lm_ids[m]
+            s = np.zeros(len(ids))
+            out.append(_Block(view, ids, ids, s, obs.lm_uv[m], obs.lm_sigma[m]))
+    return out
+
+
+def outline_blocks(
+    corr: Sequence[Correspondences | None], views: Sequence[View], opts: BaselineOptions
+) -> list[_Block]:
+    """One residual block per view from its kept outline correspondences (fixed sigma)."""
+    out = []
+    for c, view in zip(corr, views, strict=True):
+        if c is None or not np.any(c.keep):
+            continue
+        k = c.keep
+        normal = c.normal[k] if opts.metric == "normal" else None
+        sigma = np.full(int(k.sum()), opts.outline_sigma_px)
+        out.append(_Block(view, c.a[k], c.b[k], c.s[k], c.uv[k], sigma, normal))
+    return out
+
+
+def _residuals(
+    p: np.ndarray, model: ShapeModel, blocks: list[_Block], pose: Pose, c: np.ndarray, shape: bool
+) -> np.ndarray:
+    """Residual vector at ``p`` = (rotation vector applied before ``pose.R``, translation
+    added to ``pose.t`` (mm), SSM weights (SD) if ``shape``); the weights are their own prior
+    residuals."""
+    R = Rotation.from_rotvec(p[:3]).as_matrix() @ pose.R
+    w = p[6:] if shape else np.zeros(0)
+    out = []
+    for blk in blocks:
+        ids = np.concatenate([blk.a, blk.b])
+        S = model.mean[ids]
+        if len(w):
+            S = S + np.tensordot(w, model.modes[:, ids], axes=1)
+        X = posed(S, Pose(R, pose.t + p[3:6]), c)
+        n = len(blk.a)
+        Xq = X[:n] + blk.s[:, None] * (X[n:] - X[:n])
+        d = blk.view.project(Xq) - blk.uv
+        r = d / blk.sigma[:, None] if blk.normal is None else np.sum(d * blk.normal, 1) / blk.sigma
+        out.append(r.ravel())
+    out.append(w)
+    return np.concatenate(out)
+
+
+def solve(
+    model: ShapeModel,
+    blocks: list[_Block],
+    pose: Pose,
+    c: np.ndarray,
+    w0: np.ndarray | None,
+) -> tuple[Pose, np.ndarray]:
+    """Least squares over the pose update and (unless ``w0`` is None) the SSM weights.
+
+    Returns the new pose and weights (zeros of length 0 for a pose-only solve).
+    """
+    shape = w0 is not None
+    p0 = np.concatenate([np.zeros(6), w0 if shape else []])
+    n_res = sum(len(b.a) * (1 if b.normal is not None else 2) for b in blocks)
+    method = "lm" if n_res + (len(w0) if shape else 0) >= len(p0) else "trf"
+    sol = least_squares(
+        _residuals, p0, args=(model, blocks, pose, c, shape), method=method, x_scale="jac"
+    )
+    R = Rotation.from_rotvec(sol.x[:3]).as_matrix() @ pose.R
+    return Pose(R, pose.t + sol.x[3:6]), sol.x[6:]
+
+
+# -- objective and start --------------------------------------------------------------------------
+def objective(
+    model: ShapeModel,
+    obs: Observed,
+    pose: Pose,
+    w: np.ndarray,
+    c: np.ndarray,
+    topology: HalfEdges,
+    opts: BaselineOptions,
+) -> float:
+    """The robust objective that ranks starts and results (dimensionless):
+    ``sum ((landmark error) / sigma)^2 + sum min(d, gate_px)^2 / outline_sigma^2 + w.w``
+    with ``d`` the distance (px) of every annotated outline point to the model outline."""
+    X = posed(model.instance(w), pose, c)
+    total = float(w @ w)
+    for x, view in enumerate(obs.views):
+        m = obs.lm_view == x
+        if np.any(m):
+            e = (view.project(X[obs.lm_ids[m]]) - obs.lm_uv[m]) / obs.lm_sigma[m, None]
+            total += float(np.sum(e**2))
+        corr = correspondences(X, model.faces, topology, view, obs.outline_uv[x], opts)
+        if corr is not None:
+            d = np.minimum(corr.dist, opts.gate_px)
+            total += float(np.sum(d**2)) / opts.outline_sigma_px**2
+    return total
+
+
+def cube_rotations() -> list[np.ndarray]:
+    """The 24 rotations that map the coordinate axes onto the coordinate axes."""
+    out = []
+    for perm in ((0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)):
+        for signs in np.ndindex(2, 2, 2):
+            M = np.zeros((3, 3))
+            M[np.arange(3), perm] = np.where(np.array(signs) == 0, 1.0, -1.0)
+            if np.linalg.det(M) > 0:
+                out.append(M)
+    return out
+
+
+def centre_guess(obs: Observed) -> np.ndarray:
+    """World point (mm) closest to the rays through each view's annotation centre (the mean of
+    its outline points, or of its landmarks when it has no outline); needs two views."""
+    A, rhs, n = np.zeros((3, 3)), np.zeros(3), 0
+    for x, view in enumerate(obs.views):
+        pts = obs.outline_uv[x] if len(obs.outline_uv[x]) else obs.lm_uv[obs.lm_view == x]
+        if len(pts) == 0:
+            continue
+        o, d = view.rays(pts.mean(axis=0)[None])
+        P = np.eye(3) - np.outer(d[0], d[0])
+        A, rhs, n = A + P, rhs + P @ o[0], n + 1
+    if n < 2:
+        raise ValueError("the baseline needs annotations in at least two views")
+    return np.linalg.solve(A, rhs)
+
+
+def _distinct(poses: list[tuple[Pose, float]], deg: float = 5.0, mm: float = 2.0) -> list[Pose]:
+    """``poses`` (with costs) sorted by cost, without near-duplicates (rotation within ``deg``
+    and translation within ``mm`` of a cheaper one)."""
+    kept: list[Pose] = []
+    for pose, _ in sorted(poses, key=lambda pc: pc[1]):
+        same = any(
+            Rotation.from_matrix(pose.R @ k.R.T).magnitude() < np.deg2rad(deg)
+            and np.linalg.norm(pose.t - k.t) < mm
+            for k in kept
+        )
+        if not same:
+            kept.append(pose)
+    return kept
+
+
+def landmark_starts(model: ShapeModel, obs: Observed, c: np.ndarray) -> list[Pose]:
+    """Distinct rigid poses of the mean shape minimising the landmark reprojection error, from
+    the 24 axis-aligned rotations at :func:`centre_guess` (cheapest first); without landmarks
+    the 24 rotations themselves."""
+    t0 = centre_guess(obs) - c
+    blocks = landmark_blocks(obs)
+    found = []
+    for R in cube_rotations():
+        start = Pose(R, t0)
+        if not blocks:
+            found.append((start, 0.0))
+            continue
+        try:
+            pose, _ = solve(model, blocks, start, c, None)
+            r = _residuals(np.zeros(6), model, blocks, pose, c, False)
+        except ValueError:  # a step took points behind a source: this start is dropped
+            continue
+        found.append((pose, float(r @ r)))
+    return _distinct(found)
+
+
+# -- the fit --------------------------------------------------------------------------------------
+def _signature(corr: Sequence[Correspondences | None]) -> tuple:
+    """What identifies a set of correspondences (edges and kept points), to see them settle."""
+    return tuple(
+        None if c is None else (c.a[c.keep].tobytes(), c.b[c.keep].tobytes()) for c in corr
+    )
+
+
+def fit_from(
+    model: ShapeModel,
+    obs: Observed,
+    start: Pose,
+    c: np.ndarray,
+    topology: HalfEdges,
+    opts: BaselineOptions,
+) -> tuple[Pose, np.ndarray, int, bool]:
+    """Alternate correspondences and least squares from ``start`` (module doc, step 2).
+
+    Returns the pose, the weights (SD), the number of updates and whether they settled.
+    """
+    pose, w = start, np.zeros(model.n_modes)
+    X = posed(model.mean, pose, c)
+    last = None
+    for it in range(1, opts.max_iterations + 1):
+        corr = [
+            correspondences(X, model.faces, topology, v, obs.outline_uv[x], opts)
+            for x, v in enumerate(obs.views)
+        ]
+        sig = _signature(corr)
+        if sig == last:
+            return pose, w, it - 1, True
+        last = sig
+        blocks = landmark_blocks(obs) + outline_blocks(corr, obs.views, opts)
+        pose, w = solve(model, blocks, pose, c, w)
+        X_new = posed(model.instance(w), pose, c)
+        moved = float(np.max(np.linalg.norm(X_new - X, axis=1)))
+        X = X_new
+        if moved < opts.tol_mm:
+            return pose, w, it, True
+    return pose, w, opts.max_iterations, False
+
+
+def fit_baseline(
+    model: ShapeModel,
+    views: Sequence[ViewObservations],
+    options: BaselineOptions | None = None,
+) -> BaselineResult:
+    """Register ``model`` to landmarks and outlines in calibrated views (known poses).
+
+    Parameters
+    ----------
+    model : ShapeModel
+        A surface model (faces needed for the outline), mm, weights in SD units.
+    views : sequence of ViewObservations
+        Calibrated views (world frame, mm) with landmark clicks (model vertex ids, pixels,
+        click sigmas in pixels) and traced outlines (pixels).
+    options : BaselineOptions, optional
+
+    Returns
+    -------
+    BaselineResult
+        The instance in the world frame and its model-to-world pose.
+    """
+    opts = options or BaselineOptions()
+    if model.faces is None:
+        raise ValueError("the baseline needs a surface model (faces) for the outlines")
+    obs = gather(views, opts.outline_spacing_px)
+    c = model.mean.mean(axis=0)
+    topology = half_edges(model.faces, model.n_vertices)
+    zero = np.zeros(model.n_modes)
+    cands = landmark_starts(model, obs, c)
+    ranked = sorted(cands, key=lambda p: objective(model, obs, p, zero, c, topology, opts))
+    fits = []
+    for start in ranked[: opts.n_starts]:
+        pose, w, its, settled = fit_from(model, obs, start, c, topology, opts)
+        fits.append((objective(model, obs, pose, w, c, topology, opts), pose, w, its, settled))
+    best = min(fits, key=lambda f: f[0])
+    J, pose, w, its, settled = best
+    return BaselineResult(
+        vertices=posed(model.instance(w), pose, c),
+        rotation=pose.R,
+        translation=c + pose.t - pose.R @ c,
+        weights=w,
+        objective=J,
+        iterations=its,
+        settled=settled,
+        n_candidates=len(cands),
+        start_objectives=[f[0] for f in fits],
+    )
+
+
+# -- benchmark: cases -----------------------------------------------------------------------------
+#: the realistic conditions run here (all with known view poses)
+REALISTIC_CONDITIONS = ("known-3", "known-5", "blunder-3", "known-3+2")
+#: a result is "flipped" when its RMS exceeds FLIP_MM while the other method's is below OK_MM
+FLIP_MM, OK_MM = 5.0, 2.0
+
+
+@dataclass
+class Job:
+    """One registration problem of the benchmark (the same for both methods).
+
+    ``truth`` is in the world frame when ``world`` is True, else known up to pose (mm).
+    """
+
+    condition: str
+    case: str
+    model: ShapeModel
+    views: list
+    truth: np.ndarray
+    world: bool
+
+
+def _benchmark_imports() -> None:
+    """Put the repository root on ``sys.path`` (``benchmarks.*`` when run as a script)."""
+    if str(REPO) not in sys.path:
+        sys.path.insert(0, str(REPO))
+
+
+def realistic_jobs(seeds: Sequence[int], conditions: Sequence[str]) -> Iterator[Job]:
+    """The cases of ``benchmarks/realistic.py`` (its case generation and landmark removal)."""
+    _benchmark_imports()
+    from benchmarks import realistic as rl
+    from biplanar_reg.simulate.realistic import make_realistic_case, wrist_scene
+
+    scene = wrist_scene(str(rl.WRIST_DATA))
+    for seed in seeds:
+        b_px, deg, mm = rl.seed_draws(seed)
+        for cond in conditions:
+            _, n, blunder, calib = rl.CONDITIONS[cond]
+            case = make_realistic_case(
+                seed,
+                n_landmarks_per_view=n,
+                blunder_px=b_px if blunder else 0.0,
+                calibration_error=(deg, mm) if calib else (0.0, 0.0),
+                scene=scene,
+            )
+            case = rl._keep_landmarks(case, rl.KEPT.get(cond))
+            yield Job(
+                cond, f"seed {seed}", scene.model, list(case.views), case.truth_vertices, True
+            )
+
+
+def wrist_jobs(tmp: Path) -> Iterator[Job]:
+    """The real wrist cases of ``benchmarks/real_wrist.py`` as annotated (its case folders,
+    loaded by :func:`biplanar_reg.cases.load_case`); truth: the CT mesh, up to pose."""
+    _benchmark_imports()
+    from benchmarks import real_wrist as rw
+    from biplanar_reg.cases import load_case, to_view_observations
+
+    for ann_path in sorted(rw.build.ANNOTATIONS.glob("*.json")):
+        bone, annotator = ann_path.stem.split("_", 1)
+        ann = json.loads(ann_path.read_text())
+        for template in rw.build.TEMPLATES:
+            folder = tmp / f"{bone}_{template}_{annotator}"
+            rw.build.write_case(folder, bone, template, ann_path)
+            (folder / "annotations.json").write_text(json.dumps(rw.variant(ann, "outlines")))
+            case = load_case(folder)
+            truth = case.ground_truth.vertices
+            views = to_view_observations(case)
+            name = f"{bone}/{annotator}/{template}"
+            yield Job(f"wrist-{template}", name, case.model, views, truth, False)
+
+
+# -- benchmark: runs ------------------------------------------------------------------------------
+def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """``src`` (N, 3) moved by its best rigid fit onto ``dst`` (N, 3)."""
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    U, _, Vt = np.linalg.svd((src - cs).T @ (dst - cd))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    return (src - cs) @ (Vt.T @ D @ U.T).T + cd
+
+
+def _rms(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
+
+
+def _timed(fn: Callable[[], object]) -> tuple[object | None, float, str]:
+    """``fn()``, its CPU seconds and "ok" (or the exception's one-line message)."""
+    c0 = time.process_time()
+    try:
+        out, status = fn(), "ok"
+    except Exception as exc:  # noqa: BLE001 - a benchmark records failures and goes on
+        out, status = None, f"{type(exc).__name__}: {str(exc).splitlines()[0][:160]}"
+    return out, time.process_time() - c0, status
+
+
+def _scores(vertices: np.ndarray | None, job: Job) -> dict:
+    if vertices is None:
+        return {"world_mm": None, "aligned_mm": None}
+    aligned = _rms(_kabsch(vertices, job.truth), job.truth)
+    return {"world_mm": _rms(vertices, job.truth) if job.world else None, "aligned_mm": aligned}
+
+
+def run_job(job: Job) -> dict:
+    """Both methods on one job: RMS (world, aligned), CPU seconds, status."""
+    from biplanar_reg.registration import RegistrationOptions, register_views
+
+    base, base_s, base_status = _timed(lambda: fit_baseline(job.model, job.views))
+    pipe, pipe_s, pipe_status = _timed(
+        lambda: register_views(job.model, job.views, poses="known", options=RegistrationOptions())
+    )
+    rec = {"condition": job.condition, "case": job.case}
+    rec["baseline"] = _scores(None if base is None else base.vertices, job) | {
+        "cpu_s": base_s,
+        "status": base_status,
+        "iterations": None if base is None else base.iterations,
+        "settled": None if base is None else base.settled,
+        "n_candidates": None if base is None else base.n_candidates,
+    }
+    rec["pipeline"] = _scores(None if pipe is None else pipe.vertices, job) | {
+        "cpu_s": pipe_s,
+        "status": pipe_status,
+        "flags": [] if pipe is None else list(pipe.flags),
+    }
+    return rec
+
+
+# -- benchmark: report ----------------------------------------------------------------------------
+def _med_max(values: list[float]) -> str:
+    v = [x for x in values if x is not None]
+    return f"{np.median(v):.2f} / {np.max(v):.2f}" if v else "-"
+
+
+def _flipped(records: list[dict], key: str, bad: str, good: str) -> list[str]:
+    """Cases where method ``bad`` is above FLIP_MM and ``good`` below OK_MM (``key`` RMS)."""
+    out = []
+    for r in records:
+        b, g = r[bad][key], r[good][key]
+        if b is not None and g is not None and b > FLIP_MM and g < OK_MM:
+            out.append(r["case"])
+    return out
+
+
+def _ratio(records: list[dict], key: str) -> str:
+    v = [
+        r["baseline"][key] / r["pipeline"][key]
+        for r in records
+        if r["baseline"][key] is not None and r["pipeline"][key]
+    ]
+    return f"{np.median(v):.2f} ({np.min(v):.2f}-{np.max(v):.2f})" if v else "-"
+
+
+def condition_row(cond: str, records: list[dict]) -> str:
+    """One markdown row: the condition's RMS, ratios, flips and CPU seconds."""
+    key = "aligned_mm" if cond.startswith("wrist") else "world_mm"
+    cells = [cond, str(len(records))]
+    for k in ("world_mm", "aligned_mm"):
+        cells += [_med_max([r[m][k] for r in records]) for m in ("baseline", "pipeline")]
+    cells += [_ratio(records, "world_mm"), _ratio(records, "aligned_mm")]
+    for bad, good in (("baseline", "pipeline"), ("pipeline", "baseline")):
+        f = _flipped(records, key, bad, good)
+        cells.append(f"{len(f)}" + (f" ({', '.join(f)})" if f else ""))
+    cells += [
+        f"{np.median([r[m]['cpu_s'] for r in records]):.1f}" for m in ("baseline", "pipeline")
+    ]
+    return "| " + " | ".join(cells) + " |"
+
+
+HEADER = (
+    "| condition | n | world RMS baseline (med / max) | world RMS pipeline | aligned RMS baseline "
+    "| aligned RMS pipeline | baseline / pipeline, world (med, range) | baseline / pipeline, "
+    "aligned | baseline flipped | pipeline flipped | CPU s baseline (med) | CPU s pipeline |"
+)
+
+
+def _fmt(x: float | None) -> str:
+    return "-" if x is None else f"{x:.2f}"
+
+
+def case_lines(records: list[dict]) -> list[str]:
+    """Per case: both methods' RMS, the baseline's updates and starts, the pipeline's flags."""
+    out = [
+        "| condition | case | world baseline | world pipeline | aligned baseline | aligned "
+        "pipeline | baseline updates (settled) / distinct landmark starts | status "
+        "| pipeline flags |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    f = _fmt
+    for r in records:
+        b, p = r["baseline"], r["pipeline"]
+        st = "ok" if b["status"] == p["status"] == "ok" else f"{b['status']}; {p['status']}"
+        its = (
+            "-"
+            if b["iterations"] is None
+            else f"{b['iterations']} ({'y' if b['settled'] else 'n'}) / {b['n_candidates']}"
+        )
+        out.append(
+            f"| {r['condition']} | {r['case']} | {f(b['world_mm'])} | {f(p['world_mm'])} | "
+            f"{f(b['aligned_mm'])} | {f(p['aligned_mm'])} | {its} | {st} | "
+            f"{'; '.join(p['flags']) or 'none'} |"
+        )
+    return out
+
+
+def report(record: dict) -> str:
+    """The results page of a run record."""
+    recs = record["records"]
+    conds = list(dict.fromkeys(r["condition"] for r in recs))
+    rows = [condition_row(c, [r for r in recs if r["condition"] == c]) for c in conds]
+    lines = [
+        "# A plain non-convex baseline beside the pipeline",
+        "",
+        f"Command: `{record['command']}`  ",
+        f"Machine: {record['machine']}; total {record['total_s']:.0f} s. Package: "
+        f"{record['package']}.",
+        "",
+        "Baseline: `benchmarks/nonconvex_baseline.py` (module doc: landmark PnP start of the "
+        "mean shape from 24 rotations, then trimmed nearest-outline-point correspondences "
+        f"alternating with least squares over pose and SSM weights; options {record['options']}). "
+        'Pipeline: `register_views(model, views, poses="known")`, default options. Both '
+        "get the same model and observations. RMS: vertex RMS to the truth, mm; world: in the "
+        "calibration frame (synthetic cases only; the real wrist truth is known up to pose), "
+        "aligned: after the best rigid alignment (Kabsch, vertex correspondence). Flipped: "
+        f"RMS > {FLIP_MM:g} mm where the other method has < {OK_MM:g} mm (world RMS; aligned "
+        "for the wrist). CPU s: process time of one registration.",
+        "",
+        "Sigmas: the baseline divides each landmark residual by the case's stated click sigma "
+        "and each outline residual (distance along the model outline's normal, annotated "
+        "outlines resampled every 4 px) by a fixed 2 px; it has no blunder rejection, no noise "
+        "estimate and no treatment of correlated outline points. The wrist's aligned RMS is "
+        "the best rigid (Kabsch) fit over corresponding vertices, so it is at most the vertex "
+        "RMS of `benchmarks/results/real_wrist.md`, which aligns the surfaces by ICP first.",
+        "",
+        HEADER,
+        "|---|---|" + "---|" * 10,
+        *rows,
+        "",
+        "Per case:",
+        "",
+        *case_lines(recs),
+        "",
+    ]
+    return "\n".join(lines)
+
+
+# -- command line ---------------------------------------------------------------------------------
+def run_all(seeds: int, wrist: bool = True) -> list[dict]:
+    """Every job (realistic, then the real wrist cases); one record each."""
+    import tempfile
+
+    from threadpoolctl import threadpool_limits
+
+    records = []
+    with threadpool_limits(1), tempfile.TemporaryDirectory() as tmp:
+        jobs = realistic_jobs(range(seeds), REALISTIC_CONDITIONS)
+        if wrist:
+            jobs = _chain(jobs, wrist_jobs(Path(tmp)))
+        for job in jobs:
+            rec = run_job(job)
+            records.append(rec)
+            b, p = rec["baseline"], rec["pipeline"]
+            print(
+                f"{job.condition} {job.case}: baseline {b['world_mm']} / {b['aligned_mm']} "
+                f"({b['cpu_s']:.1f} s), pipeline {p['world_mm']} / {p['aligned_mm']} "
+                f"({p['cpu_s']:.1f} s)",
+                flush=True,
+            )
+    return records
+
+
+def _chain(*its: Iterator[Job]) -> Iterator[Job]:
+    for it in its:
+        yield from it
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """Run the benchmark and write the markdown table and the JSON record."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=8)
+    ap.add_argument("--out", type=Path, default=RESULTS / "nonconvex_baseline.md")
+    ap.add_argument("--no-wrist", action="store_true", help="the synthetic cases only")
+    ap.add_argument("--from-json", type=Path, help="re-render a saved run")
+    args = ap.parse_args(argv)
+    if args.from_json:
+        record = json.loads(args.from_json.read_text())
+    else:
+        import biplanar_reg
+
+        t0 = time.perf_counter()
+        records = run_all(args.seeds, wrist=not args.no_wrist)
+        cmd = f"python benchmarks/nonconvex_baseline.py --seeds {args.seeds}"
+        record = {
+            "command": cmd + (" --no-wrist" if args.no_wrist else ""),
+            "machine": f"{platform.machine()}, {os.cpu_count()} shared cores, Python "
+            f"{platform.python_version()}, OMP_NUM_THREADS="
+            f"{os.environ.get('OMP_NUM_THREADS', 'unset')}, niceness {os.nice(0)}, BLAS "
+            "limited to one thread (threadpoolctl)",
+            "package": biplanar_reg.__file__,
+            "options": str(BaselineOptions()),
+            "records": records,
+            "total_s": time.perf_counter() - t0,
+        }
+        args.out.with_suffix(".json").write_text(json.dumps(record, indent=1))
+    args.out.write_text(report(record))
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
