@@ -12,7 +12,8 @@ registered with two models: the harmonic-population model of the subject's own C
 that is not the patient). The truth is the CT mesh, up to pose: every error is measured after
 its rigid alignment onto the result (``[ground_truth] up_to_pose``).
 
-Conditions per case: the annotations as saved (``outlines``); the same without outlines
+Conditions per case: the annotations as saved (``outlines``); the same registered with the
+shape model's modes only (``ssm``: ``gp = "off"``, no Gaussian-process stage); without outlines
 (``landmarks``: refused when the landmarks alone cannot start, fewer than 3 different ones);
 every click's sigma set to 1 px and to 3 px (``sigma1``, ``sigma3``); and each view with one
 border only (``<view>-side<k>``: the other outline of that view removed). Columns: aligned
@@ -42,7 +43,9 @@ import build  # noqa: E402
 from biplanar_reg.cases import run_case_dir  # noqa: E402
 
 SIDES = [f"{v}-side{k}" for v in ("cam01", "cam02") for k in (0, 1)]
-CONDITIONS = ["outlines", "landmarks", "sigma1", "sigma3", *SIDES]
+CONDITIONS = ["outlines", "ssm", "landmarks", "sigma1", "sigma3", *SIDES]
+#: conditions registered with other options (``[registration]`` keys)
+OPTIONS = {"ssm": 'gp = "off"'}
 
 
 def variant(ann: dict, condition: str) -> dict:
@@ -92,6 +95,12 @@ def run_all(only: list[str] | None) -> dict:
                     folder = Path(tmp) / f"{bone}_{template}_{annotator}_{cond}"
                     build.write_case(folder, bone, template, ann_path)
                     (folder / "annotations.json").write_text(json.dumps(variant(ann, cond)))
+                    if cond in OPTIONS:
+                        toml = (folder / "case.toml").read_text()
+                        toml = toml.replace(
+                            "[registration]\n", f"[registration]\n{OPTIONS[cond]}\n"
+                        )
+                        (folder / "case.toml").write_text(toml)
                     key = f"{bone}/{annotator}/{template}/{cond}"
                     results[key] = run_one(folder)
                     shutil.rmtree(folder)
@@ -163,6 +172,16 @@ def targets(results: dict) -> list[str]:
                     f"{med}), max {np.max(v):.2f} mm")  # fmt: skip
             line += f" (target <= {worst})" if worst else ""
             out.append(line + f"; {len(v)} cases")
+    for tpl in build.TEMPLATES:
+        pairs = [(_v(results, b, a, t, "outlines"), _v(results, b, a, t, "ssm"))
+                 for b, a, t in cases if t == tpl]  # fmt: skip
+        pairs = [(g, o) for g, o in pairs if g is not None and o is not None]
+        if pairs:
+            g, o = np.array(pairs).T
+            out.append(f"* {tpl} template, with the Gaussian-process stage (default) / the shape "
+                       f"model's modes only (`ssm`): median {np.median(g):.2f} / "
+                       f"{np.median(o):.2f} mm; per case " + ", ".join(
+                           f"{x:.2f}/{y:.2f}" for x, y in pairs))  # fmt: skip
     ratios = []
     for b, a, t in cases:
         o, lmk = _v(results, b, a, t, "outlines"), _v(results, b, a, t, "landmarks")

@@ -28,6 +28,9 @@ known-3+1      known   3+1   known-3 with the second view's last two landmarks r
 unknown-3+1    unknown 3+1   unknown-3 with the second view's last two landmarks removed
 unknown-2+2    unknown 2+2   unknown-3 with the first view's third landmark and the second
                              view's first removed (3 distinct landmarks in all)
+known-3-ssm    known   3     known-3 with ``gp = "off"``: the shape model's modes only, no
+                             Gaussian-process stage
+known-5-ssm    known   5     known-5 with ``gp = "off"``
 =============  ======  ====  ===========================================================
 
 The ``+`` conditions are their ``-3`` condition's very case (the same draws) with landmarks
@@ -91,6 +94,8 @@ CONDITIONS: dict[str, tuple[str, int, bool, bool]] = {
     "known-3+1": ("known", 3, False, False),
     "unknown-3+1": ("unknown", 3, False, False),
     "unknown-2+2": ("unknown", 3, False, False),
+    "known-3-ssm": ("known", 3, False, False),
+    "known-5-ssm": ("known", 5, False, False),
 }
 #: conditions whose views keep only some of their landmarks after the case is made (the
 #: indices kept in the first and the second view)
@@ -105,6 +110,8 @@ KEPT: dict[str, tuple[tuple[int, ...], tuple[int, ...]]] = {
 CONDITION_OPTIONS: dict[str, dict] = {
     "refine-3-bone": {"pose_prior_at_bone": True},
     "refine-5-bone": {"pose_prior_at_bone": True},
+    "known-3-ssm": {"gp": "off"},
+    "known-5-ssm": {"gp": "off"},
 }
 QUICK = ("known-3", "blunder-3", "refine-3", "unknown-3")
 FLIP_DEG = 45.0

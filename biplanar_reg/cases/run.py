@@ -264,6 +264,7 @@ def result_document(
             "ground_truth": _ground_truth_entry(case),
             "uncertainty": uncertainty_summary(res.vertex_sd_mm),
             "noise": {k: v for k, v in res.noise.items() if k != "landmarks"} or None,
+            "gaussian_process": res.gp or None,
             "warnings": case.warnings,
         }
     )

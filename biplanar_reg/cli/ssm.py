@@ -206,6 +206,30 @@ def _build_densify(p: argparse.ArgumentParser, wanted: Wanted) -> None:
     p.set_defaults(func=_cmd_densify)
 
 
+def _build_augment(p: argparse.ArgumentParser, wanted: Wanted) -> None:
+    p.add_argument("model", help="shape model file (.npz or statismo .h5)")
+    p.add_argument("-o", "--output", required=True, help="augmented model (.npz or .h5)")
+    p.add_argument(
+        "--kernel",
+        choices=("gaussian", "gaussian-normal"),
+        default="gaussian",
+        help="deformation kernel: 3-D Gaussian (default) or Gaussian along the surface normals",
+    )
+    p.add_argument(
+        "--width",
+        type=number(float, 0, 1e5, above=True),
+        default=20.0,
+        help="kernel width in mm: how far a deformation reaches (default 20)",
+    )
+    p.add_argument(
+        "--amplitude",
+        type=number(float, 0, 1e4, above=True),
+        default=1.0,
+        help="kernel amplitude in mm: the prior SD of each coordinate's displacement (default 1)",
+    )
+    p.set_defaults(func=_cmd_augment)
+
+
 #: The three groups: (name, help, dest of the chosen sub-command, its sub-commands).
 _GROUPS: tuple[tuple[str, str, str, tuple[tuple[str, Builder, str], ...]], ...] = (
     (
@@ -230,6 +254,7 @@ _GROUPS: tuple[tuple[str, str, str, tuple[tuple[str, Builder, str], ...]], ...] 
             ("quality", _build_quality, "compactness, generalisation, specificity of shapes"),
             ("export", _build_export, "write a model as statismo HDF5 (.h5) or .npz"),
             ("densify", _build_densify, "add interior points that deform barycentrically"),
+            ("augment", _build_augment, "add a smooth Gaussian-process deformation kernel"),
         ),
     ),
 )
@@ -607,6 +632,7 @@ def _model_quality(model: ShapeModel, path: Path) -> dict:
     """The quality measures computable from a model file (compactness), plus the build's
     report ``<model>_quality.json`` beside it, if there is one."""
     from ..io.jsonfile import read_json
+    from ..ssm.gaussian_process import split_modes
     from ..ssm.quality import compactness, recommended_modes
 
     out: dict = {
@@ -614,12 +640,16 @@ def _model_quality(model: ShapeModel, path: Path) -> dict:
         "note": _NEEDS_TRAINING,
     }
     spectrum = model.population_variances
+    gp = split_modes(model)  # an augmented model's kernel modes are not the training set's
+    n_pca = min(
+        model.n_modes if gp is None else gp.ssm_modes, 0 if spectrum is None else len(spectrum)
+    )
     if spectrum is not None and spectrum.sum() > 0:
         comp = compactness(spectrum)
         out.update(
             total_variance_mm2=float(spectrum.sum()),
             compactness={"k_from": 1, "values": comp.tolist()},
-            kept_fraction=float(comp[model.n_modes - 1]) if model.n_modes else 0.0,
+            kept_fraction=float(comp[n_pca - 1]) if n_pca else 0.0,
             recommended_modes_by_compactness=recommended_modes(comp),
         )
     else:
@@ -648,6 +678,13 @@ def _cmd_info(args: argparse.Namespace) -> int:
         )
     else:
         lines.append("explained: share of the kept variance (the total is not in this file)")
+    gp = model.provenance.get("gaussian_process")
+    if isinstance(gp, dict):
+        lines.append(
+            f"modes {gp.get('ssm_modes', 0) + 1}-{model.n_modes}: a {gp.get('kernel')} "
+            f"deformation kernel (width {gp.get('width_mm')} mm, amplitude "
+            f"{gp.get('amplitude_mm')} mm), not learned from shapes"
+        )
     report = quality.get("build_report_data")
     if isinstance(report, dict) and "recommended_modes" in report:
         lines.append(
@@ -737,6 +774,33 @@ def _cmd_export(args: argparse.Namespace) -> int:
         args,
         {"output": str(out), "n_vertices": model.n_vertices, "n_modes": model.n_modes},
         [f"wrote {out}: {model.n_vertices} vertices, {model.n_modes} modes"],
+    )
+    return 0
+
+
+def _cmd_augment(args: argparse.Namespace) -> int:
+    from ..ssm.gaussian_process import augment_model
+    from ..ssm.model import ShapeModel
+
+    out = Path(args.output)
+    if out.suffix.lower() not in (".h5", ".hdf5", ".npz"):
+        raise ValueError(f"{out}: the output must end in .npz, .h5 or .hdf5")
+    model = ShapeModel.load(args.model)
+    try:
+        augmented = augment_model(model, args.width, args.amplitude, kernel=args.kernel)
+    except ValueError as exc:
+        raise ValueError(f"{args.model}: {exc}") from None
+    augmented.save(out)
+    info = augmented.provenance["gaussian_process"]
+    n_kernel = augmented.n_modes - info["ssm_modes"]
+    _emit(
+        args,
+        {"output": str(out), "n_vertices": augmented.n_vertices, **info, "kernel_modes": n_kernel},
+        [
+            f"wrote {out}: {info['ssm_modes']} shape-model modes + {n_kernel} {args.kernel} "
+            f"kernel modes (width {args.width:g} mm, amplitude {args.amplitude:g} mm, "
+            f"{100 * info['captured']:.1f} % of the kernel's variance)"
+        ],
     )
     return 0
 

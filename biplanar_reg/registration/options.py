@@ -36,6 +36,7 @@ COUNT_RANGES: dict[str, tuple[int, int]] = {
     "blunder_refine_iterations": (1, 10_000),
     "rigid_start_redundancy": (0, 10_000),
     "noise_rounds": (0, 100),
+    "gp_rounds": (1, 100),
 }
 # fields that must be fractions in (0, 1]
 _FRACTIONS = ("landmark_weight", "rejection_weight", "consensus_margin")
@@ -222,6 +223,24 @@ readmit_sigmas : None
         With ``noise = "estimated"``: the landmarks' sigmas until the noise is estimated
         (their median; the stated ratios kept), and the reference of the estimate's prior
         (:mod:`.noise`), pixels.
+    gp : str
+        ``"auto"`` (default) or ``"off"``. ``"auto"``: with known view poses, the fit is
+        refined once more over the shape model's modes plus a smooth deformation kernel's,
+        with the kernel's amplitude chosen from the data (:mod:`.gp_stage`); where the data do
+        not support it, the SSM's fit is kept. A model augmented with ``ssm augment`` brings
+        its own kernel. ``"off"``: the SSM's modes only (an augmented model's kernel modes
+        stay at 0).
+    gp_kernel : str
+        The kernel when the model has none: ``"gaussian"`` (default: 3-D displacements, the
+        standard Gaussian-process morphable model) or ``"gaussian-normal"`` (displacements
+        along the mean shape's surface normals only; measured weaker on the realistic
+        benchmark, docs/registration.md).
+    gp_width_mm : float
+        Width of the Gaussian deformation kernel (mm) when the model has none of its own.
+    gp_amplitude_mm : float
+        The kernel amplitude the data-driven choice starts from (mm) when the model has none.
+    gp_rounds : int
+        Most refinements of the Gaussian-process stage (1 to 100).
     """
 
     landmark_weight: float = 0.5
@@ -266,6 +285,11 @@ readmit_sigmas : None
     noise: str = "estimated"
     noise_rounds: int = 5
     start_landmark_sigma_px: float = 2.0
+    gp: str = "auto"
+    gp_kernel: str = "gaussian"
+    gp_width_mm: float = 25.0
+    gp_amplitude_mm: float = 1.0
+    gp_rounds: int = 6
 
     def __post_init__(self) -> None:
         for key, new in DEPRECATED_OPTIONS.items():
@@ -294,7 +318,11 @@ readmit_sigmas : None
 
 
 #: Fields that take one of a few words.
-CHOICES: dict[str, tuple[str, ...]] = {"noise": ("estimated", "stated")}
+CHOICES: dict[str, tuple[str, ...]] = {
+    "noise": ("estimated", "stated"),
+    "gp": ("auto", "off"),
+    "gp_kernel": ("gaussian", "gaussian-normal"),
+}
 
 
 def _check_field(key: str, value: object, default: object) -> None:

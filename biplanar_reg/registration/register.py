@@ -18,8 +18,10 @@ import numpy as np
 
 from .._validate import as_array, check_rotation
 from ..outline import chain_edges
+from ..ssm.gaussian_process import split_modes
 from ..ssm.model import ShapeModel
 from .blunders import rejected_landmarks
+from .gp_stage import GpOutcome, gp_stage, kernel_basis, registration_model
 from .gsft import GsftResult
 from .noise import used_sigma
 from .observations import ViewObservations
@@ -58,7 +60,8 @@ class RegistrationResult:
     Attributes
     ----------
     rotation, translation, weights, vertices
-        The registered model: ``vertices = instance(weights) @ rotation.T + translation``.
+        The registered model: ``vertices = instance(weights) @ rotation.T + translation``
+        (plus :attr:`shape_displacement_mm` when the Gaussian-process stage added a kernel).
     certificate : float
         Of the last SDP solve.
     iterations : list of IterationRecord
@@ -104,6 +107,14 @@ class RegistrationResult:
     outline_coverage : dict
         ``{view: {"covered", "sides", "one_sided", "untraced"}}``: the annotation's coverage of
         the model's outline at the fit (:func:`.quality.outline_coverage`).
+    gp : dict
+        The Gaussian-process stage (:mod:`.gp_stage`): ``{"used", "kernel", "width_mm",
+        "amplitude_mm", "modes", "effective_modes", "rounds"[, "reason"]}``; empty when it
+        did not run (``gp = "off"``, no outlines, view poses not known).
+    shape_displacement_mm : (N, 3) array or None
+        The kernel's displacement of the model's points (object frame, mm) when the kernel
+        is not the model's own: then ``vertices = (instance(weights) +
+        shape_displacement_mm) @ rotation.T + translation``. None otherwise.
     """
 
     rotation: np.ndarray
@@ -127,6 +138,8 @@ class RegistrationResult:
     vertex_sd_mm: np.ndarray | None = field(default=None, repr=False)
     noise: dict = field(default_factory=dict)
     outline_coverage: dict = field(default_factory=dict)
+    gp: dict = field(default_factory=dict)
+    shape_displacement_mm: np.ndarray | None = field(default=None, repr=False)
 
 
 def _check_start(start: object) -> tuple[np.ndarray, np.ndarray] | None:
@@ -273,17 +286,51 @@ def register_views(
         posed = estimate_view_poses(model, views, poses, opts)
         pose_info = posed.info
         say(f"view poses ({poses}): {len(posed.starts)} start(s) from the landmarks")
-    problem, final = _register_posed(model, posed, poses, opts, silhouettes, say, start_pose)
+    base = registration_model(model)
+    problem, final = _register_posed(base, posed, poses, opts, silhouettes, say, start_pose)
+    outcome = None
+    if poses == "known" and opts.gp == "auto" and problem.use_outlines:
+        basis = kernel_basis(model, opts.gp_kernel, opts.gp_width_mm, opts.gp_amplitude_mm)
+        problem, final, outcome = gp_stage(problem, final, basis)
     if poses == "refine":
         pose_info.update(corrections(views, problem.views))
     outlines = final.outlines
     if problem.use_outlines and not outlines:
         outlines = problem.outlines(final.result)
     unc = registration_uncertainty(problem, final.result, outlines, _rejected(problem, final))
+    result = _result(problem, final, outlines, pose_info, time.perf_counter() - t0)
+    weights, displacement = model_weights(model, problem.model, final.result.weights, outcome)
     return replace(
-        _result(problem, final, outlines, pose_info, time.perf_counter() - t0),
+        result,
+        weights=weights,
+        shape_displacement_mm=displacement,
+        gp={} if outcome is None else outcome.as_dict(),
         vertex_sd_mm=None if unc is None else unc.sd_mm,
     )
+
+
+def model_weights(
+    model: ShapeModel, fitted: ShapeModel, weights: np.ndarray, outcome: GpOutcome | None
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The fit's weights as weights of ``model``'s modes, and the displacement (N, 3) mm of
+    the kernel modes that ``model`` does not have (object frame; None: none).
+
+    ``fitted`` is the model the weights belong to: the SSM's modes, then (after the
+    Gaussian-process stage) the kernel's at ``outcome.amplitude_mm``. An augmented ``model``
+    has the kernel's modes at its own amplitude, so its kernel weights are rescaled to it.
+    """
+    info = split_modes(model)
+    n = model.n_modes if info is None else info.ssm_modes
+    extra = weights[n:]
+    if info is not None:  # the model's own kernel modes
+        full = np.zeros(model.n_modes)
+        full[:n] = weights[:n]
+        if len(extra) and outcome is not None and outcome.used:
+            full[n:] = extra * (outcome.amplitude_mm / info.amplitude_mm)
+        return full, None
+    if not len(extra):
+        return weights, None
+    return weights[:n], np.tensordot(extra, fitted.modes[n:], axes=1)
 
 
 def _rejected(problem: Problem, final: Refined) -> frozenset[int]:
@@ -358,8 +405,10 @@ def relaxation_gap_px(problem: Problem, res: GsftResult) -> float:
     convex problem's optimum and the refinements only polish it (a fraction of a pixel); a
     loose one's can be anywhere, and the fit returned is then only a local optimum from it.
     """
-    model = problem.model
-    rounded = model.instance(res.sdp_weights) @ res.sdp_rotation.T + res.sdp_translation
+    model, w = problem.model, np.asarray(res.sdp_weights, float)
+    # the relaxation has the SSM's modes only (a Gaussian-process stage appends the kernel's)
+    shape = model.mean + np.tensordot(w, model.modes[: len(w)], axes=1)
+    rounded = shape @ res.sdp_rotation.T + res.sdp_translation
     gaps = [
         np.sqrt(np.mean(np.sum((v.view.project(rounded) - v.view.project(res.vertices)) ** 2, 1)))
         for v in problem.views
@@ -393,7 +442,9 @@ def _flags(
     stated = opts.noise == "stated"
     if stated and acc and float(np.sqrt(np.mean(np.square(acc)))) > opts.reprojection_flag_px:
         flags.append("large landmark reprojection error")
-    for i in disagreeing_landmarks(err, lm.ratios()) if len(lm) else []:
+    # without outlines nothing can disagree with them (a lone far landmark is a blunder)
+    compared = len(lm) and problem.use_outlines and problem.targets
+    for i in disagreeing_landmarks(err, lm.ratios()) if compared else []:
         if int(i) not in rejected:
             v, n = lm.names[i]
             flags.append(f"landmark disagrees with the outlines: {v}/{n} by {err[i]:.0f} px")

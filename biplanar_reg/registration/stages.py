@@ -650,6 +650,16 @@ def outline_terms(problem: Problem, outlines: dict[int, ModelOutline]) -> list[O
     return terms
 
 
+def refine_terms(
+    problem: Problem, outlines: dict[int, ModelOutline], weights: np.ndarray | None
+) -> tuple[RayObservations, list[OutlineTerm]]:
+    """The terms of the final refinement's objective: the landmark rays (sigmas divided by
+    ``sqrt(weight * refine_landmark_weight)``) and the outline terms at ``outlines``."""
+    lm = weighted_landmark_rays(problem, weights)
+    lm = lm.with_sigmas(lm.sigmas / np.sqrt(problem.options.refine_landmark_weight))
+    return lm, outline_terms(problem, outlines)
+
+
 def refine_once(
     problem: Problem,
     result: GsftResult,
@@ -665,9 +675,7 @@ def refine_once(
     refinement's own output.
     """
     opts = problem.options
-    terms = outline_terms(problem, outlines)
-    lm = weighted_landmark_rays(problem, weights)
-    lm = lm.with_sigmas(lm.sigmas / np.sqrt(opts.refine_landmark_weight))
+    lm, terms = refine_terms(problem, outlines, weights)
     fit = refine_on_outlines(
         problem.model,
         (result.rotation, result.translation, result.weights),
@@ -690,7 +698,7 @@ def refine_once(
     return result, fit
 
 
-class _Recorder:
+class Recorder:
     """Appends one record (and its vertices) per accepted refinement step, of ``kind``
     ``"local"`` (the refinement) or ``"noise"`` (a refinement with re-estimated sigmas)."""
 
@@ -723,7 +731,7 @@ def refine_final(problem: Problem, run: BoostRun) -> Refined:
     res, outlines, weights = best.result, best.outlines, run.weights
     if not (problem.use_outlines and problem.options.refine_iterations > 0):
         return Refined(res, outlines, records, iterates, best.index, weights)
-    record = _Recorder(problem, records, iterates, res.certificate)
+    record = Recorder(problem, records, iterates, res.certificate)
     res, fit = refine_once(problem, res, outlines, weights, record)
     problem.say(
         f"outline refinement: {fit.iterations} iterations, objective "
@@ -743,7 +751,7 @@ def refine_final(problem: Problem, run: BoostRun) -> Refined:
             weights = reweight(problem, res.vertices)
     noise: list[GroupNoise] = []
     if problem.options.noise == "estimated":
-        rec = _Recorder(problem, records, iterates, res.certificate, "noise")
+        rec = Recorder(problem, records, iterates, res.certificate, "noise")
         problem, res, weights, noise = estimate_noise(problem, res, weights, rec)
     best_index = best.index
     if records[-1].kind in ("local", "noise"):

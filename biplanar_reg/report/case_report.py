@@ -381,12 +381,23 @@ def _write_html(
         figures=embedded,
         landmark_rows=_landmark_rows(doc),
         noise_groups=(doc.get("noise") or {}).get("groups") or [],
+        gp=_gp_summary(doc),
         contour_rows=contour_rows,
         thresholds={k: options.get(k) for _, k in _LEVELS},
         iterations=doc["iterations"],
         best_iteration=doc["best_iteration"],
         view_poses=doc["views"],
     )
+
+
+def _gp_summary(doc: Mapping[str, Any]) -> dict | None:
+    """The Gaussian-process stage of ``result.json`` for the report's header (None: it did
+    not run)."""
+    gp = doc.get("gaussian_process")
+    if not isinstance(gp, dict):
+        return None
+    words = "a Gaussian" if gp.get("kernel", "gaussian") == "gaussian" else "a normal Gaussian"
+    return {**gp, "kernel_words": words}
 
 
 def write_case_report(

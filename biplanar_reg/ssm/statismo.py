@@ -18,7 +18,8 @@ the same):
 A statismo sample is ``mean + U diag(sqrt(pcaVariance)) alpha`` with ``alpha ~ N(0, I)``, which
 is this project's ``mean + sum_i w_i modes[i]`` with ``modes[i] = sqrt(var_i) U[:, i]`` (N, 3):
 the weights are the same numbers. A missing ``/version`` group means version 0.8 (statismo's
-rule). This project's extras (landmarks, truncation modes, the full variance spectrum) go into a
+rule). This project's extras (landmarks, truncation modes, the full variance spectrum, the
+provenance) go into a
 ``/biplanar_reg`` group that other tools ignore. statismo and scalismo read single precision
 (scalismo casts to float arrays), so :func:`write_statismo` writes float32 by default;
 ``dtype="float64"`` keeps every bit (HDF5 converts on reading in statismo's C++).
@@ -94,6 +95,11 @@ def _extras(f: Any) -> dict[str, Any]:
     out: dict[str, Any] = {}
     if "landmarks_json" in g.attrs:
         out["landmarks"] = json.loads(_attr(g, "landmarks_json") or "{}")
+    if "provenance_json" in g.attrs:
+        provenance = json.loads(_attr(g, "provenance_json") or "{}")
+        if not isinstance(provenance, dict):
+            raise ValueError("attribute 'provenance_json': expected a JSON object")
+        out["provenance"] = provenance
     for key in ("truncation_modes", "population_variances"):
         if key in g:
             out[key] = np.asarray(g[key][()], dtype=float)
@@ -218,6 +224,8 @@ def write_statismo(model: ShapeModel, path: str | os.PathLike, dtype: str = "flo
 def _write_extras(f: Any, model: ShapeModel) -> None:
     g = f.create_group("biplanar_reg")
     g.attrs["landmarks_json"] = json.dumps(model.landmarks, sort_keys=True)
+    if model.provenance:  # e.g. which modes are a Gaussian-process kernel's
+        g.attrs["provenance_json"] = json.dumps(model.provenance, sort_keys=True)
     if model.truncation_modes is not None:
         g.create_dataset("truncation_modes", data=model.truncation_modes)
     spectrum = getattr(model, "population_variances", None)

@@ -40,3 +40,16 @@ def count_components(n_vertices: int, faces: np.ndarray) -> int:
     graph = sparse.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_vertices, n_vertices))
     _, labels = connected_components(graph, directed=False)
     return len(np.unique(labels[np.unique(f)]))
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unit vertex normals (N, 3) of a triangle mesh: the area-weighted sum of the adjacent
+    faces' normals (outward for a positively oriented closed mesh); a vertex in no face, or
+    whose faces cancel, gets a zero vector."""
+    tri = vertices[faces]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    vn = np.zeros_like(vertices, dtype=float)
+    for k in range(3):
+        np.add.at(vn, faces[:, k], fn)
+    norm = np.linalg.norm(vn, axis=1, keepdims=True)
+    return np.divide(vn, norm, out=np.zeros_like(vn), where=norm > 0)

@@ -18,7 +18,7 @@ from registration_problems import problem_for, with_blunder
 
 from biplanar_reg.cases import load_case, registration_options
 from biplanar_reg.registration import RegistrationOptions, register_views
-from biplanar_reg.registration.options import DEPRECATED_OPTIONS, RENAMED_OPTIONS
+from biplanar_reg.registration.options import CHOICES, DEPRECATED_OPTIONS, RENAMED_OPTIONS
 from biplanar_reg.registration.stages import (
     boost,
     choose_start,
@@ -68,6 +68,11 @@ BAD = {
     "noise": ["estimate", "", 1.0],
     "noise_rounds": [-1, 101, 1.5],
     "start_landmark_sigma_px": [0.0, -2.0, math.inf, math.nan],
+    "gp": ["on", "", True, 1.0],
+    "gp_kernel": ["rbf", "", 2.0],
+    "gp_width_mm": [0.0, -5.0, math.inf, math.nan],
+    "gp_amplitude_mm": [0.0, -1.0, math.inf],
+    "gp_rounds": [0, 101, 2.5],
 }
 
 
@@ -107,6 +112,7 @@ COUNT_RANGES = {
     "consensus_iterations": (1, 1000),
     "rigid_start_redundancy": (0, 10_000),
     "noise_rounds": (0, 100),
+    "gp_rounds": (1, 100),
 }
 
 
@@ -183,8 +189,8 @@ def _other_value(key, default):
         return not default
     if isinstance(default, int):
         return default + 1
-    if key == "noise":
-        return "stated" if default == "estimated" else "estimated"
+    if key in CHOICES:  # a word: another of its choices
+        return next(c for c in CHOICES[key] if c != default)
     # these must stay at or above 1
     at_least_one = ("gnc_factor", "joint_outline_sigma_factor", "unknown_outline_sigma_factor")
     return default * (2.0 if key in at_least_one else 0.5)

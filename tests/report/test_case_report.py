@@ -203,6 +203,8 @@ def test_advice_covers_every_flag_the_registration_raises():
         ),
         landmark_px_errors=lambda vertices: np.array([3.0, 2.5, 40.0]),
         model=SimpleNamespace(n_modes=2, faces=None),
+        use_outlines=True,
+        targets={0: None},
     )
     problem.landmarks = _Sized(problem.landmarks, 3)
     res = SimpleNamespace(
