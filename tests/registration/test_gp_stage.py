@@ -50,9 +50,7 @@ def test_the_result_states_the_kernels_displacement(out_of_span, both):
     _, auto = both
     assert auto.weights.shape == (model.n_modes,)
     shape = model.instance(auto.weights) + auto.shape_displacement_mm
-    np.testing.assert_allclose(
-        shape @ auto.rotation.T + auto.translation, auto.vertices, atol=1e-9
-    )
+    np.testing.assert_allclose(shape @ auto.rotation.T + auto.translation, auto.vertices, atol=1e-9)
 
 
 def test_an_augmented_model_brings_its_own_kernel(out_of_span, both):
