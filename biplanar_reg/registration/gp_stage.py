@@ -215,7 +215,7 @@ def gp_stage(
             True, basis.width_mm, a, len(basis.modes), gamma, rounds, kernel=basis.kernel
         )
         if a_new < MIN_AMPLITUDE_MM:
-            reason = f"not supported by the data (amplitude {a_new:.2g} mm)"
+            reason = f"not supported by the data: amplitude {a_new:.2g} mm"
             return problem, final, replace(outcome, used=False, reason=reason)
         settled = abs(a_new / a - 1.0) < AMPLITUDE_TOL
         u = res.weights * (a / a_new)  # the same displacement at the new amplitude

@@ -294,3 +294,28 @@ def test_landmark_table_shows_each_landmarks_sigma_and_weight(no_truth):
     groups = doc["noise"]["groups"]
     assert doc["noise"]["method"] == "estimated" and groups
     assert f"landmarks {groups[0]['view']} {groups[0]['sigma_px']:.2g} px" in html
+
+
+def test_header_says_what_the_gaussian_process_stage_did_and_what_free_poses_observe(
+    no_truth, tmp_path
+):
+    from biplanar_reg.report import write_case_report
+
+    _, out, doc = no_truth
+    gp = doc["gaussian_process"]  # the synthetic case registers with known poses and outlines
+    assert set(gp) >= {"used", "kernel", "width_mm", "amplitude_mm", "modes", "effective_modes"}
+    html = (out / "report.html").read_text()
+    assert "shape beyond the model&#39;s span" in html or "shape beyond the model's span" in html
+    doc = json.loads((out / "result.json").read_text())
+    doc["gaussian_process"] = {**gp, "used": False, "reason": "not supported by the data"}
+    doc["registration"]["poses"] = "unknown"
+    write_case_report(tmp_path, doc, [])
+    html = (tmp_path / "report.html").read_text()
+    assert "not used (not supported by the data)" in html
+    assert "barely observe the bone" in html
+    doc["gaussian_process"] = None
+    doc["registration"]["poses"] = "known"
+    write_case_report(tmp_path, doc, [])
+    html = (tmp_path / "report.html").read_text()
+    assert "model&#39;s span" not in html and "model's span" not in html
+    assert "barely observe" not in html
