@@ -514,6 +514,15 @@ def _read_landmarks(ctx: _Ctx, path: Path, n_vertices: int) -> dict[str, int]:
 
 
 def _scaled_model(model: ShapeModel, s: float, landmarks: dict[str, int]) -> ShapeModel:
+    provenance = dict(model.provenance)
+    gp = provenance.get("gaussian_process")
+    if isinstance(gp, dict):  # the kernel's lengths are in the model's units too
+        scaled = {
+            k: gp[k] * s
+            for k in ("width_mm", "amplitude_mm")
+            if isinstance(gp.get(k), (int, float))
+        }
+        provenance["gaussian_process"] = {**gp, **scaled}
     return ShapeModel(
         model.mean * s,
         model.modes * s,
@@ -521,6 +530,7 @@ def _scaled_model(model: ShapeModel, s: float, landmarks: dict[str, int]) -> Sha
         variances=None if model.variances is None else model.variances * s * s,
         landmarks=landmarks,
         truncation_modes=None if model.truncation_modes is None else model.truncation_modes * s,
+        provenance=provenance,
     )
 
 

@@ -42,6 +42,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..io.transforms import rotation_from_rotvec, rotvec_from_rotation
+from ..ssm.gaussian_process import ssm_part
 from ..ssm.model import ShapeModel
 from .frames_uncertainty import frame_linearisations, frames_vertex_sd, shape_sd
 from .gsft import nearest_point_to_rays
@@ -513,7 +514,18 @@ def register_frames(
     # times faster than two fighting over a shared machine (measured on the sample case)
     limits = threadpool_limits(1) if threadpool_limits is not None else None
     try:
-        return _register(model, frames, names, silhouettes, options, progress, uncertainty)
+        # an augmented model's kernel modes stay at 0: the frames are registered on its
+        # shape model's modes (the Gaussian-process stage is single-frame only)
+        base = ssm_part(model)
+        res = _register(base, frames, names, silhouettes, options, progress, uncertainty)
+        if base is not model:
+            pad = np.zeros(model.n_modes - base.n_modes)
+            res = replace(
+                res,
+                weights=np.concatenate([res.weights, pad]),
+                start_weights=np.concatenate([res.start_weights, pad]),
+            )
+        return res
     finally:
         if limits is not None:
             limits.unregister()

@@ -68,3 +68,38 @@ def test_an_augmented_model_brings_its_own_kernel(out_of_span, both):
     np.testing.assert_array_equal(off.weights[model.n_modes :], 0.0)
     np.testing.assert_allclose(off.vertices, both[0].vertices, atol=1e-9)
     assert _rms(off.vertices, truth) > _rms(res.vertices, truth)
+
+
+def _with_augmented_model(case_dir, tmp_path):
+    """A copy of a sample case whose ``[model] ssm`` is its model augmented with a kernel."""
+    import shutil
+
+    from biplanar_reg.cases import load_case
+
+    dst = tmp_path / case_dir.name
+    shutil.copytree(case_dir, dst, ignore=shutil.ignore_patterns("out*"))
+    model = load_case(dst).model
+    toml = (dst / "case.toml").read_text()
+    ssm = toml.split('ssm = "', 1)[1].split('"', 1)[0]
+    augment_model(ShapeModel.load(dst / ssm), 25.0, 1.0).save(dst / "model" / "gp.npz")
+    (dst / "case.toml").write_text(toml.replace(f'ssm = "{ssm}"', 'ssm = "model/gp.npz"'))
+    return dst, model.n_modes
+
+
+def test_a_case_with_an_augmented_model_keeps_its_kernel(tmp_path):
+    import json
+    from pathlib import Path
+
+    from biplanar_reg.cases import run_case_dir
+
+    sample = Path(__file__).resolve().parents[2] / "sample_cases"
+    case, n_ssm = _with_augmented_model(sample / "synthetic_radius_known", tmp_path)
+    doc = json.loads((run_case_dir(case, report=False).out_dir / "result.json").read_text())
+    assert doc["gaussian_process"]["used"] and len(doc["weights"]) > n_ssm
+    # several frames: registered on the shape model's modes, the kernel's weights 0
+    frames, n_ssm = _with_augmented_model(sample / "wrist_radius_frames", tmp_path)
+    doc = json.loads((run_case_dir(frames, report=False).out_dir / "result.json").read_text())
+    expected = json.loads((sample / "wrist_radius_frames" / "expected.json").read_text())
+    assert len(doc["weights"]) > n_ssm and not any(doc["weights"][n_ssm:])
+    got, want = doc["metrics"]["vertex_rms_mm"], expected["metrics"]["vertex_rms_mm"]["value"]
+    assert got == pytest.approx(want, abs=1e-6)
