@@ -17,20 +17,43 @@ lines (``#`` comments, paths relative to the ``.cfg`` from version 1.1)::
 see docs/exports.md). The calibrations are written with this package's MayaCam 2.0 writer
 (:func:`biplanar_reg.calibration.mayacam.format_mayacam2`), the format Autoscoper reads for
 pinhole cameras (Autoscoper #320 asks for conversions to it).
+
+Lens (image-intensifier) distortion does not reach Autoscoper: its MayaCam 2.0 reader
+(``Camera::loadMayaCam2`` in ``libautoscoper/src/Camera.cpp``) reads lines 0-16 (image size,
+camera matrix, rotation, translation) and stops, so the ``undistortion`` block is ignored and
+Autoscoper renders every view as a pure pinhole camera. A view with distortion therefore gets a
+warning (logged, and as a ``#`` comment in the ``.cfg``) giving how far apart, in pixels, the
+pinhole model and the distorted camera put a point (:func:`distortion_shift_px`); the trial is
+correct only with undistorted radiographs (docs/exports.md shows how to make them).
 """
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from ..io.atomic import atomic_write_text
 from .mayacam import format_mayacam2
+from .pinhole import distort_normalized
 from .views import View
 
-__all__ = ["AutoscoperVolume", "read_autoscoper_cfg", "write_autoscoper_trial"]
+__all__ = [
+    "AutoscoperVolume",
+    "distortion_shift_px",
+    "distortion_warnings",
+    "read_autoscoper_cfg",
+    "write_autoscoper_trial",
+]
+
+log = logging.getLogger(__name__)
+
+#: Grid points per image side on which :func:`distortion_shift_px` measures the distortion.
+SHIFT_GRID = 33
 
 #: keys whose values are paths relative to the .cfg (version >= 1.1)
 _PATH_KEYS = ("mayaCam_csv", "CameraRootDir", "VolumeFile")
@@ -53,6 +76,36 @@ class AutoscoperVolume:
 def _rel(target: Path, start: Path) -> str:
     """``target`` relative to ``start`` in the ``path/to/x`` form Autoscoper wants (``/``)."""
     return Path(os.path.relpath(target, start)).as_posix()
+
+
+def distortion_shift_px(view: View) -> float:
+    """Largest distance (pixels) over the image between where the pinhole part of ``view``
+    (what Autoscoper renders) and the view with its distortion put a point: 0 without
+    distortion. Measured on a grid of 33 x 33 pixel positions spanning the image (corners
+    included), each taken as a pinhole projection and distorted."""
+    coeffs = getattr(view, "distortion", None)
+    if coeffs is None or view.image_size is None:
+        return 0.0
+    w, h = view.image_size
+    u, v = np.meshgrid(np.linspace(0, w - 1, SHIFT_GRID), np.linspace(0, h - 1, SHIFT_GRID))
+    uv1 = np.stack([u.ravel(), v.ravel(), np.ones(u.size)])
+    xy = np.linalg.solve(view.K, uv1)[:2].T  # normalised camera coordinates
+    xyd = distort_normalized(xy, coeffs)
+    uvd = view.K[:2, :2] @ xyd.T + view.K[:2, 2:3]
+    return float(np.max(np.hypot(*(uvd - uv1[:2]))))
+
+
+def distortion_warnings(views: Sequence[View], trial: str = "") -> list[str]:
+    """One line per view with lens distortion, saying that the Autoscoper trial leaves it out
+    and by how much (:func:`distortion_shift_px`)."""
+    where = f"Autoscoper trial {trial}: " if trial else "Autoscoper trial: "
+    return [
+        f"{where}view {v.name!r} has lens distortion (up to {distortion_shift_px(v):.2f} px "
+        "at the image edge) that Autoscoper ignores (it reads only the pinhole part of MayaCam "
+        "2.0): track on undistorted radiographs (see docs/exports.md)"
+        for v in views
+        if getattr(v, "distortion", None) is not None
+    ]
 
 
 def write_autoscoper_trial(
@@ -85,7 +138,9 @@ def write_autoscoper_trial(
     Returns
     -------
     list of Path
-        The files written (all atomically).
+        The files written (all atomically). A view with lens distortion is warned about (logged
+        and as a comment in the ``.cfg``: :func:`distortion_warnings`); its MayaCam file keeps
+        the coefficients, which Autoscoper does not read.
 
     Raises
     ------
@@ -112,8 +167,12 @@ def write_autoscoper_trial(
             "VolumeFlip " + " ".join(str(int(f)) for f in vol.flip),
             "VoxelSize " + " ".join(repr(float(s)) for s in vol.voxel_size),
         ]
+    warnings = distortion_warnings(views, name)
+    for text in warnings:
+        log.warning("%s", text)
     cfg = [
         f"# Autoscoper trial written by biplanar-reg: {name}",
+        *(f"# WARNING: {text}" for text in warnings),
         "Version 1.1",
         "TrackingFolder Tracking",
         *cams,

@@ -12,7 +12,10 @@ report's other figures).
 ``BIPLANAR_REG_RENDERER=pyvista`` renders with PyVista off-screen instead (with no
 ``DISPLAY`` the X11 render window fails, "bad X server connection", and VTK >= 9.4 falls back
 to EGL; this module asks for the EGL window directly, ``VTK_DEFAULT_OPENGL_WINDOW=
-vtkEGLRenderWindow``; a failure falls back to the software renderer with a logged warning).
+vtkEGLRenderWindow``). Where neither EGL nor OSMesa works, VTK's window kills the process
+(SIGSEGV) instead of raising, so :func:`.gl_probe.offscreen_rendering_available` first tries a
+render in a child process (once per process); when that fails, or PyVista raises, the
+software renderer draws the view and one warning line is logged.
 ``BIPLANAR_REG_RENDERER=matplotlib`` draws a matplotlib 3D triangle plot.
 """
 
@@ -22,6 +25,8 @@ import logging
 import os
 
 import numpy as np
+
+from .gl_probe import offscreen_env, offscreen_rendering_available
 
 __all__ = ["render_error_mesh"]
 
@@ -46,9 +51,19 @@ def render_pyvista(
     *,
     size: tuple[int, int] = (900, 700),
 ) -> None:
-    """Render with PyVista off-screen (surface, error colour map, colour bar in mm)."""
-    if not os.environ.get("DISPLAY"):
-        os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+    """Render with PyVista off-screen (surface, error colour map, colour bar in mm).
+
+    Raises
+    ------
+    RuntimeError
+        Off-screen rendering does not work here (:func:`.gl_probe.offscreen_rendering_available`
+        failed); VTK is not called, since it would crash the process.
+    """
+    ok, why = offscreen_rendering_available()
+    if not ok:
+        raise RuntimeError(f"off-screen rendering is not available here ({why})")
+    for key, value in offscreen_env().items():  # the probe's environment (the EGL window)
+        os.environ.setdefault(key, value)
     import pyvista as pv
 
     from ..io.meshes import to_polydata
@@ -261,10 +276,16 @@ def render_error_mesh(
         render_matplotlib(path, vertices, faces, error_mm, title)
         return "matplotlib"
     if choice == "pyvista":
-        try:
-            render_pyvista(path, vertices, faces, error_mm, title)
-            return "pyvista"
-        except Exception as exc:  # noqa: BLE001 - any VTK/OpenGL failure: use the fallback
-            log.warning("PyVista off-screen rendering failed (%s); using software", exc)
+        ok, why = offscreen_rendering_available()  # VTK would crash the process otherwise
+        if not ok:
+            log.warning(
+                "PyVista off-screen rendering is not available here (%s); using software", why
+            )
+        else:
+            try:
+                render_pyvista(path, vertices, faces, error_mm, title)
+                return "pyvista"
+            except Exception as exc:  # noqa: BLE001 - any VTK/OpenGL failure: use the fallback
+                log.warning("PyVista off-screen rendering failed (%s); using software", exc)
     render_software(path, vertices, faces, error_mm, title)
     return "software"

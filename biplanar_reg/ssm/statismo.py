@@ -3,32 +3,44 @@
 The layout (statismo ``StatismoIO``/``StandardMeshRepresenter``, version 0.9; scalismo writes
 the same):
 
-* ``/version/majorVersion``, ``/version/minorVersion``: integer scalars (0, 9);
+* ``/version/majorVersion``, ``/version/minorVersion``: int32 scalars (0, 9);
 * ``/model/mean`` (3N,): the mean shape, point ``i`` coordinate ``d`` at ``3 i + d``;
 * ``/model/pcaBasis`` (3N, M): the **orthonormal** eigenvectors ``U`` (columns) from version
   0.9 on; version 0.8 stored ``U diag(sqrt(pcaVariance))`` (statismo and scalismo undo the
   scaling on reading 0.8 files; so does :func:`read_statismo`);
 * ``/model/pcaVariance`` (M,): the variances, mm^2; ``/model/noiseVariance``: scalar, the
   probabilistic-PCA noise variance per coordinate (written 0, as scalismo does);
-* ``/representer`` group, string attributes ``name`` (``itkStandardMeshRepresenter``,
-  ``vtkStandardMeshRepresenter``, ...) and ``datasetType`` (``POLYGON_MESH`` or
+* ``/representer`` group, string attributes ``name`` (``itkStandardMeshRepresenter``, as
+  scalismo writes for meshes and point sets) and ``datasetType`` (``POLYGON_MESH`` or
   ``POINT_SET``); datasets ``points`` (3, N) (the reference, one column per point) and, for a
-  mesh, ``cells`` (3, F) unsigned int (one column per triangle).
+  mesh, ``cells`` (3, F) int32 (one column per triangle; a point set has none, as scalismo
+  writes it);
+* ``/modelinfo``: ``build-time`` and a dummy 1 x 1 zero ``scores`` (as statismo's
+  ``ModelInfo::Save`` writes them) and ``modelBuilder-0`` with the string datasets
+  ``builderName`` and ``buildTime`` and the groups ``parameters`` and ``dataInfo`` (statismo's
+  ``BuilderInfo::Load`` requires all four).
+
+Strings are written as statismo's ``HDF5Utils::writeString`` does: fixed-length ASCII,
+null-terminated, of the text's length + 1, scalar. scalismo reads with jhdf and casts the data
+to Java ``float``/``int`` arrays, so the float datasets must be float32 and the cells and version
+numbers signed int32 (an unsigned or 64-bit dataset fails the cast); statismo converts on
+reading but computes in single precision. :func:`write_statismo` therefore writes float32 by
+default; ``dtype="float64"`` keeps every bit but makes a file for this package only (scalismo
+refuses it; a warning is logged).
 
 A statismo sample is ``mean + U diag(sqrt(pcaVariance)) alpha`` with ``alpha ~ N(0, I)``, which
 is this project's ``mean + sum_i w_i modes[i]`` with ``modes[i] = sqrt(var_i) U[:, i]`` (N, 3):
 the weights are the same numbers. A missing ``/version`` group means version 0.8 (statismo's
 rule). This project's extras (landmarks, truncation modes, the full variance spectrum, the
-provenance) go into a
-``/biplanar_reg`` group that other tools ignore. statismo and scalismo read single precision
-(scalismo casts to float arrays), so :func:`write_statismo` writes float32 by default;
-``dtype="float64"`` keeps every bit (HDF5 converts on reading in statismo's C++).
+provenance) go into a ``/biplanar_reg`` group that other tools ignore.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
+import time
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +53,10 @@ __all__ = ["read_statismo", "write_statismo"]
 
 #: Relative tolerance of the orthogonality check of the modes before export.
 ORTHOGONALITY_TOL = 1e-6
+#: The representer name scalismo writes (statismo's ITK mesh representer; not a legacy name).
+REPRESENTER_NAME = "itkStandardMeshRepresenter"
+
+log = logging.getLogger(__name__)
 
 
 def _one_line(exc: BaseException) -> str:
@@ -179,25 +195,90 @@ def _orthonormal_basis(model: ShapeModel) -> tuple[np.ndarray, np.ndarray]:
     return u.T, var
 
 
+def _fixed_string(text: str) -> tuple[Any, np.ndarray]:
+    """The HDF5 type and data of ``text`` as statismo's ``HDF5Utils::writeString`` writes it:
+    fixed-length ASCII of ``len + 1`` bytes, null-terminated."""
+    import h5py
+
+    raw = text.encode("ascii")
+    tid = h5py.h5t.C_S1.copy()
+    tid.set_size(len(raw) + 1)
+    tid.set_strpad(h5py.h5t.STR_NULLTERM)
+    tid.set_cset(h5py.h5t.CSET_ASCII)
+    return tid, np.array(raw, dtype=f"S{len(raw) + 1}")
+
+
+def _write_string(group: Any, name: str, text: str) -> None:
+    """A scalar fixed-length string dataset ``group/name`` (statismo's ``writeString``)."""
+    import h5py
+
+    tid, data = _fixed_string(text)
+    space = h5py.h5s.create(h5py.h5s.SCALAR)
+    h5py.h5d.create(group.id, name.encode(), tid, space).write(h5py.h5s.ALL, h5py.h5s.ALL, data)
+
+
+def _write_string_attr(obj: Any, name: str, text: str) -> None:
+    """A scalar fixed-length string attribute (statismo's ``writeStringAttribute``)."""
+    import h5py
+
+    tid, data = _fixed_string(text)
+    h5py.h5a.create(obj.id, name.encode(), tid, h5py.h5s.create(h5py.h5s.SCALAR)).write(data)
+
+
+def _write_model_info(f: Any, n_modes: int) -> None:
+    """``/modelinfo`` as statismo's ``ModelInfo::Save``/``BuilderInfo::Save`` write it."""
+    built = time.asctime()
+    info = f.create_group("modelinfo")
+    _write_string(info, "build-time", built)
+    info.create_dataset("scores", data=np.zeros((1, 1), np.float32))  # statismo's "no scores"
+    builder = info.create_group("modelBuilder-0")
+    _write_string(builder, "builderName", "biplanar_reg ssm export (PCA)")
+    _write_string(builder, "buildTime", built)
+    _write_string(builder.create_group("parameters"), "NumberOfModes", str(n_modes))
+    builder.create_group("dataInfo")
+
+
 def write_statismo(model: ShapeModel, path: str | os.PathLike, dtype: str = "float32") -> None:
     """Write ``model`` as a statismo 0.9 HDF5 file (module docstring), atomically.
 
     Parameters
     ----------
     model : ShapeModel
-        Its modes must be mutually orthogonal (as :func:`.build.build_ssm` makes them); the
-        variances written are the modes' squared norms (``model.variances`` for a PCA model).
+        Its modes must be mutually orthogonal (as :func:`.build.build_ssm` makes them), and
+        there must be at least one; the variances written are the modes' squared norms
+        (``model.variances`` for a PCA model).
     path : path-like
         Output file (``.h5``).
     dtype : {"float32", "float64"}
-        Precision of the floating-point datasets; statismo/scalismo expect float32.
+        Precision of the floating-point datasets. float32 is what statismo and scalismo read;
+        float64 is for this package only (scalismo refuses it; a warning is logged).
+
+    Raises
+    ------
+    ValueError
+        A bad ``dtype``, a model without modes (statismo stores no empty matrices), modes
+        that are not orthogonal, or more than 2^31 vertices; nothing is written.
     """
     import h5py
 
     if dtype not in ("float32", "float64"):
         raise ValueError(f"dtype: expected 'float32' or 'float64', got {dtype!r}")
+    if model.n_modes == 0:
+        raise ValueError(
+            "the model has no modes; statismo cannot store an empty basis (its writer refuses "
+            "empty matrices)"
+        )
+    if model.n_vertices >= 2**31:
+        raise ValueError(f"{model.n_vertices} vertices: statismo's int32 cells hold < 2^31")
     basis, var = _orthonormal_basis(model)
     mesh = model.faces is not None
+    if dtype == "float64":
+        log.warning(
+            "%s: float64 datasets: this file is for biplanar-reg only (scalismo reads float32 "
+            "only and refuses it; statismo computes in single precision anyway); export "
+            "float32 for other tools",
+            path,
+        )
     with atomic_path(Path(path)) as tmp, h5py.File(tmp, "w") as f:
         f.create_dataset("version/majorVersion", data=np.int32(0))
         f.create_dataset("version/minorVersion", data=np.int32(9))
@@ -206,18 +287,13 @@ def write_statismo(model: ShapeModel, path: str | os.PathLike, dtype: str = "flo
         f.create_dataset("model/pcaVariance", data=var.astype(dtype))
         f.create_dataset("model/noiseVariance", data=np.array(0.0, dtype=dtype))
         rep = f.create_group("representer")
-        # fixed-length strings, as statismo writes them (C_S1 of the string's length)
-        name = "itkStandardMeshRepresenter" if mesh else "itkPointSetRepresenter"
-        rep.attrs["name"] = np.bytes_(name)
-        rep.attrs["datasetType"] = np.bytes_("POLYGON_MESH" if mesh else "POINT_SET")
-        rep.attrs["version"] = np.bytes_("0.9")
+        _write_string_attr(rep, "name", REPRESENTER_NAME)
+        _write_string_attr(rep, "version", "0.9")
+        _write_string_attr(rep, "datasetType", "POLYGON_MESH" if mesh else "POINT_SET")
         rep.create_dataset("points", data=model.mean.T.astype(dtype))
         if mesh:
-            rep.create_dataset("cells", data=model.faces.T.astype(np.uint32))
-        info = f.create_group("modelinfo/modelBuilder-0")
-        info.create_dataset("builderName", data=np.bytes_("biplanar_reg ssm build (PCA)"))
-        info.create_group("parameters")
-        info.create_group("dataInfo")
+            rep.create_dataset("cells", data=model.faces.T.astype(np.int32))
+        _write_model_info(f, model.n_modes)
         _write_extras(f, model)
 
 

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
+import logging
+import types
+
+import cv2
 import numpy as np
 import pytest
 
@@ -73,3 +78,67 @@ def test_malformed_cfg(tmp_path, text, message):
     with pytest.raises(ValueError, match=message) as err:
         read_autoscoper_cfg(path)
     assert str(path) in str(err.value)
+
+
+def _distorted_views():
+    """The biplanar views, the second with a barrel distortion (an image intensifier's)."""
+    views = _views()
+    bent = dataclasses.replace(views[1], distortion=np.array([-0.3, 0.1, 1e-3, -1e-3, 0.0]))
+    return [views[0], bent]
+
+
+def _corner_shift_px(view) -> float:
+    """Largest pixel distance at the image corners between the pinhole projection (what
+    Autoscoper renders) and the distorted one, by OpenCV's projectPoints."""
+    w, h = view.image_size
+    uv = np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1]], float)
+    xy = np.linalg.solve(view.K, np.column_stack([uv, np.ones(4)]).T)[:2].T
+    pts = np.column_stack([xy, np.ones(4)])
+    dist = np.asarray(view.distortion, float)
+    out, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), view.K, dist)
+    return float(np.max(np.linalg.norm(out.reshape(-1, 2) - uv, axis=1)))
+
+
+def test_trial_warns_about_distortion_autoscoper_ignores(tmp_path, caplog):
+    """Autoscoper's Camera::loadMayaCam2 reads lines 0-16 (size, K, R, t) only: the
+    'undistortion' block is dropped, so the trial must say so for a distorted view."""
+    views = _distorted_views()
+    with caplog.at_level(logging.WARNING, logger="biplanar_reg"):
+        write_autoscoper_trial(tmp_path, "trial", views, [None, None], [])
+    msgs = [r.getMessage() for r in caplog.records]
+    assert len(msgs) == 1 and repr(views[1].name) in msgs[0] and "distortion" in msgs[0]
+    shift = float(msgs[0].split("up to ")[1].split(" px")[0])
+    assert shift == pytest.approx(_corner_shift_px(views[1]), rel=0.05) and shift > 1
+    cfg = (tmp_path / "trial.cfg").read_text()
+    assert any(
+        line.startswith("#") and views[1].name in line and "distortion" in line
+        for line in cfg.splitlines()
+    )
+    assert read_autoscoper_cfg(tmp_path / "trial.cfg")["mayaCam_csv"]  # still parses
+    # the MayaCam file keeps the coefficients (XMALab reads them; Autoscoper skips them)
+    back = load_calibration(tmp_path / "calibration" / f"{views[1].name}.txt", "mayacam2")
+    np.testing.assert_allclose(back.distortion[:5], views[1].distortion[:5])
+
+
+def test_trial_without_distortion_has_no_warning(tmp_path, caplog):
+    with caplog.at_level(logging.WARNING, logger="biplanar_reg"):
+        write_autoscoper_trial(tmp_path, "trial", _views(), [None, None], [])
+    assert not caplog.records
+    assert "distortion" not in (tmp_path / "trial.cfg").read_text()
+
+
+def test_case_export_warns_about_distortion(tmp_path, caplog):
+    """The registration's Autoscoper export (cases.outputs.autoscoper_exports) warns too."""
+    from biplanar_reg.cases.outputs import autoscoper_exports
+
+    views = _distorted_views()
+    case = types.SimpleNamespace(
+        id="case-1",
+        views=[types.SimpleNamespace(view=v, image_path=None, image_file_size=None) for v in views],
+    )
+    tmp, out = tmp_path / ".out.tmp", tmp_path / "out"
+    with caplog.at_level(logging.WARNING, logger="biplanar_reg"):
+        files = autoscoper_exports(tmp, out, case, {"bone": np.eye(4)[None]})
+    assert any(p.name == "case-1.cfg" for p in files)
+    msgs = [r.getMessage() for r in caplog.records]
+    assert any("distortion" in m and "case-1" in m for m in msgs)

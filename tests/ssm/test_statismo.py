@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+
 import h5py
 import numpy as np
 import pytest
@@ -96,3 +98,140 @@ def test_bad_input(tmp_path) -> None:
     with pytest.raises(ValueError, match="not mutually orthogonal"):
         write_statismo(nonortho, tmp_path / "x.h5")
     assert not (tmp_path / "x.h5").exists()
+
+
+# -- what statismo's and scalismo's readers need -------------------------------------------------
+# Encoded from their reading code (neither can be installed here, so the file layout is checked
+# against these requirements instead of by running them):
+#
+# statismo (C++, github.com/statismo/statismo):
+#   modules/core/include/StatismoIO.h, IO<T>::LoadStatisticalModel: opens group /representer
+#     and calls the representer's Load; /version/{majorVersion,minorVersion} via
+#     HDF5Utils::readInt, only (0, 8) and (0, 9) accepted; /model/mean and /model/pcaVariance via
+#     readVector (1-D), /model/pcaBasis via readMatrix (2-D, hyperslab of the columns),
+#     /model/noiseVariance via readFloat (one value); then ModelInfo::Load(/).
+#   modules/core/src/ModelInfo.cxx, ModelInfo::Load: opens group /modelinfo; ./scores optional
+#     (an H5 exception is caught); every member whose name contains "modelBuilder" is a group
+#     read by BuilderInfo::Load: readString ./builderName and ./buildTime (required), groups
+#     ./dataInfo and ./parameters whose members are all read with readString; a member whose
+#     name contains "dataInfo" or "builderInfo" switches to the pre-0.9 layout (needs
+#     ./builderInfo and ./build-time), so none may sit directly in /modelinfo.
+#   modules/core/include/HDF5Utils.hxx: readString = DataSet::read(std::string, getStrType())
+#     and writeString = fixed-length C_S1 of length + 1, scalar dataspace (likewise the string
+#     attributes); readMatrix/readVector convert to float (NATIVE_FLOAT); writeMatrix refuses
+#     empty matrices.
+#   modules/ITK/include/itkStandardMeshRepresenter.hxx and modules/VTK/src/
+#     vtkStandardMeshRepresenter.cxx, Load/LoadRef: readStringAttribute "name" (legacy names
+#     vtkPolyDataRepresenter / itkMeshRepresenter take another path), readMatrix ./points
+#     (3, N), readMatrixOfType<unsigned int> ./cells (cellDim rows, one column per cell),
+#     converted to NATIVE_UINT.
+# scalismo (Scala, github.com/unibas-gravis/scalismo), reading with jhdf (pure Java):
+#   src/main/scala/scalismo/io/statisticalmodel/StatismoIO.scala, readStatismoPDM (and the older
+#     src/main/scala/scalismo/io/StatismoIO.scala, readStatismoPointModel): string attribute
+#     /representer@datasetType in {POINT_SET, POLYGON_MESH, ...} and @name;
+#     readNDArrayFloat representer/points with dims(0) == 3; cells (required for POLYGON_MESH)
+#     via readNDArrayInt, (3, F) (StatismoDomainIO.scala: "Representer cells are not
+#     triangles" otherwise); readArrayFloat model/mean and model/pcaVariance, readNDArrayFloat
+#     model/pcaBasis; readInt /version/{majorVersion,minorVersion}, (0, 9) or (1, _) accepted.
+#   src/main/scala/scalismo/io/statisticalmodel/HDF5Reader.scala: these cast jhdf's getData()
+#     with asInstanceOf[Array[Array[Float]]], [Array[Array[Int]]], [Array[Float]], [Int]; jhdf
+#     (io/jhdf/object/datatype/FixedPoint.java, getJavaType) returns int for signed 32-bit,
+#     long for unsigned 32-bit, and (FloatingPoint) double for 64-bit floats: so the arrays must
+#     be float32, the cells and the version numbers signed int32, or the cast fails.
+
+
+def _is_fixed_string(obj_type: h5py.h5t.TypeID) -> bool:
+    return obj_type.get_class() == h5py.h5t.STRING and not obj_type.is_variable_str()
+
+
+def _string_dataset(f: h5py.File, key: str) -> str:
+    assert isinstance(f.get(key), h5py.Dataset), f"missing string dataset {key}"
+    ds = f[key]
+    assert ds.shape == () and _is_fixed_string(ds.id.get_type()), key
+    return ds[()].decode("ascii")
+
+
+def _string_attr(obj: h5py.HLObject, name: str) -> str:
+    assert name in obj.attrs, f"missing attribute {name}"
+    aid = h5py.h5a.open(obj.id, name.encode())
+    assert aid.shape == () and _is_fixed_string(aid.get_type()), name
+    return obj.attrs[name].decode("ascii")
+
+
+def _require_float32(f: h5py.File, key: str, ndim: int) -> np.ndarray:
+    ds = f[key]
+    assert ds.dtype == np.float32 and ds.ndim == ndim, (key, ds.dtype, ds.shape)
+    return ds[()]
+
+
+def check_statismo_scalismo_layout(path) -> None:
+    """The requirements above, for a shape model file (float32 export)."""
+    with h5py.File(path, "r") as f:
+        for key in ("version/majorVersion", "version/minorVersion"):  # readInt / jhdf Integer
+            assert f[key].shape == () and f[key].dtype == np.int32, key
+        assert (int(f["version/majorVersion"][()]), int(f["version/minorVersion"][()])) == (0, 9)
+        mean = _require_float32(f, "model/mean", 1)
+        var = _require_float32(f, "model/pcaVariance", 1)
+        basis = _require_float32(f, "model/pcaBasis", 2)
+        assert basis.shape == (mean.size, var.size) and var.size >= 1  # no empty matrices
+        assert f["model/noiseVariance"].size == 1 and f["model/noiseVariance"].dtype.kind == "f"
+        rep = f["representer"]
+        name, kind = _string_attr(rep, "name"), _string_attr(rep, "datasetType")
+        assert name not in ("vtkPolyDataRepresenter", "itkMeshRepresenter")  # legacy path
+        points = _require_float32(f, "representer/points", 2)
+        assert points.shape == (3, mean.size // 3)
+        if kind == "POLYGON_MESH":
+            cells = rep["cells"]
+            assert cells.dtype == np.int32 and cells.ndim == 2 and cells.shape[0] == 3
+            assert cells[()].min() >= 0 and cells[()].max() < points.shape[1]
+        else:
+            assert kind == "POINT_SET"
+        info = f["modelinfo"]
+        assert not [k for k in info if "dataInfo" in k or "builderInfo" in k]
+        builders = [k for k in info if "modelBuilder" in k]
+        assert builders, "no modelinfo/modelBuilder-* group"
+        for b in builders:
+            _string_dataset(f, f"modelinfo/{b}/builderName")
+            _string_dataset(f, f"modelinfo/{b}/buildTime")
+            for sub in ("dataInfo", "parameters"):
+                assert isinstance(info[b].get(sub), h5py.Group), f"{b}/{sub}"
+                for k in info[b][sub]:
+                    _string_dataset(f, f"modelinfo/{b}/{sub}/{k}")
+        if "scores" in info:
+            assert info["scores"].ndim == 2
+
+
+def test_export_layout_meets_statismo_and_scalismo_readers(tmp_path) -> None:
+    model = _model()
+    model.save(tmp_path / "m.h5")
+    check_statismo_scalismo_layout(tmp_path / "m.h5")
+    back = ShapeModel.load(tmp_path / "m.h5")  # and this package still reads it
+    np.testing.assert_array_equal(back.faces, model.faces)
+
+
+def test_point_model_export_is_a_scalismo_point_set(tmp_path) -> None:
+    model = _model()
+    points = ShapeModel(model.mean, model.modes, variances=model.variances)
+    write_statismo(points, tmp_path / "p.h5")
+    check_statismo_scalismo_layout(tmp_path / "p.h5")
+    with h5py.File(tmp_path / "p.h5") as f:
+        assert f["representer"].attrs["datasetType"] == b"POINT_SET"
+        assert "cells" not in f["representer"]  # what scalismo writes for a point set
+
+
+def test_float64_export_says_it_is_for_this_tool_only(tmp_path, caplog) -> None:
+    with caplog.at_level(logging.WARNING, logger="biplanar_reg"):
+        write_statismo(_model(), tmp_path / "m.h5", dtype="float64")
+    assert any("only" in r.message and "scalismo" in r.message for r in caplog.records)
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="biplanar_reg"):
+        write_statismo(_model(), tmp_path / "m32.h5")
+    assert not caplog.records
+
+
+def test_model_without_modes_is_refused(tmp_path) -> None:
+    model = _model()
+    empty = ShapeModel(model.mean, np.zeros((0, model.n_vertices, 3)), faces=model.faces)
+    with pytest.raises(ValueError, match="no modes"):
+        write_statismo(empty, tmp_path / "e.h5")
+    assert not (tmp_path / "e.h5").exists()
