@@ -192,9 +192,8 @@ def clean_stale(out: Path) -> list[Path]:
 
     When ``out`` is missing and a previous output waits under its hidden old name (a run killed
     between the two renames of the swap), it is moved back to ``out`` first (with a warning).
-    Then the hidden temporary and old folders are removed, and the temporary files of killed
-    writers in ``out``'s folder (:func:`biplanar_reg.io.atomic.remove_orphaned_parts`). Call it
-    while holding :func:`output_lock` (a live run's temporary folder looks the same).
+    Then the hidden temporary and old folders are removed. Call it while holding
+    :func:`output_lock` (a live run's temporary folder looks the same).
     """
     removed: list[Path] = []
     if not out.parent.is_dir():
@@ -210,7 +209,6 @@ def clean_stale(out: Path) -> list[Path]:
     for p in [*sorted(out.parent.glob(f".{name}.tmp-*")), *olds]:
         _remove(p)
         removed.append(p)
-    remove_orphaned_parts(out.parent)
     return removed
 
 
@@ -359,9 +357,7 @@ def input_files(
         dirnames[:] = sorted(
             d
             for d in dirnames
-            if not d.startswith(".")
-            and here / d not in skip
-            and not _looks_like_output(here / d)
+            if not d.startswith(".") and here / d not in skip and not _looks_like_output(here / d)
         )
         for name in sorted(filenames):
             path = here / name

@@ -193,7 +193,9 @@ def _read_only(monkeypatch, folder: Path) -> list[Path]:
     return tried
 
 
-def test_a_read_only_output_is_refused_before_the_registration(fresh, tmp_path, monkeypatch, capsys):
+def test_a_read_only_output_is_refused_before_the_registration(
+    fresh, tmp_path, monkeypatch, capsys
+):
     ran: list[int] = []
     real = run_module.register_views
     monkeypatch.setattr(
