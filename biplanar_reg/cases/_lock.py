@@ -168,6 +168,10 @@ class OutputLock:
         ``(I, N)`` for shard ``I/N``; ``None`` for a run of every case.
     """
 
+    #: Whether a free ``flock`` alone makes a lock file stale (else a live PID named in it on
+    #: this host still counts: a lock file written by another tool, without ``flock``).
+    flock_decides = False
+
     def __init__(self, out: Path, shard: tuple[int, int] | None = None):
         self.out, self.shard = out, shard
         self.path = out / lock_name(shard)
@@ -217,7 +221,7 @@ class OutputLock:
         if state == "busy":
             raise self._refuse(self.path, info, True)
         if info:
-            alive = holder_alive(info)
+            alive = False if state == "held" and self.flock_decides else holder_alive(info)
             if alive or (alive is None and state == "unsupported"):
                 raise self._refuse(self.path, info, alive)
             log.warning("taking over the stale lock %s (%s is gone)", self.path, describe(info))
@@ -260,7 +264,11 @@ class RegisterLock(OutputLock):
     """The lock of one registration on its output folder ``out`` (see the module docstring).
 
     The lock file is ``.<out name>.register.lock`` in ``out``'s parent (which must exist).
+    Only this package writes it, always with its ``flock``: a free ``flock`` makes it stale
+    even when the PID it names still exists (a killed worker not yet reaped, a zombie).
     """
+
+    flock_decides = True
 
     def __init__(self, out: Path):
         self.out, self.shard = out, None
@@ -299,24 +307,49 @@ class RunPermit:
     REVOKE_WAIT = 30.0
 
     def __init__(self, out: Path):
-        fd, name = tempfile.mkstemp(prefix=".batch.permit-", dir=out)
-        os.close(fd)
+        self.fd, name = tempfile.mkstemp(prefix=PERMIT_PREFIX, dir=out)
         self.path = Path(name)
+        if fcntl is not None:  # held shared while the batch lives: a permit nobody holds is stale
+            with contextlib.suppress(OSError):
+                fcntl.flock(self.fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
 
     def revoke(self) -> None:
         """Wait for the moves in progress, then delete the permit; never raises."""
-        try:
-            fd = os.open(self.path, os.O_RDWR)
-        except OSError:
+        if self.fd < 0:
             return
         try:
             deadline = time.monotonic() + self.REVOKE_WAIT
-            while _try_flock(fd) == "busy" and time.monotonic() < deadline:
+            while _try_flock(self.fd) == "busy" and time.monotonic() < deadline:
                 time.sleep(0.02)
             with contextlib.suppress(OSError):
                 self.path.unlink()
         finally:
+            os.close(self.fd)
+            self.fd = -1
+
+
+#: Name prefix of the permit files (:class:`RunPermit`).
+PERMIT_PREFIX = ".batch.permit-"
+
+
+def remove_stale_permits(out: Path) -> list[Path]:
+    """Delete the permit files in ``out`` that no batch holds (left by a killed batch); return
+    them. On a file system without ``flock`` none is deleted (a live one cannot be told)."""
+    removed = []
+    for path in out.glob(PERMIT_PREFIX + "*"):
+        try:
+            fd = os.open(path, os.O_RDWR | getattr(os, "O_NOFOLLOW", 0))
+        except OSError:
+            continue
+        try:
+            if _try_flock(fd) == "held" and _same_file(fd, path):
+                path.unlink()
+                removed.append(path)
+        except OSError:
+            pass
+        finally:
             os.close(fd)
+    return removed
 
 
 @contextlib.contextmanager

@@ -49,7 +49,7 @@ import numpy as np
 
 from .._threads import available_cores
 from ..io.atomic import atomic_write_text, remove_orphaned_parts
-from ._lock import OutputLock, RunPermit, describe, probe
+from ._lock import OutputLock, RunPermit, describe, probe, remove_stale_permits
 from ._shards import (
     SUMMARY_FORMAT,
     check_split,
@@ -632,6 +632,7 @@ def run_batch(
         check_split(out, shard_)
     with _output_lock(out, shard_):
         remove_orphaned_parts(out)
+        remove_stale_permits(out)
         rec = _Recorder(len(dirs), progress_stream)
         todo = _plan(dirs, out, rec, force=force, report=report)
         extra = (allow_outside,) if report else (allow_outside, False)  # fakes take 3 args

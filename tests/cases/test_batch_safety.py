@@ -26,6 +26,7 @@ import pytest
 from _batch_helpers import fake_case, make_fake_cases, runs
 
 from biplanar_reg.cases import _cluster, batch
+from biplanar_reg.cases._lock import RunPermit
 from biplanar_reg.cases._shards import parse_shard
 from biplanar_reg.cases.batch import BatchSummary, run_batch, write_summary
 from biplanar_reg.cases.outputs import atomic_output_dir, output_lock
@@ -282,6 +283,22 @@ def test_a_live_registration_keeps_its_temporary_folder_during_a_batch(tmp_path,
         live.mkdir()
         run_batch(cases, out, workers=1, **FAKE)
         assert live.is_dir()
+
+
+def test_permits_of_killed_batches_are_removed_and_live_ones_kept(tmp_path, monkeypatch):
+    monkeypatch.setattr(batch, "process_case", fake_case)
+    cases = make_fake_cases(tmp_path / "cases", {"a": {}})
+    out = tmp_path / "out"
+    out.mkdir()
+    stale = out / ".batch.permit-killed1"  # its batch was SIGKILLed
+    stale.write_text("")
+    live = RunPermit(out)  # a shard's batch running on the same folder
+    try:
+        run_batch(cases, out, workers=1, **FAKE)
+        assert not stale.exists() and live.path.exists()
+    finally:
+        live.revoke()
+    assert not live.path.exists()
 
 
 def test_a_full_disk_in_the_batch_output_is_one_line_and_exit_2(tmp_path, monkeypatch, capsys):
