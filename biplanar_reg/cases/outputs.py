@@ -380,18 +380,20 @@ def input_fingerprint(
 ) -> dict[str, Any]:
     """The input record of a case (``inputs.json``): per file of :func:`input_files` its size,
     modification time (ns) and SHA-256 (None beyond :data:`HASH_FILE_LIMIT` or once
-    :data:`HASH_CASE_LIMIT` bytes were hashed). A file that vanishes meanwhile is left out."""
+    :data:`HASH_CASE_LIMIT` bytes were hashed, or unreadable). A file that vanishes meanwhile
+    is left out."""
     files: dict[str, dict[str, Any]] = {}
     budget = HASH_CASE_LIMIT
     for key, path in input_files(case_dir, exclude, tidy).items():
         try:
             st = path.stat()
-            digest = None
-            if st.st_size <= min(HASH_FILE_LIMIT, budget):
-                digest = _sha256(path)
-                budget -= st.st_size
         except OSError:
             continue
+        digest = None
+        if st.st_size <= min(HASH_FILE_LIMIT, budget):
+            with contextlib.suppress(OSError):  # unreadable: size and time only
+                digest = _sha256(path)
+                budget -= st.st_size
         files[key] = {"size": st.st_size, "mtime_ns": st.st_mtime_ns, "sha256": digest}
     return {
         "format": INPUTS_FORMAT,

@@ -26,10 +26,9 @@ import pytest
 from _batch_helpers import fake_case, make_fake_cases, runs
 
 from biplanar_reg.cases import _cluster, batch
-from biplanar_reg.cases._lock import RunPermit
 from biplanar_reg.cases._shards import parse_shard
 from biplanar_reg.cases.batch import BatchSummary, run_batch, write_summary
-from biplanar_reg.cases.outputs import atomic_output_dir, output_lock
+from biplanar_reg.cases.outputs import atomic_output_dir
 from biplanar_reg.cli import main
 from biplanar_reg.io import atomic as atomic_module
 from biplanar_reg.simulate import write_synthetic_case
@@ -274,6 +273,8 @@ def test_a_shard_of_another_split_is_refused(tmp_path, monkeypatch):
 
 
 def test_a_live_registration_keeps_its_temporary_folder_during_a_batch(tmp_path, monkeypatch):
+    from biplanar_reg.cases.outputs import output_lock
+
     monkeypatch.setattr(batch, "process_case", fake_case)
     cases = make_fake_cases(tmp_path / "cases", {"a": {}})
     out = tmp_path / "out"
@@ -286,6 +287,8 @@ def test_a_live_registration_keeps_its_temporary_folder_during_a_batch(tmp_path,
 
 
 def test_permits_of_killed_batches_are_removed_and_live_ones_kept(tmp_path, monkeypatch):
+    from biplanar_reg.cases._lock import RunPermit
+
     monkeypatch.setattr(batch, "process_case", fake_case)
     cases = make_fake_cases(tmp_path / "cases", {"a": {}})
     out = tmp_path / "out"
