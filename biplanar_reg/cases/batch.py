@@ -140,7 +140,9 @@ def process_case(
         return read_record(name, Path(out_dir), "done", time.perf_counter() - t0)
     except Exception as exc:  # noqa: BLE001 - isolate the case, record why it failed
         reason = " ".join(str(exc).split()) or type(exc).__name__
-        if not isinstance(exc, ValueError) and "registration failed" not in reason:
+        if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
+            reason = " ".join(f"{os.fsdecode(exc.filename)}: {exc.strerror}".split())
+        elif not isinstance(exc, ValueError) and "registration failed" not in reason:
             reason = f"{type(exc).__name__}: {reason}"
         return {
             "case": name,

@@ -227,3 +227,9 @@ def test_a_full_disk_is_one_line_and_keeps_the_previous_output(fresh, monkeypatc
     assert "previous output" in line and "internal error" not in line
     assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == previous
     assert _hidden(fresh) == []
+    # a batch case records the same line as its reason
+    from biplanar_reg.cases.batch import process_case
+
+    row = process_case(str(fresh), str(out), False, False)
+    assert row["status"] == "failed"
+    assert row["reason"].startswith(f"{out}: No space left on device (the output was not"), row
