@@ -219,6 +219,12 @@ class OutputLock:
         text = _read(fd)
         info = parse_holder(text) if text.strip() else {}
         if state == "busy":
+            for _ in range(20):  # the holder writes its record just after taking the flock
+                if info:
+                    break
+                time.sleep(0.01)
+                text = _read(fd)
+                info = parse_holder(text) if text.strip() else {}
             raise self._refuse(self.path, info, True)
         if info:
             alive = False if state == "held" and self.flock_decides else holder_alive(info)
