@@ -6,6 +6,11 @@ KEY=VALUE`` pairs; :func:`submit` submits ``--jobs N`` worker jobs and waits unt
 system has accepted them (a rejected submission is a one-line error, not a hang); the cases then
 go through the ``--scheduler`` path (``dask.distributed``). Nothing here is engine code: job
 scripts, submission and cancellation are dask-jobqueue's.
+
+Importing dask-jobqueue replaces Python's SIGINT handler with one that raises
+``SystemExit(None)`` (its ``runner`` module, for its own worker processes): in the batch that
+turned Ctrl-C into exit 0 with no message and no summary. :func:`cluster_class` puts the
+previous handler back after the import.
 """
 
 from __future__ import annotations
@@ -16,6 +21,8 @@ import inspect
 import logging
 import re
 import shutil
+import signal
+import threading
 import time
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -61,10 +68,15 @@ def cluster_class(kind: str) -> Any:
     """
     if kind not in KINDS:
         raise ValueError(f"--cluster: expected one of {', '.join(KINDS)}, got {kind!r}")
+    main = threading.current_thread() is threading.main_thread()
+    before = signal.getsignal(signal.SIGINT) if main else None
     try:
         import dask_jobqueue
     except ImportError:
         raise ValueError(f"--cluster {kind} needs dask-jobqueue: {INSTALL_HINT}") from None
+    finally:  # importing it installs a SIGINT handler raising SystemExit: Ctrl-C would exit 0
+        if before is not None and signal.getsignal(signal.SIGINT) is not before:
+            signal.signal(signal.SIGINT, before)
     return getattr(dask_jobqueue, KINDS[kind])
 
 

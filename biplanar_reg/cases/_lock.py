@@ -1,4 +1,5 @@
-"""The output-folder lock of ``batch``: one run per output folder (one per shard) at a time.
+"""Locks: one ``batch`` per output folder (one per shard), one registration per case output
+folder, and the permit that lets a batch's cases write into its output folder.
 
 A run holds ``OUT/.batch.lock`` (a shard ``I/N``: ``OUT/.batch.shard-I-of-N.lock``) for its
 whole duration. The file says who holds it (JSON: ``pid``, ``host``, ``pid_start``, ``started``,
@@ -17,6 +18,18 @@ A run also refuses to start while a live lock of an overlapping run exists: the 
 overlaps every shard, and shards ``I/N`` and ``J/M`` overlap when some case position ``p``
 satisfies ``p = I-1 (mod N)`` and ``p = J-1 (mod M)``. The lock file is deleted when the run
 ends (a SIGKILL leaves it behind, stale).
+
+:class:`RegisterLock` is the same lock for one case output folder ``X``: ``.X.register.lock``
+beside it, held by ``register`` (and each case of a batch) from before the case is read until
+its output is in place, so that a second registration into ``X`` (the workbench's Register and
+a terminal) is refused instead of deleting the first one's temporary folder.
+
+:class:`RunPermit` is the file ``OUT/.batch.permit-<random>`` a batch on a Dask cluster creates
+before it submits its cases: a case may move its output into ``OUT`` only while the permit
+exists, holding a shared ``flock`` on it for the move. When the batch stops (finished,
+interrupted, terminated) it takes the exclusive ``flock`` (waiting for moves in progress) and
+deletes the permit, so a case still running on the cluster afterwards writes nothing into
+``OUT``.
 """
 
 from __future__ import annotations
@@ -28,7 +41,9 @@ import math
 import os
 import re
 import socket
+import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -153,6 +168,10 @@ class OutputLock:
         ``(I, N)`` for shard ``I/N``; ``None`` for a run of every case.
     """
 
+    #: Whether a free ``flock`` alone makes a lock file stale (else a live PID named in it on
+    #: this host still counts: a lock file written by another tool, without ``flock``).
+    flock_decides = False
+
     def __init__(self, out: Path, shard: tuple[int, int] | None = None):
         self.out, self.shard = out, shard
         self.path = out / lock_name(shard)
@@ -200,9 +219,15 @@ class OutputLock:
         text = _read(fd)
         info = parse_holder(text) if text.strip() else {}
         if state == "busy":
+            for _ in range(20):  # the holder writes its record just after taking the flock
+                if info:
+                    break
+                time.sleep(0.01)
+                text = _read(fd)
+                info = parse_holder(text) if text.strip() else {}
             raise self._refuse(self.path, info, True)
         if info:
-            alive = holder_alive(info)
+            alive = False if state == "held" and self.flock_decides else holder_alive(info)
             if alive or (alive is None and state == "unsupported"):
                 raise self._refuse(self.path, info, alive)
             log.warning("taking over the stale lock %s (%s is gone)", self.path, describe(info))
@@ -239,6 +264,126 @@ class OutputLock:
                 self.path.unlink()
         os.close(self.fd)
         self.fd = None
+
+
+class RegisterLock(OutputLock):
+    """The lock of one registration on its output folder ``out`` (see the module docstring).
+
+    The lock file is ``.<out name>.register.lock`` in ``out``'s parent (which must exist).
+    Only this package writes it, always with its ``flock``: a free ``flock`` makes it stale
+    even when the PID it names still exists (a killed worker not yet reaped, a zombie).
+    """
+
+    flock_decides = True
+
+    def __init__(self, out: Path):
+        self.out, self.shard = out, None
+        self.path = out.parent / f".{out.name}.register.lock"
+        self.fd = None
+
+    def _refuse(self, path: Path, info: dict[str, Any], alive: bool | None) -> LockedError:
+        hint = (
+            f"if no registration is running on {info.get('host')}, delete {path}"
+            if alive is None
+            else "wait for it to finish or stop it"
+        )
+        return LockedError(
+            f"{self.out}: another registration is writing this output folder "
+            f"({describe(info)}; lock file {path}); {hint}"
+        )
+
+    def _check_others(self) -> None:
+        return
+
+
+class PermitRevoked(ValueError):
+    """The batch that started a case has stopped: the case's output is not moved into place."""
+
+
+class RunPermit:
+    """The permit of a batch's cases to write into its output folder (module docstring).
+
+    Parameters
+    ----------
+    out : Path
+        The batch output folder (it must exist).
+    """
+
+    #: Seconds :meth:`revoke` waits for moves in progress before deleting the permit anyway.
+    REVOKE_WAIT = 30.0
+
+    def __init__(self, out: Path):
+        self.fd, name = tempfile.mkstemp(prefix=PERMIT_PREFIX, dir=out)
+        self.path = Path(name)
+        if fcntl is not None:  # held shared while the batch lives: a permit nobody holds is stale
+            with contextlib.suppress(OSError):
+                fcntl.flock(self.fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+
+    def revoke(self) -> None:
+        """Wait for the moves in progress, then delete the permit; never raises."""
+        if self.fd < 0:
+            return
+        try:
+            deadline = time.monotonic() + self.REVOKE_WAIT
+            while _try_flock(self.fd) == "busy" and time.monotonic() < deadline:
+                time.sleep(0.02)
+            with contextlib.suppress(OSError):
+                self.path.unlink()
+        finally:
+            os.close(self.fd)
+            self.fd = -1
+
+
+#: Name prefix of the permit files (:class:`RunPermit`).
+PERMIT_PREFIX = ".batch.permit-"
+
+
+def remove_stale_permits(out: Path) -> list[Path]:
+    """Delete the permit files in ``out`` that no batch holds (left by a killed batch); return
+    them. On a file system without ``flock`` none is deleted (a live one cannot be told)."""
+    removed = []
+    for path in out.glob(PERMIT_PREFIX + "*"):
+        try:
+            fd = os.open(path, os.O_RDWR | getattr(os, "O_NOFOLLOW", 0))
+        except OSError:
+            continue
+        try:
+            if _try_flock(fd) == "held" and _same_file(fd, path):
+                path.unlink()
+                removed.append(path)
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
+    return removed
+
+
+@contextlib.contextmanager
+def permitted(permit: str | os.PathLike[str]) -> Iterator[None]:
+    """Hold the permit ``permit`` (shared) for the block; :class:`PermitRevoked` when it is gone.
+
+    On a file system without ``flock`` only the permit's existence is checked.
+    """
+    path = Path(permit)
+    try:
+        fd = os.open(path, os.O_RDWR)
+    except FileNotFoundError:
+        raise PermitRevoked(
+            f"{path.parent}: the batch that started this case has stopped; its output is not "
+            "written"
+        ) from None
+    try:
+        if fcntl is not None:
+            with contextlib.suppress(OSError):
+                fcntl.flock(fd, fcntl.LOCK_SH)
+        if not _same_file(fd, path):  # revoked while we waited for the lock
+            raise PermitRevoked(
+                f"{path.parent}: the batch that started this case has stopped; its output is "
+                "not written"
+            )
+        yield
+    finally:
+        os.close(fd)
 
 
 def probe(path: Path) -> tuple[bool | None, dict[str, Any]]:

@@ -62,6 +62,30 @@ def shard_file(out: Path, shard: tuple[int, int]) -> Path:
     return out / f"summary.shard-{i:0{len(str(n))}d}-of-{n}.json"
 
 
+def check_split(out: Path, shard: tuple[int, int]) -> None:
+    """Refuse to run shard ``I/N`` into ``out`` when ``out`` holds the summaries of a split into
+    another number of shards: the two splits would share cases and never merge (a job array
+    resubmitted with ``--shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT``, whose count is
+    the size of the new array).
+
+    Raises
+    ------
+    ValueError
+        One line naming the other split and what to do.
+    """
+    i, n = shard
+    counts = sorted(
+        {int(m.group(2)) for p in out.glob(SHARD_GLOB) if (m := _SHARD_FILE.match(p.name))} - {n}
+    )
+    if counts:
+        k = counts[0]
+        raise ValueError(
+            f"--shard {i}/{n}: {out} holds the summaries of a split into {k} shards "
+            f"(summary.shard-*-of-{k}.json); give the same count as the other shards (e.g. "
+            f"--shard {i}/{k}), or delete those summaries to split the study anew"
+        )
+
+
 def _number(x: object) -> bool:
     return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
 

@@ -3,8 +3,10 @@
 * Each case runs in :func:`process_case`, which never raises: a bad or failing case becomes a
   record with its reason, and the other cases go on.
 * Outputs go to ``OUT/<case folder name>/`` through :func:`.outputs.atomic_output_dir`, so a
-  case's folder either is complete or does not exist. A rerun skips complete folders
-  (``force`` redoes them) and removes the hidden temporary folders of killed runs.
+  case's folder either is complete or does not exist. A rerun skips complete folders whose
+  input record (``inputs.json``) still matches the case folder, registers again those whose
+  inputs changed (``force`` redoes them all), and removes the hidden temporary folders of
+  killed runs.
 * One run per output folder (per shard) at a time: :mod:`._lock` (``OUT/.batch.lock``, with the
   holder's PID and host; a stale lock is taken over, a live one is an error).
 * Local runs use :mod:`._pool`: ``spawn`` worker processes fed one case at a time. A worker
@@ -13,17 +15,23 @@
   with the batch process (parent-death signal and a watchdog). With ``scheduler`` the cases
   are submitted to ``dask.distributed.Client(address)`` (Dask itself reschedules tasks of a
   lost worker); with ``cluster`` the Dask workers are SLURM/PBS/SGE jobs (:mod:`._cluster`,
-  dask-jobqueue).
+  dask-jobqueue). Cases on Dask move their output into ``OUT`` only while the batch's permit
+  exists (:class:`._lock.RunPermit`): once the batch stops, a case still running on the
+  cluster writes nothing.
 * ``shard=(I, N)`` runs every N-th case of the sorted case list and writes a shard summary;
   :func:`merge_batch` builds the study summary from the shards' (:mod:`._shards`).
 * SIGTERM / Ctrl-C of the whole run stops the workers and writes the summary of the cases
-  finished so far; nothing half-written remains, and a rerun completes the rest.
+  finished so far (Ctrl-C raises ``KeyboardInterrupt`` during the run even where a library
+  replaced Python's SIGINT handler, as dask-jobqueue does when imported); nothing
+  half-written remains, and a rerun completes the rest.
+* ``summary.csv``: a text cell that a spreadsheet would read as a formula (first character
+  ``=``, ``+``, ``-``, ``@``, tab or carriage return) gets a leading apostrophe; numbers are
+  written as numbers.
 """
 
 from __future__ import annotations
 
-import csv
-import io
+import contextlib
 import json
 import logging
 import math
@@ -32,7 +40,7 @@ import signal
 import socket
 import sys
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -40,10 +48,17 @@ from typing import Any
 import numpy as np
 
 from .._threads import available_cores
-from ..io.atomic import atomic_write_text
-from ._lock import OutputLock, describe, probe
-from ._shards import SUMMARY_FORMAT, parse_shard, read_shard_summaries, shard_file, shard_names
-from .outputs import clean_stale, is_complete
+from ..io.atomic import atomic_write_text, remove_orphaned_parts
+from ._lock import OutputLock, RunPermit, describe, probe, remove_stale_permits
+from ._shards import (
+    SUMMARY_FORMAT,
+    check_split,
+    parse_shard,
+    read_shard_summaries,
+    shard_file,
+    shard_names,
+)
+from .outputs import batch_permit, inputs_changed, is_complete, tidy_output, unwritable
 
 __all__ = ["BatchSummary", "run_batch", "merge_batch"]
 
@@ -104,19 +119,30 @@ def read_record(case_name: str, out_dir: Path, status: str, seconds: float | Non
 
 
 def process_case(
-    case_dir: str, out_dir: str, allow_outside: bool = False, report: bool = True
+    case_dir: str,
+    out_dir: str,
+    allow_outside: bool = False,
+    report: bool = True,
+    permit: str | None = None,
 ) -> dict:
-    """Register one case into ``out_dir``; return its summary row (never raises)."""
-    from .run import run_case_dir
+    """Register one case into ``out_dir``; return its summary row (never raises).
+
+    ``permit``: the batch's permit file (:class:`._lock.RunPermit`); the output is moved into
+    place only while it exists.
+    """
+    from . import run
 
     t0 = time.perf_counter()
     name = Path(case_dir).name
     try:
-        run_case_dir(case_dir, out_dir, allow_outside=allow_outside, report=report)
+        with batch_permit(permit):  # run_case_dir looked up now (tests replace it)
+            run.run_case_dir(case_dir, out_dir, allow_outside=allow_outside, report=report)
         return read_record(name, Path(out_dir), "done", time.perf_counter() - t0)
     except Exception as exc:  # noqa: BLE001 - isolate the case, record why it failed
         reason = " ".join(str(exc).split()) or type(exc).__name__
-        if not isinstance(exc, ValueError) and "registration failed" not in reason:
+        if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
+            reason = " ".join(f"{os.fsdecode(exc.filename)}: {exc.strerror}".split())
+        elif not isinstance(exc, ValueError) and "registration failed" not in reason:
             reason = f"{type(exc).__name__}: {reason}"
         return {
             "case": name,
@@ -230,6 +256,33 @@ def _fmt(x: Any) -> str:
     return str(x)
 
 
+#: First characters of a text cell that a spreadsheet reads as the start of a formula.
+FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
+
+
+def csv_text(rows: Sequence[Sequence[str]]) -> str:
+    """CSV text (comma-separated, ``\\n`` line ends) in which a cell holding a comma, a double
+    quote or a line break is quoted (``"`` doubled inside), a carriage return too: Python's
+    csv writer with ``\\n`` line ends leaves one bare, which splits the row when read back."""
+
+    def cell(text: str) -> str:
+        if any(c in text for c in ',"\r\n'):
+            return '"' + text.replace('"', '""') + '"'
+        return text
+
+    return "".join(",".join(cell(c) for c in row) + "\n" for row in rows)
+
+
+def csv_cell(x: Any) -> str:
+    """A CSV cell: :func:`_fmt` of ``x``, with a leading apostrophe when ``x`` is text that
+    starts like a formula (:data:`FORMULA_START`: ``=HYPERLINK(...)`` as a case name), so that
+    a spreadsheet shows it as text and runs nothing; numbers stay numbers (``-0.5``)."""
+    text = _fmt(x)
+    if isinstance(x, str) and text.startswith(FORMULA_START):
+        return "'" + text
+    return text
+
+
 def _json_value(x: Any) -> Any:
     return None if isinstance(x, float) and not math.isfinite(x) else x
 
@@ -265,19 +318,11 @@ def write_summary(
     """
     from ..report.html import write_page
 
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(SUMMARY_COLUMNS)
-    for r in summary.rows:
-        w.writerow([_fmt(r.get(c)) for c in SUMMARY_COLUMNS])
-    atomic_write_text(out / "summary.csv", buf.getvalue())
+    table = [[csv_cell(r.get(c)) for c in SUMMARY_COLUMNS] for r in summary.rows]
+    atomic_write_text(out / "summary.csv", csv_text([list(SUMMARY_COLUMNS), *table]))
     names = ("n", "mean", "median", "p95", "max")
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["metric", *names])
-    for key, s in summary.stats.items():
-        w.writerow([key, *(_fmt(s[n]) for n in names)])
-    atomic_write_text(out / "summary_stats.csv", buf.getvalue())
+    table = [[csv_cell(key), *(csv_cell(s[n]) for n in names)] for key, s in summary.stats.items()]
+    atomic_write_text(out / "summary_stats.csv", csv_text([["metric", *names], *table]))
     finished = time.time() if finished is None else finished
     started = finished - summary.wall_seconds if started is None else started
     atomic_write_text(out / "summary.json", _dump(summary_document(summary, started, finished)))
@@ -379,9 +424,19 @@ def _run_dask(
         client = Client(address, timeout="20s")
     except OSError as exc:
         raise ValueError(f"--scheduler {address}: cannot connect ({exc})") from None
+    # the cases write into the output folder only while the batch runs
+    permit = RunPermit(Path(jobs[0][1]).parent)
     try:
         futures = {
-            client.submit(process_case, c, o, *extra, pure=False, key=f"case-{i}-{Path(c).name}"): c
+            client.submit(
+                process_case,
+                c,
+                o,
+                *extra,
+                permit=str(permit.path),
+                pure=False,
+                key=f"case-{i}-{Path(c).name}",
+            ): c
             for i, (c, o) in enumerate(jobs)
         }
         for fut in as_completed(futures):
@@ -391,7 +446,8 @@ def _run_dask(
             except Exception as exc:  # noqa: BLE001 - a lost task (e.g. KilledWorker)
                 on_done(_failed(c, f"{type(exc).__name__}: {exc}"))
     finally:
-        client.close()
+        permit.revoke()  # waits for outputs being moved into place at this instant
+        client.close()  # the cases not started are dropped
 
 
 def _run_jobqueue(
@@ -476,8 +532,19 @@ def _execute(
     jobs: list[tuple[str, str]], engine: dict[str, Any], extra: tuple, rec: _Recorder
 ) -> bool:
     """Run the jobs on the engine (``process_case(case, out, *extra)``); True when interrupted
-    by SIGTERM / Ctrl-C."""
-    previous = signal.signal(signal.SIGTERM, _raise_terminated) if threading_main() else None
+    by SIGTERM / Ctrl-C.
+
+    During the run Ctrl-C raises ``KeyboardInterrupt`` (unless SIGINT is ignored): a library
+    may have replaced Python's handler (dask-jobqueue's raises ``SystemExit`` when imported,
+    which would end the batch with exit 0, no message and no summary).
+    """
+    main = threading_main()
+    previous = signal.signal(signal.SIGTERM, _raise_terminated) if main else None
+    previous_int = signal.getsignal(signal.SIGINT) if main else None
+    if previous_int in (None, signal.SIG_IGN, signal.default_int_handler):
+        previous_int = None
+    else:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         if engine.get("cluster"):
             _run_jobqueue(jobs, engine, extra, rec)
@@ -492,6 +559,8 @@ def _execute(
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+        if previous_int is not None:
+            signal.signal(signal.SIGINT, previous_int)
     return False
 
 
@@ -562,17 +631,12 @@ def run_batch(
     if shard_ is not None:
         by_name = {d.name: d for d in dirs}
         dirs = [by_name[n] for n in shard_names(study, shard_)]
-    out.mkdir(parents=True, exist_ok=True)
-    with OutputLock(out, shard_):
+        check_split(out, shard_)
+    with _output_lock(out, shard_):
+        remove_orphaned_parts(out)
+        remove_stale_permits(out)
         rec = _Recorder(len(dirs), progress_stream)
-        todo = []
-        for d in dirs:
-            target = out / d.name
-            clean_stale(target)
-            if not force and is_complete(target, report):
-                rec.skipped(read_record(d.name, target, "done", None))
-            else:
-                todo.append((str(d), str(target)))
+        todo = _plan(dirs, out, rec, force=force, report=report)
         extra = (allow_outside,) if report else (allow_outside, False)  # fakes take 3 args
         interrupted = _execute(todo, engine, extra, rec) if todo else False
         ordered = [
@@ -587,6 +651,66 @@ def run_batch(
         else:
             write_shard_summary(out, summary, study, started)
     return summary
+
+
+@contextlib.contextmanager
+def _output_lock(out: Path, shard: tuple[int, int] | None) -> Iterator[None]:
+    """Hold the batch's lock on ``out`` (created) for the block; a folder that cannot be
+    written is one line naming it (:func:`.outputs.unwritable`), before any case runs."""
+    lock = OutputLock(out, shard)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        lock.acquire()
+    except OSError as exc:
+        what = "the batch output folder cannot be written; no case was run"
+        raise unwritable(exc, out, what, [out.parent]) from None
+    try:
+        yield
+    finally:
+        lock.release()
+
+
+def _listing(items: Sequence[str], n: int = 3) -> str:
+    more = f" and {len(items) - n} more" if len(items) > n else ""
+    return ", ".join(items[:n]) + more
+
+
+def _plan(
+    dirs: Sequence[Path], out: Path, rec: _Recorder, *, force: bool, report: bool
+) -> list[tuple[str, str]]:
+    """The cases to run, as ``(case folder, output folder)``; the others are recorded as
+    skipped: complete outputs whose input record (``inputs.json``) matches the case folder.
+
+    A complete output whose inputs changed is registered again (with a warning naming the
+    changes); one without an input record (an older version wrote it) is kept, with one
+    warning for all of them. Leftovers of killed runs are tidied first
+    (:func:`.outputs.tidy_output`).
+    """
+    todo, unrecorded = [], []
+    for d in dirs:
+        target = out / d.name
+        tidy_output(target)
+        if not force and is_complete(target, report):
+            changes = inputs_changed(d, target)
+            if not changes:
+                if changes is None:
+                    unrecorded.append(d.name)
+                rec.skipped(read_record(d.name, target, "done", None))
+                continue
+            log.warning(
+                "%s: its inputs changed since its output was written (%s); registering it again",
+                d.name,
+                _listing(changes),
+            )
+        todo.append((str(d), str(target)))
+    if unrecorded:
+        log.warning(
+            "%d complete case(s) have no record of their inputs (written by an older version: "
+            "%s): kept without checking them; --force registers them again",
+            len(unrecorded),
+            _listing(unrecorded),
+        )
+    return todo
 
 
 def _merged_row(out: Path, name: str, row: dict | None, shard: str) -> dict:

@@ -11,6 +11,7 @@ document and the arrays the report draws to :func:`biplanar_reg.report.write_cas
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import os
@@ -31,7 +32,10 @@ from .metrics import contour_errors, model_outlines, summary_stats, surface_metr
 from .outputs import (
     atomic_output_dir,
     clean_stale,
+    input_fingerprint,
     mesh_properties,
+    output_lock,
+    recording_inputs,
     uncertainty_summary,
     write_exports,
     write_pose_exports,
@@ -441,11 +445,42 @@ def register_case(
         The registration rejected the case's input (e.g. an unsupported ``poses``).
     CaseFailure
         The registration failed.
+    LockedError
+        Another registration is writing ``out`` (a ``ValueError``; :func:`.outputs.output_lock`).
+    OSError
+        ``out`` cannot be written (read-only, full disk): one line naming it.
     """
-    out_dir = Path(out) if out is not None else case.case_dir / "out"
-    out_dir = out_dir.resolve()
+    out_dir = _out_dir(case, out)
+    with output_lock(out_dir):
+        return _register_locked(
+            case,
+            out_dir,
+            include_phi=include_phi,
+            load_seconds=load_seconds,
+            progress=progress,
+            report=report,
+        )
+
+
+def _out_dir(case: Case, out: str | os.PathLike | None) -> Path:
+    """The output folder of :func:`register_case` (absolute), refused when it would replace
+    the case folder."""
+    out_dir = (Path(out) if out is not None else case.case_dir / "out").resolve()
     if out_dir == case.case_dir or case.case_dir.is_relative_to(out_dir):
         raise ValueError(f"--out {out_dir}: must not be the case folder or contain it")
+    return out_dir
+
+
+def _register_locked(
+    case: Case,
+    out_dir: Path,
+    *,
+    include_phi: bool,
+    load_seconds: float,
+    progress: Callable[[str], None] | None,
+    report: bool,
+) -> RunOutcome:
+    """:func:`register_case` into ``out_dir`` while holding its :func:`.outputs.output_lock`."""
     clean_stale(out_dir)
     if case.bones:  # [[bones]]: each bone through this function, into out/bones/<name>/
         from .bones import register_bones_case
@@ -523,18 +558,27 @@ def run_case_dir(
     """Load, register and write one case folder (the ``register`` command).
 
     ``progress`` and ``report`` are passed to :func:`register_case` (stage messages, for a
-    progress display; False: no report.html).
+    progress display; False: no report.html). The output folder's lock is taken before the
+    case is read (a busy or unwritable output is refused before any work), and the output gets
+    the record of the case's input files as they were then (``inputs.json``,
+    :func:`.outputs.input_fingerprint`); the temporary files of killed writers in the case
+    folder are deleted on the way.
     """
     t0 = time.perf_counter()
-    case = load_case(case_dir, allow_outside=allow_outside)
-    return register_case(
-        case,
-        out,
-        include_phi=include_phi,
-        load_seconds=time.perf_counter() - t0,
-        progress=progress,
-        report=report,
-    )
+    folder = Path(case_dir)
+    out_dir = (Path(out) if out is not None else folder / "out").resolve()
+    with output_lock(out_dir) if folder.is_dir() else contextlib.nullcontext():
+        inputs = input_fingerprint(folder, exclude=[out_dir], tidy=True)
+        case = load_case(case_dir, allow_outside=allow_outside)
+        with recording_inputs(_out_dir(case, out_dir), inputs):
+            return _register_locked(
+                case,
+                out_dir,
+                include_phi=include_phi,
+                load_seconds=time.perf_counter() - t0,
+                progress=progress,
+                report=report,
+            )
 
 
 # -- multi-frame cases ([[frames]]) ---------------------------------------------------------

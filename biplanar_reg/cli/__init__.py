@@ -10,7 +10,10 @@ wanted)``. This module only assembles them, sets up logging and maps the excepti
 * 1: the work failed (:class:`~biplanar_reg.errors.CommandError`, e.g. a failed case, or a
   :class:`~biplanar_reg.errors.SolverFailure`);
 * 2: bad input (a ``ValueError`` such as ``CaseError``, ``AnnotationError``,
-  ``CalibrationFormatError``, or a ``FileNotFoundError``; the message says which file or key);
+  ``CalibrationFormatError``, or a ``FileNotFoundError``; the message says which file or key),
+  and a file or folder the system refuses: a full disk, a read-only file system, a refused
+  permission (an ``OSError`` with ``errno`` ``ENOSPC``, ``EDQUOT``, ``EROFS``, ``EACCES`` or
+  ``EPERM``; ``error: <path>: <reason>``);
 * 130: interrupted;
 * 1 also for any other exception, a bug: the last-resort handler prints one line,
   ``biplanar-reg: internal error: <type>: <message> (run with -v for the traceback)``, and
@@ -24,8 +27,10 @@ selected command), so ``biplanar-reg --help`` imports no numpy.
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import logging
+import os
 import sys
 import traceback
 from collections.abc import Sequence
@@ -101,6 +106,22 @@ def _fail(exc: BaseException, code: int) -> int:
     return code
 
 
+#: ``errno`` values of an ``OSError`` that is the environment's (exit 2), not a bug.
+ENVIRONMENT_ERRNOS = frozenset(
+    {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC), errno.EROFS, errno.EACCES, errno.EPERM}
+)
+
+
+def _environment_error(exc: OSError) -> int:
+    """A full disk, read-only file system or refused permission: ``error: <path>: <reason>``,
+    on one line, exit 2."""
+    reason = " ".join((exc.strerror or str(exc)).split())
+    where = exc.filename if exc.filename is not None else None
+    text = f"{os.fsdecode(where)}: {reason}" if where is not None else reason
+    print(f"error: {' '.join(text.split())}", file=sys.stderr)
+    return 2
+
+
 def _internal_error(exc: BaseException, verbose: int) -> int:
     """The last resort: an exception no command expects is a bug; one line, exit 1.
 
@@ -134,5 +155,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:
+        if exc.errno in ENVIRONMENT_ERRNOS:
+            return _environment_error(exc)
+        return _internal_error(exc, args.verbose)
     except Exception as exc:  # noqa: BLE001 - the last resort: one line, not a traceback
         return _internal_error(exc, args.verbose)

@@ -11,18 +11,36 @@ Every file the package writes goes through :func:`atomic_path` (or the helpers b
    allows opening a folder), so the rename itself survives a power cut.
 
 On any exception the temporary file is removed and the target is left as it was: a reader sees
-the previous file or the new one, never a half-written one.
+the previous file or the new one, never a half-written one. An ``OSError`` of the write (a full
+disk: ``ENOSPC``) names the target when the system did not name a file.
+
+While the block runs, the writer holds an exclusive ``flock`` on its temporary file. A process
+killed mid-write (SIGKILL, power cut) leaves the temporary file behind; its lock is gone with the
+process, which is how :func:`remove_orphaned_parts` tells such an orphan from a live write.
+
+:func:`exchange_paths` swaps two folders in one step where the system can (Linux
+``renameat2(RENAME_EXCHANGE)``), for output folders replaced as a whole.
 """
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import errno
 import json
 import os
+import re
+import sys
 import tempfile
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None  # type: ignore[assignment]
 
 __all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text", "atomic_write_json"]
 
@@ -121,20 +139,121 @@ def atomic_path(path: str | os.PathLike[str], *, make_parents: bool = False) -> 
     """
     path = Path(path)
     _check_folder(path, make_parents)
-    fd, name = tempfile.mkstemp(
-        prefix=f".{path.name}.", suffix=f".part{_temp_suffix(path)}", dir=path.parent
-    )
-    os.close(fd)
+    try:
+        fd, name = tempfile.mkstemp(
+            prefix=f".{path.name}.", suffix=f".part{_temp_suffix(path)}", dir=path.parent
+        )
+    except OSError as exc:
+        raise _naming(exc, path) from None
+    if fcntl is not None:  # held until the end: a live write, not an orphan (module docstring)
+        with contextlib.suppress(OSError):
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    else:  # pragma: no cover - Windows: an open file could not be replaced
+        os.close(fd)
+        fd = -1
     tmp = Path(name)
     try:
-        yield tmp
-        _fsync_path(tmp)
-        os.chmod(tmp, new_file_mode(path))
-        os.replace(tmp, path)
-        _fsync_dir(path.parent)
+        try:
+            yield tmp
+            _fsync_path(tmp)
+            os.chmod(tmp, new_file_mode(path))
+            os.replace(tmp, path)
+            _fsync_dir(path.parent)
+        except OSError as exc:
+            raise _naming(exc, path) from None
     finally:
         with contextlib.suppress(FileNotFoundError):  # gone after a successful replace
             tmp.unlink()
+        if fd >= 0:
+            os.close(fd)
+
+
+def _naming(exc: OSError, path: Path) -> OSError:
+    """``exc`` with the target ``path`` as its file name when the system named none (a full disk
+    reported by ``write`` or ``fsync``); else ``exc`` itself."""
+    if exc.filename is not None or exc.errno is None:
+        return exc
+    return type(exc)(exc.errno, exc.strerror or os.strerror(exc.errno), str(path))
+
+
+#: The temporary files of :func:`atomic_path`: ``.<name>.<8 random characters>.part<suffix>``.
+PART_NAME = re.compile(r"^\..+\.[a-z0-9_]{8}\.part(\.[^./]+){0,2}$")
+#: Age (seconds) after which a temporary file counts as orphaned on a file system without
+#: ``flock``, where a live write cannot be told from a dead one.
+ORPHAN_AGE_WITHOUT_LOCKS = 3600.0
+
+
+def _orphaned(path: Path) -> bool:
+    """True when the temporary file ``path`` belongs to no live writer (see the module doc)."""
+    try:
+        fd = os.open(path, os.O_RDWR | getattr(os, "O_NOFOLLOW", 0))
+    except OSError:
+        return False
+    try:
+        if fcntl is not None:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                return True  # nobody holds it: its writer is gone (our lock ends with the fd)
+            except BlockingIOError:
+                return False
+            except OSError:  # a file system without flock: fall back on the age
+                pass
+        return time.time() - os.fstat(fd).st_mtime > ORPHAN_AGE_WITHOUT_LOCKS
+    finally:
+        os.close(fd)
+
+
+def remove_orphaned_parts(folder: str | os.PathLike[str]) -> list[Path]:
+    """Delete the temporary files that killed writers left in ``folder`` (not its subfolders).
+
+    Only files named as :func:`atomic_path` names them, and only those no live writer holds
+    (its ``flock``; on a file system without ``flock``, those older than
+    :data:`ORPHAN_AGE_WITHOUT_LOCKS`). Never raises; returns the files deleted.
+    """
+    removed: list[Path] = []
+    try:
+        names = [e.name for e in os.scandir(folder) if e.is_file(follow_symlinks=False)]
+    except OSError:
+        return removed
+    for name in names:
+        path = Path(folder) / name
+        if PART_NAME.match(name) and _orphaned(path):
+            with contextlib.suppress(OSError):
+                path.unlink()
+                removed.append(path)
+    return removed
+
+
+_RENAME_EXCHANGE = 2  # <linux/fs.h>
+_AT_FDCWD = -100
+
+
+def exchange_paths(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
+    """Swap the two existing paths ``a`` and ``b`` in one atomic step; False where the system
+    cannot (not Linux, an old C library or kernel, a file system without the operation), and
+    nothing changed then.
+
+    Linux ``renameat2(..., RENAME_EXCHANGE)``: at no instant is either name missing.
+
+    Raises
+    ------
+    OSError
+        The exchange is supported but failed (e.g. a missing path, no permission).
+    """
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        func = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return False
+    func.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    func.restype = ctypes.c_int
+    if func(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.ENOTSUP, errno.EOPNOTSUPP):
+        return False
+    raise OSError(err, os.strerror(err), os.fsdecode(a), None, os.fsdecode(b))
 
 
 def atomic_write_bytes(

@@ -1,4 +1,5 @@
-"""Strict JSON reading: errors that name the file, no ``NaN``/``Infinity`` tokens.
+"""Strict JSON reading: errors that name the file, no ``NaN``/``Infinity`` tokens, no key given
+twice in one object.
 
 Writing is :func:`biplanar_reg.io.atomic.atomic_write_json`.
 """
@@ -38,6 +39,23 @@ class JsonConstant(float):
         return self.token
 
 
+class DuplicateKeyError(ValueError):
+    """A JSON object names the same key twice (Python's json module would keep the last)."""
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """``object_pairs_hook`` of :func:`read_json`: the object as a dict, a repeated key refused."""
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise DuplicateKeyError(
+                f"duplicate key {key!r} in a JSON object (each key may appear once; "
+                "remove or rename one of them)"
+            )
+        out[key] = value
+    return out
+
+
 def too_deep_message() -> str:
     """What a JSON document nested beyond the parser's recursion limit is told."""
     return f"nested too deeply (more than {sys.getrecursionlimit()} levels of arrays/objects)"
@@ -46,16 +64,19 @@ def too_deep_message() -> str:
 def read_json(path: str | os.PathLike[str], *, constants: bool = False) -> Any:
     """Read a JSON file; a missing, unreadable or malformed file raises ``ValueError``.
 
-    ``NaN``/``Infinity`` tokens (accepted by Python's json module, not by the JSON standard) are
-    rejected so that they cannot slip into coordinates; with ``constants=True`` they are kept as
-    non-finite numbers (:class:`JsonConstant`) for a caller that validates every number and
-    reports where the bad one is. A document nested deeper than the parser's recursion limit is
-    a ``ValueError`` too.
+    A key given twice in one object is refused (the JSON standard leaves it undefined and
+    Python's json module silently keeps the last, so a landmark named twice would register
+    with one of them unnoticed). ``NaN``/``Infinity`` tokens (accepted by Python's json module,
+    not by the JSON standard) are rejected so that they cannot slip into coordinates; with
+    ``constants=True`` they are kept as non-finite numbers (:class:`JsonConstant`) for a caller
+    that validates every number and reports where the bad one is. A document nested deeper
+    than the parser's recursion limit is a ``ValueError`` too.
 
     Raises
     ------
     ValueError
-        The message names the file and, for malformed JSON, the line.
+        One line naming the file and, for malformed JSON, the line; for a repeated key, the
+        key (:class:`DuplicateKeyError`).
     """
     path = Path(path)
     try:
@@ -65,9 +86,15 @@ def read_json(path: str | os.PathLike[str], *, constants: bool = False) -> Any:
     except (OSError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: cannot be read ({exc})") from None
     try:
-        return json.loads(text, parse_constant=JsonConstant if constants else _reject_constant)
+        return json.loads(
+            text,
+            parse_constant=JsonConstant if constants else _reject_constant,
+            object_pairs_hook=_unique_keys,
+        )
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: malformed JSON at line {exc.lineno} ({exc.msg})") from None
+    except DuplicateKeyError as exc:
+        raise DuplicateKeyError(f"{path}: {exc}") from None
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
     except RecursionError:

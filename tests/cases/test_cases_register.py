@@ -223,7 +223,7 @@ def test_register_writes_the_autoscoper_and_slicer_exports(registered):
         p.relative_to(out).as_posix()
         for p in out.rglob("*")
         if p.is_file()
-        and p.name not in ("registered.ply", "result.json")
+        and p.name not in ("registered.ply", "result.json", "inputs.json")
         and p.parent.name != "figures"
         and p.suffix not in (".html", ".png", ".svg")
     )

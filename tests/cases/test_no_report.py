@@ -23,6 +23,7 @@ def test_register_and_batch_without_report(tmp_path, capsys):
     doc = json.loads((out / "result.json").read_text())
     exported = {e.split("/")[0] for e in doc["exports"]}  # docs/exports.md
     assert sorted(p.name for p in out.iterdir() if p.name not in exported) == [
+        "inputs.json",  # the record of the case's input files (docs/cases.md)
         "registered.ply",
         "result.json",
     ]
