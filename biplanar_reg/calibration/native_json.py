@@ -13,7 +13,7 @@ import json
 import logging
 from pathlib import Path
 
-from ..io.jsonfile import too_deep_message
+from ..io.jsonfile import DuplicateKeyError, too_deep_message, unique_keys
 from .views import OrthographicView, PerspectiveView, SlotScanningView, View
 
 __all__: list[str] = []
@@ -39,13 +39,15 @@ _KNOWN = {
 def read_json(path: Path) -> object:
     """Parse a JSON file (UTF-8, with or without a byte-order mark).
 
-    Raises ``ValueError`` naming the file when it is not valid JSON (``OSError`` when it cannot
-    be read).
+    Raises ``ValueError`` naming the file when it is not valid JSON or names a key twice in one
+    object (``OSError`` when it cannot be read).
     """
     try:
-        return json.loads(path.read_text(encoding="utf-8-sig"))
+        return json.loads(path.read_text(encoding="utf-8-sig"), object_pairs_hook=unique_keys)
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    except DuplicateKeyError as exc:  # the last would win silently
+        raise ValueError(f"{path}: {exc}") from None
     except RecursionError:
         raise ValueError(f"{path}: not valid JSON ({too_deep_message()})") from None
 

@@ -43,8 +43,9 @@ class DuplicateKeyError(ValueError):
     """A JSON object names the same key twice (Python's json module would keep the last)."""
 
 
-def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-    """``object_pairs_hook`` of :func:`read_json`: the object as a dict, a repeated key refused."""
+def unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """``object_pairs_hook`` of :func:`read_json` (and of every other reader of JSON input): the
+    object as a dict, a repeated key refused with :class:`DuplicateKeyError`."""
     out: dict[str, Any] = {}
     for key, value in pairs:
         if key in out:
@@ -89,7 +90,7 @@ def read_json(path: str | os.PathLike[str], *, constants: bool = False) -> Any:
         return json.loads(
             text,
             parse_constant=JsonConstant if constants else _reject_constant,
-            object_pairs_hook=_unique_keys,
+            object_pairs_hook=unique_keys,
         )
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: malformed JSON at line {exc.lineno} ({exc.msg})") from None

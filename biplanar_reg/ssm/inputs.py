@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from ..io.jsonfile import read_json
 from ..io.meshes import MESH_SUFFIXES, check_manifold, read_mesh
 
 __all__: list[str] = []
@@ -101,13 +101,7 @@ def read_meshes(
 def read_landmarks(path: str | os.PathLike) -> dict[str, int]:
     """Read ``{"landmark name": vertex index}`` from a JSON file; errors name the file and key."""
     path = Path(path)
-    try:
-        with open(path, encoding="utf-8") as fh:
-            data = json.load(fh)
-    except FileNotFoundError:
-        raise ValueError(f"{path}: file not found") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    data = read_json(path)  # one-line errors; a landmark named twice is refused
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a JSON object {{name: vertex index}}")
     out: dict[str, int] = {}

@@ -69,3 +69,19 @@ def test_register_refuses_a_case_file_with_a_duplicate_key(tmp_path, capsys, whi
     assert len(err) == 1, err
     assert path.name in err[0] and f"duplicate key '{key}'" in err[0], err[0]
     assert not (tmp_path / "out").exists()
+
+
+def test_the_other_json_readers_refuse_a_duplicate_key_too(tmp_path):
+    from biplanar_reg.calibration.native_json import read_native_json
+    from biplanar_reg.ssm.inputs import read_landmarks
+
+    calib = tmp_path / "cam.json"
+    calib.write_text(
+        '{"K": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "K": [[2, 0, 0], [0, 2, 0], [0, 0, 1]]}'
+    )
+    with pytest.raises(ValueError, match=r"cam\.json: duplicate key 'K'"):
+        read_native_json(calib)
+    marks = tmp_path / "marks.json"
+    marks.write_text('{"tip": 1, "tip": 2}')
+    with pytest.raises(ValueError, match=r"marks\.json: duplicate key 'tip'"):
+        read_landmarks(marks)
