@@ -33,7 +33,7 @@ from ..io.transforms import (
 )
 from .case import Case
 from .contact import PENETRATION_WARN_MM, penetration
-from .outputs import BONES_DIR, atomic_output_dir, autoscoper_exports
+from .outputs import BONES_DIR, atomic_output_dir, autoscoper_exports, export_warnings
 
 __all__ = ["register_bones_case"]
 
@@ -344,6 +344,7 @@ def register_bones_case(
         doc["timings"] = {"load": load_seconds, "contact": time.perf_counter() - t1}
         files = _exports(tmp, out_dir, case, poses)
         doc["exports"] = [p.relative_to(tmp).as_posix() for p in files]
+        doc["warnings"] = [*doc["warnings"], *export_warnings(case, doc["exports"])]
         doc["report"] = None
         if report:
             figures = _overlays(tmp, case, surfaces)

@@ -43,7 +43,11 @@ from typing import Any
 
 import numpy as np
 
-from ..calibration.autoscoper import AutoscoperVolume, write_autoscoper_trial
+from ..calibration.autoscoper import (
+    AutoscoperVolume,
+    distortion_warnings,
+    write_autoscoper_trial,
+)
 from ..calibration.views import PerspectiveView
 from ..io.atomic import atomic_write_json, current_umask, exchange_paths, remove_orphaned_parts
 from ..io.jsonfile import read_json
@@ -530,6 +534,15 @@ def _radiograph_dirs(case: Any) -> list[Path | None]:
         tiff = cv.image_path is not None and cv.image_path.suffix.lower() in (".tif", ".tiff")
         out.append(parent if tiff and parents.count(parent) == 1 else None)
     return out
+
+
+def export_warnings(case: Any, files: list) -> list[str]:
+    """Warnings about the exported ``files`` (paths relative to the output folder): an
+    Autoscoper trial leaves out the views' lens distortion
+    (:func:`~biplanar_reg.calibration.autoscoper.distortion_warnings`)."""
+    if not any(Path(f).parts[:1] == ("autoscoper",) for f in files):
+        return []
+    return distortion_warnings([cv.view for cv in case.views], _safe(case.id))
 
 
 def autoscoper_exports(tmp: Path, out: Path, case: Any, poses: dict[str, np.ndarray]) -> list[Path]:

@@ -32,6 +32,7 @@ from .metrics import contour_errors, model_outlines, summary_stats, surface_metr
 from .outputs import (
     atomic_output_dir,
     clean_stale,
+    export_warnings,
     input_fingerprint,
     mesh_properties,
     output_lock,
@@ -525,6 +526,7 @@ def _register_locked(
         write_mesh(tmp / "registered.ply", res.vertices, case.model.faces, props)
         t_exp = time.perf_counter()
         doc["exports"] = write_exports(tmp, out_dir, case, res)  # docs/exports.md
+        doc["warnings"] = [*doc["warnings"], *export_warnings(case, doc["exports"])]
         doc["timings"]["exports"] = time.perf_counter() - t_exp
         doc["report"] = None
         if report:
@@ -917,6 +919,7 @@ def register_frames_case(
         write_mesh(tmp / "registered.ply", res.frame_vertices(0), case.model.faces, props)
         write_mesh(tmp / "registered_model.ply", res.vertices, case.model.faces)
         doc["exports"] = write_pose_exports(tmp, out_dir, case, res.poses(), res.frame_vertices(0))
+        doc["warnings"] = [*doc["warnings"], *export_warnings(case, doc["exports"])]
         if report:
             t2 = time.perf_counter()
             doc["report"] = _write_frames_report(tmp, case, frames, res, doc)

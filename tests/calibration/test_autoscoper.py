@@ -142,3 +142,10 @@ def test_case_export_warns_about_distortion(tmp_path, caplog):
     assert any(p.name == "case-1.cfg" for p in files)
     msgs = [r.getMessage() for r in caplog.records]
     assert any("distortion" in m and "case-1" in m for m in msgs)
+    # and result.json's warnings get the same lines (cases.outputs.export_warnings)
+    from biplanar_reg.cases.outputs import export_warnings
+
+    rel = [p.relative_to(tmp).as_posix() for p in files]
+    warned = export_warnings(case, rel)
+    assert len(warned) == 1 and "distortion" in warned[0] and "case-1" in warned[0]
+    assert export_warnings(case, ["registered.tra"]) == []
