@@ -279,7 +279,8 @@ def write_statismo(model: ShapeModel, path: str | os.PathLike, dtype: str = "flo
             "float32 for other tools",
             path,
         )
-    with atomic_path(Path(path)) as tmp, h5py.File(tmp, "w") as f:
+    # the atomic writer holds a lock on its temporary file already; HDF5's own lock would wait
+    with atomic_path(Path(path)) as tmp, h5py.File(tmp, "w", locking=False) as f:
         f.create_dataset("version/majorVersion", data=np.int32(0))
         f.create_dataset("version/minorVersion", data=np.int32(9))
         f.create_dataset("model/mean", data=model.mean.reshape(-1).astype(dtype))
