@@ -85,6 +85,19 @@ MIN_OUTLINE_EXTENT_PX = 2.0
 #: from two directions (from one view the depth along the rays is left to the shape prior:
 #: results off by centimetres, or points "behind the source").
 MIN_VIEWS = 2
+#: Most ``[[views]]`` a case may have. A registration's time grows with the views (measured,
+#: docs/cases.md: 128 annotated views took 28 s and 620 MB with the report; 1,000 views
+#: without annotations 30 s, 10,000 never finished); more are refused before any is read.
+MAX_VIEWS = 256
+#: Largest model mesh (``[model] template`` or ``ssm``): the registration's time and memory
+#: grow with the faces (measured, docs/cases.md: about 0.17 s and 8.2 MB per 1,000 faces,
+#: 41 s and 2.3 GB at 245,760 faces) while its accuracy does not (surface RMS 0.11-0.18 mm
+#: from 960 to 983,040 faces of one bone).
+MAX_TEMPLATE_FACES = 200_000
+MAX_TEMPLATE_VERTICES = 100_000
+#: The measured cost of a registration per face of its model mesh, for the refusal message
+#: (``register`` without the report; fitted at 61,440-983,040 faces): memory MB and seconds.
+_MB_PER_FACE, _MB_BASE, _SECONDS_PER_FACE = 8.17e-3, 182.0, 1.68e-4
 
 _KEYS = {
     "": {
@@ -546,6 +559,8 @@ def _load_model(ctx: _Ctx, doc: dict, scale: float) -> tuple[ShapeModel, dict, d
             model = ShapeModel.load(path)
         except ValueError as exc:
             raise ctx.error("[model] ssm", _one_line(exc)) from None
+        n_faces = 0 if model.faces is None else len(model.faces)
+        _check_model_size(ctx, "[model] ssm", path, model.n_vertices, n_faces)
         source: dict[str, Any] = {"ssm": str(path)}
     else:
         path = ctx.path(table, "template", "[model]")
@@ -555,7 +570,9 @@ def _load_model(ctx: _Ctx, doc: dict, scale: float) -> tuple[ShapeModel, dict, d
             raise ctx.error("[model] template", _one_line(exc)) from None
         if faces is None:
             raise ctx.error("[model] template", f"{path.name}: a template needs faces (a mesh)")
+        _check_model_size(ctx, "[model] template", path, len(verts), len(faces))
         _check_template_faces(ctx, path, faces)
+        faces = _template_surface(ctx, path, verts, faces)
         # imported here: model building (~10 ms to import) is only for the template route
         from ..ssm import build_ssm, synthesise_population
         from ..ssm.population import FAMILIES
@@ -628,6 +645,107 @@ def _check_template_faces(ctx: _Ctx, path: Path, faces: np.ndarray | None) -> No
         )
 
 
+def _check_model_size(ctx: _Ctx, key: str, path: Path, n_vertices: int, n_faces: int) -> None:
+    """Refuse a model mesh above :data:`MAX_TEMPLATE_FACES` / :data:`MAX_TEMPLATE_VERTICES`,
+    saying what it would cost (the measured cost per face) and what to do."""
+    if n_faces <= MAX_TEMPLATE_FACES and n_vertices <= MAX_TEMPLATE_VERTICES:
+        return
+    faces = max(n_faces, 2 * n_vertices)  # a closed surface has about 2 faces per vertex
+    gb = (_MB_BASE + _MB_PER_FACE * faces) / 1024.0
+    seconds = _SECONDS_PER_FACE * faces
+    took = f"{seconds / 60:.0f} min" if seconds >= 90 else f"{seconds:.0f} s"
+    raise ctx.error(
+        key,
+        f"{path.name}: {n_faces:,} faces ({n_vertices:,} vertices); at most "
+        f"{MAX_TEMPLATE_FACES:,} faces ({MAX_TEMPLATE_VERTICES:,} vertices) are registered: "
+        f"this one would need about {gb:.1f} GB of memory and {took}, and a finer mesh "
+        "registers no more accurately (docs/cases.md): decimate it to a few thousand vertices "
+        "('biplanar-reg template from-ct --target-vertices 4000' from the CT, or quadric "
+        "decimation in 3D Slicer or MeshLab) and pick its landmark vertices again (decimation "
+        "renumbers them)",
+    )
+
+
+def _and_list(values: list[int]) -> str:
+    """``"1, 2 and 3"`` (at most 4 values, then ``", ..."``)."""
+    text = [f"{v:,}" for v in values[:4]]
+    if len(values) > 4:
+        return ", ".join(text) + ", ..."
+    return text[0] if len(text) == 1 else ", ".join(text[:-1]) + " and " + text[-1]
+
+
+def _template_surface(ctx: _Ctx, path: Path, verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The template's faces, checked and repaired where that is safe (docs/cases.md).
+
+    Measured on the synthetic case (``template`` = its truth mesh with each defect, seeds 0-2):
+    duplicated and inward or inconsistently wound faces left the registration unchanged (the
+    same vertex RMS to 0.01 mm) but go into ``registered.ply`` and its exports, so they are
+    repaired (faces only: vertices and landmark indices stay) with a warning; several pieces
+    are carried into ``registered.ply`` and dominate its surface metrics (surface RMS 0.2-27
+    mm against 0.12-0.18 mm; 1.8-27 mm with the second piece outside the bone), an error; an
+    open surface registers as given (a hole of 5 % of the faces: vertex RMS unchanged; half
+    the bone missing: 0.2-0.3 -> 0.3-0.6 mm), a warning.
+    """
+    from ..ssm.surface import (
+        boundary_edge_count,
+        component_sizes,
+        duplicate_faces,
+        nonmanifold_edge_count,
+    )
+
+    key, name = "[model] template", path.name
+    faces = np.asarray(faces, dtype=np.int64)
+    dup = duplicate_faces(faces)
+    if dup.size:
+        faces = np.delete(faces, dup, axis=0)
+        ctx.warn(f"{key}: {name}: {dup.size:,} duplicated faces removed (each triangle kept once)")
+    sizes = component_sizes(len(verts), faces)
+    if len(sizes) > 1:
+        raise ctx.error(
+            key,
+            f"{name}: {len(sizes)} separate pieces ({_and_list(sizes)} vertices); a template is "
+            "one bone's surface: remove the other pieces (another bone, fragments; e.g. "
+            "MeshLab's 'Remove Isolated pieces') and check the landmark vertex indices",
+        )
+    shared = nonmanifold_edge_count(faces)
+    if shared:
+        ctx.warn(
+            f"{key}: {name}: {shared:,} edges are shared by more than two faces; the faces' "
+            "winding was not checked"
+        )
+    else:
+        faces = _outward(ctx, key, name, verts, faces)
+    rim = boundary_edge_count(faces)
+    if rim:
+        ctx.warn(
+            f"{key}: {name}: the surface is open ({rim:,} boundary edges): it is registered as "
+            "given, and what is missing counts as error in the surface metrics: close the "
+            "holes if the bone is whole"
+        )
+    return faces
+
+
+def _outward(ctx: _Ctx, key: str, name: str, verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``faces`` wound consistently and outward (a warning says how many were re-wound)."""
+    from ..ssm.surface import inward_pieces, orient_consistently
+
+    flip = orient_consistently(faces)
+    if flip is None:
+        ctx.warn(f"{key}: {name}: the surface has no consistent winding (a Moebius strip?)")
+        return faces
+    wound = np.where(flip[:, None], faces[:, ::-1], faces)
+    flip ^= inward_pieces(verts, wound)
+    changed = int(flip.sum())
+    if changed == len(faces):
+        ctx.warn(f"{key}: {name}: the faces point inward; flipped to point outward")
+    elif changed:
+        ctx.warn(
+            f"{key}: {name}: {changed:,} of {len(faces):,} faces re-wound to point outward like "
+            "their neighbours"
+        )
+    return np.where(flip[:, None], faces[:, ::-1], faces)
+
+
 def _units_name(scale: float) -> str:
     return next(k for k, v in UNIT_SCALE.items() if v == scale)
 
@@ -641,6 +759,14 @@ def _view_tables(ctx: _Ctx, doc: dict) -> Iterator[tuple[str, str, dict]]:
     tables = doc.get("views")
     if not isinstance(tables, list) or not tables:
         raise ctx.error("[[views]]", "expected at least one [[views]] table")
+    if len(tables) > MAX_VIEWS:
+        raise ctx.error(
+            "[[views]]",
+            f"{len(tables):,} views; at most {MAX_VIEWS} are registered (the time grows with "
+            "the views: 128 annotated views took 28 s, 1,000 views 30 s even without "
+            "annotations): list only the views that show the bone (a sequence of frames goes in "
+            "[[frames]], not in more views)",
+        )
     seen: set[str] = set()
     for i, table in enumerate(tables):
         where = f"[[views]][{i}]"
@@ -674,6 +800,7 @@ def _load_views(ctx: _Ctx, doc: dict, scale: float) -> list[CaseView]:
                 size = read_image_size(image_path, frame=frame)
             except (ValueError, OSError) as exc:
                 raise ctx.error(f"{where} image", _one_line(exc)) from None
+            _check_pixels(ctx, f"{where} image", image_path)
         calib = ctx.path(table, "calibration", where)
         try:
             view = load_calibration(
@@ -702,6 +829,119 @@ def _load_views(ctx: _Ctx, doc: dict, scale: float) -> list[CaseView]:
             "views (one view leaves the depth along its rays undetermined)",
         )
     return views
+
+
+def _check_pixels(ctx: _Ctx, key: str, path: Path) -> None:
+    """A DICOM image whose pixels cannot be decoded here (no decoder installed for its
+    transfer syntax, no pixel data) is a case error now, not after the registration, when the
+    report first decodes it. Only element headers are read."""
+    from ..io.dicomfile import pixel_data_problem
+
+    problem = pixel_data_problem(path)
+    if problem:
+        raise ctx.error(key, f"{path.name}: {problem}")
+
+
+def _rel(ctx: _Ctx, path: Path) -> str:
+    """``path`` relative to the case folder when inside it."""
+    return str(path.relative_to(ctx.dir)) if path.is_relative_to(ctx.dir) else str(path)
+
+
+def _annotated(annotations: list[Annotations]) -> set[str]:
+    """Names of the views with a landmark or a contour in any of ``annotations``."""
+    return {
+        name for ann in annotations for name, va in ann.views.items() if va.landmarks or va.contours
+    }
+
+
+def _check_viewpoints(ctx: _Ctx, views: list[CaseView], annotated: set[str]) -> None:
+    """Views that see the bone from one point (the same source position; orthographic: the
+    same direction), e.g. one calibration given twice. When every annotated view shares one
+    viewpoint the bone's depth along the rays is undetermined (the registration failed with
+    "point(s) lie behind the source"): a case error; otherwise a warning per repeated view."""
+    from ..registration.quality import same_viewpoint
+
+    first = list(range(len(views)))  # each view -> the first view of its viewpoint
+    for j in range(len(views)):
+        for i in range(j):
+            if first[i] == i and same_viewpoint(views[i].view, views[j].view):
+                first[j] = i
+                break
+    repeated = [j for j in range(len(views)) if first[j] != j]
+    if not repeated:
+        return
+    names = [k for k, v in enumerate(views) if v.name in annotated]
+    if len(names) >= 2 and len({first[k] for k in names}) == 1:
+        j = next(k for k in names if first[k] != k)
+        raise ctx.error(
+            f"[[views]][{j}] ({views[j].name}) calibration",
+            f"{_same_as(ctx, views, j, first[j])} ({_rel(ctx, views[first[j]].calibration)}): "
+            "the views see the bone from one point, so its depth along the rays is "
+            "undetermined (one calibration given twice?); a biplanar registration needs views "
+            "from two directions, ideally 60-90 deg apart",
+        )
+    for j in repeated:
+        ctx.warn(
+            f"[[views]][{j}] ({views[j].name}) calibration: {_same_as(ctx, views, j, first[j])} "
+            "(one calibration given twice?); the view adds nothing to the depth the other "
+            "views give"
+        )
+
+
+def _check_landmark_rays(
+    ctx: _Ctx, key: str, path: Path, views: list[CaseView], ann: Annotations, landmarks: dict
+) -> None:
+    """Landmark rays whose nearest point lies behind a view's source cannot start the
+    registration (it starts at that point, and failed with "point(s) lie behind the source"):
+    a case error saying why, for a case the landmarks start (4 observations of 3 points; else
+    the start is searched on the outlines). With the views nearly parallel their rays barely
+    cross and the point falls anywhere along them; otherwise calibrations and landmarks
+    disagree."""
+    from ..registration.gsft import nearest_point_to_rays
+    from ..registration.quality import NEARLY_PARALLEL_DEG
+
+    obs = [o for o in _observations(views, ann, landmarks) if len(o.landmark_ids)]
+    ids = np.concatenate([o.landmark_ids for o in obs]) if obs else np.zeros(0, np.int64)
+    if len(ids) < MIN_LANDMARK_OBSERVATIONS or len(np.unique(ids)) < 3:
+        return
+    rays = [o.view.rays(o.landmark_uv) for o in obs]
+    centre = nearest_point_to_rays(np.vstack([r[0] for r in rays]), np.vstack([r[1] for r in rays]))
+    behind = [
+        o.name for o in obs if o.view.kind != "orthographic" and o.view.to_camera(centre)[0, 2] <= 0
+    ]
+    if not behind:
+        return
+    # how far apart the views look: their central rays, and their landmark rays on average
+    central = _line_angles(np.array([o.view.R[2] for o in obs]))
+    mean = _line_angles(np.array([r[1].mean(axis=0) for r in rays]))
+    i, j = sorted(np.unravel_index(int(np.argmax(central)), central.shape))
+    why = (
+        f"the views with landmarks are nearly parallel ({obs[i].name}/{obs[j].name}: central "
+        f"rays {central[i, j]:.1f} deg apart), so the bone's depth along the rays is "
+        "undetermined: check each view's calibration, or use views further apart (ideally "
+        "60-90 deg)"
+        if max(central.max(), mean.max()) < NEARLY_PARALLEL_DEG
+        else "the calibrations and the landmarks disagree (a calibration wrong, mirrored or in "
+        "other units, or landmarks in the wrong view?)"
+    )
+    raise ctx.error(
+        key, f"{path.name}: the landmark rays meet behind the source of {behind[0]}: {why}"
+    )
+
+
+def _line_angles(directions: np.ndarray) -> np.ndarray:
+    """Pairwise angles (degrees) between directions (K, 3) taken as lines (0-90)."""
+    d = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    sin = np.linalg.norm(np.cross(d[:, None], d[None]), axis=-1)
+    return np.degrees(np.arctan2(sin, np.abs(d @ d.T)))
+
+
+def _same_as(ctx: _Ctx, views: list[CaseView], j: int, i: int) -> str:
+    """``"<calibration>: the same source position as <view i>"`` (the projection direction of
+    orthographic views, else the calibration)."""
+    same = {"perspective": "source position", "orthographic": "projection direction"}
+    what = same.get(views[j].view.kind, "calibration")
+    return f"{_rel(ctx, views[j].calibration)}: the same {what} as {views[i].name}"
 
 
 def _detected(path: Path) -> str:
@@ -891,6 +1131,8 @@ def _frame_view(ctx: _Ctx, cv: CaseView, where: str, image, calib, page, scale) 
             size = read_image_size(path, frame=frame)
         except (ValueError, OSError) as exc:
             raise ctx.error(f"{where} images {cv.name}", _one_line(exc)) from None
+        if image is not None:  # the view's own image was checked with the view
+            _check_pixels(ctx, f"{where} images {cv.name}", path)
     view = cv.view
     if calib is not None:
         fmt = cv.calibration_format
@@ -1045,6 +1287,10 @@ def load_case(case_dir: str | os.PathLike, *, allow_outside: bool = False) -> Ca
     else:
         ann, ann_path = _load_annotations(ctx, doc, views, landmarks, start is not None)
     poses, silhouettes = _registration_mode(ctx, reg)
+    if poses != "unknown":  # "unknown" uses the calibrations' intrinsics only
+        _check_viewpoints(ctx, views, _annotated([f.annotations for f in frames] or [ann]))
+    if poses == "known" and start is None and not frames:
+        _check_landmark_rays(ctx, "[annotations] file", ann_path, views, ann, landmarks)
     if frames and (poses != "known" or start is not None):
         raise ctx.error(
             "[registration]",
@@ -1117,6 +1363,8 @@ def _load_bones(ctx: _Ctx, doc: dict, case_id: str, units: str, scale: float) ->
     bones = [
         Case(**common, **_one_bone(ctx, i, t, doc, views, reg, scale)) for i, t in enumerate(tables)
     ]
+    everything = [f.annotations for b in bones for f in b.frames] or [b.annotations for b in bones]
+    _check_viewpoints(ctx, views, _annotated(everything))
     names = [b.bone for b in bones]
     if len(set(names)) != len(names):
         dup = next(n for n in names if names.count(n) > 1)
@@ -1143,6 +1391,8 @@ def _one_bone(ctx: _Ctx, i: int, table: object, doc: dict, views, reg: dict, sca
     sub = _Scoped(ctx, where)
     model, source, landmarks = _load_model(sub, table, scale)
     frames, ann, ann_path = _bone_annotations(sub, table, doc, views, landmarks, scale, model)
+    if not frames:
+        _check_landmark_rays(sub, "annotations", ann_path, views, ann, landmarks)
     own = sub.table(table, "registration", required=False)
     for key in own:
         if key in _MODE_KEYS:

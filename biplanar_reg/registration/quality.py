@@ -6,7 +6,10 @@
   model's own terms (Mahalanobis distance of the weights, and the volume against the volume
   range the model spans);
 * :func:`disagreeing_landmarks`: landmarks whose error stands out from the others', relative
-  to their estimated noise.
+  to their estimated noise;
+* :func:`view_separation`: the angle between the two views that see the bone from the most
+  different directions (nearly parallel views leave its depth poorly fixed);
+  :func:`same_viewpoint`: two views that see everything from one point.
 
 Pure functions of arrays and the registration's problem; units are pixels in the images and
 mm in the world.
@@ -18,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..calibration.views import OrthographicView, PerspectiveView, View
 from ..ssm.model import ShapeModel
 from ..ssm.surface import signed_volume
 from .outline_match import ModelOutline, OutlineTarget, contour_sides
@@ -193,3 +197,61 @@ def disagreeing_landmarks(errors_px: np.ndarray, ratios: np.ndarray) -> np.ndarr
     sigma = float(np.median(scaled)) / _RAYLEIGH_MEDIAN
     limit = np.maximum(DISAGREE_SIGMAS * sigma * np.asarray(ratios, float), DISAGREE_MIN_PX)
     return np.flatnonzero(e > limit)
+
+
+#: Views flag: the two views of the bone furthest apart are under this angle (degrees). Measured
+#: (docs/registration.md, "Nearly parallel views"): below it the registrations had long error
+#: tails (vertex RMS up to 23-186 mm), failed now and then ("behind the source") and their
+#: uncertainty covered fewer of the errors; from 5 degrees up they were like those 30 degrees
+#: apart.
+NEARLY_PARALLEL_DEG = 5.0
+#: Two view origins closer than this (relative to their distance from the world origin, plus
+#: 1e-9 mm) are one point; two projection directions closer than this (radians) are one.
+_SAME_TOL = 1e-6
+
+
+def same_viewpoint(a: View, b: View) -> bool:
+    """Whether two views see every point from one point: perspective views with the same
+    source position (whatever their orientation), orthographic views with the same projection
+    direction (either way), and otherwise the same kind with the same calibration."""
+    if isinstance(a, PerspectiveView) and isinstance(b, PerspectiveView):
+        ca, cb = a.centre, b.centre
+        scale = max(1.0, float(np.linalg.norm(ca)), float(np.linalg.norm(cb)))
+        return float(np.linalg.norm(ca - cb)) <= _SAME_TOL * scale + 1e-9
+    if isinstance(a, OrthographicView) and isinstance(b, OrthographicView):
+        return float(np.linalg.norm(np.cross(a.R[2], b.R[2]))) <= _SAME_TOL
+    if type(a) is not type(b):
+        return False
+    return all(_close(getattr(a, k), getattr(b, k)) for k in vars(a) if k != "name")
+
+
+def _close(x: object, y: object) -> bool:
+    """Two calibration values equal within :data:`_SAME_TOL` (``None`` only equals ``None``)."""
+    if x is None or y is None:
+        return x is y
+    return bool(np.allclose(np.asarray(x, float), np.asarray(y, float), rtol=_SAME_TOL, atol=1e-9))
+
+
+def view_separation(views: list[View], point: np.ndarray) -> tuple[float, int, int]:
+    """The two views that see ``point`` (world, mm) from the most different directions:
+    ``(angle in degrees, i, j)``, the angle between their rays through the point taken as
+    lines (0-90: opposed views are parallel too). ``(nan, -1, -1)`` with fewer than two views
+    that see the point (a view it lies behind does not)."""
+    dirs, index = [], []
+    for k, view in enumerate(views):
+        try:
+            _, d = view.rays(view.project(np.asarray(point, float).reshape(1, 3)))
+        except ValueError:  # behind the source: this view does not see the point
+            continue
+        dirs.append(d[0])
+        index.append(k)
+    if len(dirs) < 2:
+        return float("nan"), -1, -1
+    D = np.array(dirs)
+    sin = np.linalg.norm(np.cross(D[:, None, :], D[None, :, :]), axis=-1)
+    angle = np.arctan2(sin, np.abs(D @ D.T))  # as lines, exact near 0 and 90 degrees
+    i, j = np.unravel_index(int(np.argmax(angle)), angle.shape)
+    i, j = sorted((int(i), int(j)))
+    if i == j:  # every pair at 0 degrees
+        i, j = 0, 1
+    return float(np.degrees(angle[i, j])), index[i], index[j]

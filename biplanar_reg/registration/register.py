@@ -28,7 +28,13 @@ from .observations import ViewObservations
 from .options import IterationRecord, RegistrationOptions
 from .outline_match import outline_distances
 from .problem import Problem, make_problem
-from .quality import disagreeing_landmarks, outline_coverage, shape_plausibility
+from .quality import (
+    NEARLY_PARALLEL_DEG,
+    disagreeing_landmarks,
+    outline_coverage,
+    shape_plausibility,
+    view_separation,
+)
 from .rotations import project_to_so3
 from .stages import (
     FitMemo,
@@ -458,6 +464,13 @@ def _flags(
                 f"one-sided outline: {problem.views[i].name} (the bone's {cov.untraced_direction} "
                 "border is not traced)"
             )
+    apart = _separation(problem, res.vertices)
+    if apart is not None and apart[0] < NEARLY_PARALLEL_DEG:
+        flags.append(
+            f"views nearly parallel: {apart[1]}/{apart[2]} {apart[0]:.1f} deg apart (the bone's "
+            "depth along the rays is poorly fixed: check each view's calibration, or use views "
+            "further apart)"
+        )
     shape = shape_plausibility(problem.model, res.weights)
     if shape.implausible:
         vol = "" if shape.volume_z is None else f", volume {shape.volume_z:+.1f} sd"
@@ -466,6 +479,18 @@ def _flags(
             f"{np.sqrt(shape.mahalanobis2):.1f}, limit {np.sqrt(shape.limit2):.1f}{vol})"
         )
     return flags
+
+
+def _separation(problem: Problem, vertices: np.ndarray | None) -> tuple[float, str, str] | None:
+    """``(angle deg, view, view)``: the two annotated views (landmarks, or outlines in use)
+    that see the registered bone's centre from the most different directions
+    (:func:`.quality.view_separation`); None without a fit or with fewer than two such views."""
+    if vertices is None:
+        return None
+    outlined = problem.targets if problem.use_outlines else {}
+    seen = [v for i, v in enumerate(problem.views) if len(v.landmark_ids) or i in outlined]
+    angle, i, j = view_separation([v.view for v in seen], np.mean(vertices, axis=0))
+    return None if i < 0 else (angle, seen[i].name, seen[j].name)
 
 
 def _weights_by_view(problem: Problem, weights: np.ndarray) -> dict[str, dict[str, float]]:

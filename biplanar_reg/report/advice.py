@@ -48,6 +48,13 @@ FLAG_ADVICE: dict[str, str] = {
         "(weights or volume): look for a traced stretch on the wrong edge or a misplaced "
         "landmark, check the calibration, and check that the model is for this bone."
     ),
+    "views nearly parallel": (
+        "The views see the bone from almost one direction, so its depth along the rays rests "
+        "on the bone's size in the images and on the shape model: such registrations had long "
+        "error tails and an uncertainty that covered fewer of their errors. Check that each "
+        "view has its own calibration (not one file twice, the right DLT column or MayaCam "
+        "file, the DICOM positioner angles); for new images, set the views 60-90 deg apart."
+    ),
     "local refinement did not converge": (
         "Raise refine_iterations in [registration] of case.toml and register again; if it "
         "persists, look for contour stretches far from the bone (contour table) and trim them."
