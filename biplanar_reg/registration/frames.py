@@ -51,6 +51,7 @@ from .options import RegistrationOptions
 from .outline_fit import OutlineTerm, refine_poses_on_outlines
 from .outline_match import mesh_topology, model_outline, outline_distances
 from .problem import Problem, make_problem
+from .quality import NEARLY_PARALLEL_DEG, view_separation
 from .rays import RayObservations
 from .register import landmark_errors
 from .stages import outline_terms
@@ -531,6 +532,25 @@ def register_frames(
             limits.unregister()
 
 
+def _parallel_views_flags(
+    frames: Sequence[Sequence[ViewObservations]], names: list[str], centres: list[np.ndarray]
+) -> list[str]:
+    """The single-frame flag "views nearly parallel" (:data:`.quality.NEARLY_PARALLEL_DEG`)
+    for the frames whose annotated views see the bone's centre (world, mm) from nearly one
+    direction."""
+    flags = []
+    for views, name, centre in zip(frames, names, centres, strict=True):
+        seen = [v for v in views if len(v.landmark_ids) or v.contours]
+        angle, i, j = view_separation([v.view for v in seen], centre)
+        if i >= 0 and angle < NEARLY_PARALLEL_DEG:
+            flags.append(
+                f"views nearly parallel: {name}: {seen[i].name}/{seen[j].name} {angle:.1f} deg "
+                "apart (the bone's depth along the rays is poorly fixed: check each view's "
+                "calibration, or use views further apart)"
+            )
+    return flags
+
+
 def _register(
     model, frames, names, silhouettes, options, progress, uncertainty
 ) -> FrameRegistrationResult:
@@ -563,6 +583,8 @@ def _register(
     say(f"joint refinement: objective {cost0:.4g} -> {fit.cost_after:.4g}")
     if not fit.converged:
         flags.append("joint refinement did not converge")
+    centres = [model.instance(w).mean(axis=0) @ R.T + t for R, t in zip(R_all, t_all, strict=True)]
+    flags += _parallel_views_flags(frames, names, centres)
     lm, ct, lm_rms, ct_rms, outlines = _residuals(
         model, problems, frames, R_all, t_all, w, opts.gate_px
     )

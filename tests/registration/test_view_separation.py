@@ -85,3 +85,25 @@ def test_the_flag_has_its_own_advice(registered):
     (flag,) = [f for f in registered[2.0].flags if f.startswith("views nearly parallel")]
     advice = flag_advice(flag)
     assert advice in FLAG_ADVICE.values() and "60-90" in advice
+
+
+def test_several_frames_flag_the_frame_whose_views_are_nearly_parallel():
+    from biplanar_reg.registration import ViewObservations
+    from biplanar_reg.registration.frames import _parallel_views_flags
+
+    def frame(deg):
+        return [
+            ViewObservations(
+                name=v.name,
+                view=v,
+                landmark_names=["a"],
+                landmark_ids=np.array([0]),
+                landmark_uv=np.array([[128.0, 128.0]]),
+                landmark_sigma_px=np.array([1.0]),
+            )
+            for v in _views(deg)
+        ]
+
+    flags = _parallel_views_flags([frame(75.0), frame(2.0)], ["f0", "f1"], [np.zeros(3)] * 2)
+    assert len(flags) == 1 and flags[0].startswith("views nearly parallel: f1: cam1/cam2 2.0 deg")
+    assert flag_advice(flags[0]) == FLAG_ADVICE["views nearly parallel"]
