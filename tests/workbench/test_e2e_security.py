@@ -233,3 +233,61 @@ def test_view_names_with_quotes_and_markup_work(browser, odd_case):
         assert errors == [], errors
         assert not re.search(r"SyntaxError|not a valid selector", message.inner_text())
         context.close()
+
+
+# -- a page of another port attacks ---------------------------------------------------------
+
+ATTACK_PAGE = """<!doctype html><html><body>
+<form id="f" method="POST" enctype="text/plain" action="WB/api/views/cam01/contours">
+<input name='{"uv": [[10, 10], [20, 11], [30, 13]], "x": "' value='"}'></form>
+<script>
+const opts = { credentials: "include", mode: "no-cors" };
+Promise.allSettled([
+  fetch("WB/api/views/cam01/contours/0", { ...opts, method: "DELETE" }),
+  fetch("WB/api/register", { ...opts, method: "POST", body: "{}",
+    headers: { "Content-Type": "text/plain" } }),
+  fetch("WB/api/annotations", { credentials: "include" }).then((r) => r.text())
+    .then((t) => { document.title = "read:" + t.length; }),
+]).then(() => { document.body.dataset.fetched = "true"; document.getElementById("f").submit(); });
+</script></body></html>"""
+
+
+def test_a_page_on_another_port_changes_nothing(browser, case_dir, tmp_path):
+    """A page served from another port of 127.0.0.1 (here `python -m http.server` in a
+    folder) opened in the browser that is signed in to the workbench: its form (a contour as
+    text/plain JSON) and its fetches (remove contour 0, start the registration, read the
+    annotations) all fail; nothing is written."""
+    import functools
+    import http.server
+
+    before = (case_dir / "annotations.json").read_bytes()
+    with _serve(case_dir, "--no-browser") as url:
+        wb = url.split("/?", 1)[0]
+        (tmp_path / "attack").mkdir()
+        (tmp_path / "attack" / "index.html").write_text(ATTACK_PAGE.replace("WB", wb))
+        handler = functools.partial(
+            http.server.SimpleHTTPRequestHandler, directory=str(tmp_path / "attack")
+        )
+        httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+        threading.Thread(target=httpd.serve_forever, daemon=True).start()
+        try:
+            context = browser.new_context()
+            page = context.new_page()
+            page.goto(url)  # signed in: the browser holds the workbench's cookie
+            _ready(page)
+            evil = context.new_page()
+            evil.goto(f"http://127.0.0.1:{httpd.server_address[1]}/index.html")
+            # the form navigates the page to the workbench's answer
+            evil.wait_for_url(f"{wb}/api/views/cam01/contours")
+            assert (
+                "403" in evil.content()
+                or "refused" in evil.content()
+                or "token" in (evil.content())
+            )
+            page.evaluate("() => window.workbench.idle()")
+            time.sleep(1.0)  # any registration would have started by now
+            assert (case_dir / "annotations.json").read_bytes() == before
+            assert not (case_dir / "out").exists()
+            context.close()
+        finally:
+            httpd.shutdown()
