@@ -95,9 +95,7 @@ def main() -> None:
         )
         res = json.loads(out.stdout.strip().splitlines()[-1])
         answer = res["error"][:90] or "ok"
-        print(
-            f"| {name} | {res['status']} | {res['seconds']:.3f} | {res['mb']:.0f} | {answer} |"
-        )
+        print(f"| {name} | {res['status']} | {res['seconds']:.3f} | {res['mb']:.0f} | {answer} |")
 
 
 if __name__ == "__main__":
