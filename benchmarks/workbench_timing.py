@@ -102,7 +102,10 @@ def main() -> None:
             "out", ".workbench*")))  # fmt: skip
         with Workbench(case) as wb:
             _, warm = _timed(wb.warm_up)
-            client = TestClient(create_app(wb, TOKEN), headers={"X-Workbench-Token": TOKEN})
+            # what the page sends: its own address, the token header, JSON
+            client = TestClient(create_app(wb, TOKEN), base_url="http://127.0.0.1:8765",
+                                headers={"X-Workbench-Token": TOKEN,
+                                         "Content-Type": "application/json"})  # fmt: skip
             contours = json.loads((case / "annotations.json").read_text())["views"]["cam01"][
                 "contours"
             ]

@@ -16,6 +16,9 @@ from .livewire import refine_subpixel
 __all__ = ["SnapResult", "snap_landmark"]
 
 SNAP_MODES = ("corner", "edge")
+#: Largest search radius, pixels: a snap finds the feature next to a click (the workbench uses
+#: 5 px). The search's memory grows with the radius squared (radius 10000 took 12 GB).
+MAX_RADIUS_PX = 50.0
 
 
 @dataclass(frozen=True)
@@ -85,7 +88,7 @@ def snap_landmark(
     uv : (2,) array
         The clicked point, pixels (u, v); must lie inside the image.
     radius_px : float
-        Search radius, pixels.
+        Search radius, pixels, at most :data:`MAX_RADIUS_PX`.
     mode : {"corner", "edge"}
     sigma_px : float
         Gaussian pre-smoothing scale, pixels.
@@ -97,6 +100,11 @@ def snap_landmark(
     if mode not in SNAP_MODES:
         raise ValueError(f"mode: expected one of {SNAP_MODES}, got {mode!r}")
     radius = check_positive("radius_px", radius_px)
+    if radius > MAX_RADIUS_PX:
+        raise ValueError(
+            f"radius_px: at most {MAX_RADIUS_PX:g} px (a snap looks next to the click), got "
+            f"{radius:g}"
+        )
     sigma = check_positive("sigma_px", sigma_px)
     disp = as_display(image)
     h, w = disp.shape
@@ -119,12 +127,16 @@ def snap_landmark(
         # a wide window on the unsmoothed image: smoothing rounds the corner and the rounded
         # tip pulls cornerSubPix inwards (measured ~0.3 px at sigma 1, window 5)
         win = max(int(round(1.5 * radius)), 5)
-        pts = best.astype(np.float32).reshape(1, 1, 2)
-        crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
-        raw = np.ascontiguousarray(crop, dtype=np.float32)
-        ref = cv2.cornerSubPix(raw, pts, (win, win), (-1, -1), crit).reshape(2).astype(float)
-        if np.linalg.norm(ref - q) <= radius:
-            best = ref
+        # cornerSubPix needs the crop to hold 2 windows + 5 px (a click near the image's edge,
+        # or a radius above 20 px, has a smaller crop): a smaller window, or none
+        win = min(win, (min(crop.shape) - 5) // 2)
+        if win >= 2:
+            pts = best.astype(np.float32).reshape(1, 1, 2)
+            crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
+            raw = np.ascontiguousarray(crop, dtype=np.float32)
+            ref = cv2.cornerSubPix(raw, pts, (win, win), (-1, -1), crit).reshape(2).astype(float)
+            if np.linalg.norm(ref - q) <= radius:
+                best = ref
     else:
         grad = gradient_magnitude(crop, sigma)
         best, strength = _disk_argmax(grad, q, radius)

@@ -1,13 +1,19 @@
-"""CLI: ``biplanar-reg workbench [--new] CASE_DIR [--port N] [--host H] [--no-browser]``.
+"""CLI: ``biplanar-reg workbench [--new] CASE_DIR [--port N] [--host H [--allow-remote]]
+[--no-browser]``.
 
 ``--new`` scaffolds the folder's ``case.toml`` first (:mod:`biplanar_reg.workbench.scaffold`):
 from ``--model`` and two or more ``--view NAME=CALIBRATION[,IMAGE]`` when given, otherwise
 from a form in the page listing the folder's files; the workbench then opens on the new case.
 
 Serves the workbench of one case folder (:mod:`biplanar_reg.workbench`) with uvicorn in this
-process, prints its URL with the launch token (one line starting with ``http://``) and opens
-the browser. Ctrl-C or SIGTERM stops it; the case's lock file is removed on the way out.
-Exit codes: 2 a bad case folder, 1 the folder is open in another workbench, 130 stopped.
+process, prints a one-time URL (one line starting with ``http://``: it signs one browser in,
+once; the launch token itself is never printed nor put on a command line) and opens the
+browser on a file only this user can read, which forwards to another one-time URL (a
+browser's command line is visible to every local user in ``ps``). Enter in the terminal
+prints a new one-time URL. It listens on 127.0.0.1 unless told otherwise; an address that
+other machines can reach needs ``--allow-remote``. Ctrl-C or SIGTERM stops it; the case's lock
+file and the browser's file are removed on the way out. Exit codes: 2 a bad case folder or
+address, 1 the folder is open in another workbench, 130 stopped.
 """
 
 from __future__ import annotations
@@ -23,7 +29,23 @@ from ._parsing import Wanted, add_command
 
 __all__ = ["register"]
 
-LOOPBACK = ("127.0.0.1", "localhost", "::1")
+
+def _check_host(host: str, allow_remote: bool) -> None:
+    """``--host``: this machine only, unless ``--allow-remote`` (ValueError: exit 2)."""
+    from ..workbench.access import is_loopback
+
+    if not host.strip():
+        raise ValueError(
+            "--host: empty; give an address: 127.0.0.1 (this machine only, the default), or "
+            "one that other machines reach (0.0.0.0, this machine's address) with --allow-remote"
+        )
+    if not is_loopback(host) and not allow_remote:
+        raise ValueError(
+            f"--host {host}: other machines could connect to it, and the workbench speaks plain "
+            "HTTP (the images, the annotations and the token unencrypted); prefer an SSH tunnel "
+            "(ssh -L 8765:127.0.0.1:8765 THIS_MACHINE, then --port 8765 here), or pass "
+            "--allow-remote to listen there anyway"
+        )
 
 
 def _bind(host: str, port: int) -> Any:
@@ -72,30 +94,85 @@ def _serve(app: Any, sock: Any) -> None:
         uvicorn.Server(config).run(sockets=[sock])
 
 
-def _announce(args: argparse.Namespace, port: int, token: str) -> None:
+def _base_url(host: str, port: int) -> str:
+    """The page's address: 127.0.0.1 (::1) for a server on every interface."""
+    from ..workbench.access import is_wildcard
+
+    if is_wildcard(host):
+        host = "::1" if ":" in host else "127.0.0.1"
+    return f"http://[{host}]:{port}" if ":" in host else f"http://{host}:{port}"
+
+
+def _launcher(url: str) -> Any:
+    """A page only this user can read (a new 0700 folder, the file 0600) that forwards the
+    browser to ``url``: the browser's command line then holds only its path."""
+    import os
+    import tempfile
+    from pathlib import Path
+
+    from ..workbench.access import launcher_html
+
+    folder = Path(tempfile.mkdtemp(prefix="biplanar-wb-"))
+    path = folder / "open-workbench.html"
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(launcher_html(url))
+    return path
+
+
+def _new_urls_on_enter(access: Any, base: str) -> None:
+    """Enter in the terminal prints a new one-time URL (a second browser, a lost cookie)."""
+    import threading
+
+    if not sys.stdin or not sys.stdin.isatty():
+        return
+
+    def loop() -> None:
+        for _ in sys.stdin:
+            print(f"{base}/?launch={access.one_time_code()}", flush=True)
+
+    threading.Thread(target=loop, name="workbench-new-url", daemon=True).start()
+
+
+@contextlib.contextmanager
+def _announced(args: argparse.Namespace, port: int, access: Any) -> Iterator[None]:
+    """Print the one-time URL, open the browser on its own, remove its file afterwards."""
+    import shutil
     import webbrowser
 
-    host = f"[{args.host}]" if ":" in args.host else args.host
-    url = f"http://{host}:{port}/?token={token}"
-    if args.host not in LOOPBACK:
+    from ..workbench.access import is_loopback
+
+    base = _base_url(args.host, port)
+    if not is_loopback(args.host):
         print(
-            f"warning: listening on {args.host}: other machines can connect (each request "
-            "still needs the token)",
+            f"warning: listening on {args.host} (--allow-remote): other machines can connect, "
+            "over plain HTTP; each request still needs the token",
             file=sys.stderr,
         )
-    print(url, flush=True)
-    if not args.no_browser:
-        webbrowser.open(url)
+    enter = " (press Enter here for a new one)" if sys.stdin and sys.stdin.isatty() else ""
+    print(f"biplanar-reg workbench: the URL below signs one browser in, once{enter}",
+          file=sys.stderr)  # fmt: skip
+    print(f"{base}/?launch={access.one_time_code()}", flush=True)
+    launcher = None
+    try:
+        if not args.no_browser:
+            launcher = _launcher(f"{base}/?launch={access.one_time_code()}")
+            webbrowser.open(launcher.as_uri())
+        _new_urls_on_enter(access, base)
+        yield
+    finally:
+        if launcher is not None:
+            shutil.rmtree(launcher.parent, ignore_errors=True)
 
 
-def _open(wb: Any, token: str, port: int) -> Any:
+def _open(wb: Any, access: Any, port: int) -> Any:
     """The workbench's app, its caches warming up in the background."""
     import threading
 
     from ..workbench import create_app
 
     wb.set_port(port)
-    app = create_app(wb, token)
+    app = create_app(wb, access)
     # tiles and livewire costs are built while the browser loads the page
     threading.Thread(target=wb.warm_up, name="workbench-warm-up", daemon=True).start()
     return app
@@ -120,7 +197,7 @@ def _new_case(args: argparse.Namespace) -> bool:
     return True
 
 
-def _cmd_new_form(args: argparse.Namespace, sock: Any, token: str) -> int:
+def _cmd_new_form(args: argparse.Namespace, sock: Any, access: Any) -> int:
     """Serve the "new case" form; the workbench replaces it once the case is written."""
     from pathlib import Path
 
@@ -134,12 +211,12 @@ def _cmd_new_form(args: argparse.Namespace, sock: Any, token: str) -> int:
     def open_case(setup: Any) -> None:
         wb = Workbench(setup.case_dir, port=port)
         opened.append(wb)
-        switch.app = _open(wb, token, port)
+        switch.app = _open(wb, access, port)
 
-    switch.app = create_new_case_app(Path(args.case_dir).resolve(), token, open_case)
-    _announce(args, port, token)
+    switch.app = create_new_case_app(Path(args.case_dir).resolve(), access, open_case)
     try:
-        _serve(switch, sock)
+        with _announced(args, port, access):
+            _serve(switch, sock)
     finally:
         for wb in opened:
             wb.close()
@@ -147,22 +224,22 @@ def _cmd_new_form(args: argparse.Namespace, sock: Any, token: str) -> int:
 
 
 def _cmd_workbench(args: argparse.Namespace) -> int:
-    import secrets
-
     from ..workbench import Workbench
+    from ..workbench.access import Access
 
     if not 0 <= args.port <= 65535:
         raise ValueError(f"--port: expected 0..65535, got {args.port}")
-    token = secrets.token_urlsafe(24)
+    _check_host(args.host, args.allow_remote)
+    access = Access(host=args.host)  # the token: never printed, never on a command line
     if args.new and not _new_case(args):
-        return _cmd_new_form(args, _bind(args.host, args.port), token)
+        return _cmd_new_form(args, _bind(args.host, args.port), access)
     wb = Workbench(args.case_dir)
     try:
         sock = _bind(args.host, args.port)
         port = sock.getsockname()[1]
-        app = _open(wb, token, port)
-        _announce(args, port, token)
-        _serve(app, sock)
+        app = _open(wb, access, port)
+        with _announced(args, port, access):
+            _serve(app, sock)
         return 0
     finally:
         wb.close()
@@ -171,7 +248,14 @@ def _cmd_workbench(args: argparse.Namespace) -> int:
 def _build_workbench(p: argparse.ArgumentParser, wanted: Wanted) -> None:
     p.add_argument("case_dir", help="case folder holding case.toml")
     p.add_argument("--port", type=int, default=0, help="port (default 0: a free one)")
-    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    p.add_argument(
+        "--host", default="127.0.0.1",
+        help="address to listen on (default 127.0.0.1: this machine only)",
+    )  # fmt: skip
+    p.add_argument(
+        "--allow-remote", action="store_true",
+        help="allow a --host that other machines can reach (plain HTTP: prefer an SSH tunnel)",
+    )  # fmt: skip
     p.add_argument(
         "--no-browser", action="store_true", help="print the URL only, do not open a browser"
     )
@@ -200,6 +284,6 @@ def register(subparsers: Any, wanted: Wanted = None) -> None:
         help="annotate, register and review a case in the browser",
         description="Serve a local web page for one case folder: zoomable radiographs, "
         "landmarks, livewire outlines, registration with live progress and its result. Every "
-        "edit is saved in the case folder (annotations.json, model/landmarks.json). Prints the "
-        "URL with its access token; Ctrl-C stops it.",
+        "edit is saved in the case folder (annotations.json, model/landmarks.json). Prints a "
+        "one-time URL (Enter prints another); Ctrl-C stops it.",
     )

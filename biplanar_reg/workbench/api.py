@@ -1,11 +1,14 @@
 """The workbench's HTTP server: the page, its static files and the JSON API (Starlette).
 
-Every request must carry the launch token: the query parameter ``token``, the header
-``X-Workbench-Token`` or the cookie ``biplanar_wb`` that ``GET /?token=...`` sets (HttpOnly,
-SameSite=Strict); otherwise 403. Errors are ``{"error": "<field or path>: <what is wrong>"}``
-with a 4xx status (400 bad input, 403 token, 404 unknown view/contour/tile/result, 409 not now,
-413 body too large), and 500 ``{"error": "internal error: ..."}`` (logged) for a bug; a
-traceback never reaches the client. The routes are listed in ``docs/workbench.md``.
+Every connection passes :class:`biplanar_reg.workbench.access.Guard` first: the ``Host``
+header, the peer's user, cross-origin requests, the launch token (the ``X-Workbench-Token``
+header, the session cookie that a one-time URL ``/?launch=CODE`` or ``/?token=...`` sets, or
+the query parameter ``token``; a state-changing request needs the header and a JSON body);
+otherwise 403 (415 for a body that is not JSON). Errors are ``{"error": "<field or path>: <what
+is wrong>"}`` with a 4xx status (400 bad input, 403 refused, 404 unknown view/contour/tile/
+result, 409 not now or a stale edit, 413 body too large, 415 not JSON), and 500 ``{"error":
+"internal error: ..."}`` (logged) for a bug; a traceback never reaches the client. The routes
+are listed in ``docs/workbench.md``.
 """
 
 from __future__ import annotations
@@ -14,9 +17,7 @@ import asyncio
 import json
 import logging
 import re
-import secrets
 from collections.abc import AsyncIterator, Awaitable, Callable
-from html import escape
 from pathlib import Path
 from typing import Any
 
@@ -28,27 +29,20 @@ from starlette.requests import Request
 from starlette.responses import HTMLResponse, JSONResponse, Response, StreamingResponse
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
-from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from .access import Access, Guard
 from .outline_tools import outline_routes
-from .session import Conflict, NotFound, Workbench
+from .session import Conflict, NotFound, Workbench, require_version
 
 __all__ = ["create_app"]
 
 log = logging.getLogger(__name__)
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
-COOKIE = "biplanar_wb"
-HEADER = "x-workbench-token"
 #: Largest request body, bytes (a 100,000-point contour is ~3 MB of JSON).
 MAX_BODY = 8 * 1024 * 1024
 #: Seconds between keep-alive comments of the event stream.
 KEEPALIVE_S = 15.0
-_SECURITY_HEADERS = [
-    (b"x-content-type-options", b"nosniff"),
-    (b"referrer-policy", b"no-referrer"),  # the page's URL holds the token
-    (b"x-frame-options", b"DENY"),
-]
 
 
 class ApiError(Exception):
@@ -68,61 +62,6 @@ def _one_line(exc: BaseException) -> str:
     problems = getattr(exc, "problems", None)  # AnnotationError: every problem, by its key
     text = "; ".join(problems) if problems else str(exc)
     return " ".join(text.split()) or type(exc).__name__
-
-
-def _valid(candidate: str | None, token: str) -> bool:
-    """Constant-time comparison with the token."""
-    if not candidate:
-        return False
-    return secrets.compare_digest(candidate.encode("utf-8", "replace"), token.encode("ascii"))
-
-
-def _forbidden_page(message: str) -> HTMLResponse:
-    """The 403 answer to a browser: a short page that says what to do (escaped)."""
-    body = (
-        "<!doctype html><html><head><meta charset='utf-8'><title>biplanar-reg workbench: "
-        "access denied</title></head><body style='font-family:sans-serif;margin:3em'>"
-        f"<h1>Access denied (403)</h1><p>{escape(message)}</p></body></html>"
-    )
-    return HTMLResponse(body, status_code=403)
-
-
-class TokenGuard:
-    """ASGI middleware: refuse (403) every HTTP request without the launch token."""
-
-    def __init__(self, app: ASGIApp, token: str):
-        self.app = app
-        self.token = token
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
-        request = Request(scope)
-        given = (
-            request.query_params.get("token"),
-            request.headers.get(HEADER),
-            request.cookies.get(COOKIE),
-        )
-        if not any(_valid(t, self.token) for t in given):
-            message = (
-                "token: missing or wrong workbench token (open the URL that biplanar-reg "
-                "workbench printed)"
-            )
-            # a person who opens the page without the token reads a page, not raw JSON
-            wants_page = not request.url.path.startswith("/api") and "text/html" in (
-                request.headers.get("accept", "")
-            )
-            response = _forbidden_page(message) if wants_page else _error(403, message)
-            await response(scope, receive, send)
-            return
-
-        async def send_with_headers(message: Message) -> None:
-            if message["type"] == "http.response.start":
-                message["headers"] = list(message.get("headers", [])) + _SECURITY_HEADERS
-            await send(message)
-
-        await self.app(scope, receive, send_with_headers)
 
 
 Handler = Callable[[Request], Awaitable[Response]]
@@ -154,8 +93,18 @@ def _refuse_constant(name: str) -> Any:
     raise ValueError(f"non-standard JSON number {name!r}")
 
 
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    doc: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in doc:
+            raise ValueError(f"duplicate key {key!r}")
+        doc[key] = value
+    return doc
+
+
 async def _body(request: Request) -> dict[str, Any]:
-    """The request's JSON object body (NaN/Infinity refused; at most :data:`MAX_BODY` bytes)."""
+    """The request's JSON object body (NaN/Infinity and duplicate keys refused; at most
+    :data:`MAX_BODY` bytes). The guard let only ``Content-Type: application/json`` through."""
     chunks, size = [], 0
     async for chunk in request.stream():
         size += len(chunk)
@@ -164,7 +113,9 @@ async def _body(request: Request) -> dict[str, Any]:
         chunks.append(chunk)
     raw = b"".join(chunks)
     try:
-        doc = json.loads(raw.decode("utf-8"), parse_constant=_refuse_constant)
+        doc = json.loads(
+            raw.decode("utf-8"), parse_constant=_refuse_constant, object_pairs_hook=_unique_keys
+        )
     except (ValueError, UnicodeDecodeError) as exc:
         raise ApiError(400, f"body: not valid JSON ({_one_line(exc)})") from None
     if not isinstance(doc, dict):
@@ -182,16 +133,15 @@ def _query_float(request: Request, name: str) -> float | None:
         raise ApiError(400, f"{name}: expected a number, got {value[:40]!r}") from None
 
 
-_TOKEN_SLOT = re.compile(r"([?&]token=)(?=[\"'&#])")
 _HEAD = re.compile(r"<head[^>]*>", re.I)
 
 
-def _page(token: str) -> str:
-    """``index.html`` with the token: every empty ``?token=`` / ``&token=`` of a URL in it is
-    completed, and ``<meta name="workbench-token" content="...">`` is added for scripts that
-    send it as the ``X-Workbench-Token`` header."""
-    html = (STATIC_DIR / "index.html").read_text(encoding="utf-8")
-    html = _TOKEN_SLOT.sub(lambda m: m.group(1) + token, html)
+def page_html(name: str, token: str) -> str:
+    """``static/<name>`` with ``<meta name="workbench-token" content="...">`` added after
+    ``<head>``, for its scripts, which send it in the ``X-Workbench-Token`` header. (The page is
+    served only to a browser that has the session cookie, with ``Cache-Control: no-store``; its
+    static files get through with the cookie.)"""
+    html = (STATIC_DIR / name).read_text(encoding="utf-8")
     meta = f'<meta name="workbench-token" content="{token}">'
     m = _HEAD.search(html)
     return html[: m.end()] + meta + html[m.end() :] if m else meta + html
@@ -215,11 +165,8 @@ class _Handlers:
         self.meshes = ModelView(wb, self.aid.mean)
 
     async def index(self, request: Request) -> Response:
-        html = await _call(_page, self.token)
-        resp = HTMLResponse(html, headers={"Cache-Control": "no-store"})
-        if _valid(request.query_params.get("token"), self.token):
-            resp.set_cookie(COOKIE, self.token, httponly=True, samesite="strict", path="/")
-        return resp
+        html = await _call(page_html, "index.html", self.token)
+        return HTMLResponse(html, headers={"Cache-Control": "no-store"})
 
     async def case(self, request: Request) -> Response:
         return JSONResponse(await _call(self.wb.case_info))
@@ -260,12 +207,16 @@ class _Handlers:
         return JSONResponse({"index": index, "view": doc})
 
     async def contour(self, request: Request) -> Response:
-        view, i = request.path_params["view"], request.path_params["index"]
+        view, ref = request.path_params["view"], request.path_params["ref"]
+        version = require_version(request.query_params.get("version"))
+        i = await _call(self.wb.contour_index, view, ref, version)  # a stale edit: 409
         if request.method == "DELETE":
-            return JSONResponse({"index": i, "view": await _call(self.wb.delete_contour, view, i)})
+            doc = await _call(lambda: self.wb.delete_contour(view, ref, version=version))
+            return JSONResponse({"index": i, "view": doc})
         body = await _body(request)
-        args = (view, i, body.get("uv"), body.get("closed"), body.get("anchors"))
-        return JSONResponse({"index": i, "view": await _call(self.wb.replace_contour, *args)})
+        args = (view, ref, body.get("uv"), body.get("closed"), body.get("anchors"))
+        doc = await _call(lambda: self.wb.replace_contour(*args, version=version))
+        return JSONResponse({"index": i, "view": doc})
 
     async def register(self, request: Request) -> Response:
         if request.method == "POST":
@@ -333,7 +284,7 @@ def _routes(wb: Workbench, token: str) -> list[Route | Mount]:
         (v + "/snap", h.snap, ["POST"]),
         (v + "/livewire", h.livewire, ["POST"]),
         (v + "/contours", h.contours, ["POST"]),
-        (v + "/contours/{index:int}", h.contour, ["PUT", "DELETE"]),
+        (v + "/contours/{ref}", h.contour, ["PUT", "DELETE"]),
         ("/api/register", h.register, ["GET", "POST"]),
         ("/api/register/events", h.events, ["GET"]),
         ("/api/result", h.result, ["GET"]),
@@ -389,27 +340,36 @@ async def _http_error(request: Request, exc: Exception) -> Response:
     return _error(status, f"{request.url.path}: {detail}")
 
 
-def create_app(workbench: Workbench, token: str) -> Starlette:
+def as_access(token: str | Access) -> Access:
+    """An :class:`Access` from a token string (loopback host) or the given one."""
+    return token if isinstance(token, Access) else Access(token)
+
+
+def create_app(workbench: Workbench, token: str | Access) -> Starlette:
     """The ASGI application of a workbench.
 
     Parameters
     ----------
     workbench : Workbench
         The open case (the app does not close it).
-    token : str
-        The launch token every request must carry (``secrets.token_urlsafe(24)``).
+    token : str or Access
+        The launch token every request must carry (ASCII, at least 16 characters, e.g.
+        ``secrets.token_urlsafe(24)``), for a server on a loopback address; or an
+        :class:`~biplanar_reg.workbench.access.Access` (the command's: the token, one-time
+        URLs and the host it listens on).
 
     Returns
     -------
     Starlette
-        The application (token check first); run it with uvicorn.
+        The application (every connection checked first, see :mod:`.access`); run it with
+        uvicorn.
     """
-    if not token or not token.isascii():
-        raise ValueError("token: expected a non-empty ASCII string")
+    access = as_access(token)
     app = Starlette(
-        routes=_routes(workbench, token),
-        middleware=[Middleware(TokenGuard, token=token)],
+        routes=_routes(workbench, access.token),
+        middleware=[Middleware(Guard, access=access)],
         exception_handlers={HTTPException: _http_error},
     )
     app.state.workbench = workbench
+    app.state.access = access
     return app

@@ -90,8 +90,11 @@ class RegistrationJob:
         except (ValueError, CommandError, FileNotFoundError) as exc:
             # bad input (CaseError, ...) or a failed registration (CaseFailure): the one-line
             # message names the file and key, as `biplanar-reg register` prints it
-            self._say(f"failed: {_one_line(str(exc))}")
-            self._finish("failed", None, _one_line(str(exc)))
+            from .session import inside_only  # (no --allow-outside here)
+
+            msg = inside_only(_one_line(str(exc)))
+            self._say(f"failed: {msg}")
+            self._finish("failed", None, msg)
             return
         except Exception as exc:  # noqa: BLE001 - a bug must not kill the server's thread
             log.exception("registration of %s failed", self.case_dir)

@@ -53,6 +53,7 @@ from .session import (
     check_point,
     check_points,
     check_positive,
+    require_version,
 )
 
 __all__ = ["OutlineTools", "outline_routes"]
@@ -77,6 +78,13 @@ WEAK = 0.2
 FAINT = 0.25
 STRONG = 1.0
 GRABCUT_MAX_ITERATIONS = 20
+#: Largest GrabCut box, square pixels (800 x 800 px). Measured on the 1760 px wrist
+#: radiograph (benchmarks/workbench_bounds.py): an 800 px box took 2-4 s and ~145 MB more;
+#: GrabCut's time grows quickly beyond (a 1000 px box took 68-88 s).
+GRABCUT_MAX_AREA_PX = 640_000
+#: GrabCut learns the background from the image outside the box: it must leave this much of
+#: the image outside the box on at least one side, pixels.
+GRABCUT_MIN_BACKGROUND_PX = 4
 
 
 # -- pure helpers (pixels) -----------------------------------------------------------------------
@@ -232,16 +240,16 @@ class OutlineTools:
             out.append((contour, entry))
         return out
 
-    def _replace(self, view: str, index: int | None, make: Callable) -> dict[str, Any]:
-        """Replace contour ``index`` (append when None) by the pieces ``make(contour, entry)``
-        returns; answers ``{"index", "pieces", "view"}``."""
+    def _replace(
+        self, view: str, ref: int | str | None, make: Callable, version: int | None = None
+    ) -> dict[str, Any]:
+        """Replace contour ``ref`` (an index or a contour id, at ``version`` when given; append
+        when None) by the pieces ``make(contour, entry)`` returns; answers ``{"index",
+        "pieces", "view"}``."""
         info: dict[str, Any] = {}
 
         def change(contours: list[Contour], saved: list[Any]) -> None:
-            if index is not None and not 0 <= index < len(contours):
-                raise NotFound(
-                    f"views.{view}.contours[{index}]: no such contour ({len(contours)} in the view)"
-                )
+            index = None if ref is None else self.wb.contour_index(view, ref, version)
             old = (None, None) if index is None else (contours[index], saved[index])
             pieces = make(*old)
             at = len(contours) if index is None else index
@@ -279,18 +287,34 @@ class OutlineTools:
         return self._replace(view, None, lambda *_: pieces)
 
     def retrace(
-        self, view: str, index: int, anchors: object, closed: object = None
+        self,
+        view: str,
+        index: int | str,
+        anchors: object,
+        closed: object = None,
+        version: int | None = None,
     ) -> dict[str, Any]:
-        """Contour ``index`` traced again through the edited ``anchors`` (an anchor dragged,
-        inserted or deleted): the livewire between neighbours, cut by the zones; the pieces
-        take its place. ``{"index", "pieces", "view"}``."""
+        """Contour ``index`` (an index or a contour id, at ``version`` when given) traced
+        again through the edited ``anchors`` (an anchor dragged, inserted or deleted): the
+        livewire between neighbours, cut by the zones; the pieces take its place. ``{"index",
+        "pieces", "view"}``."""
+        self._view(view)
+        self.wb.contour_index(view, index, version)  # a stale edit: before the tracing
         path, pts, is_closed = self._trace(view, anchors, closed)
         pieces = self._nonempty(self._pieces(view, path, is_closed, pts), "anchors")
-        return self._replace(view, index, lambda *_: pieces)
+        return self._replace(view, index, lambda *_: pieces, version)
 
-    def erase(self, view: str, index: int, start: object, end: object) -> dict[str, Any]:
-        """Contour ``index`` without the stretch between its points nearest to ``start`` and
-        ``end`` (pixels); nothing left removes the contour. ``{"index", "pieces", "view"}``."""
+    def erase(
+        self,
+        view: str,
+        index: int | str,
+        start: object,
+        end: object,
+        version: int | None = None,
+    ) -> dict[str, Any]:
+        """Contour ``index`` (an index or a contour id, at ``version`` when given) without the
+        stretch between its points nearest to ``start`` and ``end`` (pixels); nothing left
+        removes the contour. ``{"index", "pieces", "view"}``."""
         v = self._view(view)
         a = check_point(start, "from", v.size)
         b = check_point(end, "to", v.size)
@@ -302,7 +326,7 @@ class OutlineTools:
                 (Contour(p, False), _entry(p, piece_anchors(p, False, anchors))) for p in pieces
             ]
 
-        return self._replace(view, int(index), make)
+        return self._replace(view, index, make, version)
 
     def grabcut(self, view: str, box: object, iterations: object = None) -> dict[str, Any]:
         """A closed contour from GrabCut in ``box`` = ``[u0, v0, u1, v1]`` (pixels, inside the
@@ -315,8 +339,7 @@ class OutlineTools:
         p0 = check_point(box[:2], "box[0:2]", v.size)
         p1 = check_point(box[2:], "box[2:4]", v.size)
         lo, hi = np.minimum(p0, p1), np.maximum(p0, p1)
-        if np.any(hi - lo < 8):
-            raise ValueError(f"box: must be at least 8 px wide and high, got {box}")
+        _check_box(lo, hi, v.size, box)
         its = 5 if iterations is None else iterations
         if isinstance(its, bool) or not isinstance(its, int):
             raise ValueError(f"iterations: expected a whole number, got {its!r:.60}")
@@ -458,6 +481,27 @@ class OutlineTools:
         return {"views": views}
 
 
+def _check_box(lo: np.ndarray, hi: np.ndarray, size: tuple[int, int], box: object) -> None:
+    """A GrabCut box (corners ``lo``, ``hi`` inside the image): at least 8 px each way, at most
+    :data:`GRABCUT_MAX_AREA_PX`, some background left outside it."""
+    (wd, ht), (w, h) = hi - lo, size
+    if wd < 8 or ht < 8:
+        raise ValueError(f"box: must be at least 8 px wide and high, got {box}")
+    if wd * ht > GRABCUT_MAX_AREA_PX:
+        raise ValueError(
+            f"box: at most {GRABCUT_MAX_AREA_PX} square px (e.g. 800 x 800 px; GrabCut's time "
+            f"and memory grow with it), got {wd:.0f} x {ht:.0f} px = {wd * ht:.0f}"
+        )
+    u0, v0, u1, v1 = np.round(np.r_[lo, hi]).astype(int)
+    outside = max(u0, v0, w - 1 - u1, h - 1 - v1)
+    if outside < GRABCUT_MIN_BACKGROUND_PX:
+        raise ValueError(
+            f"box: leaves no background around it (GrabCut learns the background outside the "
+            f"box): keep it at least {GRABCUT_MIN_BACKGROUND_PX} px inside the image's edge on "
+            f"one side, got {box}"
+        )
+
+
 def _entry(piece: np.ndarray, anchors: list | None) -> dict[str, Any] | None:
     return None if anchors is None else {**_fingerprint(Contour(piece, False)), "anchors": anchors}
 
@@ -493,15 +537,17 @@ def outline_routes(
         return JSONResponse(await call(tools.trace, view, b.get("anchors"), b.get("closed")))
 
     async def retrace(request: Request) -> JSONResponse:
+        version = require_version(request.query_params.get("version"))
         b = await body(request)
         p = request.path_params
-        args = (p["view"], p["index"], b.get("anchors"), b.get("closed"))
+        args = (p["view"], p["ref"], b.get("anchors"), b.get("closed"), version)
         return JSONResponse(await call(tools.retrace, *args))
 
     async def erase(request: Request) -> JSONResponse:
+        version = require_version(request.query_params.get("version"))
         b = await body(request)
         p = request.path_params
-        args = (p["view"], p["index"], b.get("from"), b.get("to"))
+        args = (p["view"], p["ref"], b.get("from"), b.get("to"), version)
         return JSONResponse(await call(tools.erase, *args))
 
     async def grabcut(request: Request) -> JSONResponse:
@@ -528,8 +574,8 @@ def outline_routes(
     v = "/api/views/{view}"
     table = [
         (v + "/outlines", outlines, ["POST"]),
-        (v + "/contours/{index:int}/anchors", retrace, ["PUT"]),
-        (v + "/contours/{index:int}/erase", erase, ["POST"]),
+        (v + "/contours/{ref}/anchors", retrace, ["PUT"]),
+        (v + "/contours/{ref}/erase", erase, ["POST"]),
         (v + "/grabcut", grabcut, ["POST"]),
         (v + "/exclusions", zones, ["GET", "POST"]),
         (v + "/exclusions/{index:int}", zone, ["DELETE"]),

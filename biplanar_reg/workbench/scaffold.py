@@ -276,14 +276,16 @@ class Switch:
         await self.app(scope, receive, send)
 
 
-def create_new_case_app(case_dir: Path, token: str, opened: Any) -> Any:
-    """The "new case" form's ASGI app (the launch token checked as in the workbench).
+def create_new_case_app(case_dir: Path, token: Any, opened: Any) -> Any:
+    """The "new case" form's ASGI app (every connection checked as in the workbench).
 
-    ``GET /`` the form (``static/new.html``), ``GET /api/new`` ``{"case_dir", "files":
-    candidate_files}``, ``POST /api/new`` ``{"model", "views": [{"name", "calibration",
-    "image"?}], "landmarks"?, "poses"?}``: :func:`scaffold_case`, then ``opened(setup)``
-    (which opens the workbench in its place); answers ``{"url": "/?token=..."}``, 400 naming
-    the field when the form is wrong (nothing written).
+    ``token`` is the launch token or the command's
+    :class:`~biplanar_reg.workbench.access.Access` (shared with the workbench that replaces the
+    form, so that the browser stays signed in). ``GET /`` the form (``static/new.html``), ``GET
+    /api/new`` ``{"case_dir", "files": candidate_files}``, ``POST /api/new`` ``{"model",
+    "views": [{"name", "calibration", "image"?}], "landmarks"?, "poses"?}``:
+    :func:`scaffold_case`, then ``opened(setup)`` (which opens the workbench in its place);
+    answers ``{"url": "/"}``, 400 naming the field when the form is wrong (nothing written).
     """
     from starlette.applications import Starlette
     from starlette.middleware import Middleware
@@ -292,13 +294,14 @@ def create_new_case_app(case_dir: Path, token: str, opened: Any) -> Any:
     from starlette.routing import Mount, Route
     from starlette.staticfiles import StaticFiles
 
-    from .api import STATIC_DIR, TokenGuard, _body, _call, _guarded
+    from .access import Guard
+    from .api import STATIC_DIR, _body, _call, _guarded, as_access, page_html
+
+    access = as_access(token)
 
     async def page(request: Request) -> HTMLResponse:
-        html = (STATIC_DIR / "new.html").read_text(encoding="utf-8")
-        html = html.replace("?token=", f"?token={token}")
-        meta = f'<meta name="workbench-token" content="{token}">'
-        return HTMLResponse(html.replace("<head>", "<head>" + meta, 1))
+        html = await _call(page_html, "new.html", access.token)
+        return HTMLResponse(html, headers={"Cache-Control": "no-store"})
 
     async def files(request: Request) -> JSONResponse:
         found = await _call(candidate_files, case_dir)
@@ -314,7 +317,7 @@ def create_new_case_app(case_dir: Path, token: str, opened: Any) -> Any:
             )
         )  # fmt: skip
         await _call(opened, setup)
-        return JSONResponse({"url": f"/?token={token}", "case_toml": "case.toml"})
+        return JSONResponse({"url": "/", "case_toml": "case.toml"})
 
     routes = [
         Route("/", _guarded(page), methods=["GET"]),
@@ -322,4 +325,4 @@ def create_new_case_app(case_dir: Path, token: str, opened: Any) -> Any:
         Route("/api/new", _guarded(create), methods=["POST"]),
         Mount("/static", app=StaticFiles(directory=STATIC_DIR), name="static"),
     ]
-    return Starlette(routes=routes, middleware=[Middleware(TokenGuard, token=token)])
+    return Starlette(routes=routes, middleware=[Middleware(Guard, access=access)])

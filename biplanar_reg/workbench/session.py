@@ -17,10 +17,14 @@ starts with the field (``uv: ...``, ``anchors[2]: ...``), an unknown view or con
 
 from __future__ import annotations
 
+import difflib
+import itertools
 import json
 import logging
 import math
 import os
+import re
+import secrets
 import threading
 import time
 from pathlib import Path
@@ -39,9 +43,10 @@ from ..annotation import (
     snap_landmark,
 )
 from ..annotation.features import edge_cost
+from ..annotation.snap import MAX_RADIUS_PX
 from ..cases import CaseSetup, read_case_setup
 from ..cases.case import CaseView
-from ..errors import CommandError
+from ..errors import CaseError, CommandError
 from ..io import atomic_write_json, read_json
 from .tiles import TILE_SIZE, Pyramid
 
@@ -71,6 +76,23 @@ class NotFound(LookupError):
 
 class Conflict(RuntimeError):
     """The request cannot be applied in the current state (the message says why)."""
+
+
+class StaleContour(Conflict):
+    """A contour edit names a contour that was removed or changed since (another tab, or the
+    file edited outside the workbench)."""
+
+
+_ALLOW_OUTSIDE = re.compile(r"\s*\(pass --allow-outside to permit it\)")
+INSIDE_ONLY = (
+    "(the workbench opens only files inside it: move or copy the file into the case folder)"
+)
+
+
+def inside_only(message: str) -> str:
+    """A case loader's message without its ``--allow-outside`` advice (an option of
+    ``register`` and ``batch``, not of the workbench, which writes into the folder)."""
+    return _ALLOW_OUTSIDE.sub(" " + INSIDE_ONLY, message)
 
 
 # -- input checks ---------------------------------------------------------------------------------
@@ -133,6 +155,30 @@ def check_positive(value: object, field: str, default: float | None) -> float | 
     if not _is_number(value) or value <= 0:
         raise ValueError(f"{field}: expected a positive number, got {_short(value)}")
     return float(value)
+
+
+def check_version(value: object) -> int | None:
+    """A contour version as given in a request (``?version=N``), or None when missing."""
+    if value is None:
+        return None
+    if isinstance(value, str) and re.fullmatch(r"[0-9]{1,15}", value.strip()):
+        return int(value)
+    if isinstance(value, int) and not isinstance(value, bool) and value >= 0:
+        return value
+    raise ValueError(
+        f"version: expected a whole number (the contour's version), got {_short(value)}"
+    )
+
+
+def require_version(value: object) -> int:
+    """:func:`check_version`, required (the HTTP API's contour edits)."""
+    version = check_version(value)
+    if version is None:
+        raise ValueError(
+            "version: missing; give the contour's version from the last answer (?version=N), "
+            "so that an edit made stale by another tab is refused"
+        )
+    return version
 
 
 # -- the lock -----------------------------------------------------------------------------------
@@ -310,6 +356,84 @@ def _anchors_of(entry: object, contour: Contour) -> list[list[float]] | None:
     return entry["anchors"]
 
 
+def _content(contour: Contour) -> tuple[bool, bytes]:
+    """What tells one contour from another: closed, and its points (to 1e-6 px)."""
+    return bool(contour.closed), np.round(np.asarray(contour.uv, float), 6).tobytes()
+
+
+class _ContourIds:
+    """Stable ids and versions of the contours of each view, for one workbench run.
+
+    An id (``"<run>-<n>"``, the run part random, so that no id of an earlier run is ever
+    valid again) stays with a contour while it exists; the version (a number never given
+    twice in the run) changes with every change of its points or ``closed``. Neither is
+    saved: the annotation file keeps its format, and a page of an earlier run cannot talk to
+    this one anyway (its token is another).
+    """
+
+    def __init__(self) -> None:
+        self._run = secrets.token_hex(3)
+        self._next_id = itertools.count(1)
+        self._next_version = itertools.count(1)
+        self.views: dict[str, list[tuple[str, int]]] = {}
+
+    def _new(self) -> tuple[str, int]:
+        return f"{self._run}-{next(self._next_id)}", next(self._next_version)
+
+    def follow(self, old: Annotations | None, new: Annotations) -> None:
+        """Carry the ids over from ``old``'s contours to ``new``'s: an unchanged contour keeps
+        id and version; a changed one in the same place keeps its id with a new version (the
+        first piece of a cut contour); the others get new ids."""
+        out: dict[str, list[tuple[str, int]]] = {}
+        for view, va in new.views.items():
+            before = old.views.get(view) if old is not None else None
+            old_c = list(before.contours) if before is not None else []
+            old_ids = self.views.get(view, [])
+            if len(old_ids) != len(old_c):  # out of step: start afresh
+                old_c, old_ids = [], []
+            a = [_content(c) for c in old_c]
+            b = [_content(c) for c in va.contours]
+            ids: list[tuple[str, int]] = []
+            matcher = difflib.SequenceMatcher(None, a, b, autojunk=False)
+            for tag, i1, i2, j1, j2 in matcher.get_opcodes():
+                if tag == "equal":
+                    ids += old_ids[i1:i2]
+                    continue
+                for k in range(j2 - j1):
+                    inherit = tag == "replace" and k < i2 - i1
+                    ids.append((old_ids[i1 + k][0], next(self._next_version)) if inherit
+                               else self._new())  # fmt: skip
+            out[view] = ids
+        self.views = out
+
+    def find(self, view: str, ref: object, version: int | None) -> int:
+        """The index of contour ``ref`` (its id, or its index) of ``view``, checked to be at
+        ``version`` (None: not checked). :class:`NotFound` for an index out of range,
+        :class:`StaleContour` for an id that is gone or a version that is not the current."""
+        ids = self.views.get(view, [])
+        if isinstance(ref, int) or (isinstance(ref, str) and ref.isdigit()):
+            index = int(ref)
+            label = f"views.{view}.contours[{index}]"
+            if not 0 <= index < len(ids):
+                raise NotFound(f"{label}: no such contour ({len(ids)} in the view)")
+        else:
+            label = f"views.{view}.contours[id {ref}]"
+            found = [i for i, (cid, _) in enumerate(ids) if cid == ref]
+            if not found:
+                raise StaleContour(
+                    f"{label}: no longer exists (removed in another tab, or the file was "
+                    "changed outside the workbench); reload the view"
+                )
+            index = found[0]
+        now = ids[index][1]
+        if version is not None and version != now:
+            raise StaleContour(
+                f"{label}: changed since version {version} (now version {now}: edited in "
+                "another tab or outside the workbench); reload it and edit again"
+            )
+        return index
+
+
 def _rounded(points: np.ndarray, digits: int = 3) -> list[list[float]]:
     """Points as JSON lists; a thousandth of a pixel is below any annotation's precision."""
     return np.round(np.asarray(points, float), digits).tolist()
@@ -337,7 +461,10 @@ class Workbench:
     """
 
     def __init__(self, case_dir: str | os.PathLike, *, port: int = 0):
-        setup = read_case_setup(case_dir)  # CaseError before any file is created
+        try:
+            setup = read_case_setup(case_dir)  # CaseError before any file is created
+        except CaseError as exc:
+            raise CaseError(inside_only(str(exc))) from None
         self.setup: CaseSetup = setup
         self.case_dir: Path = setup.case_dir
         self._lock = _Lock(self.case_dir / LOCK_NAME)
@@ -355,7 +482,9 @@ class Workbench:
         self.landmarks: dict[str, int] = dict(setup.landmarks)
         self._edit = threading.RLock()  # one edit at a time: read, change, save
         self._ann_path = setup.annotations_path
+        self._ids = _ContourIds()
         self._ann, self._ann_stamp = self._read_annotations()
+        self._ids.follow(None, self._ann)
         self._state_path = self.case_dir / STATE_NAME
         self._anchors = self._read_state()
         self.job = RegistrationJob(self.case_dir, self.out_dir)
@@ -434,7 +563,9 @@ class Workbench:
             stamp = _stamp(self._ann_path)
             if stamp != self._ann_stamp:
                 try:
-                    self._ann, self._ann_stamp = self._read_annotations()
+                    ann, self._ann_stamp = self._read_annotations()
+                    self._ids.follow(self._ann, ann)
+                    self._ann = ann
                 except ValueError as exc:
                     raise Conflict(
                         f"{self._ann_path.name}: changed outside the workbench and is not valid "
@@ -482,9 +613,12 @@ class Workbench:
         with self._edit:
             va = self._current().views.get(view) or ViewAnnotations()
             saved = self._anchors.get(view, [])
+            ids = self._ids.views.get(view, [])
             contours = []
             for i, c in enumerate(va.contours):
                 entry = c.to_json()
+                if i < len(ids):
+                    entry["id"], entry["version"] = ids[i]
                 anchors = _anchors_of(saved[i], c) if i < len(saved) else None
                 if anchors is not None:
                     entry["anchors"] = anchors
@@ -506,6 +640,7 @@ class Workbench:
     def _commit(self, ann: Annotations, anchors: dict[str, list[Any]] | None = None) -> None:
         """Save ``ann`` (validated, atomic), then the anchors; only then adopt them."""
         save_annotations(ann, self._ann_path)
+        self._ids.follow(self._ann, ann)
         self._ann, self._ann_stamp = ann, _stamp(self._ann_path)
         if anchors is not None:
             atomic_write_json(
@@ -593,35 +728,50 @@ class Workbench:
         doc = self._edit_contours(view, change)
         return index[0], doc
 
-    def _check_index(self, view: str, index: int) -> None:
-        n = len((self._current().views.get(view) or ViewAnnotations()).contours)
-        if not 0 <= index < n:
-            raise NotFound(f"views.{view}.contours[{index}]: no such contour ({n} in the view)")
-
-    def replace_contour(
-        self, view: str, index: int, uv: object, closed: object = None, anchors: object = None
-    ) -> dict[str, Any]:
-        """Replace contour ``index`` of ``view``; returns the view's annotations."""
-        v = self._view(view)
-        contour, entry = self._checked_contour(v, uv, closed, anchors)
-        with self._edit:
-            self._check_index(view, index)
-
-            def change(contours: list[Contour], saved: list[Any]) -> None:
-                contours[index], saved[index] = contour, entry
-
-            return self._edit_contours(view, change)
-
-    def delete_contour(self, view: str, index: int) -> dict[str, Any]:
-        """Remove contour ``index`` of ``view``; returns the view's annotations."""
+    def contour_index(self, view: str, ref: object, version: int | None = None) -> int:
+        """The current index of contour ``ref`` of ``view``: its ``id`` (as in the answers)
+        or its index, checked to be at ``version`` when given (the HTTP API always gives it).
+        Raises :class:`NotFound` (no such index) or :class:`StaleContour` (a 409: the contour
+        was removed or changed since that version). Call it inside an edit, e.g. from the
+        ``change`` of :meth:`edit_contours`, so that nothing changes in between."""
         self._view(view)
         with self._edit:
-            self._check_index(view, index)
+            self._current()
+            return self._ids.find(view, ref, version)
 
-            def change(contours: list[Contour], saved: list[Any]) -> None:
-                del contours[index], saved[index]
+    def replace_contour(
+        self,
+        view: str,
+        index: int | str,
+        uv: object,
+        closed: object = None,
+        anchors: object = None,
+        *,
+        version: int | None = None,
+    ) -> dict[str, Any]:
+        """Replace contour ``index`` (an index or a contour ``id``) of ``view``, at ``version``
+        when given (else :class:`StaleContour`); returns the view's annotations."""
+        v = self._view(view)
+        contour, entry = self._checked_contour(v, uv, closed, anchors)
 
-            return self._edit_contours(view, change)
+        def change(contours: list[Contour], saved: list[Any]) -> None:
+            i = self._ids.find(view, index, version)
+            contours[i], saved[i] = contour, entry
+
+        return self._edit_contours(view, change)
+
+    def delete_contour(
+        self, view: str, index: int | str, *, version: int | None = None
+    ) -> dict[str, Any]:
+        """Remove contour ``index`` (an index or a contour ``id``) of ``view``, at ``version``
+        when given (else :class:`StaleContour`); returns the view's annotations."""
+        self._view(view)
+
+        def change(contours: list[Contour], saved: list[Any]) -> None:
+            i = self._ids.find(view, index, version)
+            del contours[i], saved[i]
+
+        return self._edit_contours(view, change)
 
     # -- model landmarks ------------------------------------------------------------------------
 
@@ -688,6 +838,11 @@ class Workbench:
         if mode not in ("corner", "edge"):
             raise ValueError(f"mode: expected 'corner' or 'edge', got {_short(mode)}")
         radius = check_positive(radius_px, "radius_px", 5.0)
+        if radius > MAX_RADIUS_PX:
+            raise ValueError(
+                f"radius_px: at most {MAX_RADIUS_PX:g} px (a snap looks next to the click), got "
+                f"{radius:g}"
+            )
         res = snap_landmark(v.image, p, radius_px=radius, mode=mode)
         return {
             "uv": [float(x) for x in res.uv],

@@ -17,6 +17,7 @@ import cv2
 import httpx
 import numpy as np
 import pytest
+from _http import BASE, page_client
 from starlette.testclient import TestClient
 
 from biplanar_reg.annotation import load_image
@@ -37,7 +38,7 @@ def _snapshot(folder: Path) -> dict[str, tuple[int, bytes]]:
 
 
 def _client(wb: Workbench, **kwargs) -> TestClient:
-    return TestClient(create_app(wb, TOKEN), headers={"X-Workbench-Token": TOKEN}, **kwargs)
+    return page_client(create_app(wb, TOKEN), TOKEN, **kwargs)
 
 
 @pytest.fixture
@@ -57,7 +58,7 @@ def wrist(wrist_case) -> Iterator[tuple[TestClient, Workbench]]:
 
 def test_every_request_needs_the_token(synthetic_case):
     with Workbench(synthetic_case) as wb:
-        anonymous = TestClient(create_app(wb, TOKEN))
+        anonymous = TestClient(create_app(wb, TOKEN), base_url=BASE)
         for path in ("/", "/api/case", "/static/index.html", "/api/views/cam1/tiles/0/0/0.png"):
             r = anonymous.get(path)
             assert r.status_code == 403 and "token" in r.json()["error"], path
@@ -72,22 +73,27 @@ def test_every_request_needs_the_token(synthetic_case):
         assert anonymous.get("/api/case?token=wrong").status_code == 403
         assert anonymous.get("/api/case", headers={"X-Workbench-Token": "x"}).status_code == 403
         assert anonymous.get("/api/case?token=é").status_code == 403  # not ASCII: no crash
-        anonymous.cookies.set("biplanar_wb", "wrong")
+        access = anonymous.app.state.access
+        anonymous.cookies.set(access.cookie, "wrong")
         assert anonymous.get("/api/case").status_code == 403
         anonymous.cookies.clear()
 
         assert anonymous.get(f"/api/case?token={TOKEN}").status_code == 200
         assert anonymous.get("/api/case", headers={"X-Workbench-Token": TOKEN}).status_code == 200
-        page = anonymous.get(f"/?token={TOKEN}")
-        assert page.status_code == 200 and page.headers["cache-control"] == "no-store"
-        cookie = page.headers["set-cookie"]
-        assert f"biplanar_wb={TOKEN}" in cookie
+        # the page's URL with the token: the cookie, then the clean URL
+        signin = anonymous.get(f"/?token={TOKEN}")
+        assert signin.status_code == 200 and signin.headers["cache-control"] == "no-store"
+        cookie = signin.headers["set-cookie"]
+        assert cookie.startswith(f"{access.cookie}={TOKEN}")
         assert "HttpOnly" in cookie and "samesite=strict" in cookie.lower()
-        # the page carries the token for its scripts
-        assert f'src="static/app.js?token={TOKEN}"' in page.text
+        assert "location.replace('/')" in signin.text and TOKEN not in signin.text
+        assert signin.headers["referrer-policy"] == "no-referrer"
+        # from now on the cookie alone is enough to read; the page carries the token for its
+        # scripts, which send it in a header
+        page = anonymous.get("/")
+        assert page.status_code == 200 and page.headers["cache-control"] == "no-store"
+        assert 'src="static/app.js"' in page.text
         assert f'<meta name="workbench-token" content="{TOKEN}">' in page.text
-        assert page.headers["referrer-policy"] == "no-referrer"
-        # from now on the cookie alone is enough
         assert anonymous.get("/api/case").status_code == 200
         assert anonymous.get("/static/index.html").status_code == 200
     assert not (synthetic_case / ".workbench.lock").exists()
@@ -215,15 +221,18 @@ def test_landmark_and_contour_edits(synthetic):
     r = client.post("/api/views/cam2/contours", json={"uv": pts, "anchors": [[10, 10], [40, 16]]})
     assert r.status_code == 200
     i = r.json()["index"]
-    assert r.json()["view"]["contours"][i] == {
-        "uv": pts,
-        "closed": False,
-        "anchors": [[10, 10], [40, 16]],
-    }
-    r = client.put(f"/api/views/cam2/contours/{i}", json={"uv": pts[::-1], "closed": True})
+    added = r.json()["view"]["contours"][i]
+    assert isinstance(added.pop("id"), str) and isinstance(added.pop("version"), int)
+    assert added == {"uv": pts, "closed": False, "anchors": [[10, 10], [40, 16]]}
+    # edits name the contour by its id (or index) and the version the client saw
+    c = r.json()["view"]["contours"][i]
+    r = client.put(f"/api/views/cam2/contours/{c['id']}?version={c['version']}",
+                   json={"uv": pts[::-1], "closed": True})  # fmt: skip
     assert r.status_code == 200 and r.json()["view"]["contours"][i]["closed"] is True
+    assert r.json()["index"] == i and r.json()["view"]["contours"][i]["id"] == c["id"]
     n = len(r.json()["view"]["contours"])
-    r = client.delete("/api/views/cam2/contours/0")
+    first = r.json()["view"]["contours"][0]
+    r = client.delete(f"/api/views/cam2/contours/0?version={first['version']}")
     assert r.status_code == 200 and len(r.json()["view"]["contours"]) == n - 1
 
     saved = json.loads(ann_file.read_text())
@@ -257,6 +266,8 @@ def test_model_landmark_edits(synthetic):
 
 BAD_REQUESTS = [
     ("PUT", "/api/views/cam1/landmarks/distal_tip", b"{", 400, "body: not valid JSON"),
+    ("PUT", "/api/views/cam1/landmarks/distal_tip", b'{"uv": [1, 1], "uv": [2, 2]}', 400,
+     "body: not valid JSON"),
     ("PUT", "/api/views/cam1/landmarks/distal_tip", b"[1, 2]", 400, "body: expected a JSON object"),
     ("PUT", "/api/views/cam1/landmarks/distal_tip", b'{"uv": [NaN, 1]}', 400, "body: not valid"),
     ("PUT", "/api/views/cam1/landmarks/distal_tip", {}, 400, "uv: missing"),
@@ -274,10 +285,19 @@ BAD_REQUESTS = [
      "closed: "),
     ("POST", "/api/views/cam1/contours", {"uv": [[1, 1], [2, 2], [3, 3]], "anchors": [[1, 1]]},
      400, "anchors: has 1 point"),
-    ("PUT", "/api/views/cam1/contours/50", {"uv": [[1, 1], [2, 2], [3, 3]]}, 404,
+    ("PUT", "/api/views/cam1/contours/50?version=1", {"uv": [[1, 1], [2, 2], [3, 3]]}, 404,
      "views.cam1.contours[50]: no such contour"),
-    ("PUT", "/api/views/cam1/contours/0", {"uv": [[1, 1], [2, 2], ["a", 3]]}, 400, "uv[2]: "),
-    ("DELETE", "/api/views/cam1/contours/50", None, 404, "views.cam1.contours[50]"),
+    ("PUT", "/api/views/cam1/contours/0?version=1", {"uv": [[1, 1], [2, 2], ["a", 3]]}, 400,
+     "uv[2]: "),
+    ("PUT", "/api/views/cam1/contours/0", {"uv": [[1, 1], [2, 2], [3, 3]]}, 400,
+     "version: missing"),
+    ("PUT", "/api/views/cam1/contours/0?version=x", {"uv": [[1, 1], [2, 2], [3, 3]]}, 400,
+     "version: expected a whole number"),
+    ("PUT", "/api/views/cam1/contours/0?version=99999", {"uv": [[1, 1], [2, 2], [3, 3]]}, 409,
+     "views.cam1.contours[0]: changed since version 99999"),
+    ("DELETE", "/api/views/cam1/contours/nosuch-7?version=1", None, 409,
+     "views.cam1.contours[id nosuch-7]: no longer exists"),
+    ("DELETE", "/api/views/cam1/contours/50?version=1", None, 404, "views.cam1.contours[50]"),
     ("POST", "/api/views/cam1/livewire", {"anchors": [[1, 1]]}, 400, "anchors: has 1 point"),
     ("POST", "/api/views/cam1/livewire", {"anchors": [[1, 1], [9, 9]], "closed": True}, 400,
      "anchors: has 2 point"),
@@ -466,11 +486,13 @@ def test_cli_serves_the_case_and_removes_its_lock(synthetic_case):
     )
     try:
         url = proc.stdout.readline().strip()
-        assert url.startswith("http://127.0.0.1:") and "/?token=" in url, proc.stderr.read()
-        base, token = url.split("/?token=")
+        assert url.startswith("http://127.0.0.1:") and "/?launch=" in url, url
+        base = url.split("/?", 1)[0]
         assert httpx.get(f"{base}/api/case", timeout=30).status_code == 403
-        r = httpx.get(f"{base}/api/case?token={token}", timeout=30)
-        assert r.status_code == 200 and r.json()["id"] == "case"
+        with httpx.Client() as browser:  # the one-time URL signs it in
+            assert browser.get(url, timeout=30).status_code == 200
+            r = browser.get(f"{base}/api/case", timeout=30)
+            assert r.status_code == 200 and r.json()["id"] == "case"
         assert json.loads(lock.read_text())["port"] == int(base.rsplit(":", 1)[1])
         second = subprocess.run(
             [*cmd, "--no-browser"], capture_output=True, text=True, env=env, cwd=ROOT, timeout=60

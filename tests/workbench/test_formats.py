@@ -11,6 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import tifffile
+from _http import page_client
 from pydicom.dataset import FileDataset, FileMetaDataset
 from pydicom.uid import ExplicitVRLittleEndian, SecondaryCaptureImageStorage, generate_uid
 from starlette.testclient import TestClient
@@ -50,7 +51,7 @@ def test_png_tiff16_and_monochrome1_dicom(synthetic_case):
            ("cam1", "cam2")}  # fmt: skip
     # reference: the PNG case (tiles and livewire) before the images are replaced
     with Workbench(case) as wb:
-        c = TestClient(create_app(wb, TOKEN), headers={"X-Workbench-Token": TOKEN})
+        c = page_client(create_app(wb, TOKEN), TOKEN)
         contour = np.asarray(c.get("/api/annotations").json()["views"]["cam1"]["contours"][0]["uv"])
         anchors = contour[np.linspace(0, len(contour) - 1, 5).round().astype(int)].tolist()
         ref_path = {v: np.asarray(c.post(f"/api/views/{v}/livewire", json={"anchors": anchors})
@@ -63,7 +64,7 @@ def test_png_tiff16_and_monochrome1_dicom(synthetic_case):
     (case / "case.toml").write_text(re.sub(r"xray/cam2\.png", "xray/cam2.dcm", toml))
 
     with Workbench(case) as wb:
-        c = TestClient(create_app(wb, TOKEN), headers={"X-Workbench-Token": TOKEN})
+        c = page_client(create_app(wb, TOKEN), TOKEN)
         info = {v["name"]: v for v in c.get("/api/case").json()["views"]}
         assert info["cam1"]["file_format"] == "tiff" and not info["cam1"]["inverted"]
         assert info["cam1"]["range"] == [float(png["cam1"].min()) * 250 + 3,

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _http import page_client
 from matplotlib.path import Path as MplPath
 from starlette.testclient import TestClient
 
@@ -36,7 +37,7 @@ def _files(folder: Path) -> dict[str, bytes]:
 @pytest.fixture
 def client(synthetic_case) -> Iterator[tuple[TestClient, Path]]:
     with Workbench(synthetic_case) as wb:
-        c = TestClient(create_app(wb, TOKEN), headers={"X-Workbench-Token": TOKEN})
+        c = page_client(create_app(wb, TOKEN), TOKEN)
         yield c, synthetic_case
 
 
@@ -181,18 +182,24 @@ def test_retrace_with_edited_anchors(client):
     assert i == 1 and np.allclose(r.json()["view"]["contours"][1]["anchors"], anchors, atol=1e-3)
     # delete an anchor, move one: the contour is traced again between neighbours
     edited = [anchors[0], anchors[1], [anchors[3][0] + 1, anchors[3][1]], anchors[4]]
-    r = c.put(f"/api/views/{VIEW}/contours/{i}/anchors", json={"anchors": edited})
+    traced = r.json()["view"]["contours"][1]
+    at = f"/api/views/{VIEW}/contours/{traced['id']}/anchors?version={traced['version']}"
+    r = c.put(at, json={"anchors": edited})
     assert r.status_code == 200, r.text
     got = r.json()["view"]["contours"]
     assert len(got) == 2 and np.allclose(got[1]["anchors"], edited, atol=1e-3)
+    assert got[1]["id"] == traced["id"] and got[1]["version"] != traced["version"]
+    assert c.put(at, json={"anchors": edited}).status_code == 409  # that version is gone
+    version = got[1]["version"]
     new = np.asarray(_saved(case)[1]["uv"])
     # the synthetic outline is the same edge: the re-traced path follows the old contour
     d = np.min(np.linalg.norm(new[:, None] - uv[None], axis=2), axis=1)
     assert np.median(d) < 1.5
     before = _files(case)
-    bad = c.put(f"/api/views/{VIEW}/contours/{i}/anchors", json={"anchors": [anchors[0]]})
+    bad = c.put(f"/api/views/{VIEW}/contours/{i}/anchors?version={version}",
+                json={"anchors": [anchors[0]]})  # fmt: skip
     assert bad.status_code == 400 and bad.json()["error"].startswith("anchors:")
-    assert c.put(f"/api/views/{VIEW}/contours/7/anchors",
+    assert c.put(f"/api/views/{VIEW}/contours/7/anchors?version={version}",
                  json={"anchors": edited}).status_code == 404  # fmt: skip
     assert _files(case) == before
 
@@ -201,13 +208,19 @@ def test_erase_a_stretch(client):
     c, case = client
     uv = np.asarray(_saved(case)[0]["uv"])
     a, b = uv[100], uv[120]
-    r = c.post(f"/api/views/{VIEW}/contours/0/erase", json={"from": a.tolist(), "to": b.tolist()})
+    first = c.get("/api/annotations").json()["views"][VIEW]["contours"][0]
+    at = f"/api/views/{VIEW}/contours/0/erase?version={first['version']}"
+    r = c.post(at, json={"from": a.tolist(), "to": b.tolist()})
     assert r.status_code == 200, r.text
     assert r.json()["pieces"] == 2
     got = _saved(case)
     assert [len(p["uv"]) for p in got] == [100, len(uv) - 121]
     before = _files(case)
-    r = c.post(f"/api/views/{VIEW}/contours/0/erase", json={"from": [1, 2]})
+    r = c.post(at, json={"from": a.tolist(), "to": b.tolist()})
+    assert r.status_code == 409, r.text  # contour 0 is another (a piece) now
+    piece = c.get("/api/annotations").json()["views"][VIEW]["contours"][0]
+    at = f"/api/views/{VIEW}/contours/{piece['id']}/erase?version={piece['version']}"
+    r = c.post(at, json={"from": [1, 2]})
     assert r.status_code == 400 and r.json()["error"].startswith("to:")
     assert _files(case) == before
 

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _http import page_client
 from starlette.testclient import TestClient
 
 from biplanar_reg.cases import read_case_setup
@@ -50,7 +51,7 @@ def posed(synthetic_case: Path) -> Iterator[tuple[TestClient, Path, dict]]:
     }
     truth = {"R": R, "t": t, "clicks": clicks, "setup": setup, "V": V}
     with Workbench(synthetic_case) as wb:
-        client = TestClient(create_app(wb, TOKEN), headers={"X-Workbench-Token": TOKEN})
+        client = page_client(create_app(wb, TOKEN), TOKEN)
         yield client, synthetic_case, truth
 
 

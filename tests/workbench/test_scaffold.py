@@ -10,6 +10,7 @@ import tomllib
 from pathlib import Path
 
 import pytest
+from _http import BASE, page_client
 from starlette.testclient import TestClient
 
 from biplanar_reg.cases import read_case_setup
@@ -121,8 +122,8 @@ def test_the_form_lists_the_files_and_creates_the_case(loose):
     assert found["landmarks"] == ["lm.json"]
     opened = []
     app = create_new_case_app(loose.resolve(), TOKEN, opened.append)
-    client = TestClient(app, headers={"X-Workbench-Token": TOKEN})
-    assert TestClient(app).get("/api/new").status_code == 403
+    client = page_client(app, TOKEN)
+    assert TestClient(app, base_url=BASE).get("/api/new").status_code == 403
     assert client.get("/").status_code == 200 and TOKEN in client.get("/").text
     assert client.get("/api/new").json()["files"] == found
     body = {"model": "model/bone_ssm.npz", "views": [{"name": "cam1", "calibration": "x.txt"}]}
@@ -134,6 +135,6 @@ def test_the_form_lists_the_files_and_creates_the_case(loose):
         {"name": "cam2", "calibration": "calib/cam2.json", "image": None},
     ]
     r = client.post("/api/new", json={**body, "landmarks": "lm.json"})
-    assert r.status_code == 200 and r.json()["url"] == f"/?token={TOKEN}"
+    assert r.status_code == 200 and r.json()["url"] == "/"  # the browser is signed in already
     assert len(opened) == 1 and opened[0].case_dir == loose.resolve()
     assert tomllib.loads((loose / "case.toml").read_text())["model"]["landmarks"] == "lm.json"

@@ -17,7 +17,7 @@ import pytest
 from biplanar_reg.annotation import load_annotations, save_annotations
 from biplanar_reg.cases import CaseError, load_case, read_case_setup
 from biplanar_reg.workbench import Workbench, WorkbenchError
-from biplanar_reg.workbench.session import Conflict, NotFound
+from biplanar_reg.workbench.session import Conflict, NotFound, StaleContour
 
 
 def _dead_pid() -> int:
@@ -121,9 +121,16 @@ def test_edits_land_in_the_documented_files_and_the_case_still_loads(synthetic_c
         pts = [[10.0, 10.0], [20.0, 12.0], [30.0, 15.5], [40.0, 20.0]]
         i, doc = wb.add_contour("cam2", pts, False, [[10, 10], [40, 20]])
         assert i == len(before.views["cam2"].contours)
-        assert doc["contours"][i] == {"uv": pts, "closed": False, "anchors": [[10, 10], [40, 20]]}
+        added = doc["contours"][i]
+        assert {k: added[k] for k in ("uv", "closed", "anchors")} == {
+            "uv": pts, "closed": False, "anchors": [[10, 10], [40, 20]]
+        }  # fmt: skip
         doc = wb.replace_contour("cam2", i, pts[:3], True)
-        assert doc["contours"][i] == {"uv": pts[:3], "closed": True}  # no anchors given
+        assert doc["contours"][i]["id"] == added["id"]  # the same contour, a new version
+        assert doc["contours"][i]["version"] != added["version"]
+        assert "anchors" not in doc["contours"][i]  # no anchors given
+        with pytest.raises(StaleContour):  # by id, at the version it had before
+            wb.delete_contour("cam2", added["id"], version=added["version"])
         wb.delete_contour("cam1", 0)
         assert wb.set_model_landmark("styloid", 17)["landmarks"]["styloid"] == 17
         wb.set_landmark("cam2", "styloid", [300, 301])

@@ -1,15 +1,23 @@
-// api.js — the workbench's JSON API (WORKBENCH.md, "JSON API"), one function per endpoint.
+// api.js — the workbench's JSON API (docs/workbench.md, "API"), one function per endpoint.
 //
-// The per-launch token comes from the page's URL (?token=...), else from the
-// <meta name="workbench-token"> the server writes into the page. The server also sets an
-// HttpOnly cookie when it serves the page, but we send the token explicitly as a header too, so
-// a blocked or stale cookie does not break the page. URLs loaded by the browser itself (tiles
-// as <img>, the EventSource) cannot carry headers, so they get the token as a query parameter.
+// The browser is signed in by the session cookie (set by the one-time URL the command
+// printed); the per-launch token comes from the <meta name="workbench-token"> the server
+// writes into the page and goes in the X-Workbench-Token header of every request: the server
+// refuses a request that changes something without it (another page's form or <img> cannot
+// set a header). URLs loaded by the browser itself (tiles as <img>, the EventSource) get
+// through with the cookie; no URL carries the token.
 
-const TOKEN =
-  new URLSearchParams(window.location.search).get("token") ||
-  document.querySelector('meta[name="workbench-token"]')?.content ||
-  null;
+const TOKEN = document.querySelector('meta[name="workbench-token"]')?.content || null;
+
+// A URL with ?token= or ?launch= (e.g. opened by hand) leaves the address bar and the history.
+{
+  const url = new URL(window.location.href);
+  if (url.searchParams.has("token") || url.searchParams.has("launch")) {
+    url.searchParams.delete("token");
+    url.searchParams.delete("launch");
+    window.history.replaceState(window.history.state, "", url.pathname + url.search + url.hash);
+  }
+}
 
 /** An API failure: `status` is the HTTP status (0 for a network error), `message` the server's
  * one-line `{"error": ...}` text. */
@@ -21,18 +29,12 @@ export class ApiError extends Error {
   }
 }
 
-/** Append the token to a same-origin URL (for <img> and EventSource). */
-function withToken(url) {
-  if (!TOKEN) return url;
-  const sep = url.includes("?") ? "&" : "?";
-  return `${url}${sep}token=${encodeURIComponent(TOKEN)}`;
-}
-
 /** One JSON request. Resolves to the parsed body, rejects with an ApiError. */
 export async function request(method, path, body, { signal } = {}) {
   const headers = { Accept: "application/json" };
   if (TOKEN) headers["X-Workbench-Token"] = TOKEN;
-  if (body !== undefined) headers["Content-Type"] = "application/json";
+  // every request that changes something is JSON (the server refuses other types)
+  if (body !== undefined || method !== "GET") headers["Content-Type"] = "application/json";
   let response;
   try {
     response = await fetch(path, {
@@ -83,9 +85,11 @@ export const api = {
     request("POST", `api/views/${enc(view)}/outlines`, { anchors, closed }),
   addContour: (view, uv, closed, anchors) =>
     request("POST", `api/views/${enc(view)}/contours`, { uv, closed, anchors }),
-  /** Resolves to the view's annotations (the server answers {"index", "view"}). */
-  deleteContour: async (view, index) => {
-    const res = await request("DELETE", `api/views/${enc(view)}/contours/${index}`);
+  /** Resolves to the view's annotations (the server answers {"index", "view"}). `contour` is
+   * the contour as the server last sent it: its id and version (a contour changed or removed
+   * since, e.g. in another tab, is refused with 409). */
+  deleteContour: async (view, contour) => {
+    const res = await request("DELETE", contourPath(view, contour));
     return res && res.view ? res.view : res;
   },
 
@@ -107,6 +111,12 @@ export const api = {
 
   /** URL of one grey PNG tile, raw values mapped from [lo, hi] to [0, 255]. */
   tileUrl: (view, level, tx, ty, lo, hi) =>
-    withToken(`api/views/${enc(view)}/tiles/${level}/${tx}/${ty}.png?lo=${lo}&hi=${hi}`),
-  eventsUrl: () => withToken("api/register/events"),
+    `api/views/${enc(view)}/tiles/${level}/${tx}/${ty}.png?lo=${lo}&hi=${hi}`,
+  eventsUrl: () => "api/register/events",
 };
+
+/** The URL of one contour's edits: its id, with the version the page last saw. */
+export function contourPath(view, contour, action = "") {
+  const tail = action ? `/${action}` : "";
+  return `api/views/${enc(view)}/contours/${enc(contour.id)}${tail}?version=${contour.version}`;
+}

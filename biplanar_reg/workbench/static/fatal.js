@@ -14,8 +14,9 @@ export function fatal(err) {
     : "The workbench could not start";
   box.querySelector(".detail").textContent = err.message || String(err);
   box.querySelector(".hint").textContent = forbidden
-    ? "This page needs the workbench's token. Open the URL that `biplanar-reg workbench` " +
-      "printed when it started (http://127.0.0.1:PORT/?token=…)."
+    ? "This page needs to be signed in to the workbench. Open the one-time URL that " +
+      "`biplanar-reg workbench` printed (http://127.0.0.1:PORT/?launch=…); press Enter in " +
+      "its terminal for a new one."
     : "Is `biplanar-reg workbench` still running? Restart it and open the URL it prints.";
   box.hidden = false;
   document.body.dataset.ready = "error";

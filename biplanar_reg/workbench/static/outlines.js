@@ -8,8 +8,9 @@
 // the editing here. It also draws its overlay and decorates the contour list, by wrapping
 // wb.drawOverlay / wb.refresh / wb.setViewAnnotations / wb.setResult.
 
-import { request } from "./api.js";
+import { contourPath, request } from "./api.js";
 import { COLORS, distanceToPolyline, polyline } from "./overlay.js";
+import { contourRow } from "./panels.js";
 
 const HIT_PX = 8;
 const DRAG_SLOP_PX = 3;
@@ -19,10 +20,11 @@ const $ = (id) => document.getElementById(id);
 export const outlineApi = {
   trace: (view, anchors, closed) =>
     request("POST", `api/views/${enc(view)}/outlines`, { anchors, closed }),
-  retrace: (view, index, anchors, closed) =>
-    request("PUT", `api/views/${enc(view)}/contours/${index}/anchors`, { anchors, closed }),
-  erase: (view, index, from, to) =>
-    request("POST", `api/views/${enc(view)}/contours/${index}/erase`, { from, to }),
+  // `contour` as the server last sent it: its id and version (a stale edit gets 409)
+  retrace: (view, contour, anchors, closed) =>
+    request("PUT", contourPath(view, contour, "anchors"), { anchors, closed }),
+  erase: (view, contour, from, to) =>
+    request("POST", contourPath(view, contour, "erase"), { from, to }),
   grabcut: (view, box) => request("POST", `api/views/${enc(view)}/grabcut`, { box }),
   zones: (view) => request("GET", `api/views/${enc(view)}/exclusions`),
   addZone: (view, body) => request("POST", `api/views/${enc(view)}/exclusions`, body),
@@ -235,7 +237,8 @@ export class OutlineTools {
         return;
       }
       this.eraseFrom = null;
-      this.run(viewer.name, () => outlineApi.erase(viewer.name, hit, f.uv, round2(uv)),
+      const contour = this.wb.contourAt(viewer.name, hit);
+      this.run(viewer.name, () => outlineApi.erase(viewer.name, contour, f.uv, round2(uv)),
         (res) => `contour #${hit}: stretch erased (${res.pieces} piece(s) left)`);
     }
   }
@@ -268,8 +271,9 @@ export class OutlineTools {
 
   retrace(view, s, anchors, what) {
     const closed = s.contour.closed;
+    const ref = { id: s.contour.id, version: s.contour.version };
     s.contour.anchors = anchors; // optimistic: drawn at once, replaced by the answer
-    this.run(view, () => outlineApi.retrace(view, s.index, anchors, closed),
+    this.run(view, () => outlineApi.retrace(view, ref, anchors, closed),
       (res) => `contour #${s.index}: ${what}, re-traced (${res.pieces} piece(s))`,
       (res) => this.wb.selectContour({ view, index: res.index }));
   }
@@ -408,7 +412,7 @@ export class OutlineTools {
   decorateList() {
     for (const { name: view } of this.wb.caseInfo.views) {
       for (const q of this.quality[view] ?? []) {
-        const row = document.querySelector(`[data-testid="contour-${view}-${q.index}"]`);
+        const row = contourRow(view, q.index);
         const c = this.wb.viewAnnotations(view).contours[q.index];
         // an answer for an older state of the view (its contours since changed) waits
         if (!row || !c || c.uv.length !== q.strength.length || row.querySelector(".quality")) continue;
@@ -422,7 +426,7 @@ export class OutlineTools {
         row.querySelector(".meta").after(badge);
       }
       for (const r of this.residuals?.views?.[view] ?? []) {
-        const row = document.querySelector(`[data-testid="contour-${view}-${r.index}"]`);
+        const row = contourRow(view, r.index);
         if (!row || row.querySelector(".residual") || r.worst_mean_px === null) continue;
         const chip = el("span", {
           class: `residual jump ${residualClass(r.worst_mean_px)}`,

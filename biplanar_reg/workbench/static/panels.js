@@ -76,6 +76,15 @@ export function renderLandmarkList(wb, list) {
   list.replaceChildren(...items);
 }
 
+/** The contour list's row of contour `index` of `view`, or null. Found through the rows' data
+ * attributes, not a CSS selector: a view name may hold any character (a quote too). */
+export function contourRow(view, index) {
+  for (const row of document.querySelectorAll("#contour-list li.contour")) {
+    if (row.dataset.view === view && row.dataset.index === String(index)) return row;
+  }
+  return null;
+}
+
 /** Contour list: per view, each contour with its point count; click selects, x removes. */
 export function renderContourList(wb, list) {
   const items = [];
@@ -89,6 +98,7 @@ export function renderContourList(wb, list) {
           {
             class: selected ? "contour selected" : "contour",
             "data-testid": `contour-${view}-${index}`,
+            dataset: { view, index: String(index), id: c.id ?? "" },
             onclick: () => wb.selectContour({ view, index }),
           },
           el("span", { class: "name" }, `${view} #${index}`),

@@ -68,18 +68,31 @@ export class Workbench {
   }
 
   /** Run an edit after the previous ones; a failure is shown and the annotations reloaded, so
-   * the page never shows what the server did not save. */
+   * the page never shows what the server did not save. A stale edit (409: the contour was
+   * changed or removed since, in another tab or outside the workbench) reloads them too, and
+   * says so: the edit can then be made again on what is there now. */
   edit(fn) {
     this.queue = this.queue.then(fn).catch(async (err) => {
+      const stale = err instanceof ApiError && err.status === 409;
       this.error(err);
       try {
         this.annotations = await api.getAnnotations();
+        if (stale) {
+          this.selectedContour = null; // its index may now be another contour's
+          this.error(new ApiError(409, `${err.message} (reloaded: the page shows the saved contours now)`));
+          document.body.dataset.reloaded = String(Number(document.body.dataset.reloaded || 0) + 1);
+        }
       } catch (reloadErr) {
         this.error(reloadErr);
       }
       this.refresh();
     });
     return this.queue;
+  }
+
+  /** The contour shown at `index` of `view` (with its id and version), or null. */
+  contourAt(view, index) {
+    return this.viewAnnotations(view).contours[index] ?? null;
   }
 
   removeLandmark(view, name) {
@@ -90,9 +103,11 @@ export class Workbench {
   }
 
   removeContour(view, index) {
+    const contour = this.contourAt(view, index); // as shown now: its id and version
+    if (!contour) return;
     this.edit(async () => {
       this.selectedContour = null;
-      this.setViewAnnotations(view, await api.deleteContour(view, index));
+      this.setViewAnnotations(view, await api.deleteContour(view, contour));
       this.status(`${view}: contour #${index} removed`);
     });
   }
