@@ -29,3 +29,15 @@ WAIT_MS = 60_000  # any wait: generous, for a loaded shared machine
 needs_chromium = pytest.mark.skipif(
     not CHROMIUM.exists(), reason="needs Debian's chromium at /usr/bin/chromium"
 )
+
+
+def stop_server(proc) -> None:
+    """Stop a workbench child process: terminate, and kill it after 15 s."""
+    import subprocess
+
+    proc.terminate()
+    try:
+        proc.wait(timeout=15)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _browser import ROOT, needs_chromium
+from _browser import ROOT, needs_chromium, stop_server
 
 sync_api = pytest.importorskip("playwright.sync_api")
 
@@ -55,12 +55,7 @@ def server(case_dir: Path):
     try:
         yield url
     finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_server(proc)
 
 
 def _read_url(proc: subprocess.Popen, lines: list[str]) -> str:

@@ -18,7 +18,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from _browser import ROOT, needs_chromium
+from _browser import ROOT, needs_chromium, stop_server
 
 sync_api = pytest.importorskip("playwright.sync_api")
 pytestmark = needs_chromium
@@ -55,12 +55,7 @@ def _serve(case: Path, *args: str, env: dict | None = None) -> Iterator[str]:
         assert found, "the workbench printed no URL:\n" + "".join(lines)
         yield found[0]
     finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_server(proc)
 
 
 def _ready(page) -> None:
