@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import difflib
+import json
 import math
 import re
 from collections.abc import Callable, Iterator, Sequence
@@ -133,3 +134,11 @@ def number(
 
     parse.__name__ = kind.__name__  # argparse names the type in "invalid int value" messages
     return parse
+
+
+def emit(args: argparse.Namespace, result: dict, lines: list[str]) -> None:
+    """Print a command's result: ``result`` as JSON with ``--json``, else the ``lines``."""
+    if getattr(args, "json", False):
+        print(json.dumps(result, indent=2))
+    else:
+        print("\n".join(lines))

@@ -10,7 +10,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..errors import CommandError
-from ._parsing import Builder, Wanted, add_command, number
+from ._parsing import Builder, Wanted, add_command, emit, number
+from .ssm_kernel import build_augment
 
 if TYPE_CHECKING:
     from ..ssm.model import ShapeModel
@@ -206,30 +207,6 @@ def _build_densify(p: argparse.ArgumentParser, wanted: Wanted) -> None:
     p.set_defaults(func=_cmd_densify)
 
 
-def _build_augment(p: argparse.ArgumentParser, wanted: Wanted) -> None:
-    p.add_argument("model", help="shape model file (.npz or statismo .h5)")
-    p.add_argument("-o", "--output", required=True, help="augmented model (.npz or .h5)")
-    p.add_argument(
-        "--kernel",
-        choices=("gaussian", "gaussian-normal"),
-        default="gaussian",
-        help="deformation kernel: 3-D Gaussian (default) or Gaussian along the surface normals",
-    )
-    p.add_argument(
-        "--width",
-        type=number(float, 0, 1e5, above=True),
-        default=20.0,
-        help="kernel width in mm: how far a deformation reaches (default 20)",
-    )
-    p.add_argument(
-        "--amplitude",
-        type=number(float, 0, 1e4, above=True),
-        default=1.0,
-        help="kernel amplitude in mm: the prior SD of each coordinate's displacement (default 1)",
-    )
-    p.set_defaults(func=_cmd_augment)
-
-
 #: The three groups: (name, help, dest of the chosen sub-command, its sub-commands).
 _GROUPS: tuple[tuple[str, str, str, tuple[tuple[str, Builder, str], ...]], ...] = (
     (
@@ -254,7 +231,7 @@ _GROUPS: tuple[tuple[str, str, str, tuple[tuple[str, Builder, str], ...]], ...] 
             ("quality", _build_quality, "compactness, generalisation, specificity of shapes"),
             ("export", _build_export, "write a model as statismo HDF5 (.h5) or .npz"),
             ("densify", _build_densify, "add interior points that deform barycentrically"),
-            ("augment", _build_augment, "add a smooth Gaussian-process deformation kernel"),
+            ("augment", build_augment, "add a smooth Gaussian-process deformation kernel"),
         ),
     ),
 )
@@ -278,13 +255,6 @@ def register(subparsers: Any, wanted: Wanted = None) -> None:
 
 
 # -- commands -----------------------------------------------------------------------------------
-
-
-def _emit(args: argparse.Namespace, result: dict, lines: list[str]) -> None:
-    if getattr(args, "json", False):
-        print(json.dumps(result, indent=2))
-    else:
-        print("\n".join(lines))
 
 
 def _npz_path(path: str) -> Path:
@@ -333,7 +303,7 @@ def _cmd_from_ct(args: argparse.Namespace) -> int:
         f"{surface.volume_mm3:.1f} mm^3 (segmentation {surface.segmented_mm3:.1f} mm^3); "
         f"{seconds:.2f} s",
     ]
-    _emit(args, result, lines)
+    emit(args, result, lines)
     return 0
 
 
@@ -392,7 +362,7 @@ def _cmd_synth(args: argparse.Namespace) -> int:
         f"wrote {len(names)} shapes ({len(vertices)} vertices each) and population.json to {out}",
         f"RMS distance from the template: {rms.min():.2f} .. {rms.max():.2f} mm; {seconds:.2f} s",
     ]
-    _emit(args, result, lines)
+    emit(args, result, lines)
     return 0
 
 
@@ -617,7 +587,7 @@ def _cmd_build(args: argparse.Namespace) -> int:
     if quality is not None:
         result["quality"] = quality
         lines.extend(_quality_lines(quality))
-    _emit(args, result, [header, *lines])
+    emit(args, result, [header, *lines])
     return 0
 
 
@@ -693,7 +663,7 @@ def _cmd_info(args: argparse.Namespace) -> int:
         )
     else:
         lines.append(f"note: {_NEEDS_TRAINING}")
-    _emit(
+    emit(
         args,
         {
             "model": str(args.model),
@@ -751,7 +721,7 @@ def _cmd_quality(args: argparse.Namespace) -> int:
         )
     quality = _quality_report(shapes, args.align, out, samples=args.samples, seed=args.seed)
     quality["shapes"] = [str(f) for f in files]
-    _emit(args, quality, _quality_lines(quality))
+    emit(args, quality, _quality_lines(quality))
     return 0
 
 
@@ -770,37 +740,10 @@ def _cmd_export(args: argparse.Namespace) -> int:
             write_statismo(model, out, dtype=args.precision)
         except ValueError as exc:
             raise ValueError(f"{args.model}: {exc}") from None
-    _emit(
+    emit(
         args,
         {"output": str(out), "n_vertices": model.n_vertices, "n_modes": model.n_modes},
         [f"wrote {out}: {model.n_vertices} vertices, {model.n_modes} modes"],
-    )
-    return 0
-
-
-def _cmd_augment(args: argparse.Namespace) -> int:
-    from ..ssm.gaussian_process import augment_model
-    from ..ssm.model import ShapeModel
-
-    out = Path(args.output)
-    if out.suffix.lower() not in (".h5", ".hdf5", ".npz"):
-        raise ValueError(f"{out}: the output must end in .npz, .h5 or .hdf5")
-    model = ShapeModel.load(args.model)
-    try:
-        augmented = augment_model(model, args.width, args.amplitude, kernel=args.kernel)
-    except ValueError as exc:
-        raise ValueError(f"{args.model}: {exc}") from None
-    augmented.save(out)
-    info = augmented.provenance["gaussian_process"]
-    n_kernel = augmented.n_modes - info["ssm_modes"]
-    _emit(
-        args,
-        {"output": str(out), "n_vertices": augmented.n_vertices, **info, "kernel_modes": n_kernel},
-        [
-            f"wrote {out}: {info['ssm_modes']} shape-model modes + {n_kernel} {args.kernel} "
-            f"kernel modes (width {args.width:g} mm, amplitude {args.amplitude:g} mm, "
-            f"{100 * info['captured']:.1f} % of the kernel's variance)"
-        ],
     )
     return 0
 
@@ -816,7 +759,7 @@ def _cmd_densify(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise ValueError(f"{args.model}: {exc}") from None
     dense.save(out)
-    _emit(
+    emit(
         args,
         {"output": str(out), "n_points": dense.n_vertices},
         [
