@@ -25,9 +25,10 @@ mode to reshape what they do not (the realistic benchmark's seed 10: the far 20 
 went from 0.5 to 2.6 mm off while the rest improved). The kernel's own displacement decays
 within about its width from the annotated outlines and landmarks, so it changes the bone only
 where the images show it. An annotated point is matched across the model's outline
-(:mod:`.outline_fit`), so a kernel could also slide points along it: the landmarks, which stay
-in the objective with their estimated sigmas, hold the bone's points in place along the
-outline.
+(:mod:`.outline_fit`), so a kernel could also slide points along it; only the landmarks, which
+stay in the objective with their estimated sigmas, pin points along the outline (no further
+guard against sliding: on the real wrist cases the stage was measured neutral, with one case
+worse, docs/registration.md).
 
 Frames and units: world frame, mm; amplitudes in mm.
 """
