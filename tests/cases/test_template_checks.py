@@ -17,6 +17,7 @@ import pytest
 
 from biplanar_reg.cases import CaseError, load_case
 from biplanar_reg.cases import case as case_module
+from biplanar_reg.cases import views_section
 from biplanar_reg.cli import main
 from biplanar_reg.io import read_mesh, write_mesh
 from biplanar_reg.simulate import write_synthetic_case
@@ -109,9 +110,9 @@ def test_the_size_limit_is_documented_with_its_measurement():
 def test_too_many_views_are_refused_before_the_calibrations_are_read(case, capsys, monkeypatch):
     """Reproducer: 10,000 ``[[views]]`` never finished."""
     calls = []
-    real = case_module.load_calibration
+    real = views_section.load_calibration
     monkeypatch.setattr(
-        case_module, "load_calibration", lambda *a, **k: calls.append(a) or real(*a, **k)
+        views_section, "load_calibration", lambda *a, **k: calls.append(a) or real(*a, **k)
     )
     n = case_module.MAX_VIEWS + 1
     extra = "".join(
