@@ -51,6 +51,7 @@ _RANGES = {
     "unknown_outline_sigma_factor": (1.0, np.inf, True),
 }
 
+
 @dataclass(frozen=True)
 class RegistrationOptions:
     """Options of :func:`.register.register_views` (documented defaults).

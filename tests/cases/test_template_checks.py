@@ -15,9 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from biplanar_reg.cases import CaseError, load_case
+from biplanar_reg.cases import CaseError, load_case, views_section
 from biplanar_reg.cases import case as case_module
-from biplanar_reg.cases import views_section
 from biplanar_reg.cli import main
 from biplanar_reg.io import read_mesh, write_mesh
 from biplanar_reg.simulate import write_synthetic_case
