@@ -17,7 +17,6 @@ from .unknown_poses import (
     RefinedPosesResult,
     UnknownPosesResult,
     UnknownPoseView,
-    ViewRays,
     refine_view_poses,
     solve_gsft_unknown_poses,
 )
@@ -36,7 +35,6 @@ __all__ = [
     "solve_gsft_unknown_poses",
     "UnknownPosesResult",
     "UnknownPoseView",
-    "ViewRays",
     "refine_view_poses",
     "RefinedPosesResult",
     "register_frames",

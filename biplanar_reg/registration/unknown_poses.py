@@ -35,8 +35,7 @@ Two entry points:
     runs; ``poses = "unknown"`` maps to :func:`solve_gsft_unknown_poses`.
 
 The options shared with :func:`gsft.solve_gsft` have its spelling and defaults (``eps``,
-``depth_reward_weight``, ``refine``, ``prior_weight``, ``max_refine_iter``); the old spellings
-``depth_reward``, ``polish`` and ``max_polish_iter`` are accepted with a DeprecationWarning.
+``depth_reward_weight``, ``refine``, ``prior_weight``, ``max_refine_iter``).
 """
 
 from __future__ import annotations
@@ -50,7 +49,6 @@ import numpy as np
 
 from .._validate import as_array, check_rotation
 from ..ssm.model import ShapeModel
-from ._compat import renamed_field, renamed_options
 from .gsft import (
     DEFAULT_DEPTH_REWARD,
     DEFAULT_EPS,
@@ -73,7 +71,6 @@ from .unknown_sdp import MultiViewSdpSolution, SdpViewBlock, solve_multiview_sdp
 
 __all__ = [
     "UnknownPoseView",
-    "ViewRays",
     "UnknownPosesResult",
     "RefinedPosesResult",
     "solve_gsft_unknown_poses",
@@ -103,35 +100,6 @@ class UnknownPoseView:
     prior_rotation: np.ndarray | None = None
     prior_translation: np.ndarray | None = None
     name: str = ""
-
-
-def ViewRays(  # noqa: N802 - the old class name, kept as a constructor
-    vertex_ids: object,
-    directions: object,
-    sigmas: object | None = None,
-    origins: object | None = None,
-    prior_rotation: object | None = None,
-    prior_translation: object | None = None,
-    name: str = "",
-) -> UnknownPoseView:
-    """Deprecated: ``UnknownPoseView(RayObservations(vertex_ids, origins, directions,
-    sigmas), prior_rotation, prior_translation, name)``, ``origins`` defaulting to the frame's
-    origin (a perspective view).
-
-    The fields are validated here (a ``ValueError`` names the view and the field).
-    """
-    warnings.warn(
-        "ViewRays is deprecated: pass a RayObservations (camera frame) per view, or an "
-        "UnknownPoseView(rays, prior_rotation, prior_translation, name)",
-        DeprecationWarning,
-        stacklevel=2,
-    )
-    o = np.zeros((np.size(vertex_ids), 3)) if origins is None else origins
-    try:
-        rays = RayObservations(vertex_ids, o, directions, sigmas)
-    except ValueError as exc:
-        raise ValueError(f"ViewRays{f' ({name})' if name else ''}.{exc}") from None
-    return UnknownPoseView(rays, prior_rotation, prior_translation, name)
 
 
 @dataclass(frozen=True)
@@ -224,12 +192,6 @@ class UnknownPosesResult:
     candidate_object_rotations: list = field(default_factory=list)
     candidate_object_translations: list = field(default_factory=list)
 
-    # old spellings (the refinement was called 'polish'), kept readable
-    polish_iterations = renamed_field("refine_iterations")
-    polish_cost_before = renamed_field("refine_cost_before")
-    polish_cost_after = renamed_field("refine_cost_after")
-    polish_converged = renamed_field("refine_converged")
-
 
 @dataclass(frozen=True)
 class RefinedPosesResult:
@@ -280,10 +242,6 @@ class RefinedPosesResult:
     refine_iterations: int
     refine_converged: bool
     timings: dict = field(default_factory=dict)
-
-    # old spellings (the refinement was called 'polish'), kept readable
-    polish_iterations = renamed_field("refine_iterations")
-    polish_converged = renamed_field("refine_converged")
 
 
 # -- geometry helpers -----------------------------------------------------------------------------
@@ -716,7 +674,6 @@ def solve_gsft_unknown_poses(
     prior_weight: float = 1.0,
     max_refine_iter: int = DEFAULT_MAX_REFINE_ITER,
     solver_settings: dict | None = None,
-    **deprecated: object,
 ) -> UnknownPosesResult:
     """Register a shape model to views whose poses are unknown (the seed paper's G-SfT-P).
 
@@ -742,15 +699,12 @@ def solve_gsft_unknown_poses(
     depth_reward_weight : float
         In ``[0, 1)``: weight of a small linear reward on each perspective view's depth that
         removes the relaxation's scale drift (see ``_depth_reward``; 0 = the paper's program).
-        Old spelling ``depth_reward``, deprecated.
     refine : bool
-        Run the joint Levenberg-Marquardt refinement after rounding (default; old spelling
-        ``polish``, deprecated).
+        Run the joint Levenberg-Marquardt refinement after rounding (default).
     prior_weight : float
         ``lambda`` of the shape prior ``1/2 lambda ||w||^2`` in the refinement.
     max_refine_iter : int
-        Iteration limit of each refinement run (default ``DEFAULT_MAX_REFINE_ITER``, 50; old
-        spelling ``max_polish_iter``, deprecated).
+        Iteration limit of each refinement run (default ``DEFAULT_MAX_REFINE_ITER``, 50).
     solver_settings : dict, optional
         Clarabel settings to override.
 
@@ -766,10 +720,6 @@ def solve_gsft_unknown_poses(
         The conic solver did not produce a usable solution.
     """
     t_start = time.perf_counter()
-    opts = renamed_options("solve_gsft_unknown_poses", deprecated)
-    depth_reward_weight = opts.get("depth_reward_weight", depth_reward_weight)
-    refine = opts.get("refine", refine)
-    max_refine_iter = opts.get("max_refine_iter", max_refine_iter)
     check_model(model)
     check_options(eps, prior_weight, depth_reward_weight)
     checked, constrained = _check_views(model, views)
@@ -956,8 +906,7 @@ def refine_view_poses(
     prior_weight : float
         ``lambda`` of the shape prior in the refinement.
     max_refine_iter : int
-        Iteration limit of each refinement run (default ``DEFAULT_MAX_REFINE_ITER``, 50; old
-        spelling ``max_polish_iter``, deprecated).
+        Iteration limit of each refinement run (default ``DEFAULT_MAX_REFINE_ITER``, 50).
 
     Returns
     -------
@@ -971,10 +920,6 @@ def refine_view_poses(
         The initial SDP failed or the result is not finite.
     """
     t_start = time.perf_counter()
-    deprecated = {k: legacy.pop(k) for k in list(legacy) if k == "max_polish_iter"}
-    max_refine_iter = renamed_options("refine_view_poses", deprecated).get(
-        "max_refine_iter", max_refine_iter
-    )
     check_model(model)
     rays, views_R, views_t = _refine_pose_args(
         rays, args, {**legacy, "views_R": views_R, "views_t": views_t}
