@@ -192,3 +192,26 @@ def test_registration_options_reads_both_sections():
     assert opts == RegistrationOptions(robust=False, gate_px=9.0)
     with pytest.raises(CaseError, match=r"\[registration\] gate_px: moved to"):
         registration_options({"gate_px": 9.0})
+
+
+def test_a_result_json_of_0_1_with_the_removed_options_still_reads(case, tmp_path):
+    """0.1 recorded the removed options (``null``) in ``result.json``: the batch summary and
+    the workbench's result view read such a file as before."""
+    import json
+
+    from biplanar_reg.cases import run_case_dir
+    from biplanar_reg.cases.batch import read_record
+    from biplanar_reg.workbench.jobs import review
+
+    out = tmp_path / "out"
+    run_case_dir(case, out, report=False)
+    doc = json.loads((out / "result.json").read_text(encoding="utf-8"))
+    options = doc["registration"]["options"]
+    assert not set(REMOVED_KEYS) & set(options)
+    options.update(dict.fromkeys(REMOVED_KEYS))
+    (out / "result.json").write_text(json.dumps(doc), encoding="utf-8")
+    row = read_record("demo", out, "done", None)
+    assert row["certificate"] == doc["certificate"] and row["flags"] == "; ".join(doc["flags"])
+    c = load_case(case)
+    page = review(c.views, c.landmarks, out)
+    assert set(page["views"]) == {v.name for v in c.views} and page["flags"] == doc["flags"]
