@@ -18,6 +18,8 @@ from .._validate import did_you_mean
 from ..annotation import AnnotationError
 from ..errors import CaseError
 
+__all__ = []
+
 log = logging.getLogger(__name__)
 
 CASE_FORMAT = "biplanar-reg/case@1"

@@ -23,6 +23,8 @@ from ._case_file import (
 from .case_types import CaseFrame, CaseView, GroundTruth
 from .views_section import _check_pixels, _scale_view
 
+__all__ = []
+
 if TYPE_CHECKING:
     from .region import RegionSpec
 

@@ -17,7 +17,9 @@ import os
 import re
 
 from ..registration import ViewObservations
-from ._case_file import (
+
+# with the format's constants and types that the CLI, the workbench and tools import from here
+from ._case_file import (  # noqa: F401
     CASE_FILE,
     CASE_FORMAT,
     MAX_TEMPLATE_FACES,
@@ -34,11 +36,11 @@ from ._case_file import (
 )
 from .annotations_section import _frame_name, _load_annotations, _load_frames, _load_ground_truth
 from .case_setup import CaseSetup, read_case_setup, read_case_views
-from .case_types import Case, CaseFrame, CaseView, GroundTruth
+from .case_types import Case, CaseFrame, CaseView, GroundTruth  # noqa: F401
 from .model_section import _load_model
 from .registration_table import (
     MODE_KEYS,
-    POSES,
+    POSES,  # noqa: F401
     load_start,
     option_values,
     registration_mode,
@@ -54,20 +56,9 @@ from .views_section import (
 )
 
 __all__ = [
-    "CASE_FILE",
-    "CASE_FORMAT",
     "Case",
     "CaseFrame",
     "CaseSetup",
-    "CaseView",
-    "GroundTruth",
-    "MAX_TEMPLATE_FACES",
-    "MAX_TEMPLATE_VERTICES",
-    "MAX_VIEWS",
-    "MIN_LANDMARK_OBSERVATIONS",
-    "MIN_VIEWS",
-    "POSES",
-    "UNIT_SCALE",
     "load_case",
     "read_case_setup",
     "read_case_views",

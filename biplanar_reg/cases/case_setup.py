@@ -22,6 +22,8 @@ from .model_section import _read_landmarks
 from .registration_table import registration_mode
 from .views_section import _load_views, _view_tables
 
+__all__ = ["CaseSetup", "read_case_setup", "read_case_views"]
+
 
 def read_case_views(
     case_dir: str | os.PathLike, *, allow_outside: bool = True

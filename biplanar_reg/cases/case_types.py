@@ -22,6 +22,8 @@ from ._case_file import (
     _one_line,
 )
 
+__all__ = ["Case", "CaseFrame"]
+
 if TYPE_CHECKING:
     from .region import RegionSpec
 

@@ -23,6 +23,8 @@ from ._case_file import (
     _units_name,
 )
 
+__all__ = []
+
 
 def _read_landmarks(ctx: _Ctx, path: Path, n_vertices: int) -> dict[str, int]:
     where = "[model] landmarks"

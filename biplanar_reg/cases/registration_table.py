@@ -20,18 +20,7 @@ from ..io.jsonfile import read_json
 from ..registration import RegistrationOptions
 from ._case_file import _Ctx, _one_line
 
-__all__ = [
-    "EXPERT",
-    "EXPERT_KEYS",
-    "MODE_KEYS",
-    "POSES",
-    "REMOVED_KEYS",
-    "SECTION",
-    "USER_KEYS",
-    "USER_OPTIONS",
-    "option_values",
-    "registration_options",
-]
+__all__ = ["registration_options"]
 
 SECTION = "[registration]"
 EXPERT = "[registration.expert]"

@@ -24,6 +24,8 @@ from ._case_file import (
 )
 from .case_types import CaseView
 
+__all__ = []
+
 
 def _scale_view(view: View, scale: float) -> View:
     """The same view with world lengths multiplied by ``scale`` (e.g. 1000 for m -> mm).
