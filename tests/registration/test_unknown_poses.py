@@ -9,10 +9,10 @@ import pytest
 
 from biplanar_reg.calibration.views import PerspectiveView
 from biplanar_reg.registration import RayObservations
+from biplanar_reg.registration.calibration_refine import refine_view_poses
 from biplanar_reg.registration.rotations import rotation_angle, so3_exp
 from biplanar_reg.registration.unknown_poses import (
     UnknownPoseView,
-    refine_view_poses,
     similarity_fit,
     solve_gsft_unknown_poses,
 )
