@@ -16,9 +16,13 @@ ROOT = Path(__file__).resolve().parents[1]
 PROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]
 #: Where the workbench's server stack may be imported.
 SERVER_IMPORTERS = ("biplanar_reg/workbench/", "biplanar_reg/cli/workbench.py")
-#: Python run first in a child process: starlette and uvicorn cannot be imported, as on a
-#: machine with the core install only.
-HIDE_SERVER = "import sys\nsys.modules['starlette'] = None\nsys.modules['uvicorn'] = None\n"
+#: Python run first in a child process: the extras' modules cannot be imported, as on a machine
+#: with the core install only.
+HIDE_EXTRAS = (
+    "import sys\n"
+    "for name in ('starlette', 'uvicorn', 'dask', 'distributed', 'dask_jobqueue'):\n"
+    "    sys.modules[name] = None\n"
+)
 
 
 def _names(requirements: list[str]) -> set[str]:
@@ -28,7 +32,7 @@ def _names(requirements: list[str]) -> set[str]:
 
 def _run(code: str, tmp_path: Path) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-c", HIDE_SERVER + code],
+        [sys.executable, "-c", HIDE_EXTRAS + code],
         capture_output=True,
         text=True,
         cwd=tmp_path,
@@ -68,7 +72,7 @@ def test_only_the_workbench_imports_the_server_stack():
     assert found == []
 
 
-def test_register_and_its_report_run_without_the_workbench_extra(tmp_path):
+def test_register_and_its_report_run_without_the_extras(tmp_path):
     case = ROOT / "sample_cases" / "synthetic_demo"
     out = tmp_path / "out"
     code = (
