@@ -33,7 +33,7 @@ from ..cases import CaseSetup
 from ..cases.case import UNIT_SCALE, CaseView
 from ..io import atomic_write_json, atomic_write_text, read_mesh
 from ..outline import outline_polylines
-from ..registration import solve_gsft
+from ..registration import RayObservations, solve_gsft
 from ..ssm import ShapeModel
 from .session import Conflict, NotFound, check_point, check_positive
 
@@ -118,7 +118,7 @@ def landmark_pose(
     """The rigid pose ``(R (3, 3), t (3,) mm)`` of the mean shape that the landmark rays fix:
     G-SfT with no modes (the registration's rigid mean-shape start, equal weights)."""
     rigid = ShapeModel(mean, np.zeros((0, mean.shape[0], 3)), faces=faces)
-    res = solve_gsft(rigid, ids, origins, directions)
+    res = solve_gsft(rigid, RayObservations(ids, origins, directions))
     return np.asarray(res.rotation, float), np.asarray(res.translation, float)
 
 
