@@ -64,8 +64,8 @@ OUTER_PROBE_PX = 1.5
 CUT_BAND_MM = 1.0
 #: ... the share of the mesh's cross-section near that plane (the convex hull, on the plane, of
 #: the vertices within 3 bands of it) that the faces within the band must cover (measured with
-#: benchmarks/mesh_cuts.py: 0.95-0.99 on the shipped CT templates' cut ends, 0.45 at most on a
-#: rounded end)...
+#: benchmarks/mesh_cuts.py: 0.96-0.99 at the cut end of every shipped CT-derived model, 0.45 at
+#: the flattest end of the synthetic capsule)...
 CUT_MIN_COVER = 0.8
 #: ... and the smallest such cross-section, mm^2 (a flat facet on a tip is no cut).
 CUT_MIN_AREA_MM2 = 20.0

@@ -248,7 +248,7 @@ class _Handlers:
         body = await _body(request) if action in ("nudge", "set") else {}
         if action == "nudge":
             args = (body.get("view"), body.get("translate_px"), body.get("rotate_deg"))
-            return JSONResponse(await _call(self.aid.nudge, *args))
+            return JSONResponse(await _call(self.aid.nudge, *args, body.get("preview", False)))
         if action == "set":
             args = (body.get("centre_mm"), body.get("angles_deg"))
             return JSONResponse(await _call(self.aid.set_fields, *args))

@@ -38,6 +38,7 @@ from ..ssm import ShapeModel
 from .pose_nudge import (
     axes_overlay,
     euler_xyz,
+    nudge_frame,
     nudge_rotate,
     nudge_translate,
     pose_from_fields,
@@ -147,7 +148,9 @@ def posed_overlay(
     cut: np.ndarray | None = None,
 ) -> dict[str, dict[str, Any]]:
     """What the page draws per view: ``{view: {"outline_px", "outline_closed",
-    "landmarks_px", "centre_px", "axes"}}`` of the mean shape posed by ``(R, t)`` (pixels).
+    "landmarks_px", "centre_px", "axes", "camera"}}`` of the mean shape posed by ``(R, t)``
+    (pixels; ``camera``: the view's ``"forward"`` and ``"up"`` unit vectors at the bone, world
+    frame, for a 3D view oriented like the radiograph).
 
     The outline is every piece of :func:`~.posed_outline.outline_pieces` without the template's
     cut (``cut``), longest first; the centre is the posed vertices' mean, about which nudges
@@ -161,6 +164,7 @@ def posed_overlay(
     centre = V.mean(axis=0)
     axes = axes_overlay(centre, views, 0.25 * float(np.ptp(V, axis=0).max()))
     for cv in views:
+        _, ev, k = nudge_frame(cv.view, centre)
         lines, closed = outline_pieces(V, faces, cv.view, cut, min_length_px=0.0)
         uv = cv.view.project(V[ids]) if len(ids) else np.zeros((0, 2))
         out[cv.name] = {
@@ -169,6 +173,7 @@ def posed_overlay(
             "outline_closed": [bool(c) for c in closed],
             "landmarks_px": {n: np.round(p, 2).tolist() for n, p in zip(names, uv, strict=True)},
             "axes": axes[cv.name],
+            "camera": {"forward": np.round(k, 9).tolist(), "up": np.round(-ev, 9).tolist()},
         }
     return out
 
@@ -349,27 +354,31 @@ class PoseAid:
     def document(self) -> dict[str, Any]:
         """``GET /api/pose-aid``: ``{"ready": false, "reason"}`` or ``{"ready": true, "source":
         "landmarks"|"nudged"|"typed"|"start", "landmarks_changed", "saved", "undo", "R", "t"
-        (mm), "centre_mm", "angles_deg", "views": {view: ...}}`` (:func:`posed_overlay`), with
-        ``"seconds"``, the server's time for this answer."""
+        (mm), "centre_mm", "angles_deg" (:func:`~.pose_nudge.euler_xyz`), "views": {view:
+        ...}}`` (:func:`posed_overlay`), with ``"seconds"``, the server's time for it."""
         t0 = time.perf_counter()
         with self._lock:
             cur = self._current()
             if isinstance(cur, str):
                 return {"ready": False, "reason": cur, "undo": len(self._undo),
                         "seconds": time.perf_counter() - t0}  # fmt: skip
-            R, t, source, changed = cur
-            mean, faces, cut = self._model()
-            views = posed_overlay(mean, faces, R, t, self.wb.setup.views, self.wb.landmarks, cut)
-            saved = self._saved is not None and all(
-                np.allclose(a, b, atol=1e-9) for a, b in zip(self._saved, (R, t), strict=True)
-            )
-            undo = len(self._undo)
+            return self._posed_document(*cur, t0)
+
+    def _posed_document(
+        self, R: np.ndarray, t: np.ndarray, source: str, changed: bool, t0: float
+    ) -> dict[str, Any]:
+        """The document of the pose ``(R, t)`` (the lock held)."""
+        mean, faces, cut = self._model()
+        views = posed_overlay(mean, faces, R, t, self.wb.setup.views, self.wb.landmarks, cut)
+        saved = self._saved is not None and all(
+            np.allclose(a, b, atol=1e-9) for a, b in zip(self._saved, (R, t), strict=True)
+        )
         return {
             "ready": True,
             "source": source,
             "landmarks_changed": changed,
             "saved": saved,
-            "undo": undo,
+            "undo": len(self._undo),
             "R": np.round(R, 9).tolist(),
             "t": np.round(t, 6).tolist(),
             "centre_mm": np.round(mean.mean(axis=0) @ R.T + t, 3).tolist(),
@@ -390,10 +399,13 @@ class PoseAid:
         self._undo = [*self._undo, self._user][-UNDO_STEPS:]
         self._user = {"R": R, "t": t, "source": source, "key": base}
 
-    def nudge(self, view: object, translate_px: object, rotate_deg: object) -> dict[str, Any]:
+    def nudge(
+        self, view: object, translate_px: object, rotate_deg: object, preview: object = False
+    ) -> dict[str, Any]:
         """Move the pose in ``view``'s plane (:mod:`.pose_nudge`): ``translate_px`` ``[du, dv]``
         pixels and/or ``rotate_deg`` degrees (clockwise on the screen) about the bone's
-        centre."""
+        centre. ``preview``: answer the document of the moved pose without keeping it (the
+        page draws a drag's pose in every view while it lasts)."""
         cv = self._case_view(view)
         d_uv = None if translate_px is None else check_point(translate_px, "translate_px", None)
         angle = None
@@ -410,6 +422,8 @@ class PoseAid:
                 R, t = nudge_translate(mean, R, t, cv.view, d_uv)
             if angle is not None:
                 R, t = nudge_rotate(mean, R, t, cv.view, angle)
+            if preview is True:
+                return self._posed_document(R, t, "preview", False, time.perf_counter())
             self._set_user(R, t, "nudged")
         return self.document()
 

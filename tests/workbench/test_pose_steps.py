@@ -11,14 +11,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import test_pose_aid
 from _http import page_client
-from test_pose_aid import TOKEN, _click, _place, posed  # noqa: F401 (the fixture)
+from test_pose_aid import TOKEN, _click, _place
 
 from biplanar_reg.cases import load_case
 from biplanar_reg.workbench import Workbench, create_app
 from biplanar_reg.workbench.pose_nudge import euler_xyz, nudge_frame, rotation_xyz
 
 _LOCK = shutil.ignore_patterns(".workbench.lock")
+posed = test_pose_aid.posed  # the fixture: the synthetic case, no clicks, a known pose
 
 
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:

@@ -1,4 +1,4 @@
-""""Propose outline" on a CT template cut off by the field of view: every piece of the posed
+"""Propose outline on a CT template cut off by the field of view: every piece of the posed
 outline is proposed, snapped separately, and nothing along the template's cut (the shipped
 wrist radius template, capped flat at its proximal cut, and the same template opened there),
 on the shipped wrist case's real radiographs at the case's rough pose."""
