@@ -122,7 +122,13 @@ def test_every_pose_change_is_an_undo_step(posed):
     assert client.post("/api/pose-aid/undo").status_code == 409  # nothing to undo
     _place(client, truth, 3)
     base = client.get("/api/pose-aid").json()
+    # a drag's preview: the moved pose answered, nothing kept
+    body = {"view": "cam1", "translate_px": [5, 0], "preview": True}
+    preview = client.post("/api/pose-aid/nudge", json=body).json()
+    assert preview["source"] == "preview" and preview["t"] != base["t"]
+    assert client.get("/api/pose-aid").json() | {"seconds": 0} == base | {"seconds": 0}
     one = client.post("/api/pose-aid/nudge", json={"view": "cam1", "translate_px": [5, 0]})
+    assert one.json()["t"] == preview["t"]  # the release keeps the previewed pose
     two = client.post("/api/pose-aid/nudge", json={"view": "cam2", "rotate_deg": 4.0})
     assert two.json()["undo"] == 2
     back = client.post("/api/pose-aid/undo").json()
