@@ -120,7 +120,7 @@ function wireControls(wb) {
   document.addEventListener("keydown", (ev) => onKey(wb, ev));
 }
 
-/** Keyboard: L / O modes, F fit, Enter finish, Esc cancel, Backspace undo an anchor, Delete
+/** Keyboard: L / O / P modes, U undoes a pose step (Pose mode), F fit, Enter finish, Esc cancel, Backspace undo an anchor, Delete
  * removes the selected landmark (in the view under the mouse) or contour. */
 function onKey(wb, ev) {
   if (ev.target instanceof HTMLInputElement || ev.ctrlKey || ev.metaKey || ev.altKey) return;
@@ -129,6 +129,7 @@ function onKey(wb, ev) {
   if (key === "l" || key === "L") wb.setMode("landmark");
   else if (key === "o" || key === "O") wb.setMode("outline");
   else if ((key === "p" || key === "P") && wb.tools.pose) wb.setMode("pose");
+  else if ((key === "u" || key === "U") && wb.mode === "pose") wb.tools.pose.aid.undo();
   else if (key === "f" || key === "F") wb.viewers.get(wb.activeView)?.fit();
   else if (key === "Enter" && wb.mode === "outline") outline.finish();
   else if (key === "Escape") wb.tool().cancel();
@@ -165,10 +166,11 @@ function exposeForTests(wb) {
 
 /** The 3D model view, the pose aid (Pose mode) and the result's shading. */
 async function initModelAndPose(wb) {
+  const fields = Object.fromEntries(["cx", "cy", "cz", "ax", "ay", "az"].map((k) => [k, $(`pose-${k}`)]));
   const aid = new PoseAid(wb, {
-    panel: $("pose-panel"), status: $("pose-status"), reset: $("pose-reset"),
+    panel: $("pose-panel"), status: $("pose-status"), reset: $("pose-reset"), undo: $("pose-undo"),
     save: $("pose-save"), propose: $("pose-propose"), accept: $("pose-accept"),
-    discard: $("pose-discard"), show: $("pose-show"), time: $("pose-time"),
+    discard: $("pose-discard"), show: $("pose-show"), time: $("pose-time"), fields,
   });
   const shading = new ResultShading(wb, $("show-shading"));
   wb.tools.pose = new PoseTool(wb, aid);
@@ -177,7 +179,9 @@ async function initModelAndPose(wb) {
   const model = new ModelView(wb, {
     box: $("model-box"), name: $("model-name"), list: $("model-landmarks"),
     status: $("model-status"), showResult: $("model-result"), legend: $("model-legend"),
+    views: $("model-views"),
   });
+  aid.listeners.push((doc) => model.setPose(doc)); // the 3D view oriented like a radiograph
   $("model-result").addEventListener("change", (ev) => model.setShowResult(ev.target.checked));
   $("model-enlarge").addEventListener("click", () => {
     const big = $("model-panel").classList.toggle("big");
@@ -193,7 +197,10 @@ async function initModelAndPose(wb) {
   window.workbench.model = model;
   await Promise.all([
     aid.init(),
-    model.init().catch((err) => model.say(`3D view: ${err.message}`, true)),
+    model
+      .init()
+      .then(() => model.setPose(aid.doc))
+      .catch((err) => model.say(`3D view: ${err.message}`, true)),
     wb.result ? onResult(wb.result) : null,
   ]);
 }
