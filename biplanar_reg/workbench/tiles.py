@@ -91,6 +91,7 @@ class Pyramid:
         self._data: list[np.ndarray] = [np.ascontiguousarray(image.pixels, dtype=np.float32)]
         self._lock = threading.Lock()
         self._clahe: dict[tuple[int, float, float], np.ndarray] = {}
+        self._clahe_lock = threading.Lock()
 
     def _level_size(self, level: int) -> tuple[int, int]:
         f = 2**level
@@ -130,22 +131,25 @@ class Pyramid:
         ``createCLAHE``), uint8; kept for the last :data:`CLAHE_CACHE` (level, window) pairs.
         Computed on the whole level, not per tile, so that tiles join without seams."""
         key = (level, float(lo), float(hi))
-        with self._lock:
-            hit = self._clahe.pop(key, None)
-            if hit is not None:
-                self._clahe[key] = hit  # most recently used last
-                return hit
-        grey = np.round(self._windowed(self.level(level), lo, hi)).astype(np.uint8)
-        w, h = self.level_size(level)
-        grid = (max(1, math.ceil(self.width / CLAHE_CELL_PX)),
-                max(1, math.ceil(self.height / CLAHE_CELL_PX)))  # fmt: skip
-        grid = (min(grid[0], w), min(grid[1], h))
-        out = cv2.createCLAHE(clipLimit=CLAHE_CLIP, tileGridSize=grid).apply(grey)
-        with self._lock:
-            self._clahe[key] = out
-            while len(self._clahe) > CLAHE_CACHE:
-                self._clahe.pop(next(iter(self._clahe)))
-        return out
+        # one computation at a time: the page asks for a level's tiles at once, and all but
+        # the first find the equalised level made
+        with self._clahe_lock:
+            with self._lock:
+                hit = self._clahe.pop(key, None)
+                if hit is not None:
+                    self._clahe[key] = hit  # most recently used last
+                    return hit
+            grey = np.round(self._windowed(self.level(level), lo, hi)).astype(np.uint8)
+            w, h = self.level_size(level)
+            grid = (max(1, math.ceil(self.width / CLAHE_CELL_PX)),
+                    max(1, math.ceil(self.height / CLAHE_CELL_PX)))  # fmt: skip
+            grid = (min(grid[0], w), min(grid[1], h))
+            out = cv2.createCLAHE(clipLimit=CLAHE_CLIP, tileGridSize=grid).apply(grey)
+            with self._lock:
+                self._clahe[key] = out
+                while len(self._clahe) > CLAHE_CACHE:
+                    self._clahe.pop(next(iter(self._clahe)))
+            return out
 
     def tile(
         self,

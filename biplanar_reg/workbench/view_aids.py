@@ -1,5 +1,5 @@
-"""Aids to seeing in the workbench: epipolar curves across views, marker detection and
-contrast-enhanced (CLAHE) tiles.
+"""Aids to seeing in the workbench: epipolar curves across views, marker detection, the
+window of a box and contrast-enhanced (CLAHE) tiles.
 
 * Epipolar curves: the ray of a pixel of one view drawn in every other view
   (:func:`biplanar_reg.calibration.epipolar.epipolar_curve`, any view kind), for the cursor
@@ -7,6 +7,7 @@ contrast-enhanced (CLAHE) tiles.
 * Markers: :func:`biplanar_reg.annotation.markers.detect_markers` on a view's radiograph,
   each proposed as a circular exclusion zone (the page adds the accepted ones through the
   exclusion-zone route of :mod:`.outline_tools`).
+* Box window: the 1st-99th percentile of the raw pixels in a box drawn on the image.
 * CLAHE tiles: :meth:`biplanar_reg.workbench.tiles.Pyramid.tile` with ``clahe=True``; they
   change the display only: the livewire's cost stays on the image itself, so that a contour
   does not depend on how it was shown.
@@ -36,6 +37,8 @@ MARKER_KINDS = {"beads": BEAD_RADII_PX, "discs": DISC_RADII_PX}
 #: the blur around it, which the livewire would otherwise follow).
 ZONE_SCALE = 1.5
 ZONE_MARGIN_PX = 2.0
+#: Percentiles of the pixels in a box that make its automatic window.
+BOX_PERCENTILES = (1.0, 99.0)
 
 
 def _rounded(points: np.ndarray) -> list[list[float]]:
@@ -106,6 +109,31 @@ class ViewAids:
             ]
         return {"markers": self._markers[key], "kind": kind, "seconds": time.perf_counter() - t0}
 
+    def box_window(self, view: str, box: object) -> dict[str, Any]:
+        """The display window of the pixels in ``box`` = ``"u0,v0,u1,v1"`` (pixels, any two
+        opposite corners, clipped to the image): their 1st and 99th percentiles, raw units.
+        ``{"window": [lo, hi], "box": [u0, v0, u1, v1], "pixels": n}``."""
+        v = self.wb._view(view)
+        p = v.pyramid()
+        parts = str(box if box is not None else "").split(",")
+        if len(parts) != 4:
+            raise ValueError(f"box: expected u0,v0,u1,v1 (pixels), got {str(box)[:60]!r}")
+        u0, v0, u1, v1 = (_number(x, "box") for x in parts)
+        c0 = max(0, math.floor(min(u0, u1) + 0.5))
+        c1 = min(p.width, math.floor(max(u0, u1) + 0.5) + 1)
+        r0 = max(0, math.floor(min(v0, v1) + 0.5))
+        r1 = min(p.height, math.floor(max(v0, v1) + 0.5) + 1)
+        if c1 - c0 < 2 or r1 - r0 < 2:
+            raise ValueError(
+                f"box: at least 2 x 2 pixels inside the {p.width}x{p.height} image, got "
+                f"{max(c1 - c0, 0)} x {max(r1 - r0, 0)}"
+            )
+        pixels = p.level(0)[r0:r1, c0:c1]
+        lo, hi = (float(x) for x in np.percentile(pixels, BOX_PERCENTILES))
+        if not hi > lo:  # a flat box: one grey level either side
+            lo, hi = lo - 1.0, hi + 1.0
+        return {"window": [lo, hi], "box": [c0, r0, c1 - 1, r1 - 1], "pixels": int(pixels.size)}
+
     def tile(
         self, view: str, level: int, tx: int, ty: int, lo: float | None, hi: float | None
     ) -> bytes:
@@ -148,8 +176,13 @@ def view_aid_routes(
         view = request.path_params["view"]
         return JSONResponse(await call(aids.markers, view, q.get("kind"), q.get("min_contrast")))
 
+    async def window(request: Request) -> JSONResponse:
+        view = request.path_params["view"]
+        return JSONResponse(await call(aids.box_window, view, request.query_params.get("box")))
+
     v = "/api/views/{view}"
     return [
+        Route(v + "/window", guarded(window), methods=["GET"]),
         Route(v + "/epipolar", guarded(epipolar), methods=["GET"]),
         Route(v + "/markers", guarded(markers), methods=["GET"]),
     ]

@@ -109,3 +109,17 @@ def test_clahe_tiles_raise_local_contrast(wrist) -> None:
     t0 = time.perf_counter()
     assert client.get(url.replace("3/5", "4/5") + "&clahe=1").status_code == 200
     assert time.perf_counter() - t0 < 1.0  # the equalised level is kept
+
+
+def test_window_of_a_box(wrist) -> None:
+    client, wb = wrist
+    r = client.get("/api/views/cam01/window?box=900,1300,700,1100")
+    assert r.status_code == 200, r.text
+    doc = r.json()
+    raw = wb.views["cam01"].image.pixels[1100:1301, 700:901]
+    assert doc["box"] == [700, 1100, 900, 1300] and doc["pixels"] == raw.size
+    np.testing.assert_allclose(doc["window"], np.percentile(raw, [1, 99]))
+    for box, message in [("1,2,3", "box: expected u0,v0,u1,v1"), ("5,5,5.2,900", "box: at least"),
+                         ("x,1,2,3", "box: expected a number")]:  # fmt: skip
+        r = client.get(f"/api/views/cam01/window?box={box}")
+        assert r.status_code == 400 and r.json()["error"].startswith(message), r.text
