@@ -139,7 +139,7 @@ export class EpipolarGuide {
     for (const { view, name, curves, selected } of this.landmarkCurves(viewer.name)) {
       const pieces = curves[viewer.name] ?? [];
       const color = selected ? LANDMARK_COLOR : PENDING_COLOR;
-      for (const line of pieces) polyline(ctx, viewer, line, { color, width: selected ? 1.75 : 1 });
+      for (const line of pieces) polyline(ctx, viewer, line, { color, width: selected ? 2 : 1.25 });
       const first = pieces[0]?.[0];
       if (first) {
         const [x, y] = viewer.toCanvas(...first);
