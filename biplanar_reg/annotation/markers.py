@@ -85,25 +85,36 @@ def _sector_kernels(radius: float) -> list[np.ndarray]:
     return kernels
 
 
-def _score(img: np.ndarray, radius: float) -> np.ndarray:
-    """The rim score of every pixel for one radius (float32, display units)."""
-    responses = np.stack(
-        [cv2.filter2D(img, -1, k, borderType=cv2.BORDER_REPLICATE) for k in _sector_kernels(radius)]
-    )
+def _score(img: np.ndarray, radius: float, threshold: float) -> np.ndarray:
+    """The rim score of every pixel for one radius (float32, display units); ``-inf`` where
+    no sector reaches ``threshold`` (the score, a minimum over sectors, cannot either)."""
+    responses = [
+        cv2.filter2D(img, -1, k, borderType=cv2.BORDER_REPLICATE).ravel()
+        for k in _sector_kernels(radius)
+    ]
+    strongest = responses[0].copy()
+    for r in responses[1:]:
+        np.maximum(strongest, r, out=strongest)
+    idx = np.flatnonzero(strongest > threshold)  # the few pixels worth the arc test
+    sectors = np.stack([r[idx] for r in responses])  # (SECTORS, K)
     # the weakest sector of the best arc of ARC contiguous sectors: the hidden part of the rim
     # must be one arc (a disc over an edge), not two opposite sectors (a dark band)
-    pair = np.minimum(responses, np.roll(responses, -1, axis=0))  # sectors j, j + 1
+    pair = np.minimum(sectors, np.roll(sectors, -1, axis=0))  # sectors j, j + 1
     quad = np.minimum(pair, np.roll(pair, -2, axis=0))  # j .. j + 3
     arc = np.minimum(quad, np.roll(pair, -4, axis=0))  # j .. j + 5
-    return arc.max(axis=0)
+    score = np.full(img.size, -np.inf, np.float32)
+    score[idx] = arc.max(axis=0)
+    return score.reshape(img.shape)
 
 
-def _best_over_radii(img: np.ndarray, radii: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+def _best_over_radii(
+    img: np.ndarray, radii: Sequence[float], threshold: float
+) -> tuple[np.ndarray, np.ndarray]:
     """The best score over ``radii`` and the radius that gave it, per pixel of ``img``."""
     best = np.full(img.shape, -np.inf, np.float32)
     best_r = np.zeros(img.shape, np.float32)
     for r in radii:
-        s = _score(img, r)
+        s = _score(img, r, threshold)
         better = s > best
         best[better] = s[better]
         best_r[better] = r
@@ -115,7 +126,7 @@ def _peaks(img: np.ndarray, radii: Sequence[float], threshold: float, scale: int
     times, ``radii`` in full-resolution pixels; results in full-resolution pixels."""
     if not radii:
         return []
-    best, best_r = _best_over_radii(img, [r / scale for r in radii])
+    best, best_r = _best_over_radii(img, [r / scale for r in radii], threshold)
     local_max = best >= cv2.dilate(best, np.ones((5, 5), np.uint8))
     rows, cols = np.nonzero(local_max & (best > threshold))
     du, dv = _subpixel(best, rows, cols)
