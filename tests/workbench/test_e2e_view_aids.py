@@ -213,8 +213,8 @@ def test_window_level(page, server, case_dir, tmp_path):  # noqa: F811
     page.mouse.down(button="right")
     page.mouse.move(x + 50, y - 20, steps=5)
     page.mouse.up(button="right")
-    lo, hi = page.evaluate(state)
-    assert hi - lo > 100 and (lo + hi) / 2 > 150, (lo, hi)
+    page.wait_for_function(f"() => {{ const [lo, hi] = ({state})(); "
+                           "return hi - lo > 100 && (lo + hi) / 2 > 150; }")  # fmt: skip
 
     # a box over the distal radius: its 1st-99th percentile
     u0, v0, u1, v1 = 650, 1350, 900, 1600

@@ -131,7 +131,7 @@ export class Viewer {
   /** Display window in raw image units; tiles are re-requested for the new mapping. */
   setWindow(lo, hi) {
     if (!(hi > lo)) return;
-    this.previousDisplay = { window: this.window, clahe: this.clahe };
+    this.keepDisplay();
     this.window = [lo, hi];
     this.redraw();
   }
@@ -139,9 +139,20 @@ export class Viewer {
   /** CLAHE-equalised tiles on or off (the window stays). */
   setClahe(on) {
     if (on === this.clahe) return;
-    this.previousDisplay = { window: this.window, clahe: this.clahe };
+    this.keepDisplay();
     this.clahe = on;
     this.redraw();
+  }
+
+  /** Before the display changes: its tiles stand in while the new ones load, if it has at
+   * least its backdrop (while dragging the window, an older display may be the last one). */
+  keepDisplay() {
+    if (!this.info.has_image) return;
+    const [lo, hi] = this.window.map(roundWindow);
+    const backdrop = this.hooks.tileUrl(this.info.levels - 1, 0, 0, lo, hi, this.clahe);
+    if (!this.previousDisplay || this.tiles.peek(backdrop)) {
+      this.previousDisplay = { window: this.window, clahe: this.clahe };
+    }
   }
 
   /** Where pointer input goes: an override (e.g. window.js's box) or the current tool. */

@@ -12,6 +12,7 @@ import { request } from "./api.js";
 
 const enc = encodeURIComponent;
 const DRAG_RATE = 0.004; // fraction of the raw range per screen pixel of a right-drag
+const THROTTLE_MS = 100; // a right-drag asks for new tiles at most this often
 
 /** Keyboard shortcuts of this module (merged into the page's shortcut list). */
 export const WINDOW_SHORTCUTS = [
@@ -47,6 +48,8 @@ export class WindowControls {
     this.box = null; // the box being drawn: {start, end}
     this.armed = false; // the next left drag on the image draws the box
     this.escape = null; // the Esc listener while armed
+    this.pending = null; // the window a right-drag moved to, not yet applied
+    this.timer = 0;
     this.build(bar.querySelector(".window"));
     this.restore();
     viewer.windowDrag = (dx, dy) => this.dragWindow(dx, dy);
@@ -100,13 +103,34 @@ export class WindowControls {
   /** Apply a window [lo, hi] (raw units), show it in the fields and remember it. */
   set(lo, hi) {
     if (!(hi > lo) || !Number.isFinite(lo) || !Number.isFinite(hi)) return;
+    clearTimeout(this.timer);
+    this.timer = 0;
+    this.pending = null;
     this.viewer.setWindow(lo, hi);
     this.showFields();
     this.save();
   }
 
+  /** During a right-drag: the fields follow at once, the tiles at most every THROTTLE_MS
+   * (each window is a new set of tiles). */
+  setSoon(lo, hi) {
+    this.pending = [lo, hi];
+    this.showFields();
+    if (!this.timer) {
+      this.timer = setTimeout(() => {
+        this.timer = 0;
+        if (this.pending) this.set(...this.pending);
+      }, THROTTLE_MS);
+    }
+  }
+
+  /** The window shown: the one being dragged to, else the viewer's. */
+  current() {
+    return this.pending ?? this.viewer.window;
+  }
+
   showFields() {
-    const [lo, hi] = this.viewer.window;
+    const [lo, hi] = this.current();
     this.level.value = fmt((lo + hi) / 2);
     this.width.value = fmt(hi - lo);
     this.viewer.canvas.dataset.window = `${lo},${hi}`;
@@ -160,11 +184,11 @@ export class WindowControls {
   /** A right-drag moved (dx, dy) screen px: right widens, down lowers the level (brighter
    * image for bone dark on bright, as in Slicer). */
   dragWindow(dx, dy) {
-    const [lo, hi] = this.viewer.window;
+    const [lo, hi] = this.current();
     const span = (this.range[1] - this.range[0]) || 1;
     const width = Math.max(span / 1000, hi - lo + dx * DRAG_RATE * span);
     const level = (lo + hi) / 2 - dy * DRAG_RATE * span;
-    this.set(level - width / 2, level + width / 2);
+    this.setSoon(level - width / 2, level + width / 2);
   }
 
   // ---- automatic window from a box -------------------------------------------------------
