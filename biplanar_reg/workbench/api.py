@@ -33,6 +33,7 @@ from starlette.staticfiles import StaticFiles
 from .access import Access, Guard
 from .outline_tools import outline_routes
 from .session import Conflict, NotFound, Workbench, require_version
+from .view_aids import ViewAids, view_aid_routes
 
 __all__ = ["create_app"]
 
@@ -163,6 +164,7 @@ class _Handlers:
 
         self.aid = PoseAid(wb)
         self.meshes = ModelView(wb, self.aid.mean)
+        self.aids = ViewAids(wb)  # epipolar curves, markers, CLAHE tiles (view_aids.py)
 
     async def index(self, request: Request) -> Response:
         html = await _call(page_html, "index.html", self.token)
@@ -177,7 +179,8 @@ class _Handlers:
     async def tile(self, request: Request) -> Response:
         p = request.path_params
         lo, hi = _query_float(request, "lo"), _query_float(request, "hi")
-        png = await _call(self.wb.tile, p["view"], p["level"], p["tx"], p["ty"], lo, hi)
+        make = self.aids.tile if request.query_params.get("clahe") == "1" else self.wb.tile
+        png = await _call(make, p["view"], p["level"], p["tx"], p["ty"], lo, hi)
         return Response(
             png, media_type="image/png", headers={"Cache-Control": "private, max-age=3600"}
         )
@@ -302,6 +305,7 @@ def _routes(wb: Workbench, token: str) -> list[Route | Mount]:
     ]
     routes: list[Route | Mount] = [Route(p, _guarded(fn), methods=m) for p, fn, m in table]
     routes += outline_routes(wb, _guarded, _body, _call)  # outline editing (outline_tools.py)
+    routes += view_aid_routes(h.aids, _guarded, _call)  # epipolar, markers (view_aids.py)
     routes.append(Mount("/static", app=StaticFiles(directory=STATIC_DIR), name="static"))
     return routes
 

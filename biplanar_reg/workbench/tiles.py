@@ -28,6 +28,12 @@ __all__ = ["TILE_SIZE", "Pyramid"]
 TILE_SIZE = 256
 #: Percentiles of the raw values giving the default window of non-DICOM images.
 WINDOW_PERCENTILES = (1.0, 99.0)
+#: CLAHE: contrast limit and the size of its cells in level-0 pixels (the same image region
+#: per cell at every level, so that the levels look alike).
+CLAHE_CLIP = 2.0
+CLAHE_CELL_PX = 128
+#: Windowed CLAHE levels kept (a few windows of a few levels).
+CLAHE_CACHE = 6
 
 
 def _default_window(image: XrayImage, value_range: tuple[float, float]) -> tuple[float, float]:
@@ -84,6 +90,8 @@ class Pyramid:
         self.inverted = image.photometric == "MONOCHROME1"
         self._data: list[np.ndarray] = [np.ascontiguousarray(image.pixels, dtype=np.float32)]
         self._lock = threading.Lock()
+        self._clahe: dict[tuple[int, float, float], np.ndarray] = {}
+        self._clahe_lock = threading.Lock()
 
     def _level_size(self, level: int) -> tuple[int, int]:
         f = 2**level
@@ -113,8 +121,44 @@ class Pyramid:
                 self._data.append(cv2.resize(prev, (w, h), interpolation=cv2.INTER_AREA))
             return self._data[level]
 
+    def _windowed(self, block: np.ndarray, lo: float, hi: float) -> np.ndarray:
+        """Raw values -> display grey levels 0..255 (float), inverted for MONOCHROME1."""
+        grey = np.clip((block - lo) * (255.0 / (hi - lo)), 0.0, 255.0)
+        return 255.0 - grey if self.inverted else grey
+
+    def enhanced_level(self, level: int, lo: float, hi: float) -> np.ndarray:
+        """A whole level windowed to 8 bits and equalised by CLAHE (OpenCV
+        ``createCLAHE``), uint8; kept for the last :data:`CLAHE_CACHE` (level, window) pairs.
+        Computed on the whole level, not per tile, so that tiles join without seams."""
+        key = (level, float(lo), float(hi))
+        # one computation at a time: the page asks for a level's tiles at once, and all but
+        # the first find the equalised level made
+        with self._clahe_lock:
+            with self._lock:
+                hit = self._clahe.pop(key, None)
+                if hit is not None:
+                    self._clahe[key] = hit  # most recently used last
+                    return hit
+            grey = np.round(self._windowed(self.level(level), lo, hi)).astype(np.uint8)
+            w, h = self.level_size(level)
+            grid = (max(1, math.ceil(self.width / CLAHE_CELL_PX)),
+                    max(1, math.ceil(self.height / CLAHE_CELL_PX)))  # fmt: skip
+            grid = (min(grid[0], w), min(grid[1], h))
+            out = cv2.createCLAHE(clipLimit=CLAHE_CLIP, tileGridSize=grid).apply(grey)
+            with self._lock:
+                self._clahe[key] = out
+                while len(self._clahe) > CLAHE_CACHE:
+                    self._clahe.pop(next(iter(self._clahe)))
+            return out
+
     def tile(
-        self, level: int, tx: int, ty: int, lo: float | None = None, hi: float | None = None
+        self,
+        level: int,
+        tx: int,
+        ty: int,
+        lo: float | None = None,
+        hi: float | None = None,
+        clahe: bool = False,
     ) -> bytes:
         """One tile as a grey 8-bit PNG.
 
@@ -124,6 +168,8 @@ class Pyramid:
             The level and the tile's column and row in it.
         lo, hi : float, optional
             The window, raw units (default :attr:`window`); ``hi > lo``.
+        clahe : bool
+            Equalise the windowed level by CLAHE (:meth:`enhanced_level`): display only.
 
         Raises
         ------
@@ -145,11 +191,11 @@ class Pyramid:
                 f"tile: ({tx}, {ty}) is outside level {level}'s {cols} x {rows} tiles"
             )
         t = self.tile_size
-        block = self.level(level)[ty * t : (ty + 1) * t, tx * t : (tx + 1) * t]
-        grey = np.clip((block - lo) * (255.0 / (hi - lo)), 0.0, 255.0)
-        if self.inverted:
-            grey = 255.0 - grey
-        out = np.round(grey).astype(np.uint8)
+        cut = (slice(ty * t, (ty + 1) * t), slice(tx * t, (tx + 1) * t))
+        if clahe:
+            out = np.ascontiguousarray(self.enhanced_level(level, lo, hi)[cut])
+        else:
+            out = np.round(self._windowed(self.level(level)[cut], lo, hi)).astype(np.uint8)
         # fast compression: a tile is encoded per request and sent over the loopback
         ok, png = cv2.imencode(".png", out, [cv2.IMWRITE_PNG_COMPRESSION, 1])
         if not ok:  # pragma: no cover - OpenCV encodes every uint8 array

@@ -463,8 +463,10 @@ def test_view_and_edit_interactions(page, server, case_dir):
     )
     assert "landmark" in page.get_by_test_id("register-error").inner_text()
 
-    # Window/level: new tiles are fetched with the slider's window.
-    page.get_by_test_id(f"window-lo-{view}").fill("100")
+    # Window/level: new tiles are fetched with the fields' window (level 150, width 100).
+    page.get_by_test_id(f"window-width-{view}").fill("100")
+    page.get_by_test_id(f"window-level-{view}").fill("150")
+    page.get_by_test_id(f"window-level-{view}").press("Enter")
     page.wait_for_function("(view) => window.workbench.viewState(view).window[0] === 100", arg=view)
     _settle(page)
     assert any(f"/api/views/{view}/tiles/" in u and "lo=100" in u for u in requests)

@@ -5,19 +5,22 @@
 // For the browser tests, `window.workbench` exposes the view transforms and a few waits.
 
 import { api } from "./api.js";
+import { EPIPOLAR_SHORTCUTS, installEpipolar } from "./epipolar.js";
 import { fatal } from "./fatal.js";
 import { ModelView } from "./model3d.js";
+import { installMarkers, MARKER_SHORTCUTS } from "./markers.js";
 import { installOutlineTools } from "./outlines.js";
 import { PoseAid, PoseTool, ResultShading } from "./poseaid.js";
 import { RegisterPanel } from "./register.js";
 import { Viewer } from "./viewer.js";
+import { WindowControls, WINDOW_SHORTCUTS } from "./window.js";
 import { Workbench } from "./workbench.js";
 
 const $ = (id) => document.getElementById(id);
 
 // ---- page set-up -------------------------------------------------------------------------
 
-/** One view's DOM: a title bar with the window/level sliders and fit buttons, the canvas. */
+/** One view's DOM: a title bar with the window/level controls and fit buttons, the canvas. */
 function buildView(wb, info) {
   const template = $("view-template").content.firstElementChild.cloneNode(true);
   template.dataset.view = info.name;
@@ -29,56 +32,25 @@ function buildView(wb, info) {
   canvas.setAttribute("aria-label", `radiograph ${info.name}`);
   $("views").append(template);
 
+  let windowing = null;
   const viewer = new Viewer(canvas, info, {
-    tileUrl: (level, tx, ty, lo, hi) => api.tileUrl(info.name, level, tx, ty, lo, hi),
+    tileUrl: (level, tx, ty, lo, hi, clahe) =>
+      api.tileUrl(info.name, level, tx, ty, lo, hi) + (clahe ? "&clahe=1" : ""),
     handler: () => wb.tool(),
-    drawOverlay: (ctx, v) => wb.drawOverlay(ctx, v),
+    drawOverlay: (ctx, v) => {
+      wb.drawOverlay(ctx, v);
+      windowing?.draw(ctx, v);
+    },
     onCursor: (v, uv) => wb.cursor(v, uv),
   });
-  wireWindowSliders(template, info, viewer);
+  if (info.has_image && info.range && info.window) {
+    windowing = new WindowControls(wb, viewer, template.querySelector(".view-bar"), info);
+  } else {
+    template.querySelector(".window").hidden = true; // a view without an image: nothing to window
+  }
   template.querySelector(".fit").addEventListener("click", () => viewer.fit());
   template.querySelector(".fit-bone").addEventListener("click", () => fitBone(wb, viewer));
   return viewer;
-}
-
-/** Window/level: two sliders over the raw range; tiles are re-requested after a short pause
- * so that dragging a slider does not fetch every intermediate window. */
-function wireWindowSliders(root, info, viewer) {
-  if (!info.has_image || !info.range || !info.window) {
-    root.querySelector(".window").hidden = true; // a view without an image: nothing to window
-    return;
-  }
-  const [min, max] = info.range;
-  const lo = root.querySelector(".window-lo");
-  const hi = root.querySelector(".window-hi");
-  const readout = root.querySelector(".window-readout");
-  lo.dataset.testid = `window-lo-${info.name}`;
-  hi.dataset.testid = `window-hi-${info.name}`;
-  // Whole steps for integer data (8/16-bit images), 1/1000 of the range otherwise.
-  const integer = Number.isInteger(min) && Number.isInteger(max) && max - min >= 50;
-  for (const s of [lo, hi]) {
-    s.min = String(min);
-    s.max = String(max);
-    s.step = integer ? "1" : String((max - min) / 1000 || 1);
-  }
-  lo.value = String(info.window[0]);
-  hi.value = String(info.window[1]);
-  let timer = 0;
-  const update = () => {
-    const a = Number(lo.value);
-    const b = Number(hi.value);
-    readout.textContent = `${fmt(a)}–${fmt(b)}`;
-    clearTimeout(timer);
-    timer = setTimeout(() => viewer.setWindow(Math.min(a, b), Math.max(a, b)), 120);
-  };
-  lo.addEventListener("input", update);
-  hi.addEventListener("input", update);
-  readout.textContent = `${fmt(info.window[0])}–${fmt(info.window[1])}`;
-}
-
-/** A window bound for display: whole numbers for 8/16-bit data, 3 digits otherwise. */
-function fmt(x) {
-  return Math.abs(x) >= 100 || Number.isInteger(x) ? x.toFixed(0) : x.toPrecision(3);
 }
 
 /** Fit to the bone: the box around the view's annotations and registered outline. */
@@ -120,13 +92,19 @@ function wireControls(wb) {
   document.addEventListener("keydown", (ev) => onKey(wb, ev));
 }
 
-/** Keyboard: L / O / P modes, U undoes a pose step (Pose mode), F fit, Enter finish, Esc cancel, Backspace undo an anchor, Delete
+/** The shortcuts of the page's modules: {key, help, run?(wb)} (keys with `run` are handled
+ * by onKey; the others, e.g. "right-drag", are for the shortcut list). */
+export const SHORTCUTS = [...EPIPOLAR_SHORTCUTS, ...WINDOW_SHORTCUTS, ...MARKER_SHORTCUTS];
+
+/** Keyboard: E epipolar lines (SHORTCUTS), L / O / P modes, U undoes a pose step (Pose mode), F fit, Enter finish, Esc cancel, Backspace undo an anchor, Delete
  * removes the selected landmark (in the view under the mouse) or contour. */
 function onKey(wb, ev) {
   if (ev.target instanceof HTMLInputElement || ev.ctrlKey || ev.metaKey || ev.altKey) return;
   const outline = wb.tools.outline;
   const key = ev.key;
-  if (key === "l" || key === "L") wb.setMode("landmark");
+  const extra = SHORTCUTS.find((s) => s.run && s.key.toLowerCase() === key.toLowerCase());
+  if (extra) extra.run(wb);
+  else if (key === "l" || key === "L") wb.setMode("landmark");
   else if (key === "o" || key === "O") wb.setMode("outline");
   else if ((key === "p" || key === "P") && wb.tools.pose) wb.setMode("pose");
   else if ((key === "u" || key === "U") && wb.mode === "pose") wb.tools.pose.aid.undo();
@@ -222,6 +200,8 @@ async function main() {
   for (const info of caseInfo.views) wb.viewers.set(info.name, buildView(wb, info));
   wireControls(wb);
   installOutlineTools(wb); // outline editing, zones, GrabCut, quality (outlines.js)
+  installMarkers(wb); // marker beads proposed as exclusion zones (markers.js)
+  installEpipolar(wb); // epipolar curves of the cursor and the selected landmark (epipolar.js)
   document.body.dataset.mode = wb.mode;
   wb.refresh();
   exposeForTests(wb);

@@ -36,7 +36,10 @@ export class Viewer {
     this.fitted = false;
     this.userMoved = false; // until the user zooms or pans, a resize re-fits the image
     this.window = info.window ? [...info.window] : [0, 1];
-    this.previousWindow = null; // tiles of the last window stand in while new ones load
+    this.clahe = false; // CLAHE-equalised tiles (display only, window.js)
+    this.previousDisplay = null; // {window, clahe}: its tiles stand in while new ones load
+    this.windowDrag = null; // fn(dx, dy) of a right-drag (window.js); without it: pan
+    this.override = null; // a handler that takes the pointer from the tool (e.g. a box)
     this.tiles = new TileCache(() => this.redraw());
     this.press = null; // the pointer press in progress: {x, y, mode: "click"|"pan"|"tool"}
     this.lastClick = null; // {time, x, y, count}: pointer events carry no click count
@@ -128,9 +131,33 @@ export class Viewer {
   /** Display window in raw image units; tiles are re-requested for the new mapping. */
   setWindow(lo, hi) {
     if (!(hi > lo)) return;
-    this.previousWindow = this.window;
+    this.keepDisplay();
     this.window = [lo, hi];
     this.redraw();
+  }
+
+  /** CLAHE-equalised tiles on or off (the window stays). */
+  setClahe(on) {
+    if (on === this.clahe) return;
+    this.keepDisplay();
+    this.clahe = on;
+    this.redraw();
+  }
+
+  /** Before the display changes: its tiles stand in while the new ones load, if it has at
+   * least its backdrop (while dragging the window, an older display may be the last one). */
+  keepDisplay() {
+    if (!this.info.has_image) return;
+    const [lo, hi] = this.window.map(roundWindow);
+    const backdrop = this.hooks.tileUrl(this.info.levels - 1, 0, 0, lo, hi, this.clahe);
+    if (!this.previousDisplay || this.tiles.peek(backdrop)) {
+      this.previousDisplay = { window: this.window, clahe: this.clahe };
+    }
+  }
+
+  /** Where pointer input goes: an override (e.g. window.js's box) or the current tool. */
+  handler() {
+    return this.override ?? this.hooks.handler();
   }
 
   // ---- drawing ---------------------------------------------------------------------------
@@ -219,10 +246,11 @@ export class Viewer {
   /** The tile for the current window, else the previous window's while the new one loads. */
   tile(k, tx, ty) {
     const [lo, hi] = this.window.map(roundWindow);
-    const img = this.tiles.get(this.hooks.tileUrl(k, tx, ty, lo, hi));
-    if (img || !this.previousWindow) return img;
-    const [plo, phi] = this.previousWindow.map(roundWindow);
-    return this.tiles.peek(this.hooks.tileUrl(k, tx, ty, plo, phi));
+    const img = this.tiles.get(this.hooks.tileUrl(k, tx, ty, lo, hi, this.clahe));
+    const prev = this.previousDisplay;
+    if (img || !prev) return img;
+    const [plo, phi] = prev.window.map(roundWindow);
+    return this.tiles.peek(this.hooks.tileUrl(k, tx, ty, plo, phi, prev.clahe));
   }
 
   drawNoImage(ctx) {
@@ -273,10 +301,11 @@ export class Viewer {
   onDown(ev) {
     const [x, y] = this.local(ev);
     this.canvas.setPointerCapture(ev.pointerId);
-    // Middle or right button: always pan. Left: the tool may claim the press (e.g. to drag
-    // a landmark); otherwise it is a click, or a pan once it moves.
+    // Middle button: always pan; right: window/level (window.js), else pan. Left: the tool
+    // may claim the press (e.g. to drag a landmark); otherwise a click, or a pan once it moves.
     let mode = ev.button === 0 ? "click" : "pan";
-    if (mode === "click" && this.hooks.handler().pointerDown?.(this, this.toView(x, y), ev)) {
+    if (ev.button === 2 && this.windowDrag) mode = "window";
+    if (mode === "click" && this.handler().pointerDown?.(this, this.toView(x, y), ev)) {
       mode = "tool";
     }
     this.press = { x, y, lastX: x, lastY: y, mode };
@@ -289,12 +318,13 @@ export class Viewer {
     this.hooks.onCursor(this, uv);
     const p = this.press;
     if (!p) {
-      this.hooks.handler().hover?.(this, uv, ev);
+      this.handler().hover?.(this, uv, ev);
       return;
     }
     if (p.mode === "click" && Math.hypot(x - p.x, y - p.y) > CLICK_SLOP_PX) p.mode = "pan";
     if (p.mode === "pan") this.panBy(x - p.lastX, y - p.lastY);
-    if (p.mode === "tool") this.hooks.handler().drag?.(this, uv, ev);
+    if (p.mode === "window") this.windowDrag(x - p.lastX, y - p.lastY);
+    if (p.mode === "tool") this.handler().drag?.(this, uv, ev);
     p.lastX = x;
     p.lastY = y;
   }
@@ -309,8 +339,8 @@ export class Viewer {
     const still = Math.hypot(x - p.x, y - p.y) <= CLICK_SLOP_PX;
     const count = still ? this.clickCount(ev.timeStamp, x, y) : 0;
     if (!still) this.lastClick = null;
-    if (p.mode === "click") this.hooks.handler().click?.(this, uv, ev, count);
-    if (p.mode === "tool") this.hooks.handler().drop?.(this, uv, ev, count);
+    if (p.mode === "click") this.handler().click?.(this, uv, ev, count);
+    if (p.mode === "tool") this.handler().drop?.(this, uv, ev, count);
   }
 
   /** 1 for a single click, 2 for the second click of a double-click, ... (the `detail` of
@@ -327,7 +357,7 @@ export class Viewer {
   onDoubleClick(ev) {
     this.lastClick = null; // the next click starts a new count
     const uv = this.toView(...this.local(ev));
-    if (!this.hooks.handler().doubleClick?.(this, uv, ev)) this.fit();
+    if (!this.handler().doubleClick?.(this, uv, ev)) this.fit();
   }
 }
 
