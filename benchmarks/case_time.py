@@ -72,16 +72,16 @@ def lap(name):
     c, w = time.process_time(), time.perf_counter()
     T[name] = [c - c0, w - w0]
     c0, w0 = c, w
-import biplanar_reg.cases.run as run
+from biplanar_reg.cases import single, truth
 from biplanar_reg.cases.case import load_case, to_view_observations
 lap("imports")
 case = load_case(sys.argv[1]); obs = to_view_observations(case); lap("load")
-res = run._register(case, obs); lap("registration")
-errs, outl, src = run._view_errors(case, obs, res)
-gm, ve, al = run._ground_truth_metrics(case, res); lap("metrics")
+res = single.register_observations(case, obs); lap("registration")
+errs, outl, src = single.view_errors(case, obs, res)
+gm, ve, al = truth.ground_truth_metrics(case, res); lap("metrics")
 from biplanar_reg.report import case_report; lap("report imports")
-doc = run.result_document(case, obs, res, errs, src, gm, {})
-views = run._report_views(case, obs, res, outl)
+doc = single.result_document(case, obs, res, errs, src, gm, {})
+views = single.report_views(case, obs, res, outl)
 case_report.write_case_report(Path(tempfile.mkdtemp()), doc, views, vertices=res.vertices,
                               faces=case.model.faces, vertex_error=ve, vertex_sd=res.vertex_sd_mm)
 lap("report")

@@ -37,6 +37,7 @@ LAYERS: dict[str, int] = {
     "ssm": 4,
     "registration": 5,
     "simulate": 6,
+    "result": 6,  # CaseResult: what the report, the batch summary and the workbench read
     "report": 7,
     "cases": 8,
     "cli": 9,

@@ -49,6 +49,7 @@ import numpy as np
 
 from .._threads import available_cores
 from ..io.atomic import atomic_write_text, remove_orphaned_parts
+from ..result import CaseResult, read_result
 from ._lock import OutputLock, RunPermit, describe, probe, remove_stale_permits
 from ._shards import (
     SUMMARY_FORMAT,
@@ -102,18 +103,23 @@ class _Terminated(Exception):
 
 
 def read_record(case_name: str, out_dir: Path, status: str, seconds: float | None) -> dict:
-    """A summary row from a complete output folder's result.json."""
-    import json
+    """A summary row from a complete output folder's result.json (any layout: a multi-bone
+    case's metrics are the worst over its bones)."""
+    return summary_row(case_name, read_result(out_dir / "result.json"), out_dir, status, seconds)
 
-    doc = json.loads((out_dir / "result.json").read_text(encoding="utf-8"))
-    m = doc.get("metrics", {})
+
+def summary_row(
+    case_name: str, result: CaseResult, out_dir: Path, status: str, seconds: float | None
+) -> dict[str, Any]:
+    """The summary row of one case's ``result``: the metric columns (px, mm), the certificate,
+    the flags, the time (``seconds``, else the result's total) and the report's page."""
     row: dict[str, Any] = {"case": case_name, "status": status, "reason": ""}
-    row["seconds"] = seconds if seconds is not None else doc.get("timings", {}).get("total")
+    row["seconds"] = seconds if seconds is not None else result.timings.get("total")
     for key in _METRIC_COLUMNS:
-        row[key] = m.get(key)
-    row["certificate"] = doc.get("certificate")
-    row["n_flags"] = len(doc.get("flags", []))
-    row["flags"] = "; ".join(doc.get("flags", []))
+        row[key] = result.metrics.get(key)
+    row["certificate"] = result.certificate
+    row["n_flags"] = len(result.flags)
+    row["flags"] = "; ".join(result.flags)
     row["report"] = f"{out_dir.name}/report.html" if (out_dir / "report.html").is_file() else ""
     return row
 

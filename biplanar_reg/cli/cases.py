@@ -30,32 +30,32 @@ def _cmd_register(args: argparse.Namespace) -> int:
         include_phi=args.include_phi,
         report=not args.no_report,
     )
-    doc = outcome.document
-    no_report = args.no_report or doc.get("report") is None  # a multi-frame case has none yet
+    result = outcome.result
+    no_report = args.no_report or result.report is None
     report = None if no_report else outcome.out_dir / "report.html"
     if args.json:
         print(
             json.dumps(
                 {
                     "status": "done",
-                    "id": doc["id"],
+                    "id": result.id,
                     "out": str(outcome.out_dir),
                     "report": None if report is None else str(report),
-                    "flags": doc["flags"],
-                    "metrics": doc["metrics"],
+                    "flags": result.flags,
+                    "metrics": outcome.document["metrics"],  # plain JSON (NaN as null)
                 }
             )
         )
     else:
-        m = doc["metrics"]
+        m = result.metrics
         parts = [
             f"{k} {m[k]:.3g}"
             for k in ("landmark_rms_px", "contour_rms_px", "vertex_rms_mm", "surface_rms_mm")
             if m.get(k) is not None
         ]
         where = f"report: {report}" if report else f"outputs: {outcome.out_dir} (no report)"
-        print(f"{doc['id']}: done ({', '.join(parts)}); {where}")
-        for f in doc["flags"]:
+        print(f"{result.id}: done ({', '.join(parts)}); {where}")
+        for f in result.flags:
             print(f"  flag: {f}")
     return 0
 

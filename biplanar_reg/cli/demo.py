@@ -22,7 +22,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
     outcome = run_demo(args.out, args.case)
     report = outcome.out_dir / "report.html"
-    m = outcome.document["metrics"]
+    m = outcome.document["metrics"]  # plain JSON (NaN as null)
     if args.json:
         print(
             json.dumps(
@@ -30,7 +30,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
                     "report": str(report),
                     "out": str(outcome.out_dir),
                     "metrics": m,
-                    "flags": outcome.document["flags"],
+                    "flags": outcome.result.flags,
                 }
             )
         )
@@ -44,7 +44,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         ):
             if m.get(key) is not None:
                 print(f"{key}: {m[key]:.3f} {unit}")
-        if (outcome.document.get("ground_truth") or {}).get("up_to_pose"):
+        if (outcome.result.bone.ground_truth or {}).get("up_to_pose"):
             print("(ground-truth distances after rigid alignment: the CT is known up to pose)")
         print(f"report: {report}")
     return 0

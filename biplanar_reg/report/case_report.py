@@ -1,10 +1,10 @@
 """The error report of one registered case: ``report.html``, one self-contained page.
 
-The report is drawn from the result document (the content of ``result.json``) and the arrays it
-does not hold: per view a :class:`ReportView` (radiograph, annotations, projected outline and
-landmarks of the registered model, pixels, and the view itself) and the registered surface (mm).
-It knows nothing of case folders: :mod:`biplanar_reg.cases.run` gathers these and calls
-:func:`write_case_report`.
+The report is drawn from the result (:class:`~biplanar_reg.result.CaseResult`, the content of
+``result.json``) and the arrays it does not hold: per view a :class:`ReportView` (radiograph,
+annotations, projected outline and landmarks of the registered model, pixels, and the view
+itself) and the registered surface (mm). It knows nothing of case folders: the case pipeline
+(:mod:`biplanar_reg.cases.single`) gathers these and calls :func:`write_case_report`.
 
 Figures (PNG files beside the page, and embedded in it as ``data:`` URIs, so the page alone
 shows everything): ``overlay_<view>.png`` per view (the registered bone shaded, its projected
@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..annotation import ViewAnnotations
+from ..result import CaseResult
 from .advice import flag_advice
 from .figures import convergence_figure, histogram_figure, overlay_figure
 from .html import embedded_figures, write_page
@@ -92,9 +93,12 @@ def safe_name(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]", "_", name) or "view"
 
 
-def metric_rows(doc: dict[str, Any]) -> list[tuple[str, str, str]]:
-    """(label, formatted value, unit) for the metrics present in a result document."""
-    m = doc.get("metrics", {})
+def metric_rows(
+    metrics: Mapping[str, Any], timings: Mapping[str, float] | None = None
+) -> list[tuple[str, str, str]]:
+    """(label, formatted value, unit) for the ``metrics`` present (``CaseResult.metrics``),
+    then the stage ``timings`` (s)."""
+    m = metrics
     rows = [
         (label, f"{m[key]:.4g}", unit) for key, label, unit in _METRICS if m.get(key) is not None
     ]
@@ -102,7 +106,7 @@ def metric_rows(doc: dict[str, Any]) -> list[tuple[str, str, str]]:
     if isinstance(roi, dict):  # what the region of interest is, before its rows
         at = next((i for i, r in enumerate(rows) if r[0].startswith("region of interest")), None)
         rows.insert(len(rows) if at is None else at, ("region of interest", roi_text(roi), ""))
-    timings = doc.get("timings", {})
+    timings = timings or {}
     for key in ("load", "registration", "metrics"):
         if key in timings:
             rows.append((f"time: {key}", f"{timings[key]:.2f}", "s"))
@@ -174,11 +178,13 @@ class ReportView:
 
 
 def _histogram_figure(
-    folder: Path, doc: Mapping[str, Any], vertex_error: np.ndarray | None
+    folder: Path, result: CaseResult, vertex_error: np.ndarray | None
 ) -> dict[str, str]:
-    """``errors_hist.png``: the landmark and contour errors (px) of ``doc``, vertex errors (mm)."""
-    lm = [e for v in doc["views"].values() for e in v["landmark_errors_px"].values()]
-    ct = [e for v in doc["views"].values() for e in v["contour_errors_px"]]
+    """``errors_hist.png``: the landmark and contour errors (px) of ``result``, vertex errors
+    (mm)."""
+    views = result.views.values()
+    lm = [e for v in views for e in v.landmark_errors_px.values()]
+    ct = [e for v in views for e in v.contour_errors_px or []]
     series = [
         ("landmark reprojection error", np.asarray(lm), "px"),
         ("contour reprojection error", np.asarray(ct), "px"),
@@ -189,15 +195,15 @@ def _histogram_figure(
     return {"src": "errors_hist.png", "caption": "Error histograms (dashed: median)."}
 
 
-def _convergence_figure(folder: Path, doc: Mapping[str, Any]) -> dict[str, str]:
-    """``convergence.png`` from the iterations of ``doc``."""
-    its = doc["iterations"]
+def _convergence_figure(folder: Path, result: CaseResult) -> dict[str, str]:
+    """``convergence.png`` from the iterations of ``result``."""
+    its = result.iterations
     convergence_figure(
         folder / "convergence.png",
         [i["cost"] for i in its],
         [i["certificate"] for i in its],
         [i["n_matches"] for i in its],
-        doc["best_iteration"],
+        result.best_iteration,
         [i.get("kind", "sdp") for i in its],
     )
     return {
@@ -297,18 +303,18 @@ def _contour_rows(
 
 def _surface_figure(
     folder: Path,
-    doc: Mapping[str, Any],
+    result: CaseResult,
     vertices: np.ndarray,
     faces: np.ndarray,
     vertex_error: np.ndarray | None,
 ) -> tuple[dict[str, str], str]:
     """The 3D view of the registered surface; (entry, renderer). With a ground truth
     ``error_3d.png`` (coloured by the distance to it), without one ``registered_3d.png``."""
-    if doc.get("ground_truth") is not None:
-        fname, title = "error_3d.png", f"{doc['id']}: distance to ground truth (mm)"
+    if result.bone.ground_truth is not None:
+        fname, title = "error_3d.png", f"{result.id}: distance to ground truth (mm)"
         what = "Registered surface coloured by its distance to the ground truth, mm"
     else:
-        fname, title = "registered_3d.png", f"{doc['id']}: registered surface (mm)"
+        fname, title = "registered_3d.png", f"{result.id}: registered surface (mm)"
         what, vertex_error = "Registered surface (world frame, mm; no ground truth)", None
     renderer = render_error_mesh(folder / fname, vertices, faces, vertex_error, title)
     return {"src": fname, "caption": f"{what} (rendered with {renderer})."}, renderer
@@ -336,64 +342,68 @@ def _uncertainty_entry(
     }
 
 
-def _landmark_rows(doc: Mapping[str, Any]) -> list[tuple]:
+def _landmark_rows(result: CaseResult) -> list[tuple]:
     """(view, landmark, error px, rejected, CSS class, sigma px or None, weight or None) of
     every landmark observation; the sigma is the one the final fit gave it (estimated from
     the data unless the noise was stated), the weight its robust weight."""
-    options = doc["registration"].get("options") or {}
+    options = result.options
+    rejected = [list(r) for r in result.rejected]
     return [
         (
             view,
             name,
             err,
-            [view, name] in doc["rejected"],
+            [view, name] in rejected,
             _level(err, options),
-            (v.get("landmark_sigmas_px") or {}).get(name),
-            (v.get("landmark_weights") or {}).get(name),
+            (v.landmark_sigmas_px or {}).get(name),
+            (v.landmark_weights or {}).get(name),
         )
-        for view, v in doc["views"].items()
-        for name, err in v["landmark_errors_px"].items()
+        for view, v in result.views.items()
+        for name, err in v.landmark_errors_px.items()
     ]
 
 
 def _write_html(
     folder: Path,
-    doc: Mapping[str, Any],
+    result: CaseResult,
     figures: Mapping[str, list[dict[str, str]]],
     contour_rows: list[dict[str, Any]],
 ) -> None:
     """``report.html``: flags with advice, metrics, the figures (embedded), the residual
-    tables and the tables of ``doc``."""
+    tables and the tables of ``result``."""
     embedded = embedded_figures(folder, figures)
-    options = doc["registration"].get("options") or {}
+    options = result.options
     write_page(
         folder / "report.html",
         "report.html",
-        case_id=doc["id"],
-        frame=doc.get("frame", "world frame of the calibrations"),
-        poses=doc["registration"]["poses"],
-        silhouettes=doc["registration"]["silhouettes"],
-        phi=doc.get("phi") or {},
-        flags=[(f, flag_advice(f)) for f in doc["flags"]],
-        warnings=doc["warnings"],
-        metrics=metric_rows(doc),
-        model_from_truth=bool((doc.get("ground_truth") or {}).get("model_from_truth")),
+        case_id=result.id,
+        frame=result.coordinate_frame or "world frame of the calibrations",
+        poses=result.poses,
+        silhouettes=result.silhouettes,
+        phi=result.phi,
+        flags=[(f, flag_advice(f)) for f in result.flags],
+        warnings=result.warnings,
+        metrics=metric_rows(result.metrics, result.timings),
+        model_from_truth=bool((result.bone.ground_truth or {}).get("model_from_truth")),
         figures=embedded,
-        landmark_rows=_landmark_rows(doc),
-        noise_groups=(doc.get("noise") or {}).get("groups") or [],
-        gp=_gp_summary(doc),
+        landmark_rows=_landmark_rows(result),
+        noise_groups=(result.noise or {}).get("groups") or [],
+        gp=_gp_summary(result),
         contour_rows=contour_rows,
         thresholds={k: options.get(k) for _, k in _LEVELS},
-        iterations=doc["iterations"],
-        best_iteration=doc["best_iteration"],
-        view_poses=doc["views"],
+        iterations=result.iterations,
+        best_iteration=result.best_iteration,
+        view_poses={
+            n: {"R": v.R.tolist(), "t": v.t.tolist(), "centre": v.centre.tolist()}
+            for n, v in result.views.items()
+        },
     )
 
 
-def _gp_summary(doc: Mapping[str, Any]) -> dict | None:
-    """The Gaussian-process stage of ``result.json`` for the report's header (None: it did
-    not run)."""
-    gp = doc.get("gaussian_process")
+def _gp_summary(result: CaseResult) -> dict | None:
+    """The Gaussian-process stage of the result for the report's header (None: it did not
+    run)."""
+    gp = result.gaussian_process
     if not isinstance(gp, dict):
         return None
     words = "a Gaussian" if gp.get("kernel", "gaussian") == "gaussian" else "a normal Gaussian"
@@ -402,7 +412,7 @@ def _gp_summary(doc: Mapping[str, Any]) -> dict | None:
 
 def write_case_report(
     folder: str | os.PathLike,
-    doc: Mapping[str, Any],
+    doc: CaseResult | Mapping[str, Any],
     views: Sequence[ReportView],
     *legacy: Any,
     vertices: np.ndarray | None = None,
@@ -416,9 +426,10 @@ def write_case_report(
     ----------
     folder : path
         An existing folder (the case's output folder); the files are written into it.
-    doc : mapping
-        The result document (the content of ``result.json``, see docs/cases.md); the metrics,
-        the per-view errors, the iterations, the flags and the tables come from it.
+    doc : CaseResult or mapping
+        The result of one bone in one frame (or the content of its ``result.json``, read by
+        :meth:`CaseResult.from_json`; see docs/cases.md); the metrics, the per-view errors,
+        the iterations, the flags and the tables come from it.
     views : sequence of ReportView
         One per view, in the order of the overlays.
     vertices : (N, 3) array, optional
@@ -446,10 +457,11 @@ def write_case_report(
     vertex_error)`` (a loaded case, its observations and the registration result) still works
     and gives the same report; it is deprecated.
     """
-    if not isinstance(doc, Mapping):  # the former signature (folder, case, obs, res, doc, ...)
+    if not isinstance(doc, (Mapping, CaseResult)):  # the former signature (case, obs, res, ...)
         doc, views, vertices, faces, vertex_error = _from_case(doc, views, *legacy)
+    result = doc if isinstance(doc, CaseResult) else CaseResult.from_json(doc)
     folder = Path(folder)
-    options = doc["registration"].get("options") or {}
+    options = result.options
     figures: dict[str, list[dict[str, str]]] = {"surface": [], "views": [], "plots": []}
     contour_rows = []
     projected = {}
@@ -459,17 +471,17 @@ def write_case_report(
         contour_rows += _contour_rows(v.name, residuals, options)
         projected[v.name] = _project(v, vertices, faces)
         figures["views"].append(_view_overlay(folder, v, projected[v.name], residuals))
-    figures["plots"].append(_histogram_figure(folder, doc, vertex_error))
-    figures["plots"].append(_convergence_figure(folder, doc))
+    figures["plots"].append(_histogram_figure(folder, result, vertex_error))
+    figures["plots"].append(_convergence_figure(folder, result))
     renderer = None
     if vertices is not None and faces is not None:
-        entry, renderer = _surface_figure(folder, doc, vertices, faces, vertex_error)
+        entry, renderer = _surface_figure(folder, result, vertices, faces, vertex_error)
         figures["surface"].append(entry)
         if vertex_sd is not None:
             figures["surface"].append(
                 _uncertainty_entry(folder, views, vertices, faces, vertex_sd, projected)
             )
-    _write_html(folder, doc, figures, contour_rows)
+    _write_html(folder, result, figures, contour_rows)
     names = [f["src"] for group in ("surface", "views", "plots") for f in figures[group]]
     return {"html": "report.html", "figures": names, "renderer": renderer}
 

@@ -1,7 +1,7 @@
 """The report of one registered multi-frame case (``[[frames]]``): ``report.html``.
 
-Drawn from the result document (``result.json`` of a multi-frame case,
-:func:`biplanar_reg.cases.run.frames_result_document`) and, per frame, the
+Drawn from the result (:class:`~biplanar_reg.result.CaseResult` of one bone over several
+frames, ``result.json`` of a multi-frame case) and, per frame, the
 :class:`~.case_report.ReportView` of each view (radiograph, annotations, the registered
 outline and landmarks, pixels). It knows nothing of case folders.
 
@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from ..io.transforms import ANGLE_SEQUENCE, euler_from_rotation
+from ..result import CaseResult, FrameResult
 from .advice import flag_advice
 from .case_report import ReportView, roi_text
 from .figures import overlay_figure
@@ -283,24 +284,23 @@ def _fmt(x: Any, digits: int = 2) -> str:
     return "-" if x is None or not np.isfinite(float(x)) else f"{float(x):.{digits}f}"
 
 
-def _frame_rows(doc: Mapping[str, Any]) -> list[dict[str, Any]]:
+def _frame_rows(frames: Sequence[FrameResult]) -> list[dict[str, Any]]:
     """One row per frame for the table: residuals (px), pose, uncertainty (mm), ground truth."""
-    frames = doc["frames"]
-    angles, trans = kinematics_components(np.array([f["pose"] for f in frames], float))
+    angles, trans = kinematics_components(np.array([f.pose for f in frames], float))
     rows = []
     for f, fr in enumerate(frames):
-        ct = fr.get("contour_error_stats_px") or {}
-        unc = fr.get("uncertainty") or {}
-        gt = fr.get("ground_truth_metrics") or {}
+        ct = fr.contour_error_stats_px or {}
+        unc = fr.uncertainty or {}
+        gt = fr.ground_truth_metrics or {}
         rows.append(
             {
                 "index": f,
-                "name": fr["name"],
-                "started_from": fr["started_from"],
-                "n_landmarks": sum(len(v) for v in fr["landmark_errors_px"].values()),
-                "landmark_rms": _fmt(fr["landmark_rms_px"]),
-                "landmark_max": _fmt(fr.get("landmark_max_px")),
-                "contour_rms": _fmt(fr["contour_rms_px"]),
+                "name": fr.name,
+                "started_from": fr.started_from,
+                "n_landmarks": sum(len(v) for v in (fr.landmark_errors_px or {}).values()),
+                "landmark_rms": _fmt(fr.landmark_rms_px),
+                "landmark_max": _fmt(fr.landmark_max_px),
+                "contour_rms": _fmt(fr.contour_rms_px),
                 "contour_p95": _fmt(ct.get("p95")),
                 "contour_max": _fmt(ct.get("max")),
                 "angles": ", ".join(f"{a:.2f}" for a in angles[f]),
@@ -315,9 +315,9 @@ def _frame_rows(doc: Mapping[str, Any]) -> list[dict[str, Any]]:
     return rows
 
 
-def _plots(folder: Path, doc: Mapping[str, Any]) -> list[dict[str, str]]:
+def _plots(folder: Path, result: CaseResult) -> list[dict[str, str]]:
     """The plots over frames (residuals, pose, uncertainty, ground truth)."""
-    frames = doc["frames"]
+    frames = [f.to_json() for f in result.bone.frames]  # the plots take the frames' entries
     _residuals_figure(folder / "frames_residuals.png", frames)
     _pose_figure(folder / "frames_pose.png", frames)
     out = [
@@ -333,7 +333,7 @@ def _plots(folder: Path, doc: Mapping[str, Any]) -> list[dict[str, str]]:
             "translation of the model frame's origin in mm, as in the kinematics CSV.",
         },
     ]
-    by_frames = (doc.get("uncertainty") or {}).get("by_frames") or []
+    by_frames = (result.bone.uncertainty or {}).get("by_frames") or []
     if by_frames:
         _uncertainty_figure(folder / "frames_uncertainty.png", by_frames)
         out.append(
@@ -352,7 +352,7 @@ def _plots(folder: Path, doc: Mapping[str, Any]) -> list[dict[str, str]]:
 
 def write_frames_report(
     folder: str | os.PathLike,
-    doc: Mapping[str, Any],
+    doc: CaseResult | Mapping[str, Any],
     frame_views: Sequence[Sequence[ReportView]],
     *,
     frame_vertices: Sequence[np.ndarray] | None = None,
@@ -365,9 +365,9 @@ def write_frames_report(
     ----------
     folder : path
         An existing folder; the files are written into it.
-    doc : mapping
-        The multi-frame result document (``frames``, ``metrics``, ``uncertainty``, ``flags``,
-        ``registration``; docs/frames.md).
+    doc : CaseResult or mapping
+        The result of one bone over several frames (or the content of its ``result.json``:
+        ``frames``, ``metrics``, ``uncertainty``, ``flags``, ``registration``; docs/frames.md).
     frame_views : sequence (F) of sequences of ReportView
         Per frame its views (only the drawn frames' are used:
         :func:`frame_overlay_indices`).
@@ -382,13 +382,14 @@ def write_frames_report(
     dict
         ``html`` and ``figures`` (file names), for ``result.json["report"]``.
     """
+    result = doc if isinstance(doc, CaseResult) else CaseResult.from_json(doc)
     folder = Path(folder)
-    frames = doc["frames"]
+    frames = result.bone.frames
     overlays = []
     for f in frame_overlay_indices(len(frames)):
         V = None if frame_vertices is None else frame_vertices[f]
-        overlays += [_overlay(folder, frames[f]["name"], v, V, faces) for v in frame_views[f]]
-    plots = _plots(folder, doc)
+        overlays += [_overlay(folder, frames[f].name, v, V, faces) for v in frame_views[f]]
+    plots = _plots(folder, result)
     surface = []
     if vertex_sd is not None and faces is not None and frame_vertices is not None:
         if np.all(np.isfinite(vertex_sd)):
@@ -402,31 +403,31 @@ def write_frames_report(
                 surface.append(
                     {
                         "src": "uncertainty.png",
-                        "caption": f"Frame {frames[0]['name']}: the registered bone coloured "
+                        "caption": f"Frame {frames[0].name}: the registered bone coloured "
                         "by its posterior sd per vertex (mm, RMS over the three axes; all "
                         "frames' information), projected into each view, pixels.",
                     }
                 )
     figures = {"views": overlays, "plots": plots, "surface": surface}
     embedded = embedded_figures(folder, figures)
-    options = doc["registration"].get("options") or {}
+    uncertainty = result.bone.uncertainty
     write_page(
         folder / "report.html",
         "frames.html",
-        case_id=doc["id"],
-        frame=doc.get("frame", "world frame of the calibrations"),
-        silhouettes=doc["registration"]["silhouettes"],
+        case_id=result.id,
+        frame=result.coordinate_frame or "world frame of the calibrations",
+        silhouettes=result.silhouettes,
         n_frames=len(frames),
-        flags=[(f, flag_advice(f)) for f in doc["flags"]],
-        warnings=doc.get("warnings", []),
-        metrics=_metric_rows(doc),
+        flags=[(f, flag_advice(f)) for f in result.flags],
+        warnings=result.warnings,
+        metrics=_metric_rows(result.metrics, result.timings),
         figures=embedded,
-        frame_rows=_frame_rows(doc),
-        by_frames=(doc.get("uncertainty") or {}).get("by_frames") or [],
-        uncertainty=doc.get("uncertainty"),
-        has_gt=any(f.get("ground_truth_metrics") for f in frames),
-        gate_px=options.get("gate_px"),
-        timings=doc.get("timings", {}),
+        frame_rows=_frame_rows(frames),
+        by_frames=(uncertainty or {}).get("by_frames") or [],
+        uncertainty=uncertainty,
+        has_gt=any(f.ground_truth_metrics for f in frames),
+        gate_px=result.options.get("gate_px"),
+        timings=result.timings,
     )
     names = [x["src"] for g in ("surface", "plots", "views") for x in figures[g]]
     return {"html": "report.html", "figures": names, "renderer": None}
@@ -458,13 +459,13 @@ _POOLED = (
 )
 
 
-def _metric_rows(doc: Mapping[str, Any]) -> list[tuple[str, str, str]]:
-    m = doc.get("metrics", {})
+def _metric_rows(m: Mapping[str, Any], timings: Mapping[str, float]) -> list[tuple[str, str, str]]:
+    """(label, value, unit) of the pooled ``metrics`` present, then the stage ``timings``."""
     rows = [(label, f"{m[k]:.4g}", unit) for k, label, unit in _POOLED if m.get(k) is not None]
     if isinstance(m.get("roi"), dict):  # what the region of interest is, before its rows
         at = next((i for i, r in enumerate(rows) if r[0].startswith("region of interest")), None)
         rows.insert(len(rows) if at is None else at, ("region of interest", roi_text(m["roi"]), ""))
     for key in ("load", "registration", "registration_uncertainty"):
-        if key in doc.get("timings", {}):
-            rows.append((f"time: {key}", f"{doc['timings'][key]:.2f}", "s"))
+        if key in timings:
+            rows.append((f"time: {key}", f"{timings[key]:.2f}", "s"))
     return rows

@@ -22,8 +22,9 @@ import numpy as np
 from ..cases import run_case_dir
 from ..cases.case import CaseView
 from ..errors import CommandError
-from ..io import read_json, read_mesh
+from ..io import read_mesh
 from ..outline import outline_polylines
+from ..result import ViewResult, read_result
 
 __all__ = ["RegistrationJob", "review"]
 
@@ -102,14 +103,14 @@ class RegistrationJob:
             self._say(f"failed: {msg}")
             self._finish("failed", None, msg)
             return
-        doc = outcome.document
+        res = outcome.result
         seconds = time.perf_counter() - self._t0
         self._say(f"done in {seconds:.1f} s")
         result = {
-            "id": doc.get("id"),
-            "metrics": doc.get("metrics"),
-            "flags": doc.get("flags", []),
-            "rejected": doc.get("rejected", []),
+            "id": res.id,
+            "metrics": res.metrics,
+            "flags": res.flags,
+            "rejected": res.rejected,
             "seconds": seconds,
         }
         self._finish("done", result, None)
@@ -144,18 +145,16 @@ class RegistrationJob:
             self._cond.wait(timeout)
 
 
-def _posed_view(cv: CaseView, entry: Mapping[str, Any] | None) -> Any:
+def _posed_view(cv: CaseView, entry: ViewResult | None) -> Any:
     """The view with the pose the result used (estimated with ``poses = unknown/refine``)."""
-    if not entry or "R" not in entry or "t" not in entry:
+    if entry is None or entry.R is None or entry.t is None:
         return cv.view
-    return dataclasses.replace(
-        cv.view, R=np.asarray(entry["R"], float), t=np.asarray(entry["t"], float)
-    )
+    return dataclasses.replace(cv.view, R=entry.R, t=entry.t)
 
 
 def _view_review(
     cv: CaseView,
-    entry: Mapping[str, Any] | None,
+    entry: ViewResult | None,
     vertices: np.ndarray,
     faces: np.ndarray | None,
     landmarks: Mapping[str, int],
@@ -166,14 +165,13 @@ def _view_review(
     names = [n for n, i in landmarks.items() if 0 <= i < len(vertices)]
     ids = np.array([landmarks[n] for n in names], dtype=np.int64)
     uv = view.project(vertices[ids]) if len(ids) else np.zeros((0, 2))
-    entry = entry or {}
     return {
         "outline_px": [np.round(line, 2).tolist() for line in lines],
         "outline_closed": [bool(c) for c in closed],
         "landmarks_px": {n: np.round(p, 3).tolist() for n, p in zip(names, uv, strict=True)},
-        "landmark_errors_px": entry.get("landmark_errors_px", {}),
-        "landmark_rms_px": entry.get("landmark_rms_px"),
-        "contour_error_stats_px": entry.get("contour_error_stats_px"),
+        "landmark_errors_px": {} if entry is None else entry.landmark_errors_px,
+        "landmark_rms_px": None if entry is None else entry.landmark_rms_px,
+        "contour_error_stats_px": None if entry is None else entry.contour_error_stats_px,
     }
 
 
@@ -197,18 +195,18 @@ def review(views: list[CaseView], landmarks: Mapping[str, int], out_dir: Path) -
         "contour_error_stats_px"}}, "metrics", "flags", "rejected", "certificate", "timings"}``
         (pixels; outlines by :func:`biplanar_reg.outline.outline_polylines`, longest first).
     """
-    doc = read_json(out_dir / "result.json")
+    result = read_result(out_dir / "result.json")
     vertices, faces = read_mesh(out_dir / "registered.ply")
-    entries = doc.get("views", {}) if isinstance(doc, dict) else {}
+    entries = result.views
     return {
-        "id": doc.get("id"),
+        "id": result.id,
         "views": {
             cv.name: _view_review(cv, entries.get(cv.name), vertices, faces, landmarks)
             for cv in views
         },
-        "metrics": doc.get("metrics", {}),
-        "flags": doc.get("flags", []),
-        "rejected": doc.get("rejected", []),
-        "certificate": doc.get("certificate"),
-        "timings": doc.get("timings", {}),
+        "metrics": result.metrics,
+        "flags": result.flags,
+        "rejected": result.rejected,
+        "certificate": result.certificate,
+        "timings": result.timings,
     }

@@ -19,6 +19,7 @@ from ..calibration import View
 from ..cases.case import UNIT_SCALE
 from ..io import read_mesh
 from ..report.shading import shaded_faces
+from ..result import CaseResult, read_result
 
 __all__ = ["ModelView", "mesh_document", "vertex_errors", "shading_document"]
 
@@ -52,12 +53,10 @@ def _ground_truth(case_dir: Path) -> tuple[np.ndarray, np.ndarray | None] | None
     return verts * UNIT_SCALE.get(str(doc.get("units", "mm")), 1.0), faces
 
 
-def vertex_errors(
-    case_dir: Path, vertices: np.ndarray, result: Mapping[str, Any]
-) -> np.ndarray | None:
+def vertex_errors(case_dir: Path, vertices: np.ndarray, result: CaseResult) -> np.ndarray | None:
     """Each registered vertex's distance to the ground-truth surface, mm (the ground truth
-    moved by ``result["ground_truth"]["alignment"]`` when the case is ``up_to_pose``);
-    None when the case has no ground truth."""
+    moved by the bone's ``ground_truth["alignment"]`` in ``result`` when the case is
+    ``up_to_pose``); None when the case has no ground truth."""
     from scipy.spatial import cKDTree
 
     from ..cases.metrics import point_to_surface
@@ -66,7 +65,7 @@ def vertex_errors(
     if gt is None:
         return None
     G, F = np.asarray(gt[0], float), gt[1]
-    entry = result.get("ground_truth")
+    entry = result.bone.ground_truth if len(result.bones) == 1 else None
     align = entry.get("alignment") if isinstance(entry, dict) else None
     if isinstance(align, dict) and "R" in align and "t" in align:
         G = G @ np.asarray(align["R"], float).T + np.asarray(align["t"], float)
@@ -109,7 +108,6 @@ class ModelView:
 
     def _loaded(self) -> dict[str, Any]:
         """``{"vertices", "faces", "result"}`` of the current result (NotFound without one)."""
-        from ..io import read_json
         from .session import NotFound
 
         self.wb.result()  # the same checks and NotFound as GET /api/result
@@ -118,7 +116,7 @@ class ModelView:
         if self._result is not None and self._result[0] == key:
             return self._result[1]
         try:
-            result = read_json(files[0])
+            result = read_result(files[0])
             V, F = read_mesh(files[1])
         except FileNotFoundError:
             raise NotFound("result: being replaced by a new registration; ask again") from None
@@ -154,5 +152,5 @@ class ModelView:
         r = self._loaded()
         if r["faces"] is None:
             raise Conflict("result: registered.ply has no faces to shade")
-        entry = r["result"].get("views", {}).get(view) if isinstance(r["result"], dict) else None
+        entry = r["result"].views.get(view)
         return shading_document(_posed_view(cv, entry), r["vertices"], r["faces"])

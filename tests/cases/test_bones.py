@@ -119,23 +119,23 @@ def test_bones_must_be_tables(case):
 
 def test_interpenetrating_bones_are_flagged():
     from biplanar_reg.cases.bones import _document
+    from biplanar_reg.result import BoneResult, FrameResult
 
-    bone = {"metrics": {"vertex_rms_mm": 1.0}, "flags": ["f"], "rotation": np.eye(3)}
-    bone["translation"] = np.zeros(3)
-    docs = {"a": bone, "b": {**bone, "metrics": {"vertex_rms_mm": 2.0}}}
-    poses = {"a": np.eye(4)[None], "b": np.eye(4)[None]}
+    def bone(name, rms):
+        frame = FrameResult("0", np.eye(3), np.zeros(3))
+        return BoneResult(name, [frame], metrics={"vertex_rms_mm": rms}, flags=["f"])
+
+    bones = {"a": bone("a", 1.0), "b": bone("b", 2.0)}
     pair = {"a": "a", "b": "b", "max_depth_mm": 1.5, "worst_frame": "0", "frames": []}
 
     class _Case:
-        id, units, warnings = "c", "mm", []
+        id, units, warnings, bones, bone = "c", "mm", [], [], "bone"
 
-    doc = _document(_Case, docs, poses, [pair], [], ["0"])
-    assert doc["flags"][:2] == ["f [bone a]", "f [bone b]"]
-    assert "bones interpenetrate: a and b by 1.50 mm" in doc["flags"][2]
-    assert doc["metrics"] == {"vertex_rms_mm": 2.0, "penetration_max_mm": 1.5}
-    assert not _document(_Case, docs, poses, [{**pair, "max_depth_mm": 0.9}], [], ["0"])["flags"][
-        2:
-    ]
+    doc = _document(_Case, bones, [pair], [], ["0"])
+    assert doc.flags[:2] == ["f [bone a]", "f [bone b]"]
+    assert "bones interpenetrate: a and b by 1.50 mm" in doc.flags[2]
+    assert doc.metrics == {"vertex_rms_mm": 2.0, "penetration_max_mm": 1.5}
+    assert not _document(_Case, bones, [{**pair, "max_depth_mm": 0.9}], [], ["0"]).flags[2:]
 
 
 # -- the contact check -------------------------------------------------------------------------
@@ -248,7 +248,9 @@ def test_two_bones_in_two_frames_through_batch(case, tmp_path, capsys):
 def test_a_failing_bone_leaves_the_previous_outputs(case, tmp_path, monkeypatch):
     """The whole ``out/`` is atomic: the second bone failing leaves the old folder as it was
     (the per-bone registration is replaced: what is tested is the output folder)."""
-    from biplanar_reg.cases import run
+    from biplanar_reg.cases.bones import register_bones_case
+    from biplanar_reg.cases.documents import RunOutcome
+    from biplanar_reg.result import BoneResult, CaseResult, FrameResult
 
     out = tmp_path / "out"
     out.mkdir()
@@ -261,13 +263,14 @@ def test_a_failing_bone_leaves_the_previous_outputs(case, tmp_path, monkeypatch)
         write_mesh(Path(bone_out) / "registered.ply", bone.model.mean, bone.model.faces)
         if bone.bone == "ulna":
             raise CaseFailure("ulna: registration failed")
-        return run.RunOutcome(Path(bone_out), {"rotation": np.eye(3), "translation": [0, 0, 0]})
+        frame = FrameResult("0", np.eye(3), np.zeros(3))
+        bone_result = BoneResult(bone.bone, [frame])
+        return RunOutcome(
+            Path(bone_out), CaseResult(bone.bone, "single", {"b": bone_result}, ["0"])
+        )
 
-    monkeypatch.setattr(run, "register_case", fake)
     with pytest.raises(CaseFailure):
-        from biplanar_reg.cases.bones import register_bones_case
-
-        register_bones_case(load_case(case), out)
+        register_bones_case(load_case(case), out, register_bone=fake)
     assert calls == ["radius", "ulna"]
     assert sorted(p.name for p in out.iterdir()) == ["result.json"]
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []

@@ -137,7 +137,7 @@ def test_report_from_document_and_former_signature_agree(registered, tmp_path):
 
     from biplanar_reg.cases import load_case, to_view_observations
     from biplanar_reg.cases.metrics import model_outlines
-    from biplanar_reg.cases.run import _report_views
+    from biplanar_reg.cases.single import report_views as _report_views
     from biplanar_reg.report import ReportView, write_case_report
 
     case_dir, out, doc = registered

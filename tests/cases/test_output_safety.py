@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from biplanar_reg.cases import run as run_module
+from biplanar_reg.cases import single as run_module
 from biplanar_reg.cli import main
 from biplanar_reg.errors import SolverFailure
 from biplanar_reg.io import atomic as atomic_module

@@ -26,6 +26,7 @@ from biplanar_reg.io import read_mesh
 from biplanar_reg.simulate import synthetic_bone_model
 
 ROOT = Path(__file__).resolve().parents[2] / "sample_cases"
+FIXTURES = Path(__file__).resolve().parents[1] / "result" / "fixtures"
 TEMPLATE = ROOT / "wrist_radius" / "model" / "radius_template.ply"
 
 
@@ -335,10 +336,13 @@ def test_summary_rows_and_the_worst_bone_take_the_new_metrics(tmp_path):
     from biplanar_reg.cases.batch import SUMMARY_COLUMNS, read_record
     from biplanar_reg.cases.bones import _worst
     from biplanar_reg.report.case_report import metric_rows
+    from biplanar_reg.result import BoneResult
 
     m = {"roi_surface_rms_mm": 0.3, "surface_signed_mean_mm": -0.2, "roi_signed_mean_mm": 0.1}
     m["roi"] = {"n_vertices": 9, "fraction_area": 0.9, "defined_by": "without the cut"}
-    (tmp_path / "result.json").write_text(json.dumps({"metrics": m, "flags": []}))
+    doc = json.loads((FIXTURES / "v01_single.json").read_text())
+    doc.update(metrics=m, flags=[])
+    (tmp_path / "result.json").write_text(json.dumps(doc))
     row = read_record("c", tmp_path, "done", 1.0)
     assert [row[k] for k in ("roi_surface_rms_mm", "surface_signed_mean_mm")] == [0.3, -0.2]
     assert {"roi_surface_mean_mm", "roi_surface_p95_mm", "roi_vertex_rms_mm"} <= set(
@@ -346,10 +350,10 @@ def test_summary_rows_and_the_worst_bone_take_the_new_metrics(tmp_path):
     )
     # several bones: the largest error, and the signed bias of the largest magnitude
     other = {"roi_surface_rms_mm": 0.5, "surface_signed_mean_mm": 0.1, "roi_signed_mean_mm": -0.4}
-    worst = _worst({"a": {"metrics": m}, "b": {"metrics": other}})
+    worst = _worst({"a": BoneResult("a", [], metrics=m), "b": BoneResult("b", [], metrics=other)})
     assert worst["roi_surface_rms_mm"] == 0.5 and worst["surface_signed_mean_mm"] == -0.2
     assert worst["roi_signed_mean_mm"] == -0.4
-    rows = metric_rows({"metrics": m})
+    rows = metric_rows(m)
     labels = [r[0] for r in rows]
     assert (
         labels.index("region of interest")
@@ -379,7 +383,7 @@ def test_a_region_empty_on_the_registered_shape_is_a_case_error(tmp_path):
     the registered one does not is refused after the registration (nothing is written then:
     the outputs are written after the metrics)."""
     from biplanar_reg.cases import CaseError
-    from biplanar_reg.cases.run import _roi
+    from biplanar_reg.cases.truth import region_of_interest as _roi
 
     model = load_case(ROOT / "synthetic_radius_known").model
     mean = model.mean.reshape(-1, 3)

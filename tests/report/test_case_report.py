@@ -187,10 +187,10 @@ class _Sized:
 
 
 def test_advice_covers_every_flag_the_registration_raises():
-    from biplanar_reg.cases import run
+    from biplanar_reg.cases import single
 
-    prefixes = _flag_prefixes(register._flags) | _flag_prefixes(run.result_document)
-    assert len(_flag_prefixes(register._flags)) >= 4 and _flag_prefixes(run.result_document)
+    prefixes = _flag_prefixes(register._flags) | _flag_prefixes(single.result_document)
+    assert len(_flag_prefixes(register._flags)) >= 4 and _flag_prefixes(single.result_document)
     kinds = {p.split("(")[0].split(":")[0].strip() for p in prefixes}
     assert kinds <= set(FLAG_ADVICE), kinds - set(FLAG_ADVICE)
     # and at run time: every flag raised at once, each with its own advice
@@ -241,7 +241,7 @@ def test_page_shows_each_flag_with_its_advice(no_truth, tmp_path):
 def test_report_views_use_the_registrations_view_poses(no_truth):
     """With estimated poses (``poses = "refine"``/``"unknown"``) the report projects with the
     pose the registration used, not the calibration's."""
-    from biplanar_reg.cases.run import _report_views
+    from biplanar_reg.cases.single import report_views as _report_views
 
     case_dir, out, _ = no_truth
     case = load_case(case_dir)

@@ -436,7 +436,7 @@ def test_registration_job_result_and_events(synthetic):
     assert json.loads(events[-1][1])["state"] == "done"
 
     doc = json.loads((case_dir / "out" / "result.json").read_text())
-    assert doc["format"] == "biplanar-reg/result@1"
+    assert doc["format"] == "biplanar-reg/result@2"
     assert (case_dir / "out" / "registered.ply").is_file()
     result = client.get("/api/result").json()
     assert set(result["views"]) == {"cam1", "cam2"}

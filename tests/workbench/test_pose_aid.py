@@ -21,6 +21,8 @@ from biplanar_reg.workbench import Workbench, create_app
 from biplanar_reg.workbench.pose_aid import _with_start_key, mean_shape, write_start
 from biplanar_reg.workbench.posed_outline import MIN_PIECE_PX, piece_length
 
+FIXTURES = Path(__file__).resolve().parents[1] / "result" / "fixtures"
+
 TOKEN = "test-token-0123456789"
 
 
@@ -255,7 +257,9 @@ def test_model_mesh_result_mesh_with_its_error_map_and_shading(posed):
     out = case / "out"
     out.mkdir()
     write_mesh(out / "registered.ply", gt + [1.0, 0.0, 0.0], faces)
-    (out / "result.json").write_text(json.dumps({"id": "case", "views": {}}))
+    doc = json.loads((FIXTURES / "v01_single.json").read_text())  # a result.json of 0.1
+    doc.update(id="case", views={}, ground_truth=None)  # views posed as calibrated
+    (out / "result.json").write_text(json.dumps(doc))
     res = client.get("/api/result/mesh").json()
     err = np.array(res["error_mm"])
     assert res["frame"] == "world" and len(err) == len(gt)
