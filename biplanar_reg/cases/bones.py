@@ -310,8 +310,10 @@ def register_bones_case(
     load_seconds: float = 0.0,
     progress: Callable[[str], None] | None = None,
     report: bool = True,
+    warm_from: Path | None = None,
 ):
-    """Register every bone of ``case`` (``case.bones``) and write ``out_dir`` atomically.
+    """Register every bone of ``case`` (``case.bones``) and write ``out_dir`` atomically
+    (``warm_from``: the output folder whose bones' results they may start from).
 
     Returns
     -------
@@ -332,6 +334,7 @@ def register_bones_case(
                 include_phi=include_phi,
                 progress=progress,
                 report=report,
+                warm_from=None if warm_from is None else warm_from / BONES_DIR / bone.bone,
             )
             docs[bone.bone] = sub.document
             poses[bone.bone] = _poses(sub.document)

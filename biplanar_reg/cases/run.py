@@ -41,6 +41,7 @@ from .outputs import (
     write_exports,
     write_pose_exports,
 )
+from .warm import NO_PREVIOUS, previous_fit
 
 if TYPE_CHECKING:  # the report (matplotlib, VTK) is imported when a case is written
     from ..report.case_report import ReportView
@@ -169,6 +170,7 @@ def _view_entry(
         "contour_errors_px": ce,
         "contour_error_stats_px": summary_stats(ce[np.isfinite(ce)]),
         "outline_coverage": res.outline_coverage.get(o.name),
+        "landmarks_disagreeing_px": res.disagreeing_px.get(o.name, {}),
     }
 
 
@@ -270,17 +272,22 @@ def result_document(
             "uncertainty": uncertainty_summary(res.vertex_sd_mm),
             "noise": {k: v for k, v in res.noise.items() if k != "landmarks"} or None,
             "gaussian_process": res.gp or None,
+            "restart": res.restart or None,
             "warnings": case.warnings,
         }
     )
 
 
 def _register(
-    case: Case, obs: list[ViewObservations], progress: Callable[[str], None] | None = None
+    case: Case,
+    obs: list[ViewObservations],
+    progress: Callable[[str], None] | None = None,
+    warm_from: Path | None = None,
 ) -> RegistrationResult:
     """Run the registration; its failures become :class:`CaseFailure`/:class:`CaseError`.
 
-    ``progress`` receives the registration's stage messages (they are logged as well).
+    ``progress`` receives the registration's stage messages (they are logged as well);
+    ``warm_from``: the output folder whose result it may start from (:mod:`.warm`).
     """
 
     def say(msg: str) -> None:
@@ -297,6 +304,7 @@ def _register(
             options=case.options,
             progress=say,
             start=case.start,
+            start_from=None if warm_from is None else previous_fit(warm_from),
         )
     except SolverFailure as exc:
         raise CaseFailure(f"{case.case_file}: registration failed: {exc}") from None
@@ -307,6 +315,8 @@ def _register(
         raise CaseError(f"{case.case_file}: [registration]: {msg}") from None
     if not np.all(np.isfinite(res.vertices)):
         raise CaseFailure(f"{case.case_file}: registration failed: non-finite vertices")
+    if warm_from is not None and not res.restart.get("reason") and res.restart["start"] == "cold":
+        res = dataclasses.replace(res, restart={**res.restart, "reason": NO_PREVIOUS})
     return res
 
 
@@ -421,6 +431,7 @@ def register_case(
     load_seconds: float = 0.0,
     progress: Callable[[str], None] | None = None,
     report: bool = True,
+    warm_from: Path | None = None,
 ) -> RunOutcome:
     """Register a loaded case and write all its outputs atomically into ``out``.
 
@@ -439,6 +450,9 @@ def register_case(
     report : bool
         Write ``report.html`` and its figures (default); False writes ``registered.ply`` and
         ``result.json`` only (its ``report`` is then None), for users who want the numbers.
+    warm_from : path, optional
+        An output folder whose result the registration may start from (:mod:`.warm`; a
+        multi-frame case starts cold).
 
     Raises
     ------
@@ -460,6 +474,7 @@ def register_case(
             load_seconds=load_seconds,
             progress=progress,
             report=report,
+            warm_from=warm_from,
         )
 
 
@@ -480,6 +495,7 @@ def _register_locked(
     load_seconds: float,
     progress: Callable[[str], None] | None,
     report: bool,
+    warm_from: Path | None = None,
 ) -> RunOutcome:
     """:func:`register_case` into ``out_dir`` while holding its :func:`.outputs.output_lock`."""
     clean_stale(out_dir)
@@ -493,6 +509,7 @@ def _register_locked(
             load_seconds=load_seconds,
             progress=progress,
             report=report,
+            warm_from=warm_from,
         )
     if case.frames:
         return register_frames_case(
@@ -500,7 +517,7 @@ def _register_locked(
         )
     obs = to_view_observations(case)
     t0 = time.perf_counter()
-    res = _register(case, obs, progress)
+    res = _register(case, obs, progress, warm_from)
     t_reg = time.perf_counter() - t0
 
     t1 = time.perf_counter()
@@ -556,11 +573,15 @@ def run_case_dir(
     include_phi: bool = False,
     progress: Callable[[str], None] | None = None,
     report: bool = True,
+    warm: bool = False,
 ) -> RunOutcome:
     """Load, register and write one case folder (the ``register`` command).
 
     ``progress`` and ``report`` are passed to :func:`register_case` (stage messages, for a
-    progress display; False: no report.html). The output folder's lock is taken before the
+    progress display; False: no report.html). ``warm``: start from the result in the output
+    folder when it was made with the same model, views and options and no landmark moved far
+    (re-registration after an edit; :mod:`.warm`, ``result.json["restart"]`` says which start
+    was used). The output folder's lock is taken before the
     case is read (a busy or unwritable output is refused before any work), and the output gets
     the record of the case's input files as they were then (``inputs.json``,
     :func:`.outputs.input_fingerprint`); the temporary files of killed writers in the case
@@ -580,6 +601,7 @@ def run_case_dir(
                 load_seconds=time.perf_counter() - t0,
                 progress=progress,
                 report=report,
+                warm_from=out_dir if warm else None,
             )
 
 

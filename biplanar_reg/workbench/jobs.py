@@ -43,6 +43,10 @@ class RegistrationJob:
     ----------
     case_dir, out_dir : Path
         The case folder and the output folder (``run_case_dir(case_dir, out_dir)``).
+    warm : bool
+        Start each registration from the result in ``out_dir`` when it may (``run_case_dir(...,
+        warm=True)``: the same model, views and options, no landmark moved far); the result's
+        ``start`` says which start was used and why.
 
     Attributes
     ----------
@@ -50,9 +54,10 @@ class RegistrationJob:
         Number of registrations started (tells one run's messages from the next one's).
     """
 
-    def __init__(self, case_dir: Path, out_dir: Path):
+    def __init__(self, case_dir: Path, out_dir: Path, warm: bool = True):
         self.case_dir = Path(case_dir)
         self.out_dir = Path(out_dir)
+        self.warm = warm
         self.run = 0
         self._state = "idle"
         self._messages: list[str] = []
@@ -86,7 +91,7 @@ class RegistrationJob:
     def _work(self) -> None:
         self._say("loading the case")
         try:
-            outcome = run_case_dir(self.case_dir, self.out_dir, progress=self._say)
+            outcome = run_case_dir(self.case_dir, self.out_dir, progress=self._say, warm=self.warm)
         except (ValueError, CommandError, FileNotFoundError) as exc:
             # bad input (CaseError, ...) or a failed registration (CaseFailure): the one-line
             # message names the file and key, as `biplanar-reg register` prints it
@@ -111,6 +116,7 @@ class RegistrationJob:
             "flags": doc.get("flags", []),
             "rejected": doc.get("rejected", []),
             "seconds": seconds,
+            "start": start_entry(doc),
         }
         self._finish("done", result, None)
 
@@ -144,6 +150,54 @@ class RegistrationJob:
             self._cond.wait(timeout)
 
 
+def start_entry(doc: Mapping[str, Any]) -> dict[str, Any] | None:
+    """Which start a result was registered from, for the page: ``{"start": "warm" | "cold",
+    "reason", "text"}`` (``result.json["restart"]``; None for a result without it)."""
+    restart = doc.get("restart") or {}
+    if not isinstance(restart, Mapping) or not restart.get("start"):
+        return None
+    kind, reason = str(restart["start"]), str(restart.get("reason") or "")
+    if kind == "warm":
+        text = "warm start: from the previous result"
+    else:
+        text = "cold start" + (f" ({reason})" if reason else "")
+    return {"start": kind, "reason": reason, "text": text}
+
+
+def view_warnings(name: str, entry: Mapping[str, Any], rejected: list[Any]) -> dict[str, Any]:
+    """The registration's warnings about one view, placed: ``{"outline": {"kind":
+    "one_sided", "untraced", "covered", "text"} | None, "landmarks": {name: [{"kind":
+    "disagrees" | "rejected", "px"?, "text"}]}, "landmark_sigmas_px", "landmark_weights"}``
+    from the view's ``result.json`` entry (``outline_coverage``,
+    ``landmarks_disagreeing_px``, sigmas and robust weights) and the rejected landmarks
+    (``[[view, name], ...]``)."""
+    cov = entry.get("outline_coverage") or {}
+    outline = None
+    if cov.get("one_sided"):
+        side = cov.get("untraced")
+        where = f"the bone's {side} border" if side else "one border"
+        outline = {
+            "kind": "one_sided",
+            "untraced": side,
+            "covered": cov.get("covered"),
+            "text": f"one-sided outline: {where} is not traced",
+        }
+    marks: dict[str, list[dict[str, Any]]] = {}
+    for lm, px in (entry.get("landmarks_disagreeing_px") or {}).items():
+        text = f"disagrees with the outlines by {float(px):.0f} px"
+        marks.setdefault(lm, []).append({"kind": "disagrees", "px": float(px), "text": text})
+    for item in rejected:
+        if len(item) == 2 and item[0] == name:
+            text = "rejected as a blunder: not used in the fit"
+            marks.setdefault(str(item[1]), []).append({"kind": "rejected", "text": text})
+    return {
+        "outline": outline,
+        "landmarks": marks,
+        "landmark_sigmas_px": entry.get("landmark_sigmas_px") or {},
+        "landmark_weights": entry.get("landmark_weights") or {},
+    }
+
+
 def _posed_view(cv: CaseView, entry: Mapping[str, Any] | None) -> Any:
     """The view with the pose the result used (estimated with ``poses = unknown/refine``)."""
     if not entry or "R" not in entry or "t" not in entry:
@@ -159,6 +213,7 @@ def _view_review(
     vertices: np.ndarray,
     faces: np.ndarray | None,
     landmarks: Mapping[str, int],
+    rejected: list[Any],
 ) -> dict[str, Any]:
     """One view's entry of :func:`review`."""
     view = _posed_view(cv, entry)
@@ -174,6 +229,7 @@ def _view_review(
         "landmark_errors_px": entry.get("landmark_errors_px", {}),
         "landmark_rms_px": entry.get("landmark_rms_px"),
         "contour_error_stats_px": entry.get("contour_error_stats_px"),
+        "warnings": view_warnings(cv.name, entry, rejected),
     }
 
 
@@ -194,8 +250,9 @@ def review(views: list[CaseView], landmarks: Mapping[str, int], out_dir: Path) -
     dict
         ``{"id", "views": {name: {"outline_px": [[[u, v], ...], ...], "outline_closed",
         "landmarks_px": {name: [u, v]}, "landmark_errors_px", "landmark_rms_px",
-        "contour_error_stats_px"}}, "metrics", "flags", "rejected", "certificate", "timings"}``
-        (pixels; outlines by :func:`biplanar_reg.outline.outline_polylines`, longest first).
+        "contour_error_stats_px", "warnings"}}, "metrics", "flags", "rejected", "certificate",
+        "timings", "start"}`` (pixels; outlines by :func:`biplanar_reg.outline.outline_polylines`,
+        longest first; ``warnings``: :func:`view_warnings`, ``start``: :func:`start_entry`).
     """
     doc = read_json(out_dir / "result.json")
     vertices, faces = read_mesh(out_dir / "registered.ply")
@@ -203,7 +260,9 @@ def review(views: list[CaseView], landmarks: Mapping[str, int], out_dir: Path) -
     return {
         "id": doc.get("id"),
         "views": {
-            cv.name: _view_review(cv, entries.get(cv.name), vertices, faces, landmarks)
+            cv.name: _view_review(
+                cv, entries.get(cv.name), vertices, faces, landmarks, doc.get("rejected") or []
+            )
             for cv in views
         },
         "metrics": doc.get("metrics", {}),
@@ -211,4 +270,5 @@ def review(views: list[CaseView], landmarks: Mapping[str, int], out_dir: Path) -
         "rejected": doc.get("rejected", []),
         "certificate": doc.get("certificate"),
         "timings": doc.get("timings", {}),
+        "start": start_entry(doc),
     }
