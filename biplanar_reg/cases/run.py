@@ -15,6 +15,7 @@ import contextlib
 import dataclasses
 import logging
 import os
+import shutil
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -496,8 +497,10 @@ def _register_locked(
     progress: Callable[[str], None] | None,
     report: bool,
     warm_from: Path | None = None,
+    on_written: Callable[[RunOutcome], None] | None = None,
 ) -> RunOutcome:
-    """:func:`register_case` into ``out_dir`` while holding its :func:`.outputs.output_lock`."""
+    """:func:`register_case` into ``out_dir`` while holding its :func:`.outputs.output_lock`
+    (``on_written``: :func:`run_case_dir`'s; single-bone, single-frame cases only)."""
     clean_stale(out_dir)
     if case.bones:  # [[bones]]: each bone through this function, into out/bones/<name>/
         from .bones import register_bones_case
@@ -546,23 +549,38 @@ def _register_locked(
         doc["warnings"] = [*doc["warnings"], *export_warnings(case, doc["exports"])]
         doc["timings"]["exports"] = time.perf_counter() - t_exp
         doc["report"] = None
-        if report:
-            from ..report import case_report  # looked up at call time (tests replace it)
-
-            doc["report"] = case_report.write_case_report(
-                tmp,
-                doc,
-                _report_views(case, obs, res, outlines),
-                vertices=res.vertices,
-                faces=case.model.faces,
-                vertex_error=vertex_error,
-                vertex_sd=res.vertex_sd_mm,
-            )
-            doc["timings"]["report"] = time.perf_counter() - t2
+        write_report = lambda folder: _write_report(  # noqa: E731
+            folder, doc, _report_views(case, obs, res, outlines), res, case, vertex_error, t2
+        )
+        if report and on_written is None:
+            write_report(tmp)
         doc["timings"]["total"] = load_seconds + (time.perf_counter() - t0)
         atomic_write_json(tmp / "result.json", doc)
     log.info("%s: wrote %s", case.id, out_dir)
+    if on_written is not None:
+        on_written(RunOutcome(out_dir, doc))
+        if report:  # the report after the result: the same files, and the report's
+            with atomic_output_dir(out_dir) as tmp:
+                shutil.copytree(out_dir, tmp, dirs_exist_ok=True)
+                write_report(tmp)
+                atomic_write_json(tmp / "result.json", doc)
     return RunOutcome(out_dir, doc)
+
+
+def _write_report(tmp: Path, doc, views, res, case: Case, vertex_error, t2: float) -> None:
+    """``report.html`` and its figures into ``tmp``; ``doc["report"]`` and its timing set."""
+    from ..report import case_report  # looked up at call time (tests replace it)
+
+    doc["report"] = case_report.write_case_report(
+        tmp,
+        doc,
+        views,
+        vertices=res.vertices,
+        faces=case.model.faces,
+        vertex_error=vertex_error,
+        vertex_sd=res.vertex_sd_mm,
+    )
+    doc["timings"]["report"] = time.perf_counter() - t2
 
 
 def run_case_dir(
@@ -574,6 +592,7 @@ def run_case_dir(
     progress: Callable[[str], None] | None = None,
     report: bool = True,
     warm: bool = False,
+    on_written: Callable[[RunOutcome], None] | None = None,
 ) -> RunOutcome:
     """Load, register and write one case folder (the ``register`` command).
 
@@ -581,11 +600,13 @@ def run_case_dir(
     progress display; False: no report.html). ``warm``: start from the result in the output
     folder when it was made with the same model, views and options and no landmark moved far
     (re-registration after an edit; :mod:`.warm`, ``result.json["restart"]`` says which start
-    was used). The output folder's lock is taken before the
-    case is read (a busy or unwritable output is refused before any work), and the output gets
-    the record of the case's input files as they were then (``inputs.json``,
-    :func:`.outputs.input_fingerprint`); the temporary files of killed writers in the case
-    folder are deleted on the way.
+    was used). ``on_written`` (a single-bone, single-frame case) is called with the outcome as
+    soon as ``out`` holds the result and the mesh; the report is written after it returns
+    (``out`` replaced again, with the report), for a page that shows the result first. The
+    output folder's lock is taken before the case is read (a busy or unwritable output is
+    refused before any work), and the output gets the record of the case's input files as they
+    were then (``inputs.json``, :func:`.outputs.input_fingerprint`); the temporary files of
+    killed writers in the case folder are deleted on the way.
     """
     t0 = time.perf_counter()
     folder = Path(case_dir)
@@ -602,6 +623,7 @@ def run_case_dir(
                 progress=progress,
                 report=report,
                 warm_from=out_dir if warm else None,
+                on_written=on_written,
             )
 
 

@@ -18,7 +18,7 @@ import numpy as np
 from ..io import read_json, read_mesh
 from ..registration.previous import PreviousFit
 
-__all__ = ["previous_fit", "NO_PREVIOUS"]
+__all__ = ["previous_fit"]
 
 #: ``result.json["restart"]["reason"]`` when a warm start was asked for without a previous result.
 NO_PREVIOUS = "no previous result to start from"

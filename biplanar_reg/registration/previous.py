@@ -41,17 +41,7 @@ from .problem import Problem, with_pose
 from .rotations import project_to_so3
 from .stages import pose_start
 
-__all__ = [
-    "PreviousFit",
-    "setup_fingerprint",
-    "refusal",
-    "warm_problems",
-    "start_centre",
-    "previous_start",
-    "previous_weights",
-    "seeded_noise",
-    "kernel_start",
-]
+__all__ = ["PreviousFit", "setup_fingerprint"]
 
 #: A landmark whose error at the previous fit changed by more than this many times its view's
 #: landmark sigma (px; the previous fit's estimate, else the stated one) sends the registration

@@ -30,6 +30,8 @@ __all__ = ["RegistrationJob", "review"]
 log = logging.getLogger(__name__)
 
 STATES = ("idle", "running", "done", "failed")
+#: A registration waits at most this long (s) for the previous one's report to be written.
+REPORT_WAIT_S = 60.0
 
 
 def _one_line(text: str) -> str:
@@ -65,16 +67,24 @@ class RegistrationJob:
         self._result: dict[str, Any] | None = None
         self._t0 = 0.0
         self._cond = threading.Condition()
+        self._thread: threading.Thread | None = None
 
     def start(self) -> bool:
-        """Start a registration; False (nothing started) when one is running."""
+        """Start a registration; False (nothing started) when one is running. A previous
+        one still writing its report (after its result) is waited for."""
+        prev = self._thread
+        if prev is not None and prev.is_alive() and self._state != "running":
+            prev.join(REPORT_WAIT_S)
         with self._cond:
             if self._state == "running":
                 return False
             self.run += 1
             self._state, self._messages, self._error, self._result = "running", [], None, None
             self._t0 = time.perf_counter()
-        threading.Thread(target=self._work, name="biplanar-reg-register", daemon=True).start()
+        self._thread = threading.Thread(
+            target=self._work, name="biplanar-reg-register", daemon=True
+        )
+        self._thread.start()
         return True
 
     def _say(self, message: str) -> None:
@@ -88,10 +98,31 @@ class RegistrationJob:
             self._state, self._result, self._error = state, result, error
             self._cond.notify_all()
 
+    def _register(self) -> None:
+        """Register; the state is "done" as soon as ``out/`` holds the result and the mesh
+        (:meth:`_done`), the report is written after that."""
+        try:
+            outcome = run_case_dir(
+                self.case_dir,
+                self.out_dir,
+                progress=self._say,
+                warm=self.warm,
+                on_written=self._done,
+            )
+        except Exception as exc:
+            if self._state != "done":
+                raise
+            # the result is out already: only its report failed (the page keeps the result)
+            log.exception("the report of %s was not written", self.case_dir)
+            self._say(f"report not written: {type(exc).__name__}: {_one_line(str(exc))}")
+            return
+        if self._state != "done":  # a multi-bone or multi-frame case: no early result
+            self._done(outcome)
+
     def _work(self) -> None:
         self._say("loading the case")
         try:
-            outcome = run_case_dir(self.case_dir, self.out_dir, progress=self._say, warm=self.warm)
+            self._register()
         except (ValueError, CommandError, FileNotFoundError) as exc:
             # bad input (CaseError, ...) or a failed registration (CaseFailure): the one-line
             # message names the file and key, as `biplanar-reg register` prints it
@@ -106,7 +137,9 @@ class RegistrationJob:
             msg = f"internal error: {type(exc).__name__}: {_one_line(str(exc))}"
             self._say(f"failed: {msg}")
             self._finish("failed", None, msg)
-            return
+
+    def _done(self, outcome: Any) -> None:
+        """The result is in ``out/``: the job is done (for the page)."""
         doc = outcome.document
         seconds = time.perf_counter() - self._t0
         self._say(f"done in {seconds:.1f} s")
@@ -154,6 +187,8 @@ def start_entry(doc: Mapping[str, Any]) -> dict[str, Any] | None:
     """Which start a result was registered from, for the page: ``{"start": "warm" | "cold",
     "reason", "text"}`` (``result.json["restart"]``; None for a result without it)."""
     restart = doc.get("restart") or {}
+    if "frames" in doc and not restart:
+        restart = {"start": "cold", "reason": "a multi-frame case always starts cold"}
     if not isinstance(restart, Mapping) or not restart.get("start"):
         return None
     kind, reason = str(restart["start"]), str(restart.get("reason") or "")

@@ -106,5 +106,6 @@ def test_warm_register_and_placed_warnings(page, server, case_dir, tmp_path):
     assert "one-sided outline: cam02" in page.get_by_test_id("flags").inner_text()
     for view in ("cam01", "cam02"):  # both views framed on the bone for the picture
         page.locator(f".view[data-view='{view}'] .fit-bone").click()
+    page.wait_for_timeout(300)  # the tiles of the new zoom are asked for on the next frames
     shots.take("warnings")
     assert not page.errors, page.errors
