@@ -559,12 +559,18 @@ def _register_locked(
     log.info("%s: wrote %s", case.id, out_dir)
     if on_written is not None:
         on_written(RunOutcome(out_dir, doc))
-        if report:  # the report after the result: the same files, and the report's
-            with atomic_output_dir(out_dir) as tmp:
-                shutil.copytree(out_dir, tmp, dirs_exist_ok=True)
-                write_report(tmp)
-                atomic_write_json(tmp / "result.json", doc)
+        if report:
+            _report_after(out_dir, doc, write_report)
     return RunOutcome(out_dir, doc)
+
+
+def _report_after(out_dir: Path, doc: dict[str, Any], write_report) -> None:
+    """Add the report to a written ``out_dir``: the same files, the report's, and
+    ``result.json`` saying where it is (``out_dir`` replaced atomically, as a whole)."""
+    with atomic_output_dir(out_dir) as tmp:
+        shutil.copytree(out_dir, tmp, dirs_exist_ok=True)
+        write_report(tmp)
+        atomic_write_json(tmp / "result.json", doc)
 
 
 def _write_report(tmp: Path, doc, views, res, case: Case, vertex_error, t2: float) -> None:
