@@ -163,8 +163,10 @@ def refusal(
     arrays = (previous.rotation, previous.translation, w)
     if not all(np.all(np.isfinite(np.asarray(a, float))) for a in arrays):
         return "the previous result has non-finite numbers"
-    X = model.instance(w[: model.n_modes]) @ np.asarray(previous.rotation).T
-    X = X + np.asarray(previous.translation)
+    X = previous.vertices  # the previous fit as registered (its kernel displacement too)
+    if X is None or np.shape(X) != (model.n_vertices, 3) or not np.all(np.isfinite(X)):
+        X = model.instance(w[: model.n_modes]) @ np.asarray(previous.rotation).T
+        X = X + np.asarray(previous.translation)
     for v in views:
         if not len(v.landmark_ids):
             continue
