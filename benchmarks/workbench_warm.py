@@ -24,6 +24,7 @@ default_threads(1)  # before numpy loads, as ``biplanar-reg workbench`` does
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import os  # noqa: E402
 import shutil  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -133,7 +134,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/workbench_warm.md")
     args = ap.parse_args(argv)
+    load0 = os.getloadavg()[0]
     cold, warm = run(args.repeats)
+    load = f"load average {load0:.1f} at the start, {os.getloadavg()[0]:.1f} at the end"
     exp_doc = json.loads((WRIST / "expected.json").read_text())
     expected = {k: v.get("value") for k, v in (exp_doc.get("metrics") or {}).items()}
     text = (
@@ -141,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
         f"`python benchmarks/workbench_warm.py --repeats {args.repeats}` "
         f"({time.strftime('%Y-%m-%d')}; CPU seconds of the process from `POST /api/register` "
         "to the answer of `GET /api/result`, BLAS one thread; each registration after a 3 px "
-        "move of one landmark; ground truth: the CT, up to pose)\n\n"
+        f"move of one landmark; ground truth: the CT, up to pose; {load})\n\n"
         + table(cold, warm, expected)
         + "\n"
     )
