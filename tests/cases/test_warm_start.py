@@ -87,9 +87,7 @@ def test_a_landmark_moved_far_starts_cold(wrist, tmp_path):
 def test_changed_options_start_cold(wrist, tmp_path):
     case = _copy(wrist, tmp_path)
     toml = case / "case.toml"
-    toml.write_text(
-        toml.read_text().replace("silhouettes = true", "silhouettes = true\ngate_px = 11")
-    )
+    toml.write_text(toml.read_text() + "\n[registration.expert]\ngate_px = 11\n")
     doc = run_case_dir(case, report=False, warm=True).document
     assert doc["restart"]["start"] == "cold"
     assert (
