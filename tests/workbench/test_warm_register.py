@@ -97,11 +97,11 @@ def test_a_rejected_landmark_is_placed_at_its_landmark(tmp_path):
         result = client.get("/api/result").json()
     marks = result["views"]["cam01"]["warnings"]["landmarks"]
     assert marks == {
-        "proximal_x_min": [
+        "shaft_volar_margin": [
             {"kind": "rejected", "text": "rejected as a blunder: not used in the fit"}
         ]
     }
-    assert result["views"]["cam01"]["warnings"]["landmark_weights"]["proximal_x_min"] == 0.0
+    assert result["views"]["cam01"]["warnings"]["landmark_weights"]["shaft_volar_margin"] == 0.0
     assert result["views"]["cam02"]["warnings"]["landmarks"] == {}
 
 
