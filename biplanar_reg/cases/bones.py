@@ -237,8 +237,10 @@ def register_bones_case(
     load_seconds: float = 0.0,
     progress: Callable[[str], None] | None = None,
     report: bool = True,
+    warm_from: Path | None = None,
 ) -> RunOutcome:
-    """Register every bone of ``case`` (``case.bones``) and write ``out_dir`` atomically.
+    """Register every bone of ``case`` (``case.bones``) and write ``out_dir`` atomically
+    (``warm_from``: the output folder whose bones' results they may start from).
 
     ``register_bone(bone, folder, include_phi=, progress=, report=)`` registers one bone (a
     :class:`Case` of one bone) into ``folder`` (:func:`.pipeline.write_case`).
@@ -261,6 +263,7 @@ def register_bones_case(
                 include_phi=include_phi,
                 progress=progress,
                 report=report,
+                warm_from=None if warm_from is None else warm_from / BONES_DIR / bone.bone,
             )
             bones[bone.bone] = _bone_entry(bone.bone, sub.result)
             poses[bone.bone] = bones[bone.bone].poses

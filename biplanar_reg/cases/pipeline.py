@@ -36,16 +36,26 @@ def write_case(
     load_seconds: float = 0.0,
     progress: Callable[[str], None] | None = None,
     report: bool = True,
+    warm_from: Path | None = None,
+    on_written: Callable[[RunOutcome], None] | None = None,
 ) -> RunOutcome:
     """Register ``case`` and write ``out_dir`` atomically with the pipeline of its shape (the
     arguments of :func:`biplanar_reg.cases.register_case`; the caller holds the output
-    lock)."""
+    lock). ``warm_from`` (single-frame bones) and ``on_written`` (a single bone in a single
+    frame): see :func:`biplanar_reg.cases.run_case_dir`; a multi-frame case starts cold."""
     kw = {"load_seconds": load_seconds, "progress": progress, "report": report}
     layout = case_layout(case)
     if layout == BONES:
         return register_bones_case(
-            case, out_dir, register_bone=write_case, include_phi=include_phi, **kw
+            case,
+            out_dir,
+            register_bone=write_case,
+            include_phi=include_phi,
+            warm_from=warm_from,
+            **kw,
         )
     if layout == FRAMES:
         return register_frames_case(case, out_dir, **kw)
-    return register_single_case(case, out_dir, include_phi=include_phi, **kw)
+    return register_single_case(
+        case, out_dir, include_phi=include_phi, warm_from=warm_from, on_written=on_written, **kw
+    )

@@ -36,6 +36,7 @@ def register_case(
     load_seconds: float = 0.0,
     progress: Callable[[str], None] | None = None,
     report: bool = True,
+    warm_from: Path | None = None,
 ) -> RunOutcome:
     """Register a loaded case and write all its outputs atomically into ``out``.
 
@@ -54,6 +55,9 @@ def register_case(
     report : bool
         Write ``report.html`` and its figures (default); False writes ``registered.ply`` and
         ``result.json`` only (its ``report`` is then None), for users who want the numbers.
+    warm_from : path, optional
+        An output folder whose result the registration may start from (:mod:`.warm`; a
+        multi-frame case starts cold).
 
     Raises
     ------
@@ -75,6 +79,7 @@ def register_case(
             load_seconds=load_seconds,
             progress=progress,
             report=report,
+            warm_from=warm_from,
         )
 
 
@@ -95,6 +100,8 @@ def _register_locked(
     load_seconds: float,
     progress: Callable[[str], None] | None,
     report: bool,
+    warm_from: Path | None = None,
+    on_written: Callable[[RunOutcome], None] | None = None,
 ) -> RunOutcome:
     """:func:`register_case` into ``out_dir`` while holding its :func:`.outputs.output_lock`."""
     clean_stale(out_dir)
@@ -105,6 +112,8 @@ def _register_locked(
         load_seconds=load_seconds,
         progress=progress,
         report=report,
+        warm_from=warm_from,
+        on_written=on_written,
     )
 
 
@@ -116,15 +125,22 @@ def run_case_dir(
     include_phi: bool = False,
     progress: Callable[[str], None] | None = None,
     report: bool = True,
+    warm: bool = False,
+    on_written: Callable[[RunOutcome], None] | None = None,
 ) -> RunOutcome:
     """Load, register and write one case folder (the ``register`` command).
 
     ``progress`` and ``report`` are passed to :func:`register_case` (stage messages, for a
-    progress display; False: no report.html). The output folder's lock is taken before the
-    case is read (a busy or unwritable output is refused before any work), and the output gets
-    the record of the case's input files as they were then (``inputs.json``,
-    :func:`.outputs.input_fingerprint`); the temporary files of killed writers in the case
-    folder are deleted on the way.
+    progress display; False: no report.html). ``warm``: start from the result in the output
+    folder when it was made with the same model, views and options and no landmark moved far
+    (re-registration after an edit; :mod:`.warm`, ``result.json["restart"]`` says which start
+    was used). ``on_written`` (a single-bone, single-frame case) is called with the outcome as
+    soon as ``out`` holds the result and the mesh; the report is written after it returns
+    (``out`` replaced again, with the report), for a page that shows the result first. The
+    output folder's lock is taken before the case is read (a busy or unwritable output is
+    refused before any work), and the output gets the record of the case's input files as they
+    were then (``inputs.json``, :func:`.outputs.input_fingerprint`); the temporary files of
+    killed writers in the case folder are deleted on the way.
     """
     t0 = time.perf_counter()
     folder = Path(case_dir)
@@ -140,4 +156,6 @@ def run_case_dir(
                 load_seconds=time.perf_counter() - t0,
                 progress=progress,
                 report=report,
+                warm_from=out_dir if warm else None,
+                on_written=on_written,
             )

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import shutil
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -43,6 +44,7 @@ from .outputs import (
     write_exports,
 )
 from .truth import ground_truth_entry, ground_truth_metrics
+from .warm import NO_PREVIOUS, previous_fit
 
 if TYPE_CHECKING:  # the report (matplotlib, VTK) is imported when a case is written
     from ..report.case_report import ReportView
@@ -131,6 +133,7 @@ def _view_entry(
         "contour_errors_px": ce,
         "contour_error_stats_px": summary_stats(ce[np.isfinite(ce)]),
         "outline_coverage": res.outline_coverage.get(o.name),
+        "landmarks_disagreeing_px": res.disagreeing_px.get(o.name, {}),
     }
 
 
@@ -204,16 +207,21 @@ def result_document(
             "noise": {k: v for k, v in res.noise.items() if k != "landmarks"} or None,
             "gaussian_process": res.gp or None,
             "warnings": case.warnings,
+            "restart": res.restart or None,
         }
     )
 
 
 def register_observations(
-    case: Case, obs: list[ViewObservations], progress: Callable[[str], None] | None = None
+    case: Case,
+    obs: list[ViewObservations],
+    progress: Callable[[str], None] | None = None,
+    warm_from: Path | None = None,
 ) -> RegistrationResult:
     """Run the registration; its failures become :class:`CaseFailure`/:class:`CaseError`.
 
-    ``progress`` receives the registration's stage messages (they are logged as well).
+    ``progress`` receives the registration's stage messages (they are logged as well);
+    ``warm_from``: the output folder whose result it may start from (:mod:`.warm`).
     """
     say = stage_reporter(case, progress)
     try:
@@ -225,6 +233,7 @@ def register_observations(
             options=case.options,
             progress=say,
             start=case.start,
+            start_from=None if warm_from is None else previous_fit(warm_from),
         )
     except SolverFailure as exc:
         raise CaseFailure(f"{case.case_file}: registration failed: {exc}") from None
@@ -235,6 +244,8 @@ def register_observations(
         raise CaseError(f"{case.case_file}: [registration]: {msg}") from None
     if not np.all(np.isfinite(res.vertices)):
         raise CaseFailure(f"{case.case_file}: registration failed: non-finite vertices")
+    if warm_from is not None and not res.restart.get("reason") and res.restart["start"] == "cold":
+        res = dataclasses.replace(res, restart={**res.restart, "reason": NO_PREVIOUS})
     return res
 
 
@@ -276,14 +287,17 @@ def register_single_case(
     load_seconds: float = 0.0,
     progress: Callable[[str], None] | None = None,
     report: bool = True,
+    warm_from: Path | None = None,
+    on_written: Callable[[RunOutcome], None] | None = None,
 ) -> RunOutcome:
     """Register one bone in one frame and write ``out_dir`` atomically: ``registered.ply``
     (vertex property ``sd_mm``), the pose exports (docs/exports.md), ``result.json`` and
     (unless ``report`` is False) ``report.html`` with its figures. The arguments are those of
-    :func:`biplanar_reg.cases.register_case`."""
+    :func:`biplanar_reg.cases.register_case`; ``warm_from`` and ``on_written`` those of
+    :func:`biplanar_reg.cases.run_case_dir` (the report then written after ``on_written``)."""
     obs = to_view_observations(case)
     t0 = time.perf_counter()
-    res = register_observations(case, obs, progress)
+    res = register_observations(case, obs, progress, warm_from)
     t_reg = time.perf_counter() - t0
     t1 = time.perf_counter()
     contour_errs, outlines, source = view_errors(case, obs, res)
@@ -311,20 +325,41 @@ def register_single_case(
         doc["timings"]["exports"] = time.perf_counter() - t_exp
         doc["report"] = None
         result = CaseResult.from_json(doc)
-        if report:
-            from ..report import case_report  # looked up at call time (tests replace it)
-
-            result.report = case_report.write_case_report(
-                tmp,
-                result,
-                report_views(case, obs, res, outlines),
-                vertices=res.vertices,
-                faces=case.model.faces,
-                vertex_error=vertex_error,
-                vertex_sd=res.vertex_sd_mm,
-            )
-            result.timings["report"] = time.perf_counter() - t2
+        write_report = lambda folder: _write_report(  # noqa: E731
+            folder, result, report_views(case, obs, res, outlines), res, case, vertex_error, t2
+        )
+        if report and on_written is None:
+            write_report(tmp)
         result.timings["total"] = load_seconds + (time.perf_counter() - t0)
         atomic_write_json(tmp / "result.json", result.to_json())
     log.info("%s: wrote %s", case.id, out_dir)
+    if on_written is not None:
+        on_written(RunOutcome(out_dir, result))
+        if report:
+            _report_after(out_dir, result, write_report)
     return RunOutcome(out_dir, result)
+
+
+def _write_report(tmp: Path, result, views, res, case: Case, vertex_error, t2: float) -> None:
+    """``report.html`` and its figures into ``tmp``; ``result.report`` and its timing set."""
+    from ..report import case_report  # looked up at call time (tests replace it)
+
+    result.report = case_report.write_case_report(
+        tmp,
+        result,
+        views,
+        vertices=res.vertices,
+        faces=case.model.faces,
+        vertex_error=vertex_error,
+        vertex_sd=res.vertex_sd_mm,
+    )
+    result.timings["report"] = time.perf_counter() - t2
+
+
+def _report_after(out_dir: Path, result, write_report) -> None:
+    """Add the report to a written ``out_dir``: the same files, the report's, and
+    ``result.json`` saying where it is (``out_dir`` replaced atomically, as a whole)."""
+    with atomic_output_dir(out_dir) as tmp:
+        shutil.copytree(out_dir, tmp, dirs_exist_ok=True)
+        write_report(tmp)
+        atomic_write_json(tmp / "result.json", result.to_json())

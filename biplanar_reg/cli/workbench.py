@@ -247,6 +247,9 @@ def _cmd_new_form(args: argparse.Namespace, sock: Any, access: Any) -> int:
 
 
 def _cmd_workbench(args: argparse.Namespace) -> int:
+    from .._threads import default_threads
+
+    default_threads(1)  # before numpy loads, as for ``register``: its registrations are small
     _check_extra()
     from ..workbench import Workbench
     from ..workbench.access import Access

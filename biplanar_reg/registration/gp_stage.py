@@ -171,7 +171,12 @@ class GpOutcome:
 
 
 def gp_stage(
-    problem: Problem, final: Refined, basis: KernelBasis
+    problem: Problem,
+    final: Refined,
+    basis: KernelBasis,
+    *,
+    rounds: int | None = None,
+    start: np.ndarray | None = None,
 ) -> tuple[Problem, Refined, GpOutcome]:
     """Refine ``final`` over the SSM's and the kernel's modes (module docstring).
 
@@ -183,6 +188,12 @@ def gp_stage(
         The final refinement's output.
     basis : KernelBasis
         The kernel's modes (:func:`kernel_basis`).
+    rounds : int, optional
+        At most this many refinements (default ``gp_rounds``). With 1 the kernel's weights
+        are refined at ``basis.start_amplitude_mm``, which is the amplitude returned (a
+        re-registration from a previous fit keeps its amplitude: :mod:`.previous`).
+    start : (K,) array, optional
+        The kernel's weights to start from (at ``basis.start_amplitude_mm``; default 0).
 
     Returns
     -------
@@ -196,9 +207,14 @@ def gp_stage(
     a, u = basis.start_amplitude_mm, np.zeros(len(basis.modes))
     records, iterates = list(final.records), list(final.iterates)
     prob, res, weights, groups = problem, final.result, final.weights, final.noise
+    if start is not None and np.shape(start) == u.shape and np.all(np.isfinite(start)):
+        u = np.asarray(start, float)  # the shape it gives:
+        d = np.tensordot(a * u, basis.modes, axes=1)
+        X = (base.instance(w0) + d) @ res.rotation.T + res.translation
+        res = with_pose(res, res.rotation, res.translation, w0, X)
     n_k = len(basis.modes)
     outcome = GpOutcome(False, basis.width_mm, a, n_k, 0.0, 0, "no rounds", basis.kernel)
-    for rounds in range(1, opts.gp_rounds + 1):
+    for done in range(1, (opts.gp_rounds if rounds is None else rounds) + 1):
         prob = replace(prob, model=_kernel_model(base, w0, basis, a))
         res = with_pose(res, res.rotation, res.translation, u, res.vertices)
         rec = Recorder(prob, records, iterates, res.certificate, "gp")
@@ -213,7 +229,7 @@ def gp_stage(
             f"({gamma:.1f} effective kernel modes)"
         )
         outcome = GpOutcome(
-            True, basis.width_mm, a, len(basis.modes), gamma, rounds, kernel=basis.kernel
+            True, basis.width_mm, a, len(basis.modes), gamma, done, kernel=basis.kernel
         )
         if a_new < MIN_AMPLITUDE_MM:
             reason = f"not supported by the data: amplitude {a_new:.2g} mm"

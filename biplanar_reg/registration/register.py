@@ -20,13 +20,24 @@ from .._validate import as_array, check_rotation
 from ..outline import chain_edges
 from ..ssm.gaussian_process import split_modes
 from ..ssm.model import ShapeModel
-from .blunders import rejected_landmarks
+from .blunders import rejected_landmarks, robust_cost
 from .gp_stage import GpOutcome, gp_stage, kernel_basis, registration_model
 from .gsft import GsftResult
 from .noise import used_sigma
 from .observations import ViewObservations
 from .options import IterationRecord, RegistrationOptions
 from .outline_match import outline_distances
+from .previous import (
+    PreviousFit,
+    kernel_start,
+    previous_start,
+    previous_weights,
+    refusal,
+    seeded_noise,
+    setup_fingerprint,
+    start_centre,
+    warm_problems,
+)
 from .problem import Problem, make_problem
 from .quality import (
     NEARLY_PARALLEL_DEG,
@@ -121,6 +132,14 @@ class RegistrationResult:
         The kernel's displacement of the model's points (object frame, mm) when the kernel
         is not the model's own: then ``vertices = (instance(weights) +
         shape_displacement_mm) @ rotation.T + translation``. None otherwise.
+    restart : dict
+        ``{"start": "cold" | "warm", "reason", "fingerprint", "robust_cost"}``: the start used
+        (``reason``: why not warm, when a previous fit was given), the setup's
+        :func:`.previous.setup_fingerprint` and the robust cost of the fit
+        (:func:`.blunders.robust_cost`): what a later ``start_from`` checks.
+    disagreeing_px : dict
+        ``{view: {landmark: px}}``: the landmarks of the flag "landmark disagrees with the
+        outlines" with their reprojection errors (every view; empty when none).
     """
 
     rotation: np.ndarray
@@ -146,6 +165,8 @@ class RegistrationResult:
     outline_coverage: dict = field(default_factory=dict)
     gp: dict = field(default_factory=dict)
     shape_displacement_mm: np.ndarray | None = field(default=None, repr=False)
+    restart: dict = field(default_factory=dict)
+    disagreeing_px: dict = field(default_factory=dict)
 
 
 def _check_start(start: object) -> tuple[np.ndarray, np.ndarray] | None:
@@ -240,6 +261,7 @@ def register_views(
     options: RegistrationOptions | None = None,
     progress: Callable[[str], None] | None = None,
     start: tuple | None = None,
+    start_from: PreviousFit | None = None,
 ) -> RegistrationResult:
     """Register ``model`` to the annotated ``views``.
 
@@ -266,6 +288,12 @@ def register_views(
         A start pose of the model (model -> world, mm; e.g. the workbench's pose aid): the
         registration starts from the mean shape there instead of from the landmarks, so that
         it runs on outlines alone (outlines in 2 views, no landmarks). Not with ``"unknown"``.
+    start_from : PreviousFit, optional
+        A previous fit of the same model and views (re-registration after an edit,
+        :mod:`.previous`): with ``poses="known"`` the registration starts from its pose and
+        shape, its noise estimate and kernel amplitude, unless :func:`.previous.refusal`
+        refuses it or the warm fit fails :func:`.previous.warm_problems`; then it runs cold.
+        ``result.restart`` says which start was used and why.
 
     Raises
     ------
@@ -286,6 +314,17 @@ def register_views(
         opts = replace(opts, noise="stated")
     say = progress or (lambda msg: None)
     t0 = time.perf_counter()
+    fingerprint = setup_fingerprint(model, views, poses, silhouettes, opts)
+    why = ""
+    if start_from is not None:
+        why = "a warm start needs known view poses" if poses != "known" else ""
+        why = why or refusal(start_from, fingerprint, registration_model(model), views) or ""
+        if not why:
+            warm = _register_warm(model, views, opts, silhouettes, say, start_from, t0)
+            why = warm_problems(start_from, warm.flags, warm.rejected, warm.restart["robust_cost"])
+            if not why:
+                return replace(warm, restart={**warm.restart, "fingerprint": fingerprint})
+        say(f"cold start: {why}")
     pose_info: dict = {"mode": poses}
     posed = PosedViews(views, pose_info, [])
     if poses != "known":
@@ -300,6 +339,38 @@ def register_views(
         problem, final, outcome = gp_stage(problem, final, basis)
     if poses == "refine":
         pose_info.update(corrections(views, problem.views))
+    result = _finish(model, problem, final, outcome, pose_info, t0)
+    restart = {**result.restart, "fingerprint": fingerprint, "start": "cold", "reason": why}
+    return replace(result, restart=restart)
+
+
+def _register_warm(model, views, opts, silhouettes, say, previous: PreviousFit, t0: float):
+    """The registration from ``previous`` (:mod:`.previous`), views posed as calibrated."""
+    base = registration_model(model)
+    problem = make_problem(base, views, opts, silhouettes, say, start_centre(previous, base))
+    problem = seeded_noise(problem, previous)
+    start = previous_start(problem, previous)
+    weights = previous_weights(problem, previous)
+    say("start: the previous result (warm)")
+    detect = opts.robust and len(problem.landmarks) > 0
+    run = boost(problem, start, weights, opts.max_iterations, detect=detect, memo=FitMemo())
+    final = refine_final(problem, run)
+    problem = final.problem or problem
+    outcome = None
+    if opts.gp == "auto" and problem.use_outlines:
+        basis = kernel_basis(model, opts.gp_kernel, opts.gp_width_mm, opts.gp_amplitude_mm)
+        rounds, u0 = None, None
+        if previous.gp_amplitude_mm is not None and previous.gp_amplitude_mm > 0:
+            basis = replace(basis, start_amplitude_mm=float(previous.gp_amplitude_mm))
+            rounds, u0 = 1, kernel_start(base, basis, previous)
+        problem, final, outcome = gp_stage(problem, final, basis, rounds=rounds, start=u0)
+    result = _finish(model, problem, final, outcome, {"mode": "known"}, t0)
+    return replace(result, restart={**result.restart, "start": "warm", "reason": ""})
+
+
+def _finish(model, problem: Problem, final: Refined, outcome, pose_info: dict, t0: float):
+    """The :class:`RegistrationResult` of the final fit: errors, flags, uncertainty, the
+    model's weights and the robust cost (``restart["robust_cost"]``)."""
     outlines = final.outlines
     if problem.use_outlines and not outlines:
         outlines = problem.outlines(final.result)
@@ -312,6 +383,7 @@ def register_views(
         shape_displacement_mm=displacement,
         gp={} if outcome is None else outcome.as_dict(),
         vertex_sd_mm=None if unc is None else unc.sd_mm,
+        restart={"robust_cost": robust_cost(problem, final.result, outlines)},
     )
 
 
@@ -448,12 +520,9 @@ def _flags(
     stated = opts.noise == "stated"
     if stated and acc and float(np.sqrt(np.mean(np.square(acc)))) > opts.reprojection_flag_px:
         flags.append("large landmark reprojection error")
-    # without outlines nothing can disagree with them (a lone far landmark is a blunder)
-    compared = len(lm) and problem.use_outlines and problem.targets
-    for i in disagreeing_landmarks(err, lm.ratios()) if compared else []:
-        if int(i) not in rejected:
-            v, n = lm.names[i]
-            flags.append(f"landmark disagrees with the outlines: {v}/{n} by {err[i]:.0f} px")
+    for i in _disagreeing(problem, err, rejected):
+        v, n = lm.names[i]
+        flags.append(f"landmark disagrees with the outlines: {v}/{n} by {err[i]:.0f} px")
     rej = [lm.names[i] for i in sorted(rejected)]
     if rej:
         flags.append("rejected observations: " + ", ".join(f"{v}/{n}" for v, n in rej))
@@ -479,6 +548,27 @@ def _flags(
             f"{np.sqrt(shape.mahalanobis2):.1f}, limit {np.sqrt(shape.limit2):.1f}{vol})"
         )
     return flags
+
+
+def _disagreeing(problem: Problem, err: np.ndarray, rejected: frozenset[int]) -> list[int]:
+    """The landmarks (indices, not rejected) that disagree with the outlines
+    (:func:`.quality.disagreeing_landmarks`; ``err``: each landmark's error, px)."""
+    lm = problem.landmarks
+    # without outlines nothing can disagree with them (a lone far landmark is a blunder)
+    if not (len(lm) and problem.use_outlines and problem.targets):
+        return []
+    return [int(i) for i in disagreeing_landmarks(err, lm.ratios()) if int(i) not in rejected]
+
+
+def _disagreeing_by_view(problem: Problem, res, rejected: frozenset[int]) -> dict:
+    """``{view: {landmark: px}}``: the landmarks that disagree with the outlines and their
+    errors (every view, possibly empty): the structured form of the flag."""
+    out: dict[str, dict[str, float]] = {v.name: {} for v in problem.views}
+    err = problem.landmark_px_errors(res.vertices)
+    for i in _disagreeing(problem, err, rejected):
+        v, n = problem.landmarks.names[i]
+        out[v][n] = float(err[i])
+    return out
 
 
 def _separation(problem: Problem, vertices: np.ndarray | None) -> tuple[float, str, str] | None:
@@ -529,6 +619,7 @@ def _result(problem: Problem, final, outlines: dict, pose_info: dict, seconds: f
         rejected=[problem.landmarks.names[i] for i in sorted(rejected)],
         view_poses=view_poses,
         flags=_flags(problem, res, rejected, outlines),
+        disagreeing_px=_disagreeing_by_view(problem, res, rejected),
         timings={
             "total": seconds,
             "iterations": float(sum(r.seconds for r in final.records)),

@@ -212,6 +212,7 @@ async function main() {
     flags: $("flags"),
     metrics: $("metrics"),
     error: $("register-error"),
+    start: $("register-start"),
   });
   try {
     await panel.init();

@@ -1,6 +1,8 @@
 // panels.js — the side panels' lists: landmarks (select, where placed, remove) and contours
 // (select, remove). They are re-rendered from the state after every change (tens of items).
 
+import { chipMarker } from "./warnings.js";
+
 function el(tag, attrs = {}, ...children) {
   const node = document.createElement(tag);
   for (const [k, v] of Object.entries(attrs)) {
@@ -36,6 +38,12 @@ export function renderLandmarkList(wb, list) {
         const cls = `residual ${residualClass(residual)}`;
         chip.append(el("span", { class: cls }, residual.toFixed(1)));
         chip.title = `${name} in ${view}: ${residual.toFixed(2)} px from the registered landmark`;
+      }
+      const mark = placed ? chipMarker(wb.result, view, name) : null;
+      if (mark) {
+        chip.append(mark); // the registration's warning about this landmark here
+        chip.classList.add("warned");
+        chip.title = `${chip.title}\n${mark.title}`.trim();
       }
       if (placed) {
         chip.classList.add("jump");

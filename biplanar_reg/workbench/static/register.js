@@ -3,6 +3,7 @@
 // outline and landmarks (drawn over the views by app.js from wb.result).
 
 import { api, ApiError } from "./api.js";
+import { renderViewBadges, startText } from "./warnings.js";
 
 /** What to do about each quality flag (the flags of registration/register.py), by prefix. */
 const ADVICE = [
@@ -24,6 +25,16 @@ const ADVICE = [
   [
     "rejected observations",
     "The solver ignored these landmarks as blunders: check or delete them.",
+  ],
+  [
+    "landmark disagrees with the outlines",
+    "The landmark marked ! in the list and ringed in the view pulls against the traced " +
+      "outlines: check where it was clicked (in the oblique view above all).",
+  ],
+  [
+    "one-sided outline",
+    "Only one border of the bone is traced in the view with the badge: trace the other " +
+      "border too, or the fit may slide across the bone.",
   ],
 ];
 
@@ -53,7 +64,7 @@ function formatNumber(x) {
 export class RegisterPanel {
   constructor(wb, elements) {
     this.wb = wb;
-    this.el = elements; // {button, panel, progress, flags, metrics, error}
+    this.el = elements; // {button, panel, progress, flags, metrics, error, start}
     this.source = null;
     this.el.button.addEventListener("click", () => this.run());
   }
@@ -118,7 +129,9 @@ export class RegisterPanel {
     const li = document.createElement("li");
     li.textContent = text;
     this.el.progress.append(li);
-    li.scrollIntoView({ block: "nearest" });
+    // the list scrolls itself (never li.scrollIntoView: that scrolled the side panel away
+    // from the landmark list)
+    this.el.progress.scrollTop = this.el.progress.scrollHeight;
   }
 
   async poll(source) {
@@ -146,7 +159,7 @@ export class RegisterPanel {
         await this.loadResult();
       }
       this.setState(status.state);
-      this.el.panel.scrollIntoView({ block: "nearest", behavior: "instant" }); // the outcome
+      if (status.state === "done") this.wb.status(this.summary(status.result));
     } catch (err) {
       this.wb.error(err);
       this.setState("failed");
@@ -164,6 +177,17 @@ export class RegisterPanel {
     this.wb.setResult(result); // also re-renders the lists: the residuals appear in them
     this.showMetrics(result ? result.metrics : null);
     this.showFlags(result);
+    renderViewBadges(result);
+    this.el.start.textContent = startText(result);
+    this.el.start.dataset.start = result?.start?.start ?? "";
+  }
+
+  /** The status line after a registration: its time and start (the side panel stays put). */
+  summary(done) {
+    const secs = typeof done?.seconds === "number" ? ` in ${done.seconds.toFixed(1)} s` : "";
+    const start = done?.start?.text ? ` · ${done.start.text}` : "";
+    const flags = (done?.flags || []).length;
+    return `registered${secs}${start} · ${flags} flag${flags === 1 ? "" : "s"}`;
   }
 
   showMetrics(metrics) {

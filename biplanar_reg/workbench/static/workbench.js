@@ -7,6 +7,7 @@ import * as overlay from "./overlay.js";
 import { fatal } from "./fatal.js";
 import { renderContourList, renderLandmarkList } from "./panels.js";
 import { LandmarkTool, OutlineTool } from "./tools.js";
+import { drawWarnings } from "./warnings.js";
 
 const $ = (id) => document.getElementById(id);
 
@@ -214,6 +215,7 @@ export class Workbench {
     overlay.drawContours(ctx, viewer, va.contours, selected, boxes);
     overlay.drawLandmarks(ctx, viewer, va.landmarks, this.selectedLandmark, boxes);
     if (result) overlay.drawResultLabels(ctx, viewer, result, va.landmarks, boxes);
+    if (result) drawWarnings(ctx, viewer, this.result, va.landmarks);
     const trace = this.tools.outline.trace;
     if (trace.view === viewer.name) overlay.drawTrace(ctx, viewer, trace);
   }
