@@ -38,6 +38,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..annotation import Contour, grabcut_outline, livewire
 from ..annotation.clean import cut_polyline
@@ -71,6 +72,10 @@ MAX_ZONES = 500
 #: An anchor within this distance of a piece stays one of its anchors, pixels (the livewire
 #: moves anchors by up to 2 px onto the edge).
 ANCHOR_TOL_PX = 3.0
+#: An outline whose points lie on another part of it (:func:`self_overlap`) for more than this
+#: share is refused: it runs over the same edge more than once (anchors placed twice).
+MAX_OVERLAP = 0.25
+OVERLAP_GAP = 10
 GRABCUT_MAX_ITERATIONS = 20
 #: Largest GrabCut box, square pixels (800 x 800 px). Measured on the 1760 px wrist
 #: radiograph (benchmarks/workbench_bounds.py): an 800 px box took 2-4 s and ~145 MB more;
@@ -141,6 +146,21 @@ def piece_anchors(piece: np.ndarray, closed: bool, anchors: np.ndarray | None) -
             out.append([round(float(a[0]), 3), round(float(a[1]), 3)])
     need = 3 if closed else 2
     return out if len(out) >= need else None
+
+
+def self_overlap(path: np.ndarray, closed: bool, gap: int = OVERLAP_GAP) -> float:
+    """The share of the points of ``path`` (pixels) that lie within 1 px of a point of it more
+    than ``gap`` points away along it (around, for a closed one): 0 for an outline that follows
+    an edge once, about 2/3 for one that runs three times over the same edge."""
+    path = np.asarray(path, float).reshape(-1, 2)
+    n = len(path)
+    if n <= 2 * gap:
+        return 0.0
+    pairs = cKDTree(path).query_pairs(1.0, output_type="ndarray")
+    d = np.abs(pairs[:, 0] - pairs[:, 1])
+    if closed:
+        d = np.minimum(d, n - d)
+    return len(np.unique(pairs[d > gap].ravel())) / n
 
 
 def erase_stretch(uv: np.ndarray, closed: bool, a: np.ndarray, b: np.ndarray) -> list[np.ndarray]:
@@ -303,6 +323,12 @@ class OutlineTools:
         is_closed = check_flag(closed, "closed", False)
         pts = check_points(anchors, "anchors", v.size, 3 if is_closed else 2, MAX_ANCHORS)
         path = livewire(v.image, pts, is_closed, sigma_px=LIVEWIRE_SIGMA_PX, cost=v.cost())
+        share = self_overlap(path, is_closed)
+        if share > MAX_OVERLAP:
+            raise ValueError(
+                f"anchors: the outline runs over itself ({100 * share:.0f}% of its points lie on "
+                "another part of it): place the anchors once along the edge"
+            )
         return np.round(path, 3), pts, is_closed
 
     def _nonempty(self, pieces: list, field: str) -> list:

@@ -6,6 +6,8 @@
 
 import { api } from "./api.js";
 import { fatal } from "./fatal.js";
+import { installHistory } from "./history.js";
+import { installKeys } from "./keys.js";
 import { ModelView } from "./model3d.js";
 import { installOutlineTools } from "./outlines.js";
 import { PoseAid, PoseTool, ResultShading } from "./poseaid.js";
@@ -117,25 +119,6 @@ function wireControls(wb) {
   $("outline-finish").addEventListener("click", () => wb.tools.outline.finish());
   $("outline-cancel").addEventListener("click", () => wb.tools.outline.cancel());
   $("delete-selected").addEventListener("click", () => wb.tools.outline.deleteSelected());
-  document.addEventListener("keydown", (ev) => onKey(wb, ev));
-}
-
-/** Keyboard: L / O modes, F fit, Enter finish, Esc cancel, Backspace undo an anchor, Delete
- * removes the selected landmark (in the view under the mouse) or contour. */
-function onKey(wb, ev) {
-  if (ev.target instanceof HTMLInputElement || ev.ctrlKey || ev.metaKey || ev.altKey) return;
-  const outline = wb.tools.outline;
-  const key = ev.key;
-  if (key === "l" || key === "L") wb.setMode("landmark");
-  else if (key === "o" || key === "O") wb.setMode("outline");
-  else if ((key === "p" || key === "P") && wb.tools.pose) wb.setMode("pose");
-  else if (key === "f" || key === "F") wb.viewers.get(wb.activeView)?.fit();
-  else if (key === "Enter" && wb.mode === "outline") outline.finish();
-  else if (key === "Escape") wb.tool().cancel();
-  else if (key === "Backspace" && wb.mode === "outline" && outline.tracing()) outline.undo();
-  else if (key === "Delete" || key === "Backspace") wb.tool().deleteSelected();
-  else return;
-  ev.preventDefault();
 }
 
 /** Test hooks (tests/workbench/test_e2e.py): transforms and waits; not used by the page. */
@@ -215,6 +198,8 @@ async function main() {
   for (const info of caseInfo.views) wb.viewers.set(info.name, buildView(wb, info));
   wireControls(wb);
   installOutlineTools(wb); // outline editing, zones, GrabCut, quality (outlines.js)
+  installHistory(wb, { undo: $("undo"), redo: $("redo") }); // undo / redo (history.js)
+  installKeys(wb); // the shortcuts and their "?" list; no control keeps the focus (keys.js)
   document.body.dataset.mode = wb.mode;
   wb.refresh();
   exposeForTests(wb);
