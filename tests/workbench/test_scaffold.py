@@ -146,7 +146,7 @@ def test_the_form_lists_the_files_and_creates_the_case(loose):
 
 
 def test_view_names_are_the_file_names_sanitised_and_unique():
-    names = view_names(["data/cam01 frame#0099.tif", "b/cam01 frame#0099.png", "c/.tif", "x" * 80])
+    names = view_names(["data/cam01 frame#0099.tif", "b/cam01 frame#0099.png", "c/#.tif", "x" * 80])
     assert list(names.values()) == ["cam01_frame_0099", "cam01_frame_0099_2", "view", "x" * 64]
     for name in names.values():
         NewView(name, "calib/cam1.txt")  # each a valid view name
