@@ -7,7 +7,7 @@
 import { api } from "./api.js";
 import { fatal } from "./fatal.js";
 import { installHistory } from "./history.js";
-import { installKeys } from "./keys.js";
+import { installKeys, SHORTCUTS } from "./keys.js";
 import { ModelView } from "./model3d.js";
 import { installOutlineTools } from "./outlines.js";
 import { PoseAid, PoseTool, ResultShading } from "./poseaid.js";
@@ -143,6 +143,7 @@ function exposeForTests(wb) {
     /** Resolves when the edits sent so far are answered (saved by the server). */
     idle: () => wb.queue.then(() => undefined),
     tilesPending: () => [...wb.viewers.values()].reduce((n, v) => n + v.tiles.pending(), 0),
+    shortcuts: SHORTCUTS, // the table the key handler runs and "?" lists (keys.js)
   };
 }
 
