@@ -65,6 +65,12 @@ export class EditHistory {
     if (!same) {
       if (!names.includes(wb.selectedLandmark)) wb.selectedLandmark = names[0] ?? null;
       wb.setModelLandmarks(res.model_landmarks);
+      const model = window.workbench?.model; // the 3D view keeps its own copy (model3d.js)
+      if (model) {
+        model.landmarks = { ...res.model_landmarks };
+        model.renderList();
+        model.renderMarkers();
+      }
     }
     for (const [view, va] of Object.entries(res.annotations.views)) wb.setViewAnnotations(view, va);
     wb.outlineTools?.loadZones();
