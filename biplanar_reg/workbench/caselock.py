@@ -16,7 +16,7 @@ from typing import Any
 from ..io import atomic_write_json
 from .failures import WorkbenchError
 
-__all__ = ["LOCK_GRACE_S", "CaseLock"]
+__all__: list[str] = []  # internal: the session uses CaseLock
 
 log = logging.getLogger(__name__)
 

@@ -10,16 +10,7 @@ import re
 
 import numpy as np
 
-__all__ = [
-    "MAX_POINTS",
-    "check_flag",
-    "check_point",
-    "check_points",
-    "check_positive",
-    "check_version",
-    "require_version",
-    "short",
-]
+__all__: list[str] = []  # internal: the session and the tools use these
 
 #: Largest point lists accepted (a contour at one point per pixel around a 3000 px image).
 MAX_POINTS = 100_000

@@ -11,7 +11,7 @@ import numpy as np
 from ..annotation import Annotations, Contour
 from .failures import NotFound, StaleContour
 
-__all__ = ["ContourIds"]
+__all__: list[str] = []  # internal: the session uses ContourIds
 
 
 def _content(contour: Contour) -> tuple[bool, bytes]:

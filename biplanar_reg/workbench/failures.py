@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from ..errors import CommandError
 
-__all__ = ["Conflict", "NotFound", "StaleContour", "WorkbenchError"]
+__all__ = ["WorkbenchError"]  # the others are internal: the API maps them to statuses
 
 
 class WorkbenchError(CommandError):

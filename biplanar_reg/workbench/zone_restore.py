@@ -20,7 +20,7 @@ import numpy as np
 
 from ..annotation import Contour
 
-__all__ = ["digest", "note_cut", "new_record"]
+__all__: list[str] = []  # internal: the outline tools use these
 
 
 def digest(contour: Contour) -> str:
