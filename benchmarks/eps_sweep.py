@@ -55,9 +55,7 @@ def main() -> None:
                             rng.choice(n, K - K // 2, replace=False),
                         ]
                         obs = observe(views, X, ids, noise_px=noise, rng=rng)
-                        res = solve_gsft(
-                            model, obs.vertex_ids, obs.origins, obs.directions, eps=eps
-                        )
+                        res = solve_gsft(model, obs, eps=eps)
                         certs.append(res.certificate)
                         rms_sdp.append(rms(sdp_vertices(model, res), X))
                         rms_fin.append(rms(res.vertices, X))

@@ -44,7 +44,7 @@ from _common import (
 )
 from baselines import repeated_single_view
 
-from biplanar_reg.registration import SolverFailure, solve_gsft
+from biplanar_reg.registration import RayObservations, SolverFailure, solve_gsft
 
 CONFIGS = {2: [50, 50], 3: [33, 33, 34], 4: [25] * 4, 10: [10] * 10, 100: [1] * 100}
 
@@ -57,7 +57,7 @@ def trial(model, counts, noise_px, rng):
     ids, o, d = stacked(views)
     t0 = time.perf_counter()
     try:
-        res = solve_gsft(model, ids, o, d)
+        res = solve_gsft(model, RayObservations(ids, o, d))
         v = res.vertices
         out["G-SfT"] = (rms(v, X), rms_rigid(v, X), np.nan, time.perf_counter() - t0)
     except SolverFailure:

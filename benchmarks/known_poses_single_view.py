@@ -42,7 +42,7 @@ from _common import (
 )
 from baselines import prox_admm
 
-from biplanar_reg.registration import SolverFailure, solve_gsft
+from biplanar_reg.registration import RayObservations, SolverFailure, solve_gsft
 from biplanar_reg.simulate import look_at_view
 
 NOISE_FRACTIONS = (0.0, 0.005, 0.01, 0.02, 0.04)
@@ -65,7 +65,7 @@ def run_gsft(model, X, ids, Xn):
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            res = solve_gsft(model, ids, o, d)
+            res = solve_gsft(model, RayObservations(ids, o, d))
     except SolverFailure:
         return np.nan, np.nan, time.perf_counter() - t0
     return rms_rigid(res.vertices, X), rms(res.vertices, X), time.perf_counter() - t0

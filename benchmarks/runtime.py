@@ -44,6 +44,7 @@ from silhouette_iterations import scene as silhouette_scene
 from threadpoolctl import threadpool_limits
 
 from biplanar_reg.registration import (
+    RayObservations,
     RegistrationOptions,
     register_views,
     solve_gsft,
@@ -66,7 +67,7 @@ def time_known(model, counts, repeats, rng):
     for _ in range(repeats):
         _, views = ray_scene(model, counts, 1.0, rng)
         ids, o, d = stacked(views)
-        res = solve_gsft(model, ids, o, d)
+        res = solve_gsft(model, RayObservations(ids, o, d))
         solve.append(res.timings["solve"])
         total.append(res.timings["total"])
     return np.median(solve), np.median(total)

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 from _common import random_view, rms, rms_rigid, write_text
 
-from biplanar_reg.registration import solve_gsft
+from biplanar_reg.registration import RayObservations, solve_gsft
 from biplanar_reg.registration.rotations import rotation_angle
 from biplanar_reg.registration.unknown_poses import relative_pose, solve_gsft_unknown_poses
 from biplanar_reg.simulate import random_pose
@@ -226,7 +226,9 @@ def trial(poses, test, counts, n_modes, noise_px, rng):
     secs = time.perf_counter() - t0
     out["joint"] = (*score(res.object_rotations, res.object_translations, [res.weights] * P), secs)
     t0 = time.perf_counter()
-    singles = [solve_gsft(model, ids, np.zeros((len(ids), 3)), d) for ids, d in views]
+    singles = [
+        solve_gsft(model, RayObservations(ids, np.zeros((len(ids), 3)), d)) for ids, d in views
+    ]
     secs = time.perf_counter() - t0
     out["trivial"] = (
         *score(

@@ -48,6 +48,7 @@ __all__ = [
     "coverage_mask",
     "outline_tangents",
     "subsample_evenly",
+    "cut_vertices",
 ]
 
 #: Default alpha for :func:`alpha_outline`, in units of the 99th percentile of the projected
@@ -57,6 +58,17 @@ ALPHA_FACTOR = 3.0
 
 #: Distance (px) from an edge's midpoint at which :func:`_outer_edges` looks for uncovered pixels.
 OUTER_PROBE_PX = 1.5
+
+#: :func:`cut_vertices`: depth (mm) of a flat cut, below a plane that touches the mesh from
+#: outside (the shipped CT templates' caps are flat within it)...
+CUT_BAND_MM = 1.0
+#: ... the share of the mesh's cross-section near that plane (the convex hull, on the plane, of
+#: the vertices within 3 bands of it) that the faces within the band must cover (measured with
+#: benchmarks/mesh_cuts.py: 0.96-0.99 at the cut end of every shipped CT-derived model, 0.45 at
+#: the flattest end of the synthetic capsule)...
+CUT_MIN_COVER = 0.8
+#: ... and the smallest such cross-section, mm^2 (a flat facet on a tip is no cut).
+CUT_MIN_AREA_MM2 = 20.0
 
 
 @dataclass(frozen=True)
@@ -706,3 +718,59 @@ def chain_edges(
             closed.append(is_loop)
     order = sorted(range(len(outlines)), key=lambda i: -len(outlines[i]))
     return [outlines[i] for i in order], [closed[i] for i in order]
+
+
+def cut_vertices(
+    vertices: np.ndarray, faces: np.ndarray, *, band_mm: float = CUT_BAND_MM
+) -> np.ndarray:
+    """Vertices where a bone model was cut off: an open mesh's border, or a flat cut end.
+
+    A template from a CT that did not hold the whole bone ends where the field of view cut it:
+    either open there (border edges, one face only) or capped flat (``biplanar-reg ssm`` caps
+    it). Neither is an edge a radiograph shows, so the outline tools leave these vertices out.
+
+    A flat cut end: a plane that touches the mesh from outside (one through a face, with every
+    vertex on its inner side within ``band_mm``) such that the faces within ``band_mm`` of it
+    cover, projected on it, at least ``CUT_MIN_COVER`` of the convex hull of the vertices
+    within ``3 band_mm`` of it, a hull of at least ``CUT_MIN_AREA_MM2``.
+
+    Parameters
+    ----------
+    vertices : (N, 3) array
+        Mesh vertices, mm (any rigid frame: the test does not depend on it).
+    faces : (F, 3) int array
+        Triangles.
+    band_mm : float
+        Depth of a flat cut, mm.
+
+    Returns
+    -------
+    (N,) bool array
+        True on the open border and within ``band_mm`` of each flat cut end.
+    """
+    V = np.asarray(vertices, float)
+    F = np.asarray(faces, np.int64)
+    out = np.zeros(len(V), bool)
+    if len(F) == 0 or len(V) < 4:
+        return out
+    he = half_edges(F, len(V))
+    out[he.edges[he.twin_face < 0].ravel()] = True
+    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    unit = n / np.maximum(np.linalg.norm(n, axis=1), 1e-12)[:, None]
+    centroid = V[F].mean(axis=1)
+    # the planes through a face that touch the mesh from outside (orientation-free: either side)
+    for sgn in (1.0, -1.0):
+        u = sgn * unit
+        touching = (V @ u.T).max(axis=0) - np.einsum("ij,ij->i", u, centroid) <= band_mm
+        for d in u[touching]:
+            depth = (V @ d).max() - V @ d
+            band = depth <= band_mm
+            if band.all() or out[band].all():
+                continue
+            basis = np.linalg.svd(np.eye(3) - np.outer(d, d))[0][:, :2]
+            near = (V[depth <= 3.0 * band_mm] @ basis).astype(np.float32)
+            area = float(cv2.contourArea(cv2.convexHull(near))) if len(near) >= 3 else 0.0
+            cover = np.abs(n[band[F].all(axis=1)] @ d).sum() / 2.0
+            if area >= CUT_MIN_AREA_MM2 and cover >= CUT_MIN_COVER * area:
+                out |= band
+    return out

@@ -127,7 +127,8 @@ def write_reference_cases(root: str | os.PathLike, target_vertices: int = 1000) 
 
     The model is :func:`radius_model` of a ``target_vertices`` radius template with the
     eight extreme-vertex landmarks of
-    :func:`biplanar_reg.simulate.synthetic_landmarks` (distal = low CT z); the
+    :func:`biplanar_reg.simulate.synthetic_landmarks` (distal = low CT z, anatomical names);
+    the
     truth of case ``seed`` is one harmonic deformation of the template drawn with population
     seed ``100 + seed`` (not a member of the model's population, so it is not exactly in the
     model's span), placed near :data:`WRIST_RADIUS_POSE` (rotation perturbed by up to 10
@@ -140,7 +141,7 @@ def write_reference_cases(root: str | os.PathLike, target_vertices: int = 1000) 
         model.modes,
         faces=model.faces,
         variances=model.variances,
-        landmarks=synthetic_landmarks(model, distal_sign=-1.0),
+        landmarks=synthetic_landmarks(model, distal_sign=-1.0, bone="radius"),
     )
     out = []
     for name, (seed, poses, blunder) in REFERENCE_CASES.items():

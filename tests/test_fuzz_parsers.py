@@ -554,7 +554,17 @@ toml_edits = st.lists(
         st.tuples(
             st.just("line"),
             st.integers(0, 99),
-            st.sampled_from(["[model]", "[[views]]", "[registration]", "[x]", "[[model]]", "="]),
+            st.sampled_from(
+                [
+                    "[model]",
+                    "[[views]]",
+                    "[registration]",
+                    "[registration.expert]",
+                    "[x]",
+                    "[[model]]",
+                    "=",
+                ]
+            ),
         ),
     ),
     min_size=1,
@@ -585,7 +595,7 @@ def case_toml(case_dir) -> str:
 @fuzz(250)
 @given(edits=toml_edits)
 @example(edits=[("value", 10, '"calib/loop.txt"')])  # a symlink loop (RuntimeError)
-@example(edits=[("add", 24, "silhouette_points = 9223372036854775807")])
+@example(edits=[("add", 24, "[registration.expert]\nsilhouette_points = 9223372036854775807")])
 @example(edits=[("value", 30, "[]")])  # found: units = [] (TypeError: unhashable type)
 def test_case_toml(case_dir, case_toml, edits):
     (case_dir / "case.toml").write_text(apply_toml(case_toml, edits), encoding="utf-8")

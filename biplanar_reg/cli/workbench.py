@@ -13,7 +13,8 @@ browser's command line is visible to every local user in ``ps``). Enter in the t
 prints a new one-time URL. It listens on 127.0.0.1 unless told otherwise; an address that
 other machines can reach needs ``--allow-remote``. Ctrl-C or SIGTERM stops it; the case's lock
 file and the browser's file are removed on the way out. Exit codes: 2 a bad case folder or
-address, 1 the folder is open in another workbench, 130 stopped.
+address or the workbench extra missing (``pip install 'biplanar-reg[workbench]'``), 1 the
+folder is open in another workbench, 130 stopped.
 """
 
 from __future__ import annotations
@@ -28,6 +29,28 @@ from typing import Any
 from ._parsing import Wanted, add_command
 
 __all__ = ["register"]
+
+#: The server stack that ``pip install 'biplanar-reg[workbench]'`` adds; only the workbench
+#: imports it, so the rest of the package runs without it.
+SERVER_MODULES = ("starlette", "uvicorn")
+
+
+def _check_extra() -> None:
+    """Raise ``ValueError`` (exit 2, one line) naming the install command when the workbench
+    extra is missing, before anything of the workbench is imported."""
+    import importlib
+
+    missing = []
+    for name in SERVER_MODULES:
+        try:
+            importlib.import_module(name)
+        except ImportError:
+            missing.append(name)
+    if missing:
+        raise ValueError(
+            f"biplanar-reg workbench needs {' and '.join(missing)} (the workbench extra): "
+            "pip install 'biplanar-reg[workbench]'"
+        )
 
 
 def _check_host(host: str, allow_remote: bool) -> None:
@@ -224,6 +247,7 @@ def _cmd_new_form(args: argparse.Namespace, sock: Any, access: Any) -> int:
 
 
 def _cmd_workbench(args: argparse.Namespace) -> int:
+    _check_extra()
     from ..workbench import Workbench
     from ..workbench.access import Access
 

@@ -7,20 +7,14 @@ exports the names listed in ``docs/api.md``. The modules hold the stages and bui
 """
 
 from ..errors import SolverFailure
+from .calibration_refine import RefinedPosesResult, refine_view_poses
 from .frames import FrameRegistrationResult, register_frames
 from .gsft import DEFAULT_EPS, GsftResult, solve_gsft
 from .observations import ViewObservations
 from .options import IterationRecord, RegistrationOptions
 from .rays import RayObservations
 from .register import RegistrationResult, register_views
-from .unknown_poses import (
-    RefinedPosesResult,
-    UnknownPosesResult,
-    UnknownPoseView,
-    ViewRays,
-    refine_view_poses,
-    solve_gsft_unknown_poses,
-)
+from .unknown_poses import UnknownPosesResult, UnknownPoseView, solve_gsft_unknown_poses
 
 __all__ = [
     "RayObservations",
@@ -36,7 +30,6 @@ __all__ = [
     "solve_gsft_unknown_poses",
     "UnknownPosesResult",
     "UnknownPoseView",
-    "ViewRays",
     "refine_view_poses",
     "RefinedPosesResult",
     "register_frames",

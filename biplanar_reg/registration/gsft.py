@@ -27,10 +27,9 @@ from functools import lru_cache, partial
 import numpy as np
 
 from ..ssm.model import ShapeModel
-from ._compat import renamed_field, renamed_options
 from .ipm import smat, solve_conic
 from .lifting import point_map_values
-from .rays import RayObservations, as_rays, check_rays
+from .rays import RayObservations, check_rays
 from .refine import (
     DEFAULT_MAX_REFINE_ITER,
     PoseShape,
@@ -157,12 +156,6 @@ class GsftResult:
     sdp_iterations: int
     backend: str
     timings: dict = field(default_factory=dict)
-
-    # old spellings (the refinement was called 'polish'), kept readable
-    polish_cost_before = renamed_field("refine_cost_before")
-    polish_cost_after = renamed_field("refine_cost_after")
-    polish_iterations = renamed_field("refine_iterations")
-    polish_converged = renamed_field("refine_converged")
 
 
 def check_model(model: object) -> None:
@@ -425,10 +418,7 @@ def _refine_stage(
 
 def solve_gsft(
     model: ShapeModel,
-    rays: RayObservations | object = None,
-    origins: object | None = None,
-    directions: object | None = None,
-    sigmas: object | None = None,
+    rays: RayObservations,
     *,
     eps: float = DEFAULT_EPS,
     refine: bool = True,
@@ -439,46 +429,38 @@ def solve_gsft(
     backend: str = "auto",
     solver_settings: dict | None = None,
     initial: PoseShape | None = None,
-    vertex_ids: object | None = None,
     warm_start: GsftResult | None = None,
-    **deprecated: object,
 ) -> GsftResult:
     """Register a shape model to rays with known view poses (the seed paper's G-SfT).
 
-    Call forms: ``solve_gsft(model, rays)`` with a :class:`RayObservations` (world frame), or
-    the array form ``solve_gsft(model, vertex_ids, origins, directions, sigmas=None)``.
+    One call form: ``solve_gsft(model, rays, **options)`` with a :class:`RayObservations`
+    (world frame; from arrays: ``RayObservations(vertex_ids, origins, directions, sigmas)``),
+    every option by keyword.
 
     Parameters
     ----------
     model : ShapeModel
         The shape model (object frame, mm).
-    rays : RayObservations or (K,) int array
-        The rays in the world frame, mm, one per observed model vertex, with optional sigmas
-        (see below); or, in the array form, the model vertex observed by each ray.
-    origins : (K, 3) array, optional
-        Array form: ray origins in the world frame, mm (the X-ray source of a perspective view).
-    directions : (K, 3) array, optional
-        Array form: ray directions in the world frame (normalised; zero length is an error).
-    sigmas : (K,) array, optional
-        Array form (a :class:`RayObservations` carries its own): standard deviation of each
-        observation's distance from its ray, mm (for a pixel with ``sigma_px``:
-        ``sigma_px * pixel spacing * source-object / source-detector distance``).
-        Relative values weight the SDP's terms (``a_j`` proportional to ``1 / sigma_j``);
-        absolute values set the balance of data and prior in the refinement. When omitted,
+    rays : RayObservations
+        The rays in the world frame, mm, one per observed model vertex: ``vertex_ids`` (K,),
+        ``origins`` (K, 3) (the X-ray source of a perspective view), ``directions`` (K, 3)
+        (normalised; zero length is an error) and optional ``sigmas`` (K,): the standard
+        deviation of each observation's distance from its ray, mm (for a pixel with
+        ``sigma_px``: ``sigma_px * pixel spacing * source-object / source-detector distance``).
+        Relative sigmas weight the SDP's terms (``a_j`` proportional to ``1 / sigma_j``);
+        absolute values set the balance of data and prior in the refinement. Without sigmas
         all observations weigh the same and the refinement estimates one common sigma from the
         residuals (so noise-free data is fitted exactly and noisy data gets the MAP estimate).
     eps : float
         Trace weight per unit observation weight, in normalised units: the SDP uses
         ``eps * K * tr(Delta)`` so the balance does not change with the number of observations.
     refine : bool
-        Run the Levenberg-Marquardt refinement (default) after rounding. (Old spelling
-        ``polish``, deprecated.)
+        Run the Levenberg-Marquardt refinement (default) after rounding.
     prior_weight : float
         Weight ``lambda`` of ``1/2 lambda ||w||^2`` in the refinement (1 = Gaussian prior with
         the model's standard deviations).
     max_refine_iter : int
-        Iteration limit of each refinement run (default ``DEFAULT_MAX_REFINE_ITER``, 50; old
-        spelling ``max_polish_iter``, deprecated).
+        Iteration limit of each refinement run (default ``DEFAULT_MAX_REFINE_ITER``, 50).
     min_depth : float, optional
         Every observed point must lie at least this far (mm) in front of its ray's origin
         along the ray. Without it the relaxation can mix the solution with its mirror image
@@ -502,8 +484,6 @@ def solve_gsft(
         A second starting point for the local refinement (e.g. the previous iterate of
         outline boosting): the refinement also runs from it and the lower-cost result is
         kept, so a non-tight SDP cannot pull a good estimate into a worse basin.
-    vertex_ids : (K,) int array, optional
-        The array form's first array given by keyword (instead of ``rays``).
     warm_start : GsftResult, optional
         A previous solution of a nearly identical problem (e.g. the previous boosting
         iterate, any K): the interior-point method starts near its rounded SDP solution
@@ -517,19 +497,20 @@ def solve_gsft(
 
     Raises
     ------
+    TypeError
+        ``rays`` is not a :class:`RayObservations`.
     ValueError
         Bad input (the message names the argument).
     SolverFailure
         The conic solver did not produce a usable solution.
     """
     t_start = time.perf_counter()
-    opts = renamed_options("solve_gsft", deprecated)
-    refine = opts.get("refine", refine)
-    max_refine_iter = opts.get("max_refine_iter", max_refine_iter)
     check_model(model)
-    if rays is not None and vertex_ids is not None:
-        raise ValueError("vertex_ids: give either rays or vertex_ids, not both")
-    rays = as_rays(vertex_ids if rays is None else rays, origins, directions, sigmas)
+    if not isinstance(rays, RayObservations):
+        raise TypeError(
+            f"rays: expected a RayObservations (RayObservations(vertex_ids, origins, "
+            f"directions, sigmas)), got {type(rays).__name__}"
+        )
     check_rays(model, rays)
     check_options(eps, prior_weight, depth_reward_weight, backend)
     prob = _normalise(model, rays, eps, min_depth, depth_reward_weight)

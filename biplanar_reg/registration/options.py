@@ -1,13 +1,13 @@
 """Options and per-iteration records of the registration pipeline (:mod:`.register`).
 
 Every number that sets how the pipeline behaves is a field of :class:`RegistrationOptions`
-with its documented default, so a case file (``[registration]`` keys of the same names) or a
-caller can change it and ``result.json`` records it.
+with its documented default, so a case file (``[registration]`` and ``[registration.expert]``
+keys of the same names, docs/cases.md) or a caller can change it and ``result.json`` records
+it.
 """
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -50,19 +50,6 @@ _RANGES = {
     "joint_outline_sigma_factor": (1.0, np.inf, True),
     "unknown_outline_sigma_factor": (1.0, np.inf, True),
 }
-
-#: Options of the former heuristic blunder handling (leave-one-out tests, consensus, cap,
-#: re-admission), replaced by the robust loss (:mod:`.blunders`): still accepted (a case file's
-#: ``[registration]`` keys keep loading) with a DeprecationWarning, and ignored.
-DEPRECATED_OPTIONS: dict[str, str] = {
-    "blunder_threshold": "robust_threshold",
-    "blunder_contrast": "robust_threshold",
-    "max_rejected_fraction": "rejection_weight",
-    "consensus_trigger": "robust_threshold",
-    "readmit_sigmas": "rejection_weight",
-}
-#: Renamed options: the old key sets the new one (with a DeprecationWarning).
-RENAMED_OPTIONS: dict[str, str] = {"certificate_flag": "start_certificate"}
 
 
 @dataclass(frozen=True)
@@ -129,7 +116,7 @@ class RegistrationOptions:
         (0, 1]) of the latter's (:func:`.stages.robust_start`).
     start_certificate : float
         Certificate above which the landmark-only relaxation counts as not tight: the rigid
-        mean-shape start is then tried too (formerly ``certificate_flag``).
+        mean-shape start is then tried too.
     reprojection_flag_px : float
         Landmark reprojection RMS (px) above which a result is flagged.
     relaxation_flag_px : float
@@ -159,12 +146,6 @@ class RegistrationOptions:
     pose_sigma_mm : float
         ``poses = "refine"``: the same for the positions (mm): of the bone as seen through each
         view (``pose_prior_at_bone``) or of each view's source.
-    blunder_threshold, blunder_contrast, max_rejected_fraction, consensus_trigger, \
-readmit_sigmas : None
-        Deprecated (the former blunder heuristics; :data:`DEPRECATED_OPTIONS`): accepted with a
-        DeprecationWarning and ignored.
-    certificate_flag : None
-        Deprecated spelling of ``start_certificate`` (sets it, with a DeprecationWarning).
     rigid_start_redundancy : int
         The rigid mean-shape start is tried (when the relaxation is not tight) only while the
         weighted landmarks' coordinates exceed the pose and shape parameters by less than this:
@@ -271,12 +252,6 @@ readmit_sigmas : None
     rejected_sigma_factor: float = 1e3
     pose_sigma_deg: float = 2.0
     pose_sigma_mm: float = 5.0
-    blunder_threshold: float | None = None
-    blunder_contrast: float | None = None
-    max_rejected_fraction: float | None = None
-    consensus_trigger: float | None = None
-    readmit_sigmas: float | None = None
-    certificate_flag: float | None = None
     rigid_start_redundancy: int = 14
     joint_outline_sigma_factor: float = 1.0
     unknown_outline_sigma_factor: float = 5.0
@@ -292,28 +267,7 @@ readmit_sigmas : None
     gp_rounds: int = 6
 
     def __post_init__(self) -> None:
-        for key, new in DEPRECATED_OPTIONS.items():
-            if getattr(self, key) is not None:
-                warnings.warn(
-                    f"RegistrationOptions: {key} is deprecated and ignored (blunders are "
-                    f"handled by a robust loss; see {new} and docs/registration.md)",
-                    DeprecationWarning,
-                    stacklevel=3,
-                )
-                object.__setattr__(self, key, None)
-        for key, new in RENAMED_OPTIONS.items():
-            value = getattr(self, key)
-            if value is not None:
-                warnings.warn(
-                    f"RegistrationOptions: {key} is deprecated, use {new}",
-                    DeprecationWarning,
-                    stacklevel=3,
-                )
-                object.__setattr__(self, new, value)
-                object.__setattr__(self, key, None)
         for f in fields(self):
-            if f.default is None and getattr(self, f.name) is None:
-                continue
             _check_field(f.name, getattr(self, f.name), f.default)
 
 

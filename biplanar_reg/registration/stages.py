@@ -551,11 +551,17 @@ def _boost_step(problem: Problem, s: _BoostState, detect: bool) -> bool:
     if detect:
         weights, _ = gnc_weights(problem, s.result, matches.rays)
         now = rejected_landmarks(problem, weights)
-        if now != rejected and now not in s.tried:
+        if now != rejected and now not in s.tried and _can_restart(problem, s, now):
             _restart(problem, s, weights)
         else:
             s.weights = weights
     return True
+
+
+def _can_restart(problem: Problem, s: _BoostState, rejected: frozenset[int]) -> bool:
+    """Whether landmarks can restart the fit (else it goes on with the new weights)."""
+    ids = np.delete(problem.landmarks.rays.vertex_ids, sorted(rejected))
+    return s.unweighted is not None or (len(ids) >= 4 and len(np.unique(ids)) >= 3)
 
 
 def boost(

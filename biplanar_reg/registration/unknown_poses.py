@@ -1,6 +1,6 @@
 """G-SfT-P: register a shape model when the views' poses are unknown or only roughly known.
 
-Two entry points:
+The entry point:
 
 :func:`solve_gsft_unknown_poses`
     Every view gives its observations in its **own** camera frame (OpenCV: x right, y down,
@@ -27,16 +27,12 @@ Two entry points:
        (``joint_refine.py``), equivalent to "object pose + every view's pose but the gauge";
     6. report everything in the first view's frame (the gauge).
 
-:func:`refine_view_poses`
-    Calibration refinement: rays in a world frame from known-but-inaccurate extrinsics. The
-    shape and the relative pose of every view but the gauge are refined jointly, starting from
-    the known-pose solution (:func:`gsft.solve_gsft`); the correction of each view's extrinsics
-    is reported (degrees, mm). This is what a case file's ``[registration] poses = "refine"``
-    runs; ``poses = "unknown"`` maps to :func:`solve_gsft_unknown_poses`.
+:func:`.calibration_refine.refine_view_poses` (its own module) refines known-but-inaccurate
+extrinsics with the same joint refinement; ``poses = "unknown"`` of a case file maps to
+:func:`solve_gsft_unknown_poses`.
 
 The options shared with :func:`gsft.solve_gsft` have its spelling and defaults (``eps``,
-``depth_reward_weight``, ``refine``, ``prior_weight``, ``max_refine_iter``); the old spellings
-``depth_reward``, ``polish`` and ``max_polish_iter`` are accepted with a DeprecationWarning.
+``depth_reward_weight``, ``refine``, ``prior_weight``, ``max_refine_iter``).
 """
 
 from __future__ import annotations
@@ -50,22 +46,19 @@ import numpy as np
 
 from .._validate import as_array, check_rotation
 from ..ssm.model import ShapeModel
-from ._compat import renamed_field, renamed_options
 from .gsft import (
     DEFAULT_DEPTH_REWARD,
     DEFAULT_EPS,
     MIN_DEPTH_SIZES,
     RECENTRE_DISTANCE,
-    GsftResult,
     check_model,
     check_options,
     common_sigma,
     nearest_point_to_rays,
-    solve_gsft,
 )
 from .joint_refine import ViewPoses, joint_cost, refine_views
 from .lifting import point_map_values
-from .rays import RayObservations, as_rays, check_rays
+from .rays import RayObservations, check_rays
 from .refine import DEFAULT_MAX_REFINE_ITER, ray_distances
 from .rotations import project_to_so3, rotation_angle
 from .sdp import KnownPoseData, SolverFailure, depth_reward
@@ -73,11 +66,8 @@ from .unknown_sdp import MultiViewSdpSolution, SdpViewBlock, solve_multiview_sdp
 
 __all__ = [
     "UnknownPoseView",
-    "ViewRays",
     "UnknownPosesResult",
-    "RefinedPosesResult",
     "solve_gsft_unknown_poses",
-    "refine_view_poses",
 ]
 
 
@@ -103,35 +93,6 @@ class UnknownPoseView:
     prior_rotation: np.ndarray | None = None
     prior_translation: np.ndarray | None = None
     name: str = ""
-
-
-def ViewRays(  # noqa: N802 - the old class name, kept as a constructor
-    vertex_ids: object,
-    directions: object,
-    sigmas: object | None = None,
-    origins: object | None = None,
-    prior_rotation: object | None = None,
-    prior_translation: object | None = None,
-    name: str = "",
-) -> UnknownPoseView:
-    """Deprecated: ``UnknownPoseView(RayObservations(vertex_ids, origins, directions,
-    sigmas), prior_rotation, prior_translation, name)``, ``origins`` defaulting to the frame's
-    origin (a perspective view).
-
-    The fields are validated here (a ``ValueError`` names the view and the field).
-    """
-    warnings.warn(
-        "ViewRays is deprecated: pass a RayObservations (camera frame) per view, or an "
-        "UnknownPoseView(rays, prior_rotation, prior_translation, name)",
-        DeprecationWarning,
-        stacklevel=2,
-    )
-    o = np.zeros((np.size(vertex_ids), 3)) if origins is None else origins
-    try:
-        rays = RayObservations(vertex_ids, o, directions, sigmas)
-    except ValueError as exc:
-        raise ValueError(f"ViewRays{f' ({name})' if name else ''}.{exc}") from None
-    return UnknownPoseView(rays, prior_rotation, prior_translation, name)
 
 
 @dataclass(frozen=True)
@@ -223,67 +184,6 @@ class UnknownPosesResult:
     timings: dict = field(default_factory=dict)
     candidate_object_rotations: list = field(default_factory=list)
     candidate_object_translations: list = field(default_factory=list)
-
-    # old spellings (the refinement was called 'polish'), kept readable
-    polish_iterations = renamed_field("refine_iterations")
-    polish_cost_before = renamed_field("refine_cost_before")
-    polish_cost_after = renamed_field("refine_cost_after")
-    polish_converged = renamed_field("refine_converged")
-
-
-@dataclass(frozen=True)
-class RefinedPosesResult:
-    """Result of :func:`refine_view_poses` (world frame of the given extrinsics, mm).
-
-    Attributes
-    ----------
-    view_rotations, view_translations : arrays (P, 3, 3), (P, 3)
-        Refined world-to-camera extrinsics (``X_cam = R X + t``); the gauge view's are the
-        given ones.
-    view_centres : (P, 3) array
-        Refined source positions (world, mm).
-    rotation_corrections_deg : (P,) array
-        Angle between the given and refined rotation of every view, degrees.
-    centre_corrections_mm : (P,) array
-        Distance between the given and refined source position, mm.
-    translation_corrections : (P, 3) array
-        Refined minus given ``t``, mm.
-    vertices : (N, 3) array
-        Registered shape, world frame, mm.
-    weights, rotation, translation : arrays
-        Shape weights and object-to-world pose (``V = R Q(w) + t``).
-    residuals_before : (K,) array
-        Ray distances (mm) of the known-pose solution with the given extrinsics.
-    residuals : (K,) array
-        Ray distances (mm) after refinement, with the refined extrinsics.
-    initial : GsftResult
-        The known-pose solution the refinement started from.
-    refine_iterations : int
-    refine_converged : bool
-    timings : dict
-        Seconds: ``initial``, ``refine``, ``total``.
-    """
-
-    view_rotations: np.ndarray
-    view_translations: np.ndarray
-    view_centres: np.ndarray
-    rotation_corrections_deg: np.ndarray
-    centre_corrections_mm: np.ndarray
-    translation_corrections: np.ndarray
-    vertices: np.ndarray
-    weights: np.ndarray
-    rotation: np.ndarray
-    translation: np.ndarray
-    residuals_before: np.ndarray
-    residuals: np.ndarray
-    initial: object
-    refine_iterations: int
-    refine_converged: bool
-    timings: dict = field(default_factory=dict)
-
-    # old spellings (the refinement was called 'polish'), kept readable
-    polish_iterations = renamed_field("refine_iterations")
-    polish_converged = renamed_field("refine_converged")
 
 
 # -- geometry helpers -----------------------------------------------------------------------------
@@ -716,7 +616,6 @@ def solve_gsft_unknown_poses(
     prior_weight: float = 1.0,
     max_refine_iter: int = DEFAULT_MAX_REFINE_ITER,
     solver_settings: dict | None = None,
-    **deprecated: object,
 ) -> UnknownPosesResult:
     """Register a shape model to views whose poses are unknown (the seed paper's G-SfT-P).
 
@@ -742,15 +641,12 @@ def solve_gsft_unknown_poses(
     depth_reward_weight : float
         In ``[0, 1)``: weight of a small linear reward on each perspective view's depth that
         removes the relaxation's scale drift (see ``_depth_reward``; 0 = the paper's program).
-        Old spelling ``depth_reward``, deprecated.
     refine : bool
-        Run the joint Levenberg-Marquardt refinement after rounding (default; old spelling
-        ``polish``, deprecated).
+        Run the joint Levenberg-Marquardt refinement after rounding (default).
     prior_weight : float
         ``lambda`` of the shape prior ``1/2 lambda ||w||^2`` in the refinement.
     max_refine_iter : int
-        Iteration limit of each refinement run (default ``DEFAULT_MAX_REFINE_ITER``, 50; old
-        spelling ``max_polish_iter``, deprecated).
+        Iteration limit of each refinement run (default ``DEFAULT_MAX_REFINE_ITER``, 50).
     solver_settings : dict, optional
         Clarabel settings to override.
 
@@ -766,10 +662,6 @@ def solve_gsft_unknown_poses(
         The conic solver did not produce a usable solution.
     """
     t_start = time.perf_counter()
-    opts = renamed_options("solve_gsft_unknown_poses", deprecated)
-    depth_reward_weight = opts.get("depth_reward_weight", depth_reward_weight)
-    refine = opts.get("refine", refine)
-    max_refine_iter = opts.get("max_refine_iter", max_refine_iter)
     check_model(model)
     check_options(eps, prior_weight, depth_reward_weight)
     checked, constrained = _check_views(model, views)
@@ -860,200 +752,6 @@ def _unknown_result(
         refine_iterations=fit.iterations,
         refine_cost_before=float(fit.cost_before),
         refine_cost_after=float(fit.cost_after),
-        refine_converged=fit.converged,
-        timings={**timings, "total": time.perf_counter() - t_start},
-    )
-
-
-def _refine_pose_args(
-    rays: object, args: tuple, kwargs: dict
-) -> tuple[RayObservations, object, object]:
-    """``refine_view_poses``'s two call forms as ``(rays, views_R, views_t)``."""
-    if isinstance(rays, RayObservations):
-        names = ("views_R", "views_t")
-    else:
-        names = ("origins", "directions", "view_index", "views_R", "views_t", "sigmas")
-        if rays is None:
-            rays = kwargs.pop("vertex_ids", None)
-    if len(args) > len(names):
-        raise TypeError(f"refine_view_poses() takes at most {len(names) + 2} positional arguments")
-    for name, value in zip(names, args, strict=False):
-        if kwargs.get(name) is not None:
-            raise TypeError(f"refine_view_poses() got multiple values for argument {name!r}")
-        kwargs[name] = value
-    arrays = [kwargs.pop(k, None) for k in ("origins", "directions", "sigmas", "view_index")]
-    unknown = sorted(set(kwargs) - {"views_R", "views_t"})
-    if unknown:
-        raise TypeError(f"refine_view_poses() got an unexpected keyword argument {unknown[0]!r}")
-    return as_rays(rays, *arrays), kwargs.get("views_R"), kwargs.get("views_t")
-
-
-def _check_extrinsics(
-    views_R: object, views_t: object, rays: RayObservations, gauge: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """The given extrinsics (P, 3, 3), (P, 3) checked against the rays' view indices."""
-    Rv = as_array("views_R", views_R, (None, 3, 3))
-    P = len(Rv)
-    tv = as_array("views_t", views_t, (P, 3))
-    for x in range(P):
-        check_rotation(f"views_R[{x}]", Rv[x], tol=1e-4)
-    if P < 2:
-        raise ValueError(f"views_R: at least 2 views are needed to refine a relative pose, got {P}")
-    vi = rays.view_index
-    if vi.min() < 0 or vi.max() >= P:
-        raise ValueError(f"view_index: values must be in [0, {P}) (got {vi.min()}..{vi.max()})")
-    if not 0 <= gauge < P:
-        raise ValueError(f"gauge: must be in [0, {P}), got {gauge!r}")
-    return Rv, tv
-
-
-def refine_view_poses(
-    model: ShapeModel,
-    rays: RayObservations | object = None,
-    *args: object,
-    views_R: object | None = None,
-    views_t: object | None = None,
-    gauge: int = 0,
-    eps: float = DEFAULT_EPS,
-    prior_weight: float = 1.0,
-    max_refine_iter: int = DEFAULT_MAX_REFINE_ITER,
-    **legacy: object,
-) -> RefinedPosesResult:
-    """Refine inaccurate view extrinsics jointly with the shape (calibration refinement).
-
-    Call forms: ``refine_view_poses(model, rays, views_R, views_t)`` with a
-    :class:`RayObservations` in the world frame whose ``view_index`` says each ray's view, or
-    the array form ``refine_view_poses(model, vertex_ids, origins, directions, view_index,
-    views_R, views_t, sigmas=None)``.
-
-    The rays were formed with the given extrinsics; they are taken back into each view's
-    camera frame with those same extrinsics (which recovers the measured camera-frame rays
-    exactly), the known-pose solution (:func:`gsft.solve_gsft` on the world rays) gives the
-    starting shape and object pose, and a joint Levenberg-Marquardt refines the shape weights,
-    the object pose and the pose of every view relative to the ``gauge`` view, whose
-    extrinsics (and hence the world frame) are kept. Intended for ``[registration] poses =
-    "refine"`` in a case file: pass the case's rays and the calibration's extrinsics; write
-    back ``view_rotations``/``view_translations`` and report ``rotation_corrections_deg`` and
-    ``centre_corrections_mm``.
-
-    Parameters
-    ----------
-    model : ShapeModel
-        The shape model (object frame, mm).
-    rays : RayObservations or (K,) int array
-        Rays in the world frame (mm), as formed with the given extrinsics, their view index in
-        ``[0, P)`` (every view needs at least 3 observations) and optional sigmas (mm; when
-        omitted a common sigma is estimated from the residuals, see :func:`gsft.solve_gsft`).
-        Array form: the vertex ids, followed by ``origins``, ``directions`` (K, 3) and
-        ``view_index`` (K,) (positionally or by keyword), ``views_R``, ``views_t`` and
-        ``sigmas``.
-    views_R, views_t : arrays (P, 3, 3), (P, 3)
-        Given world-to-camera extrinsics (``X_cam = R X + t``, mm).
-    gauge : int
-        The view whose extrinsics are trusted (default 0).
-    eps : float
-        Trace weight of the initial known-pose SDP.
-    prior_weight : float
-        ``lambda`` of the shape prior in the refinement.
-    max_refine_iter : int
-        Iteration limit of each refinement run (default ``DEFAULT_MAX_REFINE_ITER``, 50; old
-        spelling ``max_polish_iter``, deprecated).
-
-    Returns
-    -------
-    RefinedPosesResult
-
-    Raises
-    ------
-    ValueError
-        Bad input (the message names the argument).
-    SolverFailure
-        The initial SDP failed or the result is not finite.
-    """
-    t_start = time.perf_counter()
-    deprecated = {k: legacy.pop(k) for k in list(legacy) if k == "max_polish_iter"}
-    max_refine_iter = renamed_options("refine_view_poses", deprecated).get(
-        "max_refine_iter", max_refine_iter
-    )
-    check_model(model)
-    rays, views_R, views_t = _refine_pose_args(
-        rays, args, {**legacy, "views_R": views_R, "views_t": views_t}
-    )
-    check_options(eps, prior_weight, 0.0)
-    check_rays(model, rays)
-    Rv, tv = _check_extrinsics(views_R, views_t, rays, gauge)
-
-    t0 = time.perf_counter()
-    init = solve_gsft(model, rays, eps=eps, prior_weight=prior_weight)
-    t_init = time.perf_counter() - t0
-
-    # every view's observations in its own camera frame (the measured rays)
-    views = [
-        _check_view(
-            model,
-            x,
-            UnknownPoseView(rays.in_view(x).transformed(Rv[x], tv[x]), name=f"view_index {x}"),
-        )[0].rays
-        for x in range(len(Rv))
-    ]
-    # starting object pose in every view frame: the known-pose solution through the extrinsics
-    start = (np.einsum("xij,jk->xik", Rv, init.rotation), Rv @ init.translation + tv, init.weights)
-    t0 = time.perf_counter()
-    fit = _refine(model, views, [start], prior_weight, max_refine_iter)[0]
-    t_refine = time.perf_counter() - t0
-    timings = {"initial": t_init, "refine": t_refine}
-    return _refined_result(model, rays, views, init, fit, Rv, tv, gauge, timings, t_start)
-
-
-def _refined_result(
-    model: ShapeModel,
-    rays: RayObservations,
-    views: list[RayObservations],
-    init: GsftResult,
-    fit: _JointFit,
-    Rv: np.ndarray,
-    tv: np.ndarray,
-    gauge: int,
-    timings: dict,
-    t_start: float,
-) -> RefinedPosesResult:
-    """New extrinsics: world -> gauge camera (kept) -> view x through the refined relative
-    pose; the corrections and residuals."""
-    Rs, ts, w = fit.state
-    Rg, tg = Rv[gauge], tv[gauge]
-    new_R, new_t = np.empty_like(Rv), np.empty_like(tv)
-    for x in range(len(Rv)):
-        Rr, tr_ = relative_pose(Rs[gauge], ts[gauge], Rs[x], ts[x])
-        new_R[x] = Rr @ Rg
-        new_t[x] = Rr @ tg + tr_
-    R_obj = Rg.T @ Rs[gauge]
-    t_obj = Rg.T @ (ts[gauge] - tg)
-    vertices = model.instance(w) @ R_obj.T + t_obj
-    if not all(np.all(np.isfinite(a)) for a in (new_R, new_t, vertices)):
-        raise SolverFailure("refine_view_poses: the solution contains non-finite values")
-    centres_old = -np.einsum("xji,xj->xi", Rv, tv)
-    centres_new = -np.einsum("xji,xj->xi", new_R, new_t)
-    # residuals with the refined extrinsics, in the world-ray order of the input
-    res_after = np.empty(len(rays))
-    for x, dist in enumerate(_distances(model, views, fit.state)):
-        res_after[rays.view_index == x] = dist
-    return RefinedPosesResult(
-        view_rotations=new_R,
-        view_translations=new_t,
-        view_centres=centres_new,
-        rotation_corrections_deg=np.array(
-            [np.degrees(rotation_angle(new_R[x], Rv[x])) for x in range(len(Rv))]
-        ),
-        centre_corrections_mm=np.linalg.norm(centres_new - centres_old, axis=1),
-        translation_corrections=new_t - tv,
-        vertices=vertices,
-        weights=w,
-        rotation=R_obj,
-        translation=t_obj,
-        residuals_before=init.residuals,
-        residuals=res_after,
-        initial=init,
-        refine_iterations=fit.iterations,
         refine_converged=fit.converged,
         timings={**timings, "total": time.perf_counter() - t_start},
     )

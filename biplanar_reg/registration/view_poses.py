@@ -6,7 +6,7 @@ view's pose relative to the first view, so that the result's world frame is the 
 camera frame. Both run in two steps:
 
 1. a start for the views from the landmarks, when they suffice for the pose parameters and
-   the modes (:func:`.unknown_poses.refine_view_poses`, G-SfT-P
+   the modes (:func:`.calibration_refine.refine_view_poses`, G-SfT-P
    :func:`.unknown_poses.solve_gsft_unknown_poses`); otherwise from what they can fix: the
    given calibrations (``refine``) or G-SfT-P on the rigid mean shape (``unknown``, 3
    landmarks per view), whose mirror-ambiguous candidates the outline fit arbitrates, plus

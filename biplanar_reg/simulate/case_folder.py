@@ -93,10 +93,36 @@ def _calibration_file(index: int, name: str) -> tuple[str, str]:
     return (f"{name}.txt", "mayacam2") if index == 0 else (f"{name}.json", "json")
 
 
-def synthetic_landmarks(model: ShapeModel, distal_sign: float = 1.0) -> dict[str, int]:
+#: Anatomical names of :func:`synthetic_landmarks`' vertices on a forearm bone in the frame of
+#: the shipped wrist CT (distal = low z, +x dorsal, +y ulnar; docs/sample_cases.md defines each
+#: and says in which views it is an outline point). The distal tip is named per bone.
+FOREARM_NAMES = {
+    "proximal_tip": "proximal_end",
+    "distal_x_max": "distal_dorsal_margin",
+    "distal_x_min": "distal_volar_margin",
+    "distal_y_max": "distal_ulnar_margin",
+    "distal_y_min": "distal_radial_margin",
+    "proximal_x_max": "shaft_dorsal_margin",
+    "proximal_x_min": "shaft_volar_margin",
+    "proximal_y_max": "shaft_ulnar_margin",
+    "proximal_y_min": "shaft_radial_margin",
+}
+#: The name of the distal tip per ``bone`` of :func:`synthetic_landmarks`.
+DISTAL_TIPS = {"radius": "radial_styloid_tip", "ulna": "ulnar_styloid_tip", "bone": "distal_tip"}
+
+
+def synthetic_landmarks(
+    model: ShapeModel, distal_sign: float = 1.0, *, bone: str | None = None
+) -> dict[str, int]:
     """Eight well-spread landmark vertices: the tips and the extremes across the shaft at two
     heights (mean shape, object frame). The long axis is z; ``distal_sign = -1`` when the
-    distal end is at low z (e.g. the radius CT)."""
+    distal end is at low z (e.g. the radius CT).
+
+    ``bone`` None names them by the axes (``distal_tip``, ``distal_x_max``, ...); ``"radius"``,
+    ``"ulna"`` or ``"bone"`` (a synthetic bone) by anatomy (:data:`FOREARM_NAMES`, +x dorsal,
+    +y ulnar; the distal tip :data:`DISTAL_TIPS`), the same vertices in the same order."""
+    if bone is not None and bone not in DISTAL_TIPS:
+        raise ValueError(f"bone: expected one of {sorted(DISTAL_TIPS)} or None, got {bone!r}")
     V = model.mean
     z = distal_sign * V[:, 2]
     out = {"distal_tip": int(np.argmax(z)), "proximal_tip": int(np.argmin(z))}
@@ -106,7 +132,10 @@ def synthetic_landmarks(model: ShapeModel, distal_sign: float = 1.0) -> dict[str
             out[f"{level}_{label}_max"] = int(band[np.argmax(V[band, axis])])
             out[f"{level}_{label}_min"] = int(band[np.argmin(V[band, axis])])
     picked = list(out.items())[:8]
-    return dict(picked)
+    if bone is None:
+        return dict(picked)
+    names = {**FOREARM_NAMES, "distal_tip": DISTAL_TIPS[bone]}
+    return {names[k]: i for k, i in picked}
 
 
 def write_synthetic_case(

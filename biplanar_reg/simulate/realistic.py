@@ -289,14 +289,20 @@ def _cylinder_lengths(
 
 
 def model_off_the_cut(
-    template: np.ndarray, shapes: np.ndarray, faces: np.ndarray, n_modes: int
+    template: np.ndarray,
+    shapes: np.ndarray,
+    faces: np.ndarray,
+    n_modes: int,
+    bone: str = "radius",
 ) -> tuple[ShapeModel, np.ndarray]:
     """The SSM of ``shapes`` (``n_modes`` modes) with synthetic landmarks off the CT crop's cut,
     and the cut mask (``template``'s vertices within 4 mm of its top along z, mm): no landmark
-    on the cut, whose centre ("proximal_tip") is nowhere in a radiograph."""
+    on the cut, whose centre ("proximal_end") is nowhere in a radiograph. The landmarks have
+    the anatomical names of ``bone`` (``"radius"`` or ``"ulna"``,
+    :func:`~.case_folder.synthetic_landmarks`)."""
     model = build_ssm(shapes, faces=faces, n_modes=n_modes)
     cut = template[:, 2] > template[:, 2].max() - 4.0
-    marks = synthetic_landmarks(model, distal_sign=-1.0)
+    marks = synthetic_landmarks(model, distal_sign=-1.0, bone=bone)
     model = ShapeModel(
         model.mean,
         model.modes,

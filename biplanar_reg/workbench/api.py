@@ -254,15 +254,19 @@ class _Handlers:
 
     async def pose_aid_action(self, request: Request) -> Response:
         action = request.path_params["action"]
-        body = await _body(request) if action == "nudge" else {}
+        body = await _body(request) if action in ("nudge", "set") else {}
         if action == "nudge":
             args = (body.get("view"), body.get("translate_px"), body.get("rotate_deg"))
-            return JSONResponse(await _call(self.aid.nudge, *args))
-        if action == "reset":
-            return JSONResponse(await _call(self.aid.reset))
-        if action == "start":
-            return JSONResponse(await _call(self.aid.save_start))
-        raise ApiError(404, f"{request.url.path}: no such pose-aid action (nudge, reset, start)")
+            return JSONResponse(await _call(self.aid.nudge, *args, body.get("preview", False)))
+        if action == "set":
+            args = (body.get("centre_mm"), body.get("angles_deg"))
+            return JSONResponse(await _call(self.aid.set_fields, *args))
+        simple = {"reset": self.aid.reset, "undo": self.aid.undo, "start": self.aid.save_start}
+        if action in simple:
+            return JSONResponse(await _call(simple[action]))
+        raise ApiError(
+            404, f"{request.url.path}: no such pose-aid action (nudge, set, reset, undo, start)"
+        )
 
     async def propose_outline(self, request: Request) -> Response:
         body = await _body(request)

@@ -1,12 +1,13 @@
 """The pose aid: the model's mean shape posed by the clicked landmarks, drawn over each view.
 
-Pure functions on numpy arrays (the session keeps the state): the mean shape of a case's
-model (:func:`mean_shape`), the rigid pose that the landmark clicks fix (:func:`landmark_pose`,
-a G-SfT solve of the mean shape without modes, as the registration's rigid mean-shape start),
-the posed outline and landmarks in each view (:func:`posed_overlay`), the in-view nudges
-(:func:`nudge_translate`, :func:`nudge_rotate`), the "propose outline" contour (the posed
-outline snapped to the image's edges by livewire between points taken along it,
-:func:`propose_outline`) and the start-pose file (:func:`write_start`).
+Pure functions on numpy arrays: the mean shape of a case's model (:func:`mean_shape`), the
+rigid pose that the landmark clicks fix (:func:`landmark_pose`, a G-SfT solve of the mean shape
+without modes, as the registration's rigid mean-shape start) or why they fix none
+(:func:`pose_ready`), the posed outline, landmarks and nudge axes in each view
+(:func:`posed_overlay`), and the start-pose file (:func:`write_start`, :func:`read_start`).
+:class:`PoseAid` keeps an open case's pose: the landmark pose, the user's nudges and typed
+fields (:mod:`.pose_nudge`), their undo steps, and "propose outline"
+(:mod:`.posed_outline`).
 
 Frames: model coordinates in mm (the case's units scaled to mm), world = the calibration's
 frame, mm; a pose ``(R, t)`` maps model to world, ``X = R @ x + t``. Pixels ``(u, v)`` as in
@@ -27,14 +28,22 @@ from typing import Any
 
 import numpy as np
 
-from ..annotation import livewire
-from ..calibration import View
+from .._validate import check_rotation
 from ..cases import CaseSetup
 from ..cases.case import UNIT_SCALE, CaseView
-from ..io import atomic_write_json, atomic_write_text, read_mesh
-from ..outline import outline_polylines
-from ..registration import solve_gsft
+from ..io import atomic_write_json, atomic_write_text, read_json, read_mesh
+from ..outline import cut_vertices
+from ..registration import RayObservations, solve_gsft
 from ..ssm import ShapeModel
+from .pose_nudge import (
+    axes_overlay,
+    euler_xyz,
+    nudge_frame,
+    nudge_rotate,
+    nudge_translate,
+    pose_from_fields,
+)
+from .posed_outline import outline_pieces, propose_pieces
 from .session import Conflict, NotFound, check_point, check_positive
 
 __all__ = [
@@ -44,10 +53,8 @@ __all__ = [
     "pose_ready",
     "landmark_pose",
     "posed_overlay",
-    "nudge_translate",
-    "nudge_rotate",
-    "propose_outline",
     "write_start",
+    "read_start",
     "PoseAid",
 ]
 
@@ -97,14 +104,23 @@ def landmark_observations(
     return np.array(ids, np.int64), np.vstack(origins), np.vstack(dirs), names
 
 
-def pose_ready(view_names: Sequence[str]) -> str | None:
-    """None when these observations (one view name each) fix a pose, else why not."""
-    n, k = len(view_names), len(set(view_names))
-    if n >= MIN_OBSERVATIONS and k >= 2:
+def pose_ready(ids: Sequence[int], view_names: Sequence[str]) -> str | None:
+    """None when these landmark observations (model vertex ids, one view name each) fix a
+    rigid pose, else the reason, in the user's terms: the one place that says why the pose aid
+    is not drawn (the rules of the registration's rigid start, ``check_rays``)."""
+    n, k, distinct = len(view_names), len(set(view_names)), len(set(map(int, ids)))
+    if n >= MIN_OBSERVATIONS and k >= 2 and distinct >= 3:
         return None
+    needs = []
+    if n < MIN_OBSERVATIONS:
+        needs.append(f"{MIN_OBSERVATIONS} landmark clicks")
+    if k < 2:
+        needs.append("clicks in at least 2 views")
+    if distinct < 3:
+        needs.append("3 distinct landmarks (fewer than 3 distinct model points fix no pose)")
     return (
-        f"{n} landmark click(s) in {k} view(s); the pose aid needs {MIN_OBSERVATIONS} over at "
-        "least 2 views"
+        f"{n} landmark click(s) of {distinct} distinct landmark(s) in {k} view(s); the pose "
+        f"aid needs {' and '.join(needs)}"
     )
 
 
@@ -118,7 +134,7 @@ def landmark_pose(
     """The rigid pose ``(R (3, 3), t (3,) mm)`` of the mean shape that the landmark rays fix:
     G-SfT with no modes (the registration's rigid mean-shape start, equal weights)."""
     rigid = ShapeModel(mean, np.zeros((0, mean.shape[0], 3)), faces=faces)
-    res = solve_gsft(rigid, ids, origins, directions)
+    res = solve_gsft(rigid, RayObservations(ids, origins, directions))
     return np.asarray(res.rotation, float), np.asarray(res.translation, float)
 
 
@@ -129,116 +145,37 @@ def posed_overlay(
     t: np.ndarray,
     views: Sequence[CaseView],
     landmarks: Mapping[str, int],
+    cut: np.ndarray | None = None,
 ) -> dict[str, dict[str, Any]]:
     """What the page draws per view: ``{view: {"outline_px", "outline_closed",
-    "landmarks_px", "centre_px"}}`` of the mean shape posed by ``(R, t)`` (pixels; the
-    centre is the posed vertices' mean, about which nudges turn; outlines by
-    :func:`biplanar_reg.outline.outline_polylines`, longest first)."""
+    "landmarks_px", "centre_px", "axes", "camera"}}`` of the mean shape posed by ``(R, t)``
+    (pixels; ``camera``: the view's ``"forward"`` and ``"up"`` unit vectors at the bone, world
+    frame, for a 3D view oriented like the radiograph).
+
+    The outline is every piece of :func:`~.posed_outline.outline_pieces` without the template's
+    cut (``cut``), longest first; the centre is the posed vertices' mean, about which nudges
+    turn; ``axes`` the nudge axes of every view drawn in this one (:func:`axes_overlay`, a
+    quarter of the bone's largest extent long).
+    """
     V = mean @ R.T + t
     names = [n for n, i in landmarks.items() if 0 <= i < len(V)]
     ids = np.array([landmarks[n] for n in names], np.int64)
     out = {}
     centre = V.mean(axis=0)
+    axes = axes_overlay(centre, views, 0.25 * float(np.ptp(V, axis=0).max()))
     for cv in views:
-        lines, closed = outline_polylines(V, cv.view, faces)
+        _, ev, k = nudge_frame(cv.view, centre)
+        lines, closed = outline_pieces(V, faces, cv.view, cut, min_length_px=0.0)
         uv = cv.view.project(V[ids]) if len(ids) else np.zeros((0, 2))
         out[cv.name] = {
             "centre_px": np.round(cv.view.project(centre[None])[0], 2).tolist(),
             "outline_px": [np.round(line, 2).tolist() for line in lines],
             "outline_closed": [bool(c) for c in closed],
             "landmarks_px": {n: np.round(p, 2).tolist() for n, p in zip(names, uv, strict=True)},
+            "axes": axes[cv.name],
+            "camera": {"forward": np.round(k, 9).tolist(), "up": np.round(-ev, 9).tolist()},
         }
     return out
-
-
-def _centre(mean: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    return mean.mean(axis=0) @ R.T + t
-
-
-def nudge_translate(
-    mean: np.ndarray, R: np.ndarray, t: np.ndarray, view: View, d_uv: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Move the posed bone parallel to ``view``'s detector so that its centre's projection
-    moves by ``d_uv`` pixels (its distance from the source kept). Returns the new ``(R, t)``."""
-    c = _centre(mean, R, t)
-    uv = view.project(c[None])[0] + np.asarray(d_uv, float)
-    o, d = view.rays(uv[None])
-    o, d = o[0], d[0]
-    # the point of the new ray at the centre's depth along that ray's direction
-    o_c, d_c = view.rays(view.project(c[None]))
-    depth = float(np.dot(c - o_c[0], d_c[0]))
-    return R, t + (o + depth * d - c)
-
-
-def nudge_rotate(
-    mean: np.ndarray, R: np.ndarray, t: np.ndarray, view: View, degrees: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Turn the posed bone about ``view``'s ray through its centre by ``degrees`` (positive:
-    clockwise on the screen, v pointing down). Returns the new ``(R, t)``."""
-    c = _centre(mean, R, t)
-    _, d = view.rays(view.project(c[None]))
-    k = d[0] / np.linalg.norm(d[0])
-    a = math.radians(degrees)
-    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    dR = np.eye(3) + math.sin(a) * Kx + (1 - math.cos(a)) * Kx @ Kx
-    return dR @ R, dR @ (t - c) + c
-
-
-def _resample_closed(line: np.ndarray, closed: bool, spacing: float) -> np.ndarray:
-    """Points every ``spacing`` px along a polyline (arc length), the first included."""
-    pts = np.vstack([line, line[:1]]) if closed else line
-    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    total = s[-1]
-    n = max(int(total // spacing), 3 if closed else 2)
-    at = np.linspace(0.0, total, n, endpoint=not closed)
-    return np.column_stack([np.interp(at, s, pts[:, 0]), np.interp(at, s, pts[:, 1])])
-
-
-def propose_outline(
-    image: Any,
-    outline_px: np.ndarray,
-    closed: bool,
-    size: tuple[int, int],
-    *,
-    spacing_px: float = 40.0,
-    cost: np.ndarray | None = None,
-    sigma_px: float = 1.5,
-) -> tuple[np.ndarray, np.ndarray, bool]:
-    """The projected outline snapped to the image's edges.
-
-    Anchors are taken every ``spacing_px`` along ``outline_px`` (the part inside the ``(W, H)``
-    image: the longest run inside it when the outline leaves it) and joined by
-    :func:`biplanar_reg.annotation.livewire`. Returns ``(contour uv, anchors, closed)``,
-    pixels. Raises ``ValueError`` when too little of the outline is inside the image.
-    """
-    line = np.asarray(outline_px, float)
-    w, h = size
-    inside = (line[:, 0] >= 0) & (line[:, 0] <= w - 1) & (line[:, 1] >= 0) & (line[:, 1] <= h - 1)
-    if not inside.all():
-        closed = False
-        line = _longest_run(line, inside)
-    if len(line) < 2 or np.linalg.norm(np.diff(line, axis=0), axis=1).sum() < 2 * spacing_px:
-        raise ValueError("view: the posed outline is (almost) outside the image")
-    anchors = _resample_closed(line, closed, spacing_px)
-    uv = livewire(image, anchors, closed, sigma_px=sigma_px, cost=cost)
-    return uv, anchors, closed
-
-
-def _longest_run(line: np.ndarray, keep: np.ndarray) -> np.ndarray:
-    """The longest run of consecutive kept points (a closed line is rolled to start outside)."""
-    if not keep.any():
-        return line[:0]
-    start = int(np.argmin(keep))  # an outside point first, so no run wraps around
-    line, keep = np.roll(line, -start, axis=0), np.roll(keep, -start)
-    best, cur = (0, 0), None
-    for i, k in enumerate([*keep, False]):
-        if k and cur is None:
-            cur = i
-        elif not k and cur is not None:
-            best = max(best, (cur, i), key=lambda r: r[1] - r[0])
-            cur = None
-    return line[best[0] : best[1]]
 
 
 _REGISTRATION = re.compile(r"^\s*\[registration\]\s*(#.*)?$")
@@ -286,6 +223,28 @@ def write_start(
     return path
 
 
+def read_start(case_dir: str | os.PathLike, units: str = "mm") -> tuple[np.ndarray, np.ndarray]:
+    """The case's saved start pose ``(R, t mm)`` (``[registration] start`` of ``case.toml``).
+
+    Raises ``FileNotFoundError`` when the case has none, ``ValueError`` (naming the key) when
+    it cannot be read: the loader refuses that case as well (``docs/cases.md``)."""
+    case_dir = Path(case_dir).resolve()
+    doc = tomllib.loads((case_dir / "case.toml").read_text(encoding="utf-8"))
+    reg = doc.get("registration")
+    name = reg.get("start") if isinstance(reg, dict) else None
+    if name is None:
+        raise FileNotFoundError("case.toml: no [registration] start")
+    path = (case_dir / str(name)).resolve()
+    if not path.is_relative_to(case_dir):
+        raise ValueError(f"[registration] start: {name!r} is outside the case folder")
+    start = read_json(path)
+    if not isinstance(start, dict):
+        raise ValueError(f'[registration] start: {name}: expected {{"R": [[3x3]], "t": [3]}}')
+    R = check_rotation("R", np.asarray(start.get("R"), float), tol=1e-4)
+    t = np.asarray(start.get("t"), float).reshape(3) * UNIT_SCALE[units]
+    return R, t
+
+
 def _clicks(doc: Mapping[str, Any]) -> dict[str, dict[str, list[float]]]:
     """``{view: {landmark: [u, v]}}`` of an annotation document."""
     return {
@@ -299,12 +258,31 @@ def _key(clicks: Mapping[str, Mapping[str, Any]], landmarks: Mapping[str, int]) 
     return tuple(flat), tuple(sorted(landmarks.items()))
 
 
-class PoseAid:
-    """The pose aid of an open workbench: the landmark pose, the user's nudges, the drawing.
+def _finite(x: object) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
-    The pose follows the landmark clicks: each change of the clicks (or of the model's
-    landmarks) recomputes it and drops the nudges made on the previous one; nudges move the
-    current pose until then (:meth:`reset` drops them).
+
+def _vector3(x: object, field: str, limit: float) -> np.ndarray:
+    """Three finite numbers within +-``limit`` (a pose field), else ``ValueError`` naming it."""
+    ok = isinstance(x, list) and len(x) == 3 and all(_finite(v) for v in x)
+    if not ok or max(abs(float(v)) for v in x) > limit:
+        raise ValueError(f"{field}: expected 3 numbers within +-{limit:g}, got {x!r}")
+    return np.asarray(x, float)
+
+
+#: Pose steps kept for undo.
+UNDO_STEPS = 100
+
+
+class PoseAid:
+    """The pose aid of an open workbench: the pose, its undo steps, the drawing.
+
+    The pose is the landmark pose (solved from the clicks, and solved again when they change)
+    until the user moves it: a nudge, typed fields or the saved start pose (read when the case
+    is opened) make it the user's pose, which then stays as it is through landmark edits
+    (``"landmarks_changed"`` says when the clicks changed since); "From landmarks"
+    (:meth:`reset`) goes back to the landmark pose. Every change can be undone
+    (:meth:`undo`, ``UNDO_STEPS`` steps).
 
     Parameters
     ----------
@@ -315,14 +293,32 @@ class PoseAid:
     def __init__(self, wb: Any):
         self.wb = wb
         self._lock = threading.Lock()
-        self._mean: tuple[np.ndarray, np.ndarray | None] | None = None
+        self._mean: tuple[np.ndarray, np.ndarray | None, np.ndarray | None] | None = None
         self._pose: tuple[tuple, np.ndarray, np.ndarray] | None = None  # key, R, t (landmarks)
-        self._nudged: tuple[tuple, np.ndarray, np.ndarray] | None = None  # key, R, t
+        # the user's pose: {"R", "t", "source": nudged|typed|start, "key": the clicks then}
+        self._user: dict[str, Any] | None = None
+        self._undo: list[dict[str, Any] | None] = []
+        self._saved: tuple[np.ndarray, np.ndarray] | None = None
+        self._start_note = ""
+        try:
+            R, t = read_start(wb.case_dir, wb.setup.units)
+            self._user = {"R": R, "t": t, "source": "start", "key": None}
+            self._saved = (R, t)
+        except FileNotFoundError:
+            pass
+        except (ValueError, OSError, tomllib.TOMLDecodeError) as exc:
+            self._start_note = f"the saved start pose is not used: {exc}"
 
     def mean(self) -> tuple[np.ndarray, np.ndarray | None]:
         """The model's mean shape (mm) and faces, read once."""
+        return self._model()[:2]
+
+    def _model(self) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """Mean (mm), faces and the template's cut (:func:`cut_vertices`), computed once."""
         if self._mean is None:
-            self._mean = mean_shape(self.wb.setup)
+            mean, faces = mean_shape(self.wb.setup)
+            cut = None if faces is None else cut_vertices(mean, faces)
+            self._mean = (mean, faces, cut)
         return self._mean
 
     def _landmark_pose(self) -> tuple[tuple, np.ndarray, np.ndarray] | str:
@@ -333,40 +329,60 @@ class PoseAid:
         if self._pose is not None and self._pose[0] == key:
             return self._pose
         ids, origins, dirs, names = landmark_observations(self.wb.setup.views, clicks, landmarks)
-        why = pose_ready(names)
+        why = pose_ready(ids, names)
         if why is not None:
             return why
         mean, faces = self.mean()
-        R, t = landmark_pose(mean, faces, ids, origins, dirs)
+        try:
+            R, t = landmark_pose(mean, faces, ids, origins, dirs)
+        except ValueError as exc:  # e.g. every ray parallel: the solver's own reason
+            return f"the landmark clicks fix no pose: {exc}"
         self._pose = (key, R, t)
         return self._pose
 
-    def _current(self) -> tuple[np.ndarray, np.ndarray, str] | str:
+    def _current(self) -> tuple[np.ndarray, np.ndarray, str, bool] | str:
+        """``(R, t, source, landmarks changed since)`` or the reason there is no pose."""
         base = self._landmark_pose()
+        if self._user is not None:
+            u = self._user
+            changed = u["key"] is not None and not isinstance(base, str) and base[0] != u["key"]
+            return u["R"], u["t"], u["source"], changed
         if isinstance(base, str):
-            return base
-        if self._nudged is not None and self._nudged[0] == base[0]:
-            return self._nudged[1], self._nudged[2], "nudged"
-        self._nudged = None
-        return base[1], base[2], "landmarks"
+            return base + (f" ({self._start_note})" if self._start_note else "")
+        return base[1], base[2], "landmarks", False
 
     def document(self) -> dict[str, Any]:
-        """``GET /api/pose-aid``: ``{"ready", "reason"?, "source": "landmarks"|"nudged", "R",
-        "t" (mm), "views": {view: {"outline_px", "outline_closed", "landmarks_px"}},
-        "seconds"}`` (``seconds``: the server's time for this answer)."""
+        """``GET /api/pose-aid``: ``{"ready": false, "reason"}`` or ``{"ready": true, "source":
+        "landmarks"|"nudged"|"typed"|"start", "landmarks_changed", "saved", "undo", "R", "t"
+        (mm), "centre_mm", "angles_deg" (:func:`~.pose_nudge.euler_xyz`), "views": {view:
+        ...}}`` (:func:`posed_overlay`), with ``"seconds"``, the server's time for it."""
         t0 = time.perf_counter()
         with self._lock:
             cur = self._current()
             if isinstance(cur, str):
-                return {"ready": False, "reason": cur, "seconds": time.perf_counter() - t0}
-            R, t, source = cur
-            mean, faces = self.mean()
-            views = posed_overlay(mean, faces, R, t, self.wb.setup.views, self.wb.landmarks)
+                return {"ready": False, "reason": cur, "undo": len(self._undo),
+                        "seconds": time.perf_counter() - t0}  # fmt: skip
+            return self._posed_document(*cur, t0)
+
+    def _posed_document(
+        self, R: np.ndarray, t: np.ndarray, source: str, changed: bool, t0: float
+    ) -> dict[str, Any]:
+        """The document of the pose ``(R, t)`` (the lock held)."""
+        mean, faces, cut = self._model()
+        views = posed_overlay(mean, faces, R, t, self.wb.setup.views, self.wb.landmarks, cut)
+        saved = self._saved is not None and all(
+            np.allclose(a, b, atol=1e-9) for a, b in zip(self._saved, (R, t), strict=True)
+        )
         return {
             "ready": True,
             "source": source,
+            "landmarks_changed": changed,
+            "saved": saved,
+            "undo": len(self._undo),
             "R": np.round(R, 9).tolist(),
             "t": np.round(t, 6).tolist(),
+            "centre_mm": np.round(mean.mean(axis=0) @ R.T + t, 3).tolist(),
+            "angles_deg": np.round(euler_xyz(R), 3).tolist(),
             "views": views,
             "seconds": time.perf_counter() - t0,
         }
@@ -377,9 +393,19 @@ class PoseAid:
             raise Conflict(f"pose aid: no pose yet ({cur})")
         return cur[0], cur[1]
 
-    def nudge(self, view: object, translate_px: object, rotate_deg: object) -> dict[str, Any]:
-        """Move the current pose in ``view``'s plane: ``translate_px`` ``[du, dv]`` pixels and/or
-        ``rotate_deg`` degrees (clockwise on the screen) about the bone's centre."""
+    def _set_user(self, R: np.ndarray, t: np.ndarray, source: str) -> None:
+        """Make ``(R, t)`` the user's pose, the previous one kept as an undo step."""
+        base = self._pose[0] if self._pose is not None else None
+        self._undo = [*self._undo, self._user][-UNDO_STEPS:]
+        self._user = {"R": R, "t": t, "source": source, "key": base}
+
+    def nudge(
+        self, view: object, translate_px: object, rotate_deg: object, preview: object = False
+    ) -> dict[str, Any]:
+        """Move the pose in ``view``'s plane (:mod:`.pose_nudge`): ``translate_px`` ``[du, dv]``
+        pixels and/or ``rotate_deg`` degrees (clockwise on the screen) about the bone's
+        centre. ``preview``: answer the document of the moved pose without keeping it (the
+        page draws a drag's pose in every view while it lasts)."""
         cv = self._case_view(view)
         d_uv = None if translate_px is None else check_point(translate_px, "translate_px", None)
         angle = None
@@ -396,13 +422,37 @@ class PoseAid:
                 R, t = nudge_translate(mean, R, t, cv.view, d_uv)
             if angle is not None:
                 R, t = nudge_rotate(mean, R, t, cv.view, angle)
-            self._nudged = (self._pose[0], R, t)
+            if preview is True:
+                return self._posed_document(R, t, "preview", False, time.perf_counter())
+            self._set_user(R, t, "nudged")
+        return self.document()
+
+    def set_fields(self, centre_mm: object, angles_deg: object) -> dict[str, Any]:
+        """``POST /api/pose-aid/set``: the pose whose bone centre is ``centre_mm`` (world, mm)
+        and whose rotation is ``angles_deg`` (x, y, z about the world axes,
+        :func:`~.pose_nudge.rotation_xyz`)."""
+        c = _vector3(centre_mm, "centre_mm", 1e6)
+        a = _vector3(angles_deg, "angles_deg", 360.0)
+        with self._lock:
+            self._need()
+            R, t = pose_from_fields(self.mean()[0], c, a)
+            self._set_user(R, t, "typed")
         return self.document()
 
     def reset(self) -> dict[str, Any]:
-        """Drop the nudges: back to the landmark pose."""
+        """Back to the landmark pose (an undo step)."""
         with self._lock:
-            self._nudged = None
+            if self._user is not None:
+                self._undo = [*self._undo, self._user][-UNDO_STEPS:]
+                self._user = None
+        return self.document()
+
+    def undo(self) -> dict[str, Any]:
+        """Undo the last pose change (409 when there is none)."""
+        with self._lock:
+            if not self._undo:
+                raise Conflict("pose aid: nothing to undo")
+            self._user = self._undo.pop()
         return self.document()
 
     def save_start(self) -> dict[str, Any]:
@@ -410,6 +460,7 @@ class PoseAid:
         with self._lock:
             R, t = self._need()
             path = write_start(self.wb.case_dir, R, t, self.wb.setup.units)
+            self._saved = (R, t)
         return {"file": path.name, "R": R.tolist(), "t": t.tolist()}
 
     def _case_view(self, view: object) -> CaseView:
@@ -419,9 +470,11 @@ class PoseAid:
         raise NotFound(f"view: unknown view {view!r} (views: {', '.join(self.wb.views)})")
 
     def propose(self, view: str, spacing_px: object) -> dict[str, Any]:
-        """``POST /api/views/{view}/propose-outline``: the longest posed outline of ``view``
-        snapped to its edges, ``{"uv", "anchors", "closed", "seconds"}`` (not saved: the
-        page offers it to accept, as a contour through those anchors)."""
+        """``POST /api/views/{view}/propose-outline``: every piece of the posed outline of
+        ``view`` (:func:`~.posed_outline.outline_pieces`: not the template's cut, none shorter
+        than ``MIN_PIECE_PX``) snapped to the image's edges, ``{"pieces": [{"uv", "anchors",
+        "closed"}, ...], "seconds"}`` (not saved: the page offers them to accept, each as a
+        contour through its anchors)."""
         t0 = time.perf_counter()
         cv = self._case_view(view)
         v = self.wb.views[cv.name]
@@ -431,20 +484,19 @@ class PoseAid:
             raise ValueError(f"spacing_px: expected 5 to 500 pixels, got {spacing:g}")
         with self._lock:
             R, t = self._need()
-            mean, faces = self.mean()
-        lines, closed = outline_polylines(mean @ R.T + t, cv.view, faces)
+            mean, faces, cut = self._model()
+        lines, closed = outline_pieces(mean @ R.T + t, faces, cv.view, cut, v.size)
         if not lines:
-            raise Conflict(f"view {view!r}: the posed model has no outline in this view")
-        uv, anchors, is_closed = propose_outline(
-            v.image, lines[0], bool(closed[0]), v.size, spacing_px=spacing, cost=v.cost()
-        )
+            raise Conflict(f"view {view!r}: the posed model has no outline inside the image")
+        pieces = propose_pieces(v.image, lines, closed, spacing_px=spacing, cost=v.cost())
         return {
-            "uv": np.round(uv, 3).tolist(),
-            "anchors": np.round(anchors, 3).tolist(),
-            "closed": is_closed,
+            "pieces": [
+                {
+                    "uv": np.round(p["uv"], 3).tolist(),
+                    "anchors": np.round(p["anchors"], 3).tolist(),
+                    "closed": p["closed"],
+                }
+                for p in pieces
+            ],
             "seconds": time.perf_counter() - t0,
         }
-
-
-def _finite(x: object) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)

@@ -109,7 +109,7 @@ def _ulna_model(scene, seed):
     first N_TRAIN members with landmarks off the crop's cut, and the cut mask."""
     verts, faces = _ulna_template(scene)
     pop = synthesise_population(verts, N_POP, seed=seed + 1, resolution=40)
-    model, cut = model_off_the_cut(verts, pop.shapes[:N_TRAIN], faces, N_MODES)
+    model, cut = model_off_the_cut(verts, pop.shapes[:N_TRAIN], faces, N_MODES, "ulna")
     return model, pop.shapes, cut, faces
 
 

@@ -12,7 +12,7 @@ from benchmarks.baselines import (
     repeated_single_view,
     spectral_norm_prox,
 )
-from biplanar_reg.registration import solve_gsft
+from biplanar_reg.registration import RayObservations, solve_gsft
 from biplanar_reg.registration.rotations import rotation_angle
 from biplanar_reg.simulate import biplanar_views, observe, random_pose, synthetic_bone_model
 
@@ -110,7 +110,7 @@ def two_views(model):
 def test_repeated_single_view_on_one_view_equals_solve_gsft(model, two_views):
     _, per_view = two_views
     ids, o, d = per_view[0]
-    ref = solve_gsft(model, ids, o, d)
+    ref = solve_gsft(model, RayObservations(ids, o, d))
     rep = repeated_single_view(model, [per_view[0]])
     assert rep.solved == [0] and rep.skipped == []
     np.testing.assert_allclose(rep.vertices, ref.vertices, atol=1e-9)

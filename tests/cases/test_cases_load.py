@@ -39,6 +39,12 @@ def _edit_toml(case: Path, old: str, new: str) -> None:
     p.write_text(text.replace(old, new, 1))
 
 
+def _add_expert(case: Path, keys: str) -> None:
+    """Append a ``[registration.expert]`` table with ``keys`` to the case's case.toml."""
+    p = case / "case.toml"
+    p.write_text(p.read_text() + "\n[registration.expert]\n" + keys + "\n")
+
+
 def _edit_json(path: Path, fn) -> None:
     doc = json.loads(path.read_text())
     fn(doc)
@@ -90,13 +96,13 @@ def test_units_m_converts_to_mm(case):
 
 
 def test_unknown_keys_warn(case, caplog):
-    _edit_toml(
-        case, "[registration]", "colour = 'red'\n[registration]\nmax_iterations = 3\nfoo = 1"
-    )
+    _edit_toml(case, "[registration]", "colour = 'red'\n[registration]\nfoo = 1")
+    _add_expert(case, "max_iterations = 3\nbar = 2")
     with caplog.at_level(logging.WARNING):
         c = load_case(case)
     assert c.options.max_iterations == 3
     assert any("'foo'" in w for w in c.warnings) and any("'colour'" in w for w in c.warnings)
+    assert any("[registration.expert]: unknown key 'bar' ignored" in w for w in c.warnings)
 
 
 def test_allow_outside(case, tmp_path):
@@ -195,8 +201,8 @@ CORPUS = [
     ),
     (
         "bad option type",
-        lambda c: _edit_toml(c, "[registration]", "[registration]\ngate_px = 'x'"),
-        "[registration] gate_px: expected a finite float",
+        lambda c: _add_expert(c, "gate_px = 'x'"),
+        "[registration.expert] gate_px: expected a finite float",
     ),
     (
         "unsupported poses",
@@ -374,12 +380,12 @@ def test_a_typo_in_a_key_warns_with_a_suggestion(case, caplog):
         c = load_case(case)
     assert any(
         "[registration]: unknown key 'silhouete_points' ignored (did you mean "
-        "'silhouette_points'?)" in w
+        "'silhouette_points' in [registration.expert]?)" in w
         for w in c.warnings
     ), c.warnings
     assert any("'calibraton' ignored (did you mean 'calibration'?)" in w for w in c.warnings)
     assert any("'landmark' ignored (did you mean 'landmarks'?)" in w for w in c.warnings)
-    assert "did you mean 'silhouette_points'?" in caplog.text
+    assert "did you mean 'silhouette_points' in [registration.expert]?" in caplog.text
     assert c.options.silhouette_points == 150  # still a warning: the key is ignored
 
 
@@ -391,9 +397,11 @@ def test_an_unrelated_unknown_key_has_no_suggestion(case):
 
 def test_a_huge_count_option_is_a_case_error(case, capsys):
     """Reproducer: ``silhouette_points = 9223372036854775807`` was accepted."""
-    _edit_toml(case, "[registration]", "[registration]\nsilhouette_points = 9223372036854775807")
+    _add_expert(case, "silhouette_points = 9223372036854775807")
     err = _one_line_error(case, capsys)
-    assert "[registration]: silhouette_points: too large (9223372036854775807; at most" in err
+    assert (
+        "[registration.expert]: silhouette_points: too large (9223372036854775807; at most" in err
+    )
 
 
 @pytest.mark.parametrize(
@@ -414,7 +422,7 @@ def test_the_template_numbers_are_bounded(case, setting, message):
 
 
 def test_the_loader_reads_image_headers_only_and_decodes_once(case, monkeypatch):
-    import biplanar_reg.cases.case as case_module
+    import biplanar_reg.cases.case_types as case_module
 
     calls = []
     real = case_module.load_image

@@ -282,9 +282,13 @@ def test_region_file_variants_load(tmp_path):
         ({"vertices": [1.5]}, "region.json", "vertices: expected whole numbers"),
         ({"vertices": []}, "region.json", "vertices: expected a non-empty list"),
         ({"landmark": "nose", "within_mm": 5}, "region.json", "landmark: unknown landmark 'nose'"),
-        ({"landmark": "distal_tip"}, "region.json", "landmark: needs 'within_mm'"),
+        ({"landmark": "radial_styloid_tip"}, "region.json", "landmark: needs 'within_mm'"),
         ({"within_mm": 5}, "region.json", "within_mm: needs a 'landmark'"),
-        ({"landmark": "distal_tip", "within_mm": 0}, "region.json", "within_mm: expected a pos"),
+        (
+            {"landmark": "radial_styloid_tip", "within_mm": 0},
+            "region.json",
+            "within_mm: expected a pos",
+        ),
         ({"vertice": [1]}, "region.json", "vertice: unknown key (did you mean 'vertices'?)"),
         ({"exclude_cut": "yes"}, "region.json", "exclude_cut: expected true or false"),
         ({"band_mm": -1}, "region.json", "band_mm: expected a finite number >= 0"),
@@ -311,7 +315,7 @@ def test_a_region_that_selects_no_vertex_is_refused(tmp_path, capsys):
     at_cut = np.flatnonzero(~cut_region(mean, faces))  # the cut and its band only
     for doc in (
         {"vertices": at_cut.tolist()},  # ... which the default exclusion leaves out
-        {"vertices": [int(at_cut[0])], "landmark": "distal_tip", "within_mm": 1},
+        {"vertices": [int(at_cut[0])], "landmark": "radial_styloid_tip", "within_mm": 1},
     ):
         case = _case(tmp_path / str(len(doc)), doc)
         out = tmp_path / "out"
@@ -379,10 +383,10 @@ def test_a_region_empty_on_the_registered_shape_is_a_case_error(tmp_path):
 
     model = load_case(ROOT / "synthetic_radius_known").model
     mean = model.mean.reshape(-1, 3)
-    tip = model.landmarks["distal_tip"]
+    tip = model.landmarks["radial_styloid_tip"]
     v = int(np.argsort(np.linalg.norm(mean - mean[tip], axis=1))[10])  # a vertex near the tip
     within = 1.5 * float(np.linalg.norm(mean[v] - mean[tip]))
-    doc = {"vertices": [v], "landmark": "distal_tip", "within_mm": within}
+    doc = {"vertices": [v], "landmark": "radial_styloid_tip", "within_mm": within}
     case = load_case(_case(tmp_path, doc))
     mask, roi = _roi(case, mean)
     assert mask.sum() == 1 and roi["file"] == "region.json"

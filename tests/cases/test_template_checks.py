@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from biplanar_reg.cases import CaseError, load_case
+from biplanar_reg.cases import CaseError, load_case, views_section
 from biplanar_reg.cases import case as case_module
 from biplanar_reg.cli import main
 from biplanar_reg.io import read_mesh, write_mesh
@@ -109,9 +109,9 @@ def test_the_size_limit_is_documented_with_its_measurement():
 def test_too_many_views_are_refused_before_the_calibrations_are_read(case, capsys, monkeypatch):
     """Reproducer: 10,000 ``[[views]]`` never finished."""
     calls = []
-    real = case_module.load_calibration
+    real = views_section.load_calibration
     monkeypatch.setattr(
-        case_module, "load_calibration", lambda *a, **k: calls.append(a) or real(*a, **k)
+        views_section, "load_calibration", lambda *a, **k: calls.append(a) or real(*a, **k)
     )
     n = case_module.MAX_VIEWS + 1
     extra = "".join(

@@ -20,6 +20,7 @@ from biplanar_reg.registration.options import RegistrationOptions
 from biplanar_reg.registration.rotations import rotation_angle
 from biplanar_reg.registration.view_poses import check_pose_information, estimate_view_poses
 from biplanar_reg.simulate import boosting_case, synthetic_bone_model
+from biplanar_reg.simulate.scenes import vertex_landmarks
 
 
 @pytest.fixture(scope="module")
@@ -216,3 +217,21 @@ def test_known_poses_take_landmarks_seen_in_one_view_only(small):
     assert np.sqrt(np.mean(np.sum((res.vertices - X) ** 2, axis=1))) < 0.5
     lm_only = register_views(small, views, silhouettes=False)  # 5 rays, no outline
     assert np.sqrt(np.mean(np.sum((lm_only.vertices - X) ** 2, axis=1))) < 5.0
+
+
+def test_start_pose_with_two_landmarks_and_a_blunder(small) -> None:
+    """A start pose (the workbench's pose aid) with 2 distinct landmarks, one clicked 40 px
+    off in one view: the robust weights reject it, and the fit goes on from where it is (the
+    2 landmarks left cannot restart a fit alone) instead of failing; the bone stays close."""
+    views, R, t, X = _case(small, 3, (3, 3))
+    ids = np.array([views[0].landmark_ids[0], views[0].landmark_ids[1]])
+    rng = np.random.default_rng(0)
+    fixed = []
+    for k, v in enumerate(views):
+        uv = v.view.project(X[ids]) + rng.normal(scale=0.5, size=(2, 2))
+        if k == 1:
+            uv[1] += (40.0 * np.sqrt(0.5), 40.0 * np.sqrt(0.5))  # the blunder
+        fixed.append(vertex_landmarks(v.name, v.view, ids, uv, v.contours))
+    res = register_views(small, fixed, start=(R, t))
+    assert res.rejected == [("cam2", f"v{ids[1]}")]
+    assert _aligned_rms(res.vertices, X) < 0.5

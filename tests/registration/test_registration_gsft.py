@@ -77,7 +77,7 @@ def test_noise_free_recovery_is_exact(model, kind, seed):
     rng, w, R, t, X = _truth(model, seed)
     views, ids = _scene(kind, model, rng)
     obs = observe(views, X, ids)
-    res = solve_gsft(model, obs.vertex_ids, obs.origins, obs.directions)
+    res = solve_gsft(model, RayObservations(obs.vertex_ids, obs.origins, obs.directions))
     assert np.abs(res.weights - w).max() < 1e-5
     assert rotation_angle(res.rotation, R) < 1e-5
     assert np.abs(res.vertices - X).max() < 1e-6 * model.size
@@ -91,38 +91,26 @@ def _same_result(a, b):
             np.testing.assert_array_equal(getattr(a, f.name), getattr(b, f.name), err_msg=f.name)
 
 
-def test_ray_observations_and_array_forms_give_the_same_result(model):
+def test_one_call_form_with_keyword_options(model):
+    """``solve_gsft(model, rays, **options)``: the array form, positional options and the old
+    option spellings are refused (removed in 0.2.0)."""
     rng, w, R, t, X = _truth(model, 5)
     views, ids = _scene("two perspective views", model, rng)
     obs = observe(views, X, ids, noise_px=1.0, rng=rng)
-    sig = np.linspace(0.2, 0.3, len(obs.vertex_ids))
-    rays = RayObservations(obs.vertex_ids, obs.origins, obs.directions, sig)
-    new = solve_gsft(model, rays)
-    _same_result(new, solve_gsft(model, obs.vertex_ids, obs.origins, obs.directions, sig))
-    kw = solve_gsft(
-        model, vertex_ids=obs.vertex_ids, origins=obs.origins, directions=obs.directions, sigmas=sig
-    )
-    _same_result(new, kw)
-    with pytest.raises(ValueError, match="sigmas: give either a RayObservations or the arrays"):
-        solve_gsft(model, rays, sigmas=sig)
-    with pytest.raises(ValueError, match="rays: expected a RayObservations"):
-        solve_gsft(model, obs.vertex_ids, obs.origins)
-
-
-def test_deprecated_option_spellings_still_work(model):
-    rng, w, R, t, X = _truth(model, 6)
-    views, ids = _scene("two perspective views", model, rng)
-    obs = observe(views, X, ids, noise_px=1.0, rng=rng)
-    args = (model, obs.vertex_ids, obs.origins, obs.directions)
-    with pytest.warns(DeprecationWarning, match="polish= is deprecated, use refine="):
-        old = solve_gsft(*args, polish=False)
-    _same_result(old, solve_gsft(*args, refine=False))
-    assert np.isnan(old.refine_cost_after) and old.refine_iterations == 0
-    with pytest.warns(DeprecationWarning, match="max_polish_iter= is deprecated"):
-        old = solve_gsft(*args, max_polish_iter=3)
-    _same_result(old, solve_gsft(*args, max_refine_iter=3))
-    with pytest.raises(TypeError, match="unexpected keyword argument 'polish_iters'"):
-        solve_gsft(*args, polish_iters=3)
+    rays = RayObservations(obs.vertex_ids, obs.origins, obs.directions)
+    res = solve_gsft(model, rays, refine=False)
+    assert np.isnan(res.refine_cost_after) and res.refine_iterations == 0
+    with pytest.raises(TypeError, match="rays: expected a RayObservations"):
+        solve_gsft(model, obs.vertex_ids)
+    with pytest.raises(TypeError, match="positional argument"):
+        solve_gsft(model, obs.vertex_ids, obs.origins, obs.directions)
+    with pytest.raises(TypeError, match="positional argument"):
+        solve_gsft(model, rays, 1e-3)
+    for old in ("polish", "max_polish_iter", "vertex_ids", "sigmas"):
+        with pytest.raises(TypeError, match=f"unexpected keyword argument '{old}'"):
+            solve_gsft(model, rays, **{old: 1})
+    for old in ("polish_converged", "polish_cost_after"):
+        assert not hasattr(res, old)
 
 
 def test_single_view_needs_the_depth_reward_to_be_tight(model):
@@ -131,7 +119,9 @@ def test_single_view_needs_the_depth_reward_to_be_tight(model):
     rng, w, R, t, X = _truth(model, 0)
     views, ids = _scene("one view", model, rng)
     obs = observe(views, X, ids)
-    plain = solve_gsft(model, obs.vertex_ids, obs.origins, obs.directions, depth_reward_weight=0)
+    plain = solve_gsft(
+        model, RayObservations(obs.vertex_ids, obs.origins, obs.directions), depth_reward_weight=0
+    )
     assert plain.certificate > 0.1
     assert np.abs(plain.vertices - X).max() < 1e-6 * model.size
 
@@ -140,8 +130,12 @@ def test_backends_agree(model):
     rng, w, R, t, X = _truth(model, 3)
     views, ids = _scene("two perspective views", model, rng)
     obs = observe(views, X, ids, noise_px=1.0, rng=rng)
-    a = solve_gsft(model, obs.vertex_ids, obs.origins, obs.directions, backend="ipm")
-    b = solve_gsft(model, obs.vertex_ids, obs.origins, obs.directions, backend="clarabel")
+    a = solve_gsft(
+        model, RayObservations(obs.vertex_ids, obs.origins, obs.directions), backend="ipm"
+    )
+    b = solve_gsft(
+        model, RayObservations(obs.vertex_ids, obs.origins, obs.directions), backend="clarabel"
+    )
     assert a.backend == "ipm" and b.backend == "clarabel"
     assert abs(a.objective - b.objective) < 1e-4 * abs(b.objective)
     assert np.abs(a.sdp_weights - b.sdp_weights).max() < 1e-2
@@ -180,7 +174,9 @@ def test_cvxpy_backend_recovers_noise_free_data_exactly(model, kind):
     rng, w, R, t, X = _truth(model, 0)
     views, ids = _scene(kind, model, rng)
     obs = observe(views, X, ids)
-    res = solve_gsft(model, obs.vertex_ids, obs.origins, obs.directions, backend="cvxpy")
+    res = solve_gsft(
+        model, RayObservations(obs.vertex_ids, obs.origins, obs.directions), backend="cvxpy"
+    )
     assert np.abs(res.weights - w).max() < 1e-5
     assert np.abs(res.vertices - X).max() < 1e-6 * model.size
     assert res.certificate < 1e-6
@@ -193,7 +189,7 @@ def test_one_pixel_noise_gives_bounded_errors(model, seed):
     v1, v2 = biplanar_views(75.0)
     ids = [rng.choice(model.n_vertices, 20, replace=False) for _ in range(2)]
     obs = observe([v1, v2], X, ids, noise_px=1.0, rng=rng)
-    res = solve_gsft(model, obs.vertex_ids, obs.origins, obs.directions)
+    res = solve_gsft(model, RayObservations(obs.vertex_ids, obs.origins, obs.directions))
     rms = np.sqrt(np.mean(np.sum((res.vertices - X) ** 2, axis=1)))
     # 1 px is ~0.22 mm at the object; 40 observations of a 14-parameter model
     assert rms < 1.0
@@ -210,7 +206,7 @@ def test_given_sigmas_are_used(model):
     ids = [rng.choice(model.n_vertices, 25, replace=False) for _ in range(2)]
     obs = observe([v1, v2], X, ids, noise_px=1.0, rng=rng)
     sig = np.full(len(obs.vertex_ids), 0.25)
-    res = solve_gsft(model, obs.vertex_ids, obs.origins, obs.directions, sigmas=sig)
+    res = solve_gsft(model, RayObservations(obs.vertex_ids, obs.origins, obs.directions, sig))
     assert np.allclose(res.sigmas, 0.25)
     assert res.refine_cost_after <= res.refine_cost_before
     # chi-square per observation near 1 when sigma matches the noise (~0.22 mm)
@@ -221,7 +217,7 @@ def test_timings_and_fields(model):
     rng, w, R, t, X = _truth(model, 11)
     views, ids = _scene("two perspective views", model, rng)
     obs = observe(views, X, ids)
-    res = solve_gsft(model, obs.vertex_ids, obs.origins, obs.directions)
+    res = solve_gsft(model, RayObservations(obs.vertex_ids, obs.origins, obs.directions))
     assert set(res.timings) == {"build", "solve", "refine", "total"}
     assert res.timings["total"] >= res.timings["solve"] > 0
     assert res.vertices.shape == (model.n_vertices, 3)
@@ -271,42 +267,34 @@ def good(model):
 def test_bad_input_is_named(model, good, mutate, match):
     ids, o, d = mutate(*good)
     with pytest.raises(ValueError, match=match):
-        solve_gsft(model, ids, o, d)
+        solve_gsft(model, RayObservations(ids, o, d))
 
 
 def test_parallel_rays_are_rejected(model, good):
     ids, o, d = good
     d = np.tile([0.0, 0.0, 1.0], (len(ids), 1))
     with pytest.raises(ValueError, match="all rays are parallel"):
-        solve_gsft(model, ids, o, d)
+        solve_gsft(model, RayObservations(ids, o, d))
 
 
 def test_bad_sigmas_and_options(model, good):
     ids, o, d = good
     with pytest.raises(ValueError, match="sigmas: must be positive"):
-        solve_gsft(model, ids, o, d, sigmas=np.zeros(len(ids)))
+        solve_gsft(model, RayObservations(ids, o, d, np.zeros(len(ids))))
     with pytest.raises(ValueError, match="sigmas: expected shape"):
-        solve_gsft(model, ids, o, d, sigmas=np.ones(3))
+        solve_gsft(model, RayObservations(ids, o, d, np.ones(3)))
     with pytest.raises(ValueError, match="eps"):
-        solve_gsft(model, ids, o, d, eps=-1.0)
+        solve_gsft(model, RayObservations(ids, o, d), eps=-1.0)
     with pytest.raises(ValueError, match="backend"):
-        solve_gsft(model, ids, o, d, backend="mosek")
+        solve_gsft(model, RayObservations(ids, o, d), backend="mosek")
     with pytest.raises(ValueError, match="model: expected a ShapeModel"):
-        solve_gsft("model.npz", ids, o, d)
+        solve_gsft("model.npz", RayObservations(ids, o, d))
 
 
 def test_solver_failure_is_an_exception_not_a_wrong_shape(model, good):
     ids, o, d = good
     # one interior-point iteration cannot converge: a clear SolverFailure, no result
     with pytest.raises(SolverFailure, match="did not converge"):
-        solve_gsft(model, ids, o, d, backend="ipm", solver_settings={"max_iter": 1})
-
-
-def test_old_result_field_names_still_read_with_a_warning(model):
-    rng, w, R, t, X = _truth(model, 1)
-    views, ids = _scene("two perspective views", model, rng)
-    res = solve_gsft(model, observe(views, X, ids, noise_px=1.0, rng=rng))
-    with pytest.warns(DeprecationWarning, match=r"GsftResult\.polish_converged is deprecated"):
-        assert res.polish_converged == res.refine_converged
-    with pytest.warns(DeprecationWarning, match="polish_cost_after"):
-        assert res.polish_cost_after == res.refine_cost_after
+        solve_gsft(
+            model, RayObservations(ids, o, d), backend="ipm", solver_settings={"max_iter": 1}
+        )

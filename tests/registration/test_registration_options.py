@@ -1,5 +1,6 @@
-"""``RegistrationOptions``: every field validated, documented (docstring and docs/cases.md) and
-accepted as a case file's ``[registration]`` key, and the pipeline options changing what they
+"""``RegistrationOptions``: every field validated, documented (docstring; the table of
+docs/cases.md: ``tests/cases/test_registration_table.py``) and accepted as a case file's
+``[registration]`` or ``[registration.expert]`` key, and the pipeline options changing what they
 should (cheap: single stages on the seeded problems of ``registration_problems.py`` beside this
 file)."""
 
@@ -9,7 +10,6 @@ import dataclasses
 import math
 import re
 import shutil
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -17,8 +17,9 @@ import pytest
 from registration_problems import problem_for, with_blunder
 
 from biplanar_reg.cases import load_case, registration_options
+from biplanar_reg.cases.registration_table import REMOVED_KEYS, USER_OPTIONS
 from biplanar_reg.registration import RegistrationOptions, register_views
-from biplanar_reg.registration.options import CHOICES, DEPRECATED_OPTIONS, RENAMED_OPTIONS
+from biplanar_reg.registration.options import CHOICES
 from biplanar_reg.registration.stages import (
     boost,
     choose_start,
@@ -27,9 +28,7 @@ from biplanar_reg.registration.stages import (
 )
 
 ROOT = Path(__file__).resolve().parents[2]
-OLD = {**DEPRECATED_OPTIONS, **RENAMED_OPTIONS}
-#: The current options (the deprecated ones, default None, are tested on their own below).
-FIELDS = {f.name: f for f in dataclasses.fields(RegistrationOptions) if f.name not in OLD}
+FIELDS = {f.name: f for f in dataclasses.fields(RegistrationOptions)}
 NONE: frozenset[int] = frozenset()
 
 #: Values outside each field's documented domain. Every non-bool field must be listed (a new
@@ -123,13 +122,13 @@ def test_every_count_has_a_documented_range():
     RegistrationOptions(**{k: hi for k, (lo, hi) in COUNT_RANGES.items()})
     RegistrationOptions(**{k: lo for k, (lo, hi) in COUNT_RANGES.items()})
     attrs = RegistrationOptions.__doc__[RegistrationOptions.__doc__.index("Attributes") :]
-    row = _registration_row()
+    table = (ROOT / "docs" / "cases.md").read_text(encoding="utf-8")
     for key, (lo, hi) in COUNT_RANGES.items():
         with pytest.raises(ValueError, match=rf"^{key}: too large \({hi + 1}; at most {hi}\)"):
             RegistrationOptions(**{key: hi + 1})
         block = re.search(rf"^    {key} : int\n((?:        .*\n)+)", attrs, re.MULTILINE)
         assert f"{lo} to {hi}" in " ".join(block.group(1).split()), key
-        assert re.search(rf"`{key}` \S+ \({lo}-{hi}\)", row), key
+        assert re.search(rf"^\| `{key}` \|.* \({lo}-{hi}[;)]", table, re.MULTILINE), key
 
 
 @pytest.mark.parametrize("key", ["max_iterations", "silhouette_points", "consensus_iterations"])
@@ -160,26 +159,6 @@ def test_every_field_is_in_the_docstring(key):
     assert re.search(rf"^    {key} : {kind}$", attrs, re.MULTILINE), key
 
 
-def _registration_row() -> str:
-    text = (ROOT / "docs" / "cases.md").read_text(encoding="utf-8")
-    rows = [ln for ln in text.splitlines() if ln.startswith("| `[registration]` other keys")]
-    assert len(rows) == 1
-    return rows[0]
-
-
-@pytest.mark.parametrize("key", sorted(FIELDS))
-def test_every_field_is_in_cases_md_with_its_default(key):
-    found = re.findall(rf"`{key}` ([^\s,()]+)", _registration_row())
-    assert len(found) == 1, key
-    default = FIELDS[key].default
-    if isinstance(default, bool):
-        assert found[0] == str(default).lower()
-    elif isinstance(default, str):
-        assert found[0] == f'"{default}"'
-    else:
-        assert float(found[0]) == pytest.approx(default, rel=1e-12)
-
-
 # -- case files ------------------------------------------------------------------------------
 
 
@@ -202,9 +181,15 @@ def _toml(value) -> str:
     return str(value).lower() if isinstance(value, bool) else repr(value)
 
 
+def _sections(values: dict) -> dict:
+    """``values`` as a ``[registration]`` table: the user options, the others in ``expert``."""
+    table = {k: v for k, v in values.items() if k in USER_OPTIONS}
+    return table | {"expert": {k: v for k, v in values.items() if k not in USER_OPTIONS}}
+
+
 def test_every_field_is_a_registration_key():
     table = {k: _other_value(k, f.default) for k, f in FIELDS.items()}
-    opts = registration_options(table)
+    opts = registration_options(_sections(table))
     assert {k: v for k, v in dataclasses.asdict(opts).items() if k in FIELDS} == table
     assert all(type(getattr(opts, k)) is type(v) for k, v in table.items())
 
@@ -216,8 +201,12 @@ def test_a_case_file_accepts_every_field(tmp_path):
     p = case / "case.toml"
     text = p.read_text(encoding="utf-8")
     assert "[registration]\n" in text
-    keys = "".join(f"{k} = {_toml(v)}\n" for k, v in values.items())
-    p.write_text(text.replace("[registration]\n", "[registration]\n" + keys, 1), encoding="utf-8")
+    table = _sections(values)
+    expert = table.pop("expert")
+    keys = "".join(f"{k} = {_toml(v)}\n" for k, v in table.items())
+    text = text.replace("[registration]\n", "[registration]\n" + keys, 1)
+    text += "\n[registration.expert]\n" + "".join(f"{k} = {_toml(v)}\n" for k, v in expert.items())
+    p.write_text(text, encoding="utf-8")
     c = load_case(case)
     assert c.warnings == []
     assert {k: v for k, v in dataclasses.asdict(c.options).items() if k in FIELDS} == values
@@ -233,21 +222,12 @@ def good_fit(model, views):
     return boost(p, landmark_start(p).result, None, 3, detect=False).best.result
 
 
-@pytest.mark.parametrize(("key", "new"), sorted(OLD.items()))
-def test_a_deprecated_option_still_loads_with_a_warning(key, new):
-    """The former heuristic blunder options: accepted (case files keep loading), with a
-    DeprecationWarning naming the replacement; ``certificate_flag`` sets ``start_certificate``."""
-    with pytest.warns(DeprecationWarning, match=rf"{key} is deprecated.*{new}"):
-        opts = registration_options({key: 0.5})
-    assert getattr(opts, key) is None
-    if key in RENAMED_OPTIONS:
-        assert getattr(opts, new) == 0.5
-    else:
-        assert dataclasses.replace(opts, **{key: None}) == RegistrationOptions()
-    if key in RENAMED_OPTIONS:  # a renamed option's value is checked as the new one's
-        with pytest.raises(ValueError, match=rf"^{new}: "), warnings.catch_warnings():
-            warnings.simplefilter("ignore", DeprecationWarning)
-            RegistrationOptions(**{key: -1.0})
+@pytest.mark.parametrize("key", sorted(REMOVED_KEYS))
+def test_a_removed_option_is_an_unexpected_keyword(key):
+    """The former heuristic blunder options and ``certificate_flag`` were removed in 0.2.0 (a
+    case file naming one gets an error naming its replacement: tests/cases)."""
+    with pytest.raises(TypeError, match=rf"unexpected keyword argument '{key}'"):
+        RegistrationOptions(**{key: 0.5})
 
 
 def test_robust_threshold_sets_which_landmark_counts_as_rejected(model, views):

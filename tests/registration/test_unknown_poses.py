@@ -9,11 +9,10 @@ import pytest
 
 from biplanar_reg.calibration.views import PerspectiveView
 from biplanar_reg.registration import RayObservations
+from biplanar_reg.registration.calibration_refine import refine_view_poses
 from biplanar_reg.registration.rotations import rotation_angle, so3_exp
 from biplanar_reg.registration.unknown_poses import (
     UnknownPoseView,
-    ViewRays,
-    refine_view_poses,
     similarity_fit,
     solve_gsft_unknown_poses,
 )
@@ -107,28 +106,18 @@ def test_view_observations_with_sigmas_and_prior():
     assert rotation_angle(res.view_rotations[1], cams[1].R @ cams[0].R.T) < 1e-4
     assert res.start in ("sdp", "prior")
     assert np.allclose(res.sigmas[0], sig)
-    # the deprecated ViewRays constructor builds the same views
-    with pytest.warns(DeprecationWarning, match="ViewRays is deprecated"):
-        old = [
-            ViewRays(ids, d, sigmas=sig, prior_rotation=c.R, prior_translation=c.t, name=f"c{x}")
-            for x, ((ids, d), c) in enumerate(zip(views, cams, strict=True))
-        ]
-    _same_result(res, solve_gsft_unknown_poses(model, old))
 
 
-def test_call_forms_and_deprecated_spellings_agree():
-    """Pairs, RayObservations and the old option spellings are the same problem."""
+def test_call_forms_agree_and_old_spellings_are_refused():
+    """Pairs and RayObservations are the same problem; the option spellings removed in 0.2.0
+    are unexpected keywords."""
     model, X, views, cams = _scene(3, 12, seed=8)
     ref = solve_gsft_unknown_poses(model, views, refine=False, depth_reward_weight=0.05)
     rays = [_camera_rays(i, d) for i, d in views]
     _same_result(ref, solve_gsft_unknown_poses(model, rays, refine=False, depth_reward_weight=0.05))
-    with pytest.warns(DeprecationWarning, match="depth_reward= is deprecated"):
-        with pytest.warns(DeprecationWarning, match="polish= is deprecated"):
-            old = solve_gsft_unknown_poses(model, views, polish=False, depth_reward=0.05)
-    _same_result(ref, old)
-    with pytest.warns(DeprecationWarning, match="max_polish_iter= is deprecated"):
-        old = solve_gsft_unknown_poses(model, rays, max_polish_iter=2)
-    _same_result(old, solve_gsft_unknown_poses(model, rays, max_refine_iter=2))
+    for old in ("polish", "depth_reward", "max_polish_iter"):
+        with pytest.raises(TypeError, match=f"unexpected keyword argument '{old}'"):
+            solve_gsft_unknown_poses(model, rays, **{old: 1})
 
 
 def test_refine_mode_recovers_perturbed_relative_pose():

@@ -270,13 +270,14 @@ def _pose_aid(page, case_dir: Path, shipped: dict) -> None:
     page.mouse.move(*_client(page, "cam01", centre))
     page.get_by_test_id("pose-propose").click()
     page.wait_for_selector("[data-testid=pose-panel][data-proposal='cam01']")
-    _shot(page, "pose_aid")
+    pieces = int(page.get_by_test_id("pose-panel").get_attribute("data-pieces"))
     page.get_by_test_id("pose-accept").click()
     page.evaluate("() => window.workbench.idle()")
     contours = json.loads((case_dir / "annotations.json").read_text())["views"]["cam01"]["contours"]
-    assert len(contours) == n0 + 1 and len(contours[-1]["uv"]) > 50
+    assert pieces >= 3 and len(contours) == n0 + pieces  # every piece, each its own contour
+    assert max(len(c["uv"]) for c in contours[n0:]) > 50
     state = json.loads((case_dir / ".workbench.json").read_text())
-    assert len(state["contour_anchors"]["cam01"][-1]["anchors"]) >= 3
+    assert min(len(a["anchors"]) for a in state["contour_anchors"]["cam01"][n0:]) >= 2
 
     page.get_by_test_id("pose-save").click()
     page.wait_for_function("() => document.getElementById('message').textContent.includes('start')")

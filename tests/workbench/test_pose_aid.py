@@ -19,6 +19,7 @@ from biplanar_reg.cases import read_case_setup
 from biplanar_reg.io import read_mesh, write_mesh
 from biplanar_reg.workbench import Workbench, create_app
 from biplanar_reg.workbench.pose_aid import _with_start_key, mean_shape, write_start
+from biplanar_reg.workbench.posed_outline import MIN_PIECE_PX, piece_length
 
 TOKEN = "test-token-0123456789"
 
@@ -102,7 +103,7 @@ def test_the_pose_appears_once_the_clicks_fix_it_and_matches_the_clicks(posed):
     assert not (case / "start.json").exists()
 
 
-def test_nudges_move_the_pose_in_the_view_and_a_landmark_edit_drops_them(posed):
+def test_nudges_move_the_pose_in_the_view_and_stay_through_landmark_edits(posed):
     client, case, truth = posed
     _place(client, truth, 3)
     before = client.get("/api/pose-aid").json()
@@ -128,12 +129,19 @@ def test_nudges_move_the_pose_in_the_view_and_a_landmark_edit_drops_them(posed):
 
     again = client.post("/api/pose-aid/reset").json()
     assert again["source"] == "landmarks" and np.allclose(again["R"], before["R"])
-    client.post("/api/pose-aid/nudge", json={"view": "cam2", "translate_px": [5, 5]})
+    nudged = client.post("/api/pose-aid/nudge", json={"view": "cam2", "translate_px": [5, 5]})
     _click(client, "cam1", "distal_tip", truth["clicks"]["cam1"]["distal_tip"])  # same place
-    assert client.get("/api/pose-aid").json()["source"] == "nudged"  # nothing changed
+    doc = client.get("/api/pose-aid").json()
+    assert doc["source"] == "nudged" and doc["landmarks_changed"] is False
     uv = np.add(truth["clicks"]["cam1"]["distal_tip"], [2.0, 0.0])
     _click(client, "cam1", "distal_tip", uv)
-    assert client.get("/api/pose-aid").json()["source"] == "landmarks"
+    # a landmark edit keeps the user's pose as it is, and says the clicks changed since
+    doc = client.get("/api/pose-aid").json()
+    assert doc["source"] == "nudged" and doc["landmarks_changed"] is True
+    assert doc["R"] == nudged.json()["R"] and doc["t"] == nudged.json()["t"]
+    # "From landmarks" solves the new clicks
+    fresh = client.post("/api/pose-aid/reset").json()
+    assert fresh["source"] == "landmarks" and fresh["t"] != before["t"]
 
 
 BAD_NUDGES = [
@@ -180,15 +188,22 @@ def test_propose_outline_follows_the_posed_outline_on_the_image_edges(posed):
     saved = (case / "annotations.json").read_bytes()
     r = client.post("/api/views/cam1/propose-outline", json={"spacing_px": 25})
     assert r.status_code == 200, r.text
-    prop = r.json()
-    uv, anchors = np.array(prop["uv"]), np.array(prop["anchors"])
-    assert len(anchors) >= 3 and len(uv) > 3 * len(anchors)
-    assert ((uv >= -0.5) & (uv <= 511.5)).all()
-    # the anchors are taken on the posed (longest) outline; the path stays near it
-    posed_line = np.array(doc["views"]["cam1"]["outline_px"][0])
-    line = np.vstack([posed_line, posed_line[:1]]) if prop["closed"] else posed_line
-    assert _distance_to_line(anchors, line).max() < 0.05
-    assert np.median(_distance_to_line(uv, line)) < 10  # snapped to edges near it
+    pieces = r.json()["pieces"]
+    drawn = doc["views"]["cam1"]
+    long = [
+        (np.array(line), c)
+        for line, c in zip(drawn["outline_px"], drawn["outline_closed"], strict=True)
+        if piece_length(np.array(line), c) >= MIN_PIECE_PX
+    ]
+    assert len(pieces) == len(long) >= 1  # every piece long enough is proposed
+    for prop, (posed_line, closed) in zip(pieces, long, strict=True):
+        uv, anchors = np.array(prop["uv"]), np.array(prop["anchors"])
+        assert len(anchors) >= 2 and len(uv) > 2 * len(anchors)
+        assert ((uv >= -0.5) & (uv <= 511.5)).all()
+        # the anchors are taken on the posed piece; the path stays near it
+        line = np.vstack([posed_line, posed_line[:1]]) if closed else posed_line
+        assert _distance_to_line(anchors, line).max() < 0.05
+        assert np.median(_distance_to_line(uv, line)) < 10  # snapped to edges near it
     assert (case / "annotations.json").read_bytes() == saved  # a proposal is not saved
     for body in ({"spacing_px": 1}, {"spacing_px": "a"}):
         r = client.post("/api/views/cam1/propose-outline", json=body)

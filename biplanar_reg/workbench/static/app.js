@@ -149,10 +149,11 @@ function exposeForTests(wb) {
 
 /** The 3D model view, the pose aid (Pose mode) and the result's shading. */
 async function initModelAndPose(wb) {
+  const fields = Object.fromEntries(["cx", "cy", "cz", "ax", "ay", "az"].map((k) => [k, $(`pose-${k}`)]));
   const aid = new PoseAid(wb, {
-    panel: $("pose-panel"), status: $("pose-status"), reset: $("pose-reset"),
+    panel: $("pose-panel"), status: $("pose-status"), reset: $("pose-reset"), undo: $("pose-undo"),
     save: $("pose-save"), propose: $("pose-propose"), accept: $("pose-accept"),
-    discard: $("pose-discard"), show: $("pose-show"), time: $("pose-time"),
+    discard: $("pose-discard"), show: $("pose-show"), time: $("pose-time"), fields,
   });
   const shading = new ResultShading(wb, $("show-shading"));
   wb.tools.pose = new PoseTool(wb, aid);
@@ -161,7 +162,9 @@ async function initModelAndPose(wb) {
   const model = new ModelView(wb, {
     box: $("model-box"), name: $("model-name"), list: $("model-landmarks"),
     status: $("model-status"), showResult: $("model-result"), legend: $("model-legend"),
+    views: $("model-views"),
   });
+  aid.listeners.push((doc) => model.setPose(doc)); // the 3D view oriented like a radiograph
   $("model-result").addEventListener("change", (ev) => model.setShowResult(ev.target.checked));
   $("model-enlarge").addEventListener("click", () => {
     const big = $("model-panel").classList.toggle("big");
@@ -177,7 +180,10 @@ async function initModelAndPose(wb) {
   window.workbench.model = model;
   await Promise.all([
     aid.init(),
-    model.init().catch((err) => model.say(`3D view: ${err.message}`, true)),
+    model
+      .init()
+      .then(() => model.setPose(aid.doc))
+      .catch((err) => model.say(`3D view: ${err.message}`, true)),
     wb.result ? onResult(wb.result) : null,
   ]);
 }

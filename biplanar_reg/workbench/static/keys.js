@@ -28,6 +28,10 @@ export const SHORTCUTS = [
     run: (wb) => (wb.tools.pose ? wb.setMode("pose") : false),
   },
   {
+    keys: "U", what: "Pose mode: undo the last pose-aid step (nudge or typed pose)",
+    match: plain("u", "U"), run: (wb) => (wb.mode === "pose" ? wb.tools.pose.aid.undo() : false),
+  },
+  {
     keys: "F", what: "fit the view under the mouse to the whole image", match: plain("f", "F"),
     run: (wb) => wb.viewers.get(wb.activeView)?.fit(),
   },

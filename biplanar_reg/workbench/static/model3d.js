@@ -3,7 +3,10 @@
 // with the right button; a click on the surface defines (or moves) the landmark named in the
 // panel's field at the nearest vertex (PUT /api/model/landmarks/{name}). After a registration,
 // "result" shows the registered bone, coloured by its distance to the ground truth when the
-// case has one.
+// case has one. Once the pose aid has a pose, the view looks at the bone as a radiograph does
+// (along that view's direction, with its up; one button per view, "free" after a drag).
+// Landmark labels are placed around their ball where they overlap nothing, joined to it by a
+// leader line when placed further out.
 
 import * as THREE from "./vendor/three.bundle.js";
 import { api } from "./api.js";
@@ -72,6 +75,8 @@ export class ModelView {
     this.selected = null;
     this.showResult = false;
     this.ready = false;
+    this.cameras = null; // {view: {forward, up}} world frame, from the pose aid; R model -> world
+    this.orientView = null; // the radiograph the camera follows, or null (free)
   }
 
   async init() {
@@ -95,6 +100,19 @@ export class ModelView {
     this.scene.add(this.light);
     this.controls = new THREE.OrbitControls(this.camera, renderer.domElement);
     this.controls.addEventListener("change", () => this.render());
+    // a drag leaves the radiograph's orientation: the view buttons show "free"
+    this.controls.addEventListener("start", () => {
+      this.dragging = true;
+    });
+    this.controls.addEventListener("end", () => {
+      this.dragging = false;
+    });
+    this.controls.addEventListener("change", () => {
+      if (this.dragging && this.orientView) this.setOrientView(null, false);
+    });
+    this.leaders = document.createElementNS("http://www.w3.org/2000/svg", "svg");
+    this.leaders.classList.add("model-leaders");
+    box.append(this.leaders);
     this.listen(renderer.domElement);
     new ResizeObserver(() => this.resize()).observe(box);
     const mesh = await api.getModelMesh();
@@ -127,18 +145,92 @@ export class ModelView {
     return { geometry, positions, mesh, centre, radius: size.length() / 2, doc };
   }
 
-  /** Camera looking at the mesh across its long axis (drawn upright) from the side of its
-   * thinnest extent: the principal axes of its vertices; the light from the camera. */
+  /** Camera looking at the mesh: like the radiograph `orientView` when there is one (its
+   * direction and up at the bone, brought into the mesh's frame), else across its long axis
+   * (drawn upright) from the side of its thinnest extent; the light from the camera. */
   frame(m) {
-    const [long, , thin] = principalAxes(m.positions);
+    let forward;
+    let up;
+    const cam = this.orientView ? this.cameras?.[this.orientView] : null;
+    if (cam) {
+      // the model's mean shape is in the model frame: world directions through R^T; the
+      // registered bone is in the world frame already
+      const R = m !== this.result ? this.R : null;
+      const toMesh = (w) => {
+        const v = R ? [0, 1, 2].map((i) => R[0][i] * w[0] + R[1][i] * w[1] + R[2][i] * w[2]) : w;
+        return new THREE.Vector3(...v).normalize();
+      };
+      [forward, up] = [toMesh(cam.forward), toMesh(cam.up)];
+    } else {
+      const [long, , thin] = principalAxes(m.positions);
+      [forward, up] = [thin, long];
+    }
     const d = (m.radius / Math.tan((this.camera.fov * Math.PI) / 360)) * 1.15;
     this.controls.target.copy(m.centre);
-    this.camera.position.copy(m.centre).addScaledVector(thin, -d);
-    this.camera.up.copy(long);
+    this.camera.position.copy(m.centre).addScaledVector(forward, -d);
+    this.camera.up.copy(up);
+    // OrbitControls orbits about its own "up": keep it the camera's
+    this.controls._quat?.setFromUnitVectors(this.camera.up, new THREE.Vector3(0, 1, 0));
+    this.controls._quatInverse?.copy(this.controls._quat).invert();
     this.camera.near = d / 100;
     this.camera.far = d * 10;
     this.camera.updateProjectionMatrix();
     this.controls.update();
+  }
+
+  /** The pose aid's document: each radiograph's direction for the view buttons. */
+  setPose(doc) {
+    const first = !this.cameras;
+    if (!doc?.ready) {
+      this.cameras = null;
+      this.renderViewButtons();
+      return;
+    }
+    this.cameras = Object.fromEntries(Object.entries(doc.views).map(([k, v]) => [k, v.camera]));
+    this.R = doc.R; // model -> world: a world direction w is R^T w in the model frame
+    if (first && this.orientView === null && !this.userMoved) {
+      this.orientView = Object.keys(this.cameras)[0] ?? null; // like the first radiograph
+    }
+    this.renderViewButtons();
+    if (this.orientView && this.ready) {
+      this.frame(this.current());
+      this.render();
+    }
+  }
+
+  setOrientView(name, reframe = true) {
+    this.orientView = name;
+    if (!name) this.userMoved = true;
+    this.renderViewButtons();
+    if (reframe && this.ready) {
+      this.frame(this.current());
+      this.render();
+    }
+  }
+
+  renderViewButtons() {
+    const row = this.els.views;
+    if (!row) return;
+    row.replaceChildren();
+    const names = this.cameras ? Object.keys(this.cameras) : [];
+    for (const name of [...names, null]) {
+      const b = document.createElement("button");
+      b.className = "small";
+      b.textContent = name ?? "free";
+      b.dataset.testid = `model-view-${name ?? "free"}`;
+      b.setAttribute("aria-pressed", String(this.orientView === name));
+      b.title = name
+        ? `Look at the bone as ${name} does (its direction and up, at the pose aid's pose)`
+        : "Turn the view freely (drag)";
+      b.addEventListener("click", () => this.setOrientView(name));
+      row.append(b);
+    }
+    if (!names.length) {
+      const note = document.createElement("span");
+      note.className = "muted";
+      note.textContent = "views: once the pose aid has a pose";
+      row.append(note);
+    }
   }
 
   resize() {
@@ -192,26 +284,66 @@ export class ModelView {
     this.render();
   }
 
-  /** HTML labels next to each landmark's projection, moved down past the labels already
-   * placed (landmarks are often close together). */
+  /** HTML labels around each landmark's ball: the first place, nearest first, that overlaps
+   * no label placed before, no other ball and stays inside the view; a label placed away from
+   * its ball gets a leader line to it. */
   placeLabels() {
     const w = this.els.box.clientWidth;
     const h = this.els.box.clientHeight;
-    const boxes = [];
-    for (const { sphere, label } of this.markers.values()) {
+    const items = [];
+    const toPx = (v) => [((v.x + 1) / 2) * w, ((1 - v.y) / 2) * h];
+    for (const [name, { sphere, label }] of this.markers) {
       const p = sphere.position.clone().project(this.camera);
-      const [cx, cy] = [((p.x + 1) / 2) * w, ((1 - p.y) / 2) * h];
-      const lw = label.offsetWidth || 7 * label.textContent.length;
-      // right, left, then above/below the ball: the first place that misses the others
-      const tries = [[8, -7], [-lw - 8, -7], [8, -20], [-lw - 8, -20], [8, 6], [-lw - 8, 6]];
-      const free = ([dx, dy]) =>
-        !boxes.some((b) => cx + dx < b[2] && b[0] < cx + dx + lw && cy + dy < b[3] && b[1] < cy + dy + 13);
-      const [dx, dy] = tries.find(free) ?? tries[0];
-      boxes.push([cx + dx, cy + dy, cx + dx + lw, cy + dy + 13]);
-      label.style.left = `${cx + dx}px`;
-      label.style.top = `${cy + dy}px`;
+      const [x, y] = toPx(p);
+      // the ball's radius on the screen: a point of its rim, across the view
+      const rim = sphere.position.clone().addScaledVector(this.camera.up, sphere.geometry.parameters.radius);
+      const [rx, ry] = toPx(rim.project(this.camera));
       label.hidden = p.z > 1;
+      items.push({ name, label, x, y, ball: Math.max(4, Math.hypot(rx - x, ry - y)), hidden: p.z > 1 });
     }
+    const boxes = [];
+    const balls = items
+      .filter((it) => !it.hidden)
+      .map((it) => [it.x - it.ball, it.y - it.ball, it.x + it.ball, it.y + it.ball]);
+    const hits = (b, list) => list.some((o) => b[0] < o[2] && o[0] < b[2] && b[1] < o[3] && o[1] < b[3]);
+    const lines = [];
+    for (const it of items) {
+      if (it.hidden) continue;
+      const lw = it.label.offsetWidth || 7 * it.label.textContent.length;
+      const lh = 13;
+      let best = null;
+      // rings of places around the ball: right, left, above, below, the diagonals, further out
+      for (const r of [3, 16, 34, 56, 84].map((d) => it.ball + d)) {
+        for (const a of [0, 180, -90, 90, -45, 45, -135, 135, -20, 20, -160, 160]) {
+          const t = (a * Math.PI) / 180;
+          const ax = it.x + r * Math.cos(t);
+          const ay = it.y + r * Math.sin(t);
+          // the label's side facing the ball at (ax, ay)
+          const x0 = Math.cos(t) < -0.3 ? ax - lw : Math.cos(t) > 0.3 ? ax : ax - lw / 2;
+          const y0 = Math.sin(t) < -0.3 ? ay - lh : Math.sin(t) > 0.3 ? ay : ay - lh / 2;
+          const b = [x0, y0, x0 + lw, y0 + lh];
+          const inside = b[0] >= 0 && b[1] >= 0 && b[2] <= w && b[3] <= h;
+          const others = balls.filter((o) => Math.hypot((o[0] + o[2]) / 2 - it.x, (o[1] + o[3]) / 2 - it.y) > 1);
+          if (inside && !hits(b, boxes) && !hits(b, others)) {
+            best = { b, r, ax, ay };
+            break;
+          }
+        }
+        if (best) break;
+      }
+      const r0 = it.ball + 3;
+      best ??= { b: [it.x + r0, it.y - 7, it.x + r0 + lw, it.y + 6], r: r0 };
+      boxes.push(best.b);
+      it.label.style.left = `${best.b[0]}px`;
+      it.label.style.top = `${best.b[1]}px`;
+      it.label.dataset.box = best.b.map((v) => v.toFixed(1)).join(",");
+      if (best.r > it.ball + 3) lines.push([it.x, it.y, best.ax, best.ay]);
+    }
+    this.leaders.setAttribute("width", String(w));
+    this.leaders.setAttribute("height", String(h));
+    this.leaders.innerHTML = lines
+      .map(([x1, y1, x2, y2]) => `<line x1="${x1}" y1="${y1}" x2="${x2}" y2="${y2}"></line>`)
+      .join("");
   }
 
   renderList() {
