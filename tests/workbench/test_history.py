@@ -1,7 +1,8 @@
 """Undo / redo kept by the server (biplanar_reg/workbench/history.py) through the page's API on
 the synthetic case: every kind of edit undone and redone with the files back byte for byte,
 the bounded history, a file changed by someone else clearing it; and what an exclusion zone
-cut coming back when the zone is removed (zone_restore.py), an erase of no length."""
+cut coming back when the zone is removed (zone_restore.py), an erase of no length, an outline
+that runs over itself refused."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from starlette.testclient import TestClient
 from biplanar_reg.annotation import load_annotations, save_annotations
 from biplanar_reg.workbench import Workbench, create_app
 from biplanar_reg.workbench.history import HISTORY_LIMIT, History, NothingToUndo
+from biplanar_reg.workbench.outline_tools import self_overlap
 
 TOKEN = "test-token-0123456789"
 VIEW = "cam1"
@@ -233,3 +235,21 @@ def test_an_erase_of_no_length_changes_nothing(client):
     assert doc["view"]["contours"][0]["version"] == first["version"]
     assert (case / "annotations.json").stat().st_mtime_ns == before["annotations.json"]
     assert _ok(c.get("/api/history"))["history"]["undo"] == 0
+
+
+def test_an_outline_running_over_itself_is_refused(client):
+    c, case = client
+    uv = np.asarray(_contours(case)[0]["uv"])
+    a, b, d = uv[40].tolist(), uv[120].tolist(), uv[200].tolist()
+    before = _files(case)
+    for anchors in ([a, b, a, b], [a, b, d, b, a]):  # back and forth along the same edge
+        r = c.post(f"/api/views/{VIEW}/outlines", json={"anchors": anchors})
+        assert r.status_code == 400
+        assert r.json()["error"].startswith("anchors: the outline runs over itself (")
+    assert _files(case) == before
+    _ok(c.post(f"/api/views/{VIEW}/outlines", json={"anchors": [a, b, d]}))  # once: fine
+    line = np.c_[np.arange(100.0), np.zeros(100)]
+    assert self_overlap(line, False) == 0.0
+    assert self_overlap(np.vstack([line, line[::-1], line]), False) > 0.9
+    t = np.linspace(0, 2 * np.pi, 200, endpoint=False)
+    assert self_overlap(np.c_[50 * np.cos(t), 50 * np.sin(t)], True) == 0.0  # closed: its ends
