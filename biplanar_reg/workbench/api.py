@@ -221,6 +221,15 @@ class _Handlers:
         doc = await _call(lambda: self.wb.replace_contour(*args, version=version))
         return JSONResponse({"index": i, "view": doc})
 
+    async def history(self, request: Request) -> Response:
+        return JSONResponse({"history": await _call(self.wb.history.status)})
+
+    async def history_move(self, request: Request) -> Response:
+        action = request.path_params["action"]
+        if action not in ("undo", "redo"):
+            raise ApiError(404, f"{request.url.path}: no such history action (undo, redo)")
+        return JSONResponse(await _call(getattr(self.wb, action)))
+
     async def register(self, request: Request) -> Response:
         if request.method == "POST":
             return JSONResponse(await _call(self.wb.start_registration))
@@ -292,6 +301,8 @@ def _routes(wb: Workbench, token: str) -> list[Route | Mount]:
         (v + "/livewire", h.livewire, ["POST"]),
         (v + "/contours", h.contours, ["POST"]),
         (v + "/contours/{ref}", h.contour, ["PUT", "DELETE"]),
+        ("/api/history", h.history, ["GET"]),
+        ("/api/history/{action}", h.history_move, ["POST"]),
         ("/api/register", h.register, ["GET", "POST"]),
         ("/api/register/events", h.events, ["GET"]),
         ("/api/result", h.result, ["GET"]),

@@ -15,8 +15,9 @@ GrabCut through this module afterwards is cut the same way. The zones are kept i
 ``CASE_DIR/.workbench-cleaning.json`` (``biplanar-reg/workbench-cleaning@1``: ``{"views":
 {view: {"cleaning": {"exclusion_zones": [[[u, v], ...], ...]}}}}``, the ``cleaning`` block of
 a contour recipe, see ``docs/annotation.md``); the annotation file holds the cut contours, so
-``register`` needs no zone file to see the same contour. Removing a zone does not bring back
-what it cut (re-trace the contour).
+``register`` needs no zone file to see the same contour. The same file keeps each contour as it
+was before a zone cut it (``uncut``, :mod:`biplanar_reg.workbench.zone_restore`): removing a
+zone puts back what it cut, unless a piece was edited since.
 
 A piece of a cut or erased contour keeps the anchors that lie on it, plus its two ends, so
 that it can be edited like any traced contour: re-tracing runs the livewire through its
@@ -37,12 +38,13 @@ from typing import Any
 
 import cv2
 import numpy as np
-from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from ..annotation import Contour, grabcut_outline, livewire
 from ..annotation.clean import cut_polyline
 from ..annotation.features import gradient_magnitude
 from ..io import atomic_write_json, read_json
+from .edge_strength import FAINT, WEAK, edge_scale, grade
 from .session import (
     LIVEWIRE_SIGMA_PX,
     MAX_ANCHORS,
@@ -55,6 +57,7 @@ from .session import (
     check_positive,
     require_version,
 )
+from .zone_restore import digest, new_record, note_cut
 
 __all__ = ["OutlineTools", "outline_routes"]
 
@@ -69,14 +72,10 @@ MAX_ZONES = 500
 #: An anchor within this distance of a piece stays one of its anchors, pixels (the livewire
 #: moves anchors by up to 2 px onto the edge).
 ANCHOR_TOL_PX = 3.0
-#: Edge strength = gradient magnitude / its 99.5th percentile over the image (the livewire
-#: cost's reference). Below WEAK a point is on a faint edge; a contour whose median is below
-#: FAINT is "faint" (on the wrist radiographs the shipped cortex contours have medians of
-#: 0.32-0.35, the faint medial ones 0.17-0.21); at STRONG and beyond a point is on one of the
-#: image's strongest edges (on a radiograph with markers: metal, beads, the collimator).
-WEAK = 0.2
-FAINT = 0.25
-STRONG = 1.0
+#: An outline whose points lie on another part of it (:func:`self_overlap`) for more than this
+#: share is refused: it runs over the same edge more than once (anchors placed twice).
+MAX_OVERLAP = 0.25
+OVERLAP_GAP = 10
 GRABCUT_MAX_ITERATIONS = 20
 #: Largest GrabCut box, square pixels (800 x 800 px). Measured on the 1760 px wrist
 #: radiograph (benchmarks/workbench_bounds.py): an 800 px box took 2-4 s and ~145 MB more;
@@ -149,6 +148,21 @@ def piece_anchors(piece: np.ndarray, closed: bool, anchors: np.ndarray | None) -
     return out if len(out) >= need else None
 
 
+def self_overlap(path: np.ndarray, closed: bool, gap: int = OVERLAP_GAP) -> float:
+    """The share of the points of ``path`` (pixels) that lie within 1 px of a point of it more
+    than ``gap`` points away along it (around, for a closed one): 0 for an outline that follows
+    an edge once, about 2/3 for one that runs three times over the same edge."""
+    path = np.asarray(path, float).reshape(-1, 2)
+    n = len(path)
+    if n <= 2 * gap:
+        return 0.0
+    pairs = cKDTree(path).query_pairs(1.0, output_type="ndarray")
+    d = np.abs(pairs[:, 0] - pairs[:, 1])
+    if closed:
+        d = np.minimum(d, n - d)
+    return len(np.unique(pairs[d > gap].ravel())) / n
+
+
 def erase_stretch(uv: np.ndarray, closed: bool, a: np.ndarray, b: np.ndarray) -> list[np.ndarray]:
     """``uv`` without the stretch between its points nearest to ``a`` and ``b`` (both
     dropped); for a closed contour the shorter of the two stretches. Pieces of < 3 points
@@ -181,31 +195,53 @@ class OutlineTools:
     def __init__(self, wb: Workbench):
         self.wb = wb
         self.path: Path = wb.case_dir / CLEANING_NAME
-        self._lock = threading.RLock()
-        self._grad: dict[str, tuple[np.ndarray, float]] = {}
-        self._zones: dict[str, list[list[list[float]]]] = self._read()
+        self._lock = wb.edit_lock  # one lock for every edit: the undo history's too
+        self._grad_lock = threading.Lock()
+        self._grad: dict[str, tuple[np.ndarray, float, float]] = {}
+        # (zones, uncut) of each view: replaced, never changed in place (the undo history
+        # keeps the old values)
+        self._state: tuple[dict[str, list], dict[str, list]] = self._read()
+        wb.history.part("cleaning", lambda: self._state, self._put)
+
+    @property
+    def _zones(self) -> dict[str, list[list[list[float]]]]:
+        return self._state[0]
+
+    @property
+    def _uncut(self) -> dict[str, list[dict]]:
+        return self._state[1]
 
     # -- the zone file ---------------------------------------------------------------------
 
-    def _read(self) -> dict[str, list[list[list[float]]]]:
+    def _read(self) -> tuple[dict[str, list], dict[str, list]]:
         if not self.path.is_file() or not self.path.resolve().is_relative_to(self.wb.case_dir):
-            return {}
+            return {}, {}
         try:
             doc = read_json(self.path)
-            out = {}
+            out, uncut = {}, {}
             for view, entry in doc["views"].items():
                 if view in self.wb.views:
                     zones = entry["cleaning"]["exclusion_zones"]
                     out[view] = [np.asarray(z, float).reshape(-1, 2).tolist() for z in zones]
-            return out
+                    uncut[view] = _records(entry.get("uncut", []))
+            return out, uncut
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
             log.warning("%s: ignored (%s)", self.path, exc)
-            return {}
+            return {}, {}
 
-    def _write(self, zones: dict[str, list[list[list[float]]]]) -> None:
-        views = {v: {"cleaning": {"exclusion_zones": z}} for v, z in zones.items() if z}
+    def _write(self, zones: dict[str, list], uncut: dict[str, list] | None = None) -> None:
+        self._put((zones, self._uncut if uncut is None else uncut))
+
+    def _put(self, state: tuple[dict[str, list], dict[str, list]]) -> None:
+        """Save and adopt ``(zones, uncut)`` (an edit, or a state of the undo history)."""
+        zones, uncut = state
+        views = {}
+        for v in sorted(set(zones) | set(uncut)):
+            if zones.get(v) or uncut.get(v):
+                views[v] = {"cleaning": {"exclusion_zones": zones.get(v, [])},
+                            "uncut": uncut.get(v, [])}  # fmt: skip
         atomic_write_json(self.path, {"format": CLEANING_FORMAT, "views": views})
-        self._zones = zones
+        self._state = (zones, uncut)
 
     def zones(self, view: str) -> list[list[list[float]]]:
         """The exclusion polygons of ``view`` (pixels)."""
@@ -241,17 +277,30 @@ class OutlineTools:
         return out
 
     def _replace(
-        self, view: str, ref: int | str | None, make: Callable, version: int | None = None
+        self,
+        view: str,
+        ref: int | str | None,
+        make: Callable,
+        version: int | None = None,
+        label: str = "",
+        source: tuple | None = None,
     ) -> dict[str, Any]:
         """Replace contour ``ref`` (an index or a contour id, at ``version`` when given; append
         when None) by the pieces ``make(contour, entry)`` returns; answers ``{"index",
-        "pieces", "view"}``."""
+        "pieces", "view"}``. ``source`` = ``(uv, closed, anchors)``: the contour before the
+        zones cut it (kept when they did, so that removing a zone restores it); ``label``
+        names the edit in the undo history."""
         info: dict[str, Any] = {}
+        uncut: dict[str, list] = {}
 
         def change(contours: list[Contour], saved: list[Any]) -> None:
             index = None if ref is None else self.wb.contour_index(view, ref, version)
             old = (None, None) if index is None else (contours[index], saved[index])
             pieces = make(*old)
+            if source is not None and _was_cut(source[0], pieces):
+                record = new_record(*source, [c for c, _ in pieces])
+                uncut.update(self._uncut)
+                uncut[view] = [*self._uncut.get(view, []), record]
             at = len(contours) if index is None else index
             if index is not None:
                 del contours[index], saved[index]
@@ -260,8 +309,10 @@ class OutlineTools:
                 saved.insert(at + k, e)
             info.update(index=at, pieces=len(pieces))
 
-        with self._lock:
-            doc = self.wb.edit_contours(view, change)
+        with self._lock, self.wb.history.step(label or f"contours of {view} edited"):
+            doc = self.wb.edit_contours(view, change, label)
+            if uncut:
+                self._write(self._zones, uncut)
         return {**info, "view": doc}
 
     # -- tracing and editing ---------------------------------------------------------------
@@ -272,6 +323,12 @@ class OutlineTools:
         is_closed = check_flag(closed, "closed", False)
         pts = check_points(anchors, "anchors", v.size, 3 if is_closed else 2, MAX_ANCHORS)
         path = livewire(v.image, pts, is_closed, sigma_px=LIVEWIRE_SIGMA_PX, cost=v.cost())
+        share = self_overlap(path, is_closed)
+        if share > MAX_OVERLAP:
+            raise ValueError(
+                f"anchors: the outline runs over itself ({100 * share:.0f}% of its points lie on "
+                "another part of it): place the anchors once along the edge"
+            )
         return np.round(path, 3), pts, is_closed
 
     def _nonempty(self, pieces: list, field: str) -> list:
@@ -284,7 +341,8 @@ class OutlineTools:
         (one contour per piece). ``{"index": first piece, "pieces", "view"}``."""
         path, pts, is_closed = self._trace(view, anchors, closed)
         pieces = self._nonempty(self._pieces(view, path, is_closed, pts), "anchors")
-        return self._replace(view, None, lambda *_: pieces)
+        label = f"contour traced in {view}"
+        return self._replace(view, None, lambda *_: pieces, None, label, (path, is_closed, pts))
 
     def retrace(
         self,
@@ -302,7 +360,8 @@ class OutlineTools:
         self.wb.contour_index(view, index, version)  # a stale edit: before the tracing
         path, pts, is_closed = self._trace(view, anchors, closed)
         pieces = self._nonempty(self._pieces(view, path, is_closed, pts), "anchors")
-        return self._replace(view, index, lambda *_: pieces, version)
+        label, source = f"contour of {view} re-traced", (path, is_closed, pts)
+        return self._replace(view, index, lambda *_: pieces, version, label, source)
 
     def erase(
         self,
@@ -314,19 +373,23 @@ class OutlineTools:
     ) -> dict[str, Any]:
         """Contour ``index`` (an index or a contour id, at ``version`` when given) without the
         stretch between its points nearest to ``start`` and ``end`` (pixels); nothing left
-        removes the contour. ``{"index", "pieces", "view"}``."""
+        removes the contour; two clicks on the same point of it (a stretch of no length)
+        change nothing. ``{"index", "pieces", "view"}``."""
         v = self._view(view)
         a = check_point(start, "from", v.size)
         b = check_point(end, "to", v.size)
 
         def make(contour: Contour, entry: Any) -> list:
+            uv = np.asarray(contour.uv, float)
+            if _nearest(uv, a)[0] == _nearest(uv, b)[0]:
+                return [(contour, entry)]  # nothing between: the contour stays whole
             anchors = None if entry is None else np.asarray(entry["anchors"], float)
-            pieces = erase_stretch(np.asarray(contour.uv, float), contour.closed, a, b)
+            pieces = erase_stretch(uv, contour.closed, a, b)
             return [
                 (Contour(p, False), _entry(p, piece_anchors(p, False, anchors))) for p in pieces
             ]
 
-        return self._replace(view, index, make, version)
+        return self._replace(view, index, make, version, f"stretch erased in {view}")
 
     def grabcut(self, view: str, box: object, iterations: object = None) -> dict[str, Any]:
         """A closed contour from GrabCut in ``box`` = ``[u0, v0, u1, v1]`` (pixels, inside the
@@ -347,7 +410,9 @@ class OutlineTools:
             raise ValueError(f"iterations: expected 1 to {GRABCUT_MAX_ITERATIONS}, got {its}")
         outline = grabcut_outline(v.image, box=np.r_[lo, hi], iterations=its)
         pieces = self._nonempty(self._pieces(view, outline, True, None), "box")
-        return {**self._replace(view, None, lambda *_: pieces), "seconds": _since(t0)}
+        label, source = f"GrabCut contour in {view}", (outline, True, None)
+        doc = self._replace(view, None, lambda *_: pieces, None, label, source)
+        return {**doc, "seconds": _since(t0)}
 
     # -- exclusion zones -------------------------------------------------------------------
 
@@ -379,78 +444,117 @@ class OutlineTools:
         v = self._view(view)
         polys = [np.round(p, 3).tolist() for p in self._zone_polygons(v, body)]
         cut: list[int] = []
-        with self._lock:
+        label = f"exclusion zone added in {view}"
+        with self._lock, self.wb.history.step(label):
             zones = {k: list(z) for k, z in self._zones.items()}
             if len(zones.get(view, [])) + len(polys) > MAX_ZONES:
                 raise ValueError(f"zones: at most {MAX_ZONES} per view")
             zones[view] = zones.get(view, []) + polys
+            uncut = dict(self._uncut)
 
             def change(contours: list[Contour], saved: list[Any]) -> None:
-                new_c, new_s = [], []
+                new_c, new_s, records = [], [], list(uncut.get(view, []))
                 for i, (c, e) in enumerate(zip(contours, saved, strict=True)):
                     anchors = None if e is None else e["anchors"]
                     pieces = self._pieces(view, np.asarray(c.uv), c.closed, anchors, polys)
-                    if len(pieces) != 1 or len(pieces[0][0].uv) != len(c.uv):
+                    if _was_cut(c.uv, pieces):
                         cut.append(i)
+                        records = note_cut(records, c, anchors, [p[0] for p in pieces])
                     else:
                         pieces = [(c, e)]
                     new_c += [p[0] for p in pieces]
                     new_s += [p[1] for p in pieces]
                 contours[:], saved[:] = new_c, new_s
+                uncut[view] = records
 
-            doc = self.wb.edit_contours(view, change)
-            self._write(zones)
+            doc = self.wb.edit_contours(view, change, label)
+            self._write(zones, uncut)
         return {"zones": zones[view], "added": len(polys), "cut": cut, "view": doc}
 
     def delete_zone(self, view: str, index: int) -> dict[str, Any]:
-        """Remove zone ``index`` of ``view`` (the contours it cut stay cut): ``{"zones"}``."""
+        """Remove zone ``index`` of ``view`` and put back what it cut (each contour it cut,
+        cut by the remaining zones, in place of its pieces; not one whose pieces were edited
+        since): ``{"zones", "restored", "not_restored": contours, "view"}``."""
         self._view(view)
-        with self._lock:
+        label = f"exclusion zone removed from {view}"
+        with self._lock, self.wb.history.step(label):
             zones = {k: list(z) for k, z in self._zones.items()}
             have = zones.get(view, [])
             if not 0 <= index < len(have):
                 raise NotFound(f"zones.{view}[{index}]: no such zone ({len(have)} in the view)")
-            del have[index]
+            removed = np.asarray(have.pop(index), float)
             zones[view] = have
-            self._write(zones)
-        return {"zones": have}
+            uncut = dict(self._uncut)
+            count = {"restored": 0, "not_restored": 0}
+
+            def change(contours: list[Contour], saved: list[Any]) -> None:
+                records = uncut.get(view, [])
+                args = (records, removed, have, count)
+                uncut[view] = self._restore(view, contours, saved, *args)
+
+            doc = self.wb.edit_contours(view, change, label)
+            self._write(zones, uncut)
+        return {"zones": have, **count, "view": doc}
+
+    def _restore(
+        self,
+        view: str,
+        contours: list[Contour],
+        saved: list[Any],
+        records: list[dict],
+        removed: np.ndarray,
+        remaining: list,
+        count: dict[str, int],
+    ) -> list[dict]:
+        """Put back, in ``contours`` / ``saved`` (edited in place), each recorded contour that
+        the ``removed`` zone cut, cut by the ``remaining`` zones; returns the records that
+        stay."""
+        keep = []
+        for r in records:
+            src = np.asarray(r["uv"], float)
+            if not _was_cut(src, self._pieces(view, src, r["closed"], None, [removed])):
+                keep.append(r)  # this zone did not cut it
+                continue
+            keys = [digest(c) for c in contours]
+            at = [keys.index(d) for d in r["pieces"] if d in keys]
+            if len(at) != len(r["pieces"]):
+                count["not_restored"] += 1  # a piece was edited or removed since
+                continue
+            pieces = self._pieces(view, src, r["closed"], r["anchors"], remaining)
+            pos = min(at) if at else len(contours)
+            for i in sorted(at, reverse=True):
+                del contours[i], saved[i]
+            contours[pos:pos] = [c for c, _ in pieces]
+            saved[pos:pos] = [e for _, e in pieces]
+            count["restored"] += 1
+            if _was_cut(src, pieces):
+                keep.append({**r, "pieces": [digest(c) for c, _ in pieces]})
+        return keep
 
     # -- quality and residuals -------------------------------------------------------------
 
-    def _gradient(self, view: str) -> tuple[np.ndarray, float]:
+    def _gradient(self, view: str) -> tuple[np.ndarray, float, float]:
+        """The view's gradient magnitude and its edge scale (:func:`edge_scale`), once."""
         v = self._view(view)
         v.need_image()
-        with self._lock:
+        with self._grad_lock:
             if view not in self._grad:
                 g = gradient_magnitude(v.image.display.astype(np.float64), LIVEWIRE_SIGMA_PX)
-                self._grad[view] = (g, float(np.percentile(g, 99.5)))
+                self._grad[view] = (g, *edge_scale(g))
             return self._grad[view]
 
     def quality(self, view: str) -> dict[str, Any]:
-        """Edge strength along each contour of ``view``: ``{"contours": [{"index",
-        "strength": per point, "median", "weak_fraction", "strong_fraction", "verdict"}],
-        "weak", "faint", "strong"}`` (strength = gradient magnitude at the point / the image's
-        99.5th percentile of it; ``strong_fraction``: the share at :data:`STRONG` or above;
-        verdict ``faint`` when the median is below :data:`FAINT`, else ``ok``)."""
-        g, ref = self._gradient(view)
+        """Edge strength along each contour of ``view`` (:mod:`biplanar_reg.workbench.
+        edge_strength`: gradient magnitude / the image's typical edge): ``{"contours":
+        [{"index", "strength": per point, "median", "weak_fraction", "strong_fraction",
+        "verdict"}], "weak", "faint", "strong"}``."""
+        g, typical, strong = self._gradient(view)
         va = self.wb.view_document(view)
-        out = []
-        for i, c in enumerate(va["contours"]):
-            uv = np.asarray(c["uv"], float)
-            s = ndimage.map_coordinates(g, [uv[:, 1], uv[:, 0]], order=1, mode="nearest")
-            s = s / ref if ref > 0 else np.zeros(len(uv))
-            med = float(np.median(s))
-            strong = float(np.mean(s >= STRONG))
-            verdict = "faint" if med < FAINT else "ok"
-            out.append({
-                "index": i,
-                "strength": np.round(s, 2).tolist(),
-                "median": round(med, 3),
-                "weak_fraction": round(float(np.mean(s < WEAK)), 3),
-                "strong_fraction": round(strong, 3),
-                "verdict": verdict,
-            })  # fmt: skip
-        return {"contours": out, "weak": WEAK, "faint": FAINT, "strong": STRONG}
+        out = [
+            {"index": i, **grade(g, np.asarray(c["uv"], float), typical, strong)}
+            for i, c in enumerate(va["contours"])
+        ]
+        return {"contours": out, "weak": WEAK, "faint": FAINT, "strong": round(strong, 3)}
 
     def residuals(self) -> dict[str, Any]:
         """Per-contour residuals of the current contours against the last registration's
@@ -500,6 +604,24 @@ def _check_box(lo: np.ndarray, hi: np.ndarray, size: tuple[int, int], box: objec
             f"box): keep it at least {GRABCUT_MIN_BACKGROUND_PX} px inside the image's edge on "
             f"one side, got {box}"
         )
+
+
+def _was_cut(uv: Any, pieces: list) -> bool:
+    """Whether ``pieces`` (``(Contour, entry)`` pairs) are not just the contour ``uv``."""
+    return len(pieces) != 1 or len(pieces[0][0].uv) != len(uv)
+
+
+def _records(value: object) -> list[dict]:
+    """The ``uncut`` records of a view as read from the cleaning file (checked for shape)."""
+    out = []
+    for r in value if isinstance(value, list) else []:
+        uv = np.asarray(r["uv"], float).reshape(-1, 2)
+        pieces = [str(p) for p in r["pieces"]]
+        anchors = r.get("anchors")
+        anchors = None if anchors is None else np.asarray(anchors, float).reshape(-1, 2).tolist()
+        out.append({"uv": uv.tolist(), "closed": bool(r["closed"]), "anchors": anchors,
+                    "pieces": pieces})  # fmt: skip
+    return out
 
 
 def _entry(piece: np.ndarray, anchors: list | None) -> dict[str, Any] | None:

@@ -14,7 +14,7 @@ import os
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any
 
 from ..cases import CaseSetup, read_case_setup
@@ -252,6 +252,21 @@ def _classify(found: Mapping[str, list[str]], path: Path, rel: str) -> None:
         found["images"].append(rel)
 
 
+def view_names(paths: Sequence[str]) -> dict[str, str]:
+    """A view name for each file (an image, or a calibration): its file name without the
+    suffix, each character other than letters, digits, ``_``, ``-`` and ``.`` replaced by
+    ``_``, at most 64 characters, made unique with ``_2``, ``_3``, ... in the order given."""
+    out: dict[str, str] = {}
+    for path in paths:
+        stem = re.sub(r"[^A-Za-z0-9_.-]", "_", PurePosixPath(path).stem).strip("._") or "view"
+        name, k = stem[:64], 2
+        while name in out.values():
+            tail = f"_{k}"
+            name, k = stem[: 64 - len(tail)] + tail, k + 1
+        out[path] = name
+    return out
+
+
 def views_from_json(value: Any) -> list[NewView]:
     """The ``views`` field of the page's form: ``[{"name", "calibration", "image"?}, ...]``."""
     if not isinstance(value, list):
@@ -282,7 +297,8 @@ def create_new_case_app(case_dir: Path, token: Any, opened: Any) -> Any:
     ``token`` is the launch token or the command's
     :class:`~biplanar_reg.workbench.access.Access` (shared with the workbench that replaces the
     form, so that the browser stays signed in). ``GET /`` the form (``static/new.html``), ``GET
-    /api/new`` ``{"case_dir", "files": candidate_files}``, ``POST /api/new`` ``{"model",
+    /api/new`` ``{"case_dir", "files": candidate_files, "view_names": view_names of the images
+    and calibrations}``, ``POST /api/new`` ``{"model",
     "views": [{"name", "calibration", "image"?}], "landmarks"?, "poses"?}``:
     :func:`scaffold_case`, then ``opened(setup)`` (which opens the workbench in its place);
     answers ``{"url": "/"}``, 400 naming the field when the form is wrong (nothing written).
@@ -305,7 +321,9 @@ def create_new_case_app(case_dir: Path, token: Any, opened: Any) -> Any:
 
     async def files(request: Request) -> JSONResponse:
         found = await _call(candidate_files, case_dir)
-        return JSONResponse({"case_dir": str(case_dir), "files": found})
+        # each view is named after its image (else its calibration) file
+        names = {**view_names(found["calibrations"]), **view_names(found["images"])}
+        return JSONResponse({"case_dir": str(case_dir), "files": found, "view_names": names})
 
     async def create(request: Request) -> JSONResponse:
         body = await _body(request)

@@ -17,14 +17,9 @@ starts with the field (``uv: ...``, ``anchors[2]: ...``), an unknown view or con
 
 from __future__ import annotations
 
-import difflib
-import itertools
-import json
 import logging
-import math
 import os
 import re
-import secrets
 import threading
 import time
 from pathlib import Path
@@ -46,8 +41,22 @@ from ..annotation.features import edge_cost
 from ..annotation.snap import MAX_RADIUS_PX
 from ..cases import CaseSetup, read_case_setup
 from ..cases.case import CaseView
-from ..errors import CaseError, CommandError
+from ..errors import CaseError
 from ..io import atomic_write_json, read_json
+from .caselock import CaseLock
+from .checks import (  # the others import some of these from here
+    MAX_POINTS,  # noqa: F401
+    check_flag,
+    check_point,
+    check_points,
+    check_positive,
+    check_version,  # noqa: F401
+    require_version,  # noqa: F401
+    short,
+)
+from .contour_ids import ContourIds
+from .failures import Conflict, NotFound, StaleContour, WorkbenchError  # noqa: F401
+from .history import History, NothingToUndo
 from .tiles import TILE_SIZE, Pyramid
 
 __all__ = ["Workbench", "WorkbenchError"]
@@ -59,28 +68,7 @@ STATE_NAME = ".workbench.json"
 STATE_FORMAT = "biplanar-reg/workbench-state@1"
 #: Livewire edge-cost scale (the default of :func:`biplanar_reg.annotation.livewire`), pixels.
 LIVEWIRE_SIGMA_PX = 1.5
-#: A lock whose content cannot be read is someone's half-written lock for this long, seconds.
-LOCK_GRACE_S = 5.0
-#: Largest point lists accepted (a contour at one point per pixel around a 3000 px image).
-MAX_POINTS = 100_000
 MAX_ANCHORS = 2_000
-
-
-class WorkbenchError(CommandError):
-    """The case folder cannot be opened by a workbench (e.g. another one holds its lock)."""
-
-
-class NotFound(LookupError):
-    """No such view, contour, tile or result (the message names it)."""
-
-
-class Conflict(RuntimeError):
-    """The request cannot be applied in the current state (the message says why)."""
-
-
-class StaleContour(Conflict):
-    """A contour edit names a contour that was removed or changed since (another tab, or the
-    file edited outside the workbench)."""
 
 
 _ALLOW_OUTSIDE = re.compile(r"\s*\(pass --allow-outside to permit it\)")
@@ -93,169 +81,6 @@ def inside_only(message: str) -> str:
     """A case loader's message without its ``--allow-outside`` advice (an option of
     ``register`` and ``batch``, not of the workbench, which writes into the folder)."""
     return _ALLOW_OUTSIDE.sub(" " + INSIDE_ONLY, message)
-
-
-# -- input checks ---------------------------------------------------------------------------------
-
-
-def _short(value: object) -> str:
-    text = json.dumps(value) if isinstance(value, (list, dict, str, int, float)) else repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
-def _is_number(x: object) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-
-
-def check_point(value: object, field: str, size: tuple[int, int] | None) -> np.ndarray:
-    """A pixel position ``[u, v]`` (pixels), inside the ``(W, H)`` image when ``size`` is given.
-
-    Raises ``ValueError`` starting with ``field``.
-    """
-    if value is None:
-        raise ValueError(f"{field}: missing (expected [u, v] in pixels)")
-    if not isinstance(value, (list, tuple)) or len(value) != 2 or not all(map(_is_number, value)):
-        raise ValueError(f"{field}: expected [u, v], two finite numbers, got {_short(value)}")
-    u, v = float(value[0]), float(value[1])
-    if size is not None:
-        w, h = size
-        # pixel centres run 0..W-1; a point may sit up to half a pixel beyond them
-        if not (-0.5 <= u <= w - 0.5 and -0.5 <= v <= h - 0.5):
-            raise ValueError(f"{field}: point ({u:g}, {v:g}) is outside the {w}x{h} image")
-    return np.array([u, v])
-
-
-def check_points(
-    value: object, field: str, size: tuple[int, int] | None, least: int, most: int = MAX_POINTS
-) -> np.ndarray:
-    """A list of ``least``..``most`` pixel positions ``[[u, v], ...]``, as a (K, 2) array."""
-    if value is None:
-        raise ValueError(f"{field}: missing (expected a list of [u, v] points in pixels)")
-    if not isinstance(value, list):
-        raise ValueError(f"{field}: expected a list of [u, v] points, got {_short(value)}")
-    if not least <= len(value) <= most:
-        raise ValueError(f"{field}: has {len(value)} point(s); expected {least} to {most}")
-    pts = [check_point(p, f"{field}[{i}]", size) for i, p in enumerate(value)]
-    return np.array(pts, float).reshape(-1, 2)
-
-
-def check_flag(value: object, field: str, default: bool) -> bool:
-    """A JSON boolean (``default`` when missing)."""
-    if value is None:
-        return default
-    if not isinstance(value, bool):
-        raise ValueError(f"{field}: expected true or false, got {_short(value)}")
-    return value
-
-
-def check_positive(value: object, field: str, default: float | None) -> float | None:
-    """A finite number > 0 (``default`` when missing)."""
-    if value is None:
-        return default
-    if not _is_number(value) or value <= 0:
-        raise ValueError(f"{field}: expected a positive number, got {_short(value)}")
-    return float(value)
-
-
-def check_version(value: object) -> int | None:
-    """A contour version as given in a request (``?version=N``), or None when missing."""
-    if value is None:
-        return None
-    if isinstance(value, str) and re.fullmatch(r"[0-9]{1,15}", value.strip()):
-        return int(value)
-    if isinstance(value, int) and not isinstance(value, bool) and value >= 0:
-        return value
-    raise ValueError(
-        f"version: expected a whole number (the contour's version), got {_short(value)}"
-    )
-
-
-def require_version(value: object) -> int:
-    """:func:`check_version`, required (the HTTP API's contour edits)."""
-    version = check_version(value)
-    if version is None:
-        raise ValueError(
-            "version: missing; give the contour's version from the last answer (?version=N), "
-            "so that an edit made stale by another tab is refused"
-        )
-    return version
-
-
-# -- the lock -----------------------------------------------------------------------------------
-
-
-def _pid_alive(pid: int) -> bool:
-    if os.name == "nt":  # os.kill(pid, 0) would terminate it there: assume it is alive
-        return True
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # someone else's live process
-        return True
-    return True
-
-
-class _Lock:
-    """``CASE_DIR/.workbench.lock``: created with ``O_EXCL``, holds ``{"pid", "port"}``."""
-
-    def __init__(self, path: Path):
-        self.path = path
-        self.held = False
-
-    def _holder(self) -> dict[str, Any] | None:
-        """The lock's content, or None when it is stale (its process is gone) or unreadable
-        for longer than :data:`LOCK_GRACE_S`; raises FileNotFoundError when there is none."""
-        try:
-            info = json.loads(self.path.read_text(encoding="utf-8"))
-            pid = int(info["pid"])
-        except (ValueError, KeyError, TypeError, UnicodeDecodeError):
-            # a lock being written right now is empty for an instant; an old one is debris
-            age = time.time() - self.path.stat().st_mtime
-            return {"pid": "?", "port": "?"} if age < LOCK_GRACE_S else None
-        return info if _pid_alive(pid) else None
-
-    def acquire(self, port: int = 0) -> None:
-        """Take the lock, taking over a stale one; :class:`WorkbenchError` when it is held."""
-        for _ in range(3):  # a stale lock is removed, then created again
-            try:
-                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-            except FileExistsError:
-                try:
-                    holder = self._holder()
-                except FileNotFoundError:
-                    continue  # released meanwhile
-                if holder is not None:
-                    raise WorkbenchError(
-                        f"{self.path}: the case is open in another workbench (pid "
-                        f"{holder.get('pid')}, port {holder.get('port')}); close it, or delete "
-                        "this file if that process is gone"
-                    ) from None
-                log.warning("%s: taking over the stale lock of a finished workbench", self.path)
-                self.path.unlink(missing_ok=True)
-                continue
-            with os.fdopen(fd, "w", encoding="utf-8") as f:
-                json.dump({"pid": os.getpid(), "port": port}, f)
-            self.held = True
-            return
-        raise WorkbenchError(f"{self.path}: could not take the lock (it keeps changing)")
-
-    def update(self, port: int) -> None:
-        """Record the server's port (known once it listens)."""
-        if self.held:
-            atomic_write_json(self.path, {"pid": os.getpid(), "port": port})
-
-    def release(self) -> None:
-        """Remove the lock if this process holds it."""
-        if not self.held:
-            return
-        self.held = False
-        try:
-            info = json.loads(self.path.read_text(encoding="utf-8"))
-            if info.get("pid") == os.getpid():
-                self.path.unlink()
-        except (OSError, ValueError):
-            pass
 
 
 # -- one view -------------------------------------------------------------------------------------
@@ -356,84 +181,6 @@ def _anchors_of(entry: object, contour: Contour) -> list[list[float]] | None:
     return entry["anchors"]
 
 
-def _content(contour: Contour) -> tuple[bool, bytes]:
-    """What tells one contour from another: closed, and its points (to 1e-6 px)."""
-    return bool(contour.closed), np.round(np.asarray(contour.uv, float), 6).tobytes()
-
-
-class _ContourIds:
-    """Stable ids and versions of the contours of each view, for one workbench run.
-
-    An id (``"<run>-<n>"``, the run part random, so that no id of an earlier run is ever
-    valid again) stays with a contour while it exists; the version (a number never given
-    twice in the run) changes with every change of its points or ``closed``. Neither is
-    saved: the annotation file keeps its format, and a page of an earlier run cannot talk to
-    this one anyway (its token is another).
-    """
-
-    def __init__(self) -> None:
-        self._run = secrets.token_hex(3)
-        self._next_id = itertools.count(1)
-        self._next_version = itertools.count(1)
-        self.views: dict[str, list[tuple[str, int]]] = {}
-
-    def _new(self) -> tuple[str, int]:
-        return f"{self._run}-{next(self._next_id)}", next(self._next_version)
-
-    def follow(self, old: Annotations | None, new: Annotations) -> None:
-        """Carry the ids over from ``old``'s contours to ``new``'s: an unchanged contour keeps
-        id and version; a changed one in the same place keeps its id with a new version (the
-        first piece of a cut contour); the others get new ids."""
-        out: dict[str, list[tuple[str, int]]] = {}
-        for view, va in new.views.items():
-            before = old.views.get(view) if old is not None else None
-            old_c = list(before.contours) if before is not None else []
-            old_ids = self.views.get(view, [])
-            if len(old_ids) != len(old_c):  # out of step: start afresh
-                old_c, old_ids = [], []
-            a = [_content(c) for c in old_c]
-            b = [_content(c) for c in va.contours]
-            ids: list[tuple[str, int]] = []
-            matcher = difflib.SequenceMatcher(None, a, b, autojunk=False)
-            for tag, i1, i2, j1, j2 in matcher.get_opcodes():
-                if tag == "equal":
-                    ids += old_ids[i1:i2]
-                    continue
-                for k in range(j2 - j1):
-                    inherit = tag == "replace" and k < i2 - i1
-                    ids.append((old_ids[i1 + k][0], next(self._next_version)) if inherit
-                               else self._new())  # fmt: skip
-            out[view] = ids
-        self.views = out
-
-    def find(self, view: str, ref: object, version: int | None) -> int:
-        """The index of contour ``ref`` (its id, or its index) of ``view``, checked to be at
-        ``version`` (None: not checked). :class:`NotFound` for an index out of range,
-        :class:`StaleContour` for an id that is gone or a version that is not the current."""
-        ids = self.views.get(view, [])
-        if isinstance(ref, int) or (isinstance(ref, str) and ref.isdigit()):
-            index = int(ref)
-            label = f"views.{view}.contours[{index}]"
-            if not 0 <= index < len(ids):
-                raise NotFound(f"{label}: no such contour ({len(ids)} in the view)")
-        else:
-            label = f"views.{view}.contours[id {ref}]"
-            found = [i for i, (cid, _) in enumerate(ids) if cid == ref]
-            if not found:
-                raise StaleContour(
-                    f"{label}: no longer exists (removed in another tab, or the file was "
-                    "changed outside the workbench); reload the view"
-                )
-            index = found[0]
-        now = ids[index][1]
-        if version is not None and version != now:
-            raise StaleContour(
-                f"{label}: changed since version {version} (now version {now}: edited in "
-                "another tab or outside the workbench); reload it and edit again"
-            )
-        return index
-
-
 def _rounded(points: np.ndarray, digits: int = 3) -> list[list[float]]:
     """Points as JSON lists; a thousandth of a pixel is below any annotation's precision."""
     return np.round(np.asarray(points, float), digits).tolist()
@@ -467,7 +214,7 @@ class Workbench:
             raise CaseError(inside_only(str(exc))) from None
         self.setup: CaseSetup = setup
         self.case_dir: Path = setup.case_dir
-        self._lock = _Lock(self.case_dir / LOCK_NAME)
+        self._lock = CaseLock(self.case_dir / LOCK_NAME)
         self._lock.acquire(port)
         try:
             self._open(setup)
@@ -482,11 +229,15 @@ class Workbench:
         self.landmarks: dict[str, int] = dict(setup.landmarks)
         self._edit = threading.RLock()  # one edit at a time: read, change, save
         self._ann_path = setup.annotations_path
-        self._ids = _ContourIds()
+        self._ids = ContourIds()
         self._ann, self._ann_stamp = self._read_annotations()
         self._ids.follow(None, self._ann)
         self._state_path = self.case_dir / STATE_NAME
         self._anchors = self._read_state()
+        self.history = History(self._edit)  # undo / redo of this launch (history.py)
+        self.history.part("annotations", lambda: self._ann, self._restore_annotations)
+        self.history.part("anchors", lambda: self._anchors, self._restore_anchors)
+        self.history.part("landmarks", lambda: self.landmarks, self._restore_landmarks)
         self.job = RegistrationJob(self.case_dir, self.out_dir)
         self._review: tuple[object, dict[str, Any]] | None = None
 
@@ -496,6 +247,11 @@ class Workbench:
     def lock_path(self) -> Path:
         """``CASE_DIR/.workbench.lock``."""
         return self._lock.path
+
+    @property
+    def edit_lock(self) -> threading.RLock:
+        """Held by every edit (read, change, save) and by undo / redo."""
+        return self._edit
 
     @property
     def out_dir(self) -> Path:
@@ -572,6 +328,11 @@ class Workbench:
                         f"now: {_one_line(exc)}"
                     ) from None
                 log.info("%s: changed on disk, re-read", self._ann_path)
+                # undoing would overwrite what the other program wrote
+                self.history.clear(
+                    f"the undo history was cleared: {self._ann_path.name} was changed outside "
+                    f"the workbench at {time.strftime('%H:%M:%S')}"
+                )
             return self._ann
 
     def _inside(self, path: Path) -> bool:
@@ -639,14 +400,58 @@ class Workbench:
 
     def _commit(self, ann: Annotations, anchors: dict[str, list[Any]] | None = None) -> None:
         """Save ``ann`` (validated, atomic), then the anchors; only then adopt them."""
+        self._restore_annotations(ann)
+        if anchors is not None:
+            self._restore_anchors(anchors)
+
+    def _restore_annotations(self, ann: Annotations) -> None:
+        """Save and adopt ``ann`` (an edit, or a state of the undo history)."""
         save_annotations(ann, self._ann_path)
         self._ids.follow(self._ann, ann)
         self._ann, self._ann_stamp = ann, _stamp(self._ann_path)
-        if anchors is not None:
-            atomic_write_json(
-                self._state_path, {"format": STATE_FORMAT, "contour_anchors": anchors}
-            )
-            self._anchors = anchors
+
+    def _restore_anchors(self, anchors: dict[str, list[Any]]) -> None:
+        atomic_write_json(self._state_path, {"format": STATE_FORMAT, "contour_anchors": anchors})
+        self._anchors = anchors
+
+    def _restore_landmarks(self, landmarks: dict[str, int]) -> None:
+        path = self._landmark_file()
+        if landmarks:
+            atomic_write_json(path, landmarks)
+        else:  # undoing the first definition: the file did not exist (it may not be empty)
+            path.unlink(missing_ok=True)
+        self.landmarks = landmarks
+
+    # -- undo / redo ----------------------------------------------------------------------------
+
+    def undo(self) -> dict[str, Any]:
+        """Undo the last edit (:mod:`biplanar_reg.workbench.history`); returns
+        :meth:`history_document` with ``"done"``: what was undone. :class:`Conflict` when there
+        is nothing to undo."""
+        return self._travel(self.history.undo)
+
+    def redo(self) -> dict[str, Any]:
+        """Redo the last undone edit; as :meth:`undo`."""
+        return self._travel(self.history.redo)
+
+    def _travel(self, move: Any) -> dict[str, Any]:
+        with self._edit:
+            self._current()  # a file changed by someone else clears the history first
+            try:
+                step = move()
+            except NothingToUndo as exc:
+                raise Conflict(str(exc)) from None
+            return {**self.history_document(), "done": step.label}
+
+    def history_document(self) -> dict[str, Any]:
+        """``{"history": the undo status, "annotations": the whole annotation document,
+        "model_landmarks"}``: what the page shows after an undo or a redo."""
+        with self._edit:
+            return {
+                "history": self.history.status(),
+                "annotations": self.annotations_document(),
+                "model_landmarks": dict(self.landmarks),
+            }
 
     def set_landmark(
         self, view: str, name: str, uv: object, sigma_px: object = None
@@ -658,7 +463,7 @@ class Workbench:
         self._known_landmark(name)
         p = check_point(uv, "uv", v.size)
         sigma = check_positive(sigma_px, "sigma_px", None)
-        with self._edit:
+        with self._edit, self.history.step(f"{name} placed in {view}"):
             ann = _copy(self._current())
             va = ann.views.setdefault(view, ViewAnnotations())
             old = va.landmarks.get(name)
@@ -671,7 +476,7 @@ class Workbench:
     def delete_landmark(self, view: str, name: str) -> dict[str, Any]:
         """Remove landmark ``name`` from ``view``; returns the view's annotations."""
         self._view(view)
-        with self._edit:
+        with self._edit, self.history.step(f"{name} removed from {view}"):
             ann = _copy(self._current())
             va = ann.views.get(view)
             if va is None or name not in va.landmarks:
@@ -690,23 +495,30 @@ class Workbench:
         a = check_points(anchors, "anchors", v.size, 2, MAX_ANCHORS)
         return contour, {**_fingerprint(contour), "anchors": a.tolist()}
 
-    def edit_contours(self, view: str, change: Any) -> dict[str, Any]:
+    def edit_contours(self, view: str, change: Any, label: str = "") -> dict[str, Any]:
         """Apply ``change(contours, anchors)`` to ``view`` and save; returns the view's
         annotations. ``contours`` (of :class:`Contour`) and ``anchors`` (the anchor entry of
         each, or None) are edited in place, in step; nothing is saved when ``change`` raises.
-        For the outline tools (:mod:`biplanar_reg.workbench.outline_tools`)."""
+        For the outline tools (:mod:`biplanar_reg.workbench.outline_tools`); ``label`` names
+        the edit in the undo history."""
         self._view(view)
-        return self._edit_contours(view, change)
+        return self._edit_contours(view, change, label)
 
-    def _edit_contours(self, view: str, change: Any) -> dict[str, Any]:
-        """Apply ``change(contours, anchors)`` (both lists, edited in place) and save."""
-        with self._edit:
+    def _edit_contours(self, view: str, change: Any, label: str = "") -> dict[str, Any]:
+        """Apply ``change(contours, anchors)`` (both lists, edited in place) and save; a
+        change that leaves every contour and anchor entry as it was saves nothing."""
+        with self._edit, self.history.step(label or f"contours of {view} edited"):
             ann = _copy(self._current())
             va = ann.views.setdefault(view, ViewAnnotations())
             anchors = {k: list(x) for k, x in self._anchors.items()}
             saved = anchors.get(view, [])
             saved = (saved + [None] * len(va.contours))[: len(va.contours)]
+            before = [*va.contours, *saved]
             change(va.contours, saved)
+            after = [*va.contours, *saved]
+            same = len(before) == len(after)
+            if same and all(a is b for a, b in zip(before, after, strict=True)):
+                return self.view_document(view)
             anchors[view] = saved
             self._commit(ann, anchors)
             return self.view_document(view)
@@ -725,7 +537,7 @@ class Workbench:
             contours.append(contour)
             saved.append(entry)
 
-        doc = self._edit_contours(view, change)
+        doc = self._edit_contours(view, change, f"contour added in {view}")
         return index[0], doc
 
     def contour_index(self, view: str, ref: object, version: int | None = None) -> int:
@@ -758,7 +570,7 @@ class Workbench:
             i = self._ids.find(view, index, version)
             contours[i], saved[i] = contour, entry
 
-        return self._edit_contours(view, change)
+        return self._edit_contours(view, change, f"contour of {view} replaced")
 
     def delete_contour(
         self, view: str, index: int | str, *, version: int | None = None
@@ -771,7 +583,7 @@ class Workbench:
             i = self._ids.find(view, index, version)
             del contours[i], saved[i]
 
-        return self._edit_contours(view, change)
+        return self._edit_contours(view, change, f"contour of {view} removed")
 
     # -- model landmarks ------------------------------------------------------------------------
 
@@ -788,21 +600,19 @@ class Workbench:
         """Define or move the model landmark ``name`` to vertex ``vertex`` (writes the case's
         ``[model] landmarks`` file, ``{"name": vertex index}``); returns ``{"landmarks"}``."""
         if not isinstance(name, str) or not name.strip() or len(name) > 200:
-            raise ValueError(f"name: expected a non-empty landmark name, got {_short(name)}")
+            raise ValueError(f"name: expected a non-empty landmark name, got {short(name)}")
         n = self.setup.n_vertices
         if isinstance(vertex, bool) or not isinstance(vertex, int) or not 0 <= vertex < n:
-            raise ValueError(f"vertex: expected a vertex index in 0..{n - 1}, got {_short(vertex)}")
-        path = self._landmark_file()
-        with self._edit:
-            landmarks = {**self.landmarks, name: vertex}
-            atomic_write_json(path, landmarks)
-            self.landmarks = landmarks
-            return {"landmarks": dict(landmarks)}
+            raise ValueError(f"vertex: expected a vertex index in 0..{n - 1}, got {short(vertex)}")
+        self._landmark_file()
+        with self._edit, self.history.step(f"model landmark {name} set"):
+            self._restore_landmarks({**self.landmarks, name: vertex})
+            return {"landmarks": dict(self.landmarks)}
 
     def delete_model_landmark(self, name: str) -> dict[str, Any]:
         """Remove a model landmark that no view uses; returns ``{"landmarks"}``."""
-        path = self._landmark_file()
-        with self._edit:
+        self._landmark_file()
+        with self._edit, self.history.step(f"model landmark {name} removed"):
             if name not in self.landmarks:
                 raise NotFound(f"landmarks.{name}: no such model landmark")
             used = [n for n, va in self._current().views.items() if name in va.landmarks]
@@ -810,10 +620,8 @@ class Workbench:
                 raise Conflict(f"landmarks.{name}: still placed in view(s) {', '.join(used)}")
             if len(self.landmarks) == 1:
                 raise Conflict(f"landmarks.{name}: the last landmark (the file must not be empty)")
-            landmarks = {k: i for k, i in self.landmarks.items() if k != name}
-            atomic_write_json(path, landmarks)
-            self.landmarks = landmarks
-            return {"landmarks": dict(landmarks)}
+            self._restore_landmarks({k: i for k, i in self.landmarks.items() if k != name})
+            return {"landmarks": dict(self.landmarks)}
 
     # -- tools ----------------------------------------------------------------------------------
 
@@ -836,7 +644,7 @@ class Workbench:
         p = check_point(uv, "uv", v.size)
         mode = "corner" if mode is None else mode
         if mode not in ("corner", "edge"):
-            raise ValueError(f"mode: expected 'corner' or 'edge', got {_short(mode)}")
+            raise ValueError(f"mode: expected 'corner' or 'edge', got {short(mode)}")
         radius = check_positive(radius_px, "radius_px", 5.0)
         if radius > MAX_RADIUS_PX:
             raise ValueError(

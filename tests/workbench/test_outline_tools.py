@@ -119,10 +119,13 @@ def test_circle_zone_cuts_the_saved_contour_and_the_loader_sees_it(client):
     assert r.json()["pieces"] == 2
     for piece in _saved(case)[2:]:
         assert np.all(np.hypot(*(np.asarray(piece["uv"]) - centre).T) > 6)
-    # zones listed, removed (the cut contours stay cut)
+    # zones listed, removed: what it cut comes back whole (tests/workbench/test_history.py)
     assert len(c.get(f"/api/views/{VIEW}/exclusions").json()["zones"]) == 1
-    assert c.delete(f"/api/views/{VIEW}/exclusions/0").json() == {"zones": []}
-    assert len(_saved(case)) == 4
+    gone = c.delete(f"/api/views/{VIEW}/exclusions/0").json()
+    assert (gone["zones"], gone["restored"], gone["not_restored"]) == ([], 2, 0)
+    back = _saved(case)
+    assert len(back) == 2
+    assert np.array_equal(np.asarray(back[0]["uv"]), before)
     assert c.delete(f"/api/views/{VIEW}/exclusions/0").status_code == 404
 
 

@@ -5,6 +5,7 @@ when refused."""
 from __future__ import annotations
 
 import argparse
+import re
 import shutil
 import tomllib
 from pathlib import Path
@@ -21,6 +22,7 @@ from biplanar_reg.workbench.scaffold import (
     create_new_case_app,
     parse_view_option,
     scaffold_case,
+    view_names,
 )
 
 TOKEN = "test-token-0123456789"
@@ -126,6 +128,9 @@ def test_the_form_lists_the_files_and_creates_the_case(loose):
     assert TestClient(app, base_url=BASE).get("/api/new").status_code == 403
     assert client.get("/").status_code == 200 and TOKEN in client.get("/").text
     assert client.get("/api/new").json()["files"] == found
+    # the form names each view after its image (calibration when it has none)
+    names = client.get("/api/new").json()["view_names"]
+    assert names["xray/cam1.png"] == "cam1" and names["calib/cam2.json"] == "cam2"
     body = {"model": "model/bone_ssm.npz", "views": [{"name": "cam1", "calibration": "x.txt"}]}
     r = client.post("/api/new", json=body)
     assert r.status_code == 400 and r.json()["error"].startswith("views"), r.text
@@ -138,3 +143,11 @@ def test_the_form_lists_the_files_and_creates_the_case(loose):
     assert r.status_code == 200 and r.json()["url"] == "/"  # the browser is signed in already
     assert len(opened) == 1 and opened[0].case_dir == loose.resolve()
     assert tomllib.loads((loose / "case.toml").read_text())["model"]["landmarks"] == "lm.json"
+
+
+def test_view_names_are_the_file_names_sanitised_and_unique():
+    names = view_names(["data/cam01 frame#0099.tif", "b/cam01 frame#0099.png", "c/#.tif", "x" * 80])
+    assert list(names.values()) == ["cam01_frame_0099", "cam01_frame_0099_2", "view", "x" * 64]
+    for name in names.values():
+        NewView(name, "calib/cam1.txt")  # each a valid view name
+        assert re.fullmatch(r"[A-Za-z0-9_.-]{1,64}", name)

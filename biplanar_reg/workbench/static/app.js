@@ -7,6 +7,8 @@
 import { api } from "./api.js";
 import { EPIPOLAR_SHORTCUTS, installEpipolar } from "./epipolar.js";
 import { fatal } from "./fatal.js";
+import { installHistory } from "./history.js";
+import { addShortcut, installKeys, SHORTCUTS } from "./keys.js";
 import { ModelView } from "./model3d.js";
 import { installMarkers, MARKER_SHORTCUTS } from "./markers.js";
 import { installOutlineTools } from "./outlines.js";
@@ -89,32 +91,14 @@ function wireControls(wb) {
   $("outline-finish").addEventListener("click", () => wb.tools.outline.finish());
   $("outline-cancel").addEventListener("click", () => wb.tools.outline.cancel());
   $("delete-selected").addEventListener("click", () => wb.tools.outline.deleteSelected());
-  document.addEventListener("keydown", (ev) => onKey(wb, ev));
 }
 
-/** The shortcuts of the page's modules: {key, help, run?(wb)} (keys with `run` are handled
- * by onKey; the others, e.g. "right-drag", are for the shortcut list). */
-export const SHORTCUTS = [...EPIPOLAR_SHORTCUTS, ...WINDOW_SHORTCUTS, ...MARKER_SHORTCUTS];
-
-/** Keyboard: E epipolar lines (SHORTCUTS), L / O / P modes, U undoes a pose step (Pose mode), F fit, Enter finish, Esc cancel, Backspace undo an anchor, Delete
- * removes the selected landmark (in the view under the mouse) or contour. */
-function onKey(wb, ev) {
-  if (ev.target instanceof HTMLInputElement || ev.ctrlKey || ev.metaKey || ev.altKey) return;
-  const outline = wb.tools.outline;
-  const key = ev.key;
-  const extra = SHORTCUTS.find((s) => s.run && s.key.toLowerCase() === key.toLowerCase());
-  if (extra) extra.run(wb);
-  else if (key === "l" || key === "L") wb.setMode("landmark");
-  else if (key === "o" || key === "O") wb.setMode("outline");
-  else if ((key === "p" || key === "P") && wb.tools.pose) wb.setMode("pose");
-  else if ((key === "u" || key === "U") && wb.mode === "pose") wb.tools.pose.aid.undo();
-  else if (key === "f" || key === "F") wb.viewers.get(wb.activeView)?.fit();
-  else if (key === "Enter" && wb.mode === "outline") outline.finish();
-  else if (key === "Escape") wb.tool().cancel();
-  else if (key === "Backspace" && wb.mode === "outline" && outline.tracing()) outline.undo();
-  else if (key === "Delete" || key === "Backspace") wb.tool().deleteSelected();
-  else return;
-  ev.preventDefault();
+/** A module's shortcut ({key, help, run?}) as an entry of the page's table (keys.js): a
+ * plain key when it runs something, else a line of the list only (e.g. "right-drag"). */
+function moduleShortcut({ key, help, run }) {
+  const match = (ev) =>
+    Boolean(run) && !ev.ctrlKey && !ev.metaKey && !ev.altKey && ev.key.toLowerCase() === key.toLowerCase();
+  return { keys: key, what: help, match, run: (wb) => (run ? run(wb) : false) };
 }
 
 /** Test hooks (tests/workbench/test_e2e.py): transforms and waits; not used by the page. */
@@ -139,6 +123,7 @@ function exposeForTests(wb) {
     /** Resolves when the edits sent so far are answered (saved by the server). */
     idle: () => wb.queue.then(() => undefined),
     tilesPending: () => [...wb.viewers.values()].reduce((n, v) => n + v.tiles.pending(), 0),
+    shortcuts: SHORTCUTS, // the table the key handler runs and "?" lists (keys.js)
   };
 }
 
@@ -202,6 +187,11 @@ async function main() {
   installOutlineTools(wb); // outline editing, zones, GrabCut, quality (outlines.js)
   installMarkers(wb); // marker beads proposed as exclusion zones (markers.js)
   installEpipolar(wb); // epipolar curves of the cursor and the selected landmark (epipolar.js)
+  installHistory(wb, { undo: $("undo"), redo: $("redo") }); // undo / redo (history.js)
+  installKeys(wb); // the shortcuts and their "?" list; no control keeps the focus (keys.js)
+  for (const s of [...EPIPOLAR_SHORTCUTS, ...WINDOW_SHORTCUTS, ...MARKER_SHORTCUTS]) {
+    addShortcut(moduleShortcut(s));
+  }
   document.body.dataset.mode = wb.mode;
   wb.refresh();
   exposeForTests(wb);

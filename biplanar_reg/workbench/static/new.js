@@ -24,11 +24,23 @@ function select(options, value, empty) {
   return s;
 }
 
-function addView(files, i) {
+/** The name a row's view gets: after its image file, else its calibration file (the server's
+ * `view_names`), unique among the rows. */
+function defaultName(names, row) {
+  const file = row.querySelector(".view-image").value || row.querySelector(".view-calibration").value;
+  const base = names[file] || `view${row.rowIndex}`;
+  const taken = new Set([...$("view-rows").tBodies[0].rows]
+    .filter((r) => r !== row).map((r) => r.querySelector(".view-name").value));
+  let name = base;
+  for (let k = 2; taken.has(name); k++) name = `${base}_${k}`;
+  return name;
+}
+
+function addView(files, names, i) {
   const row = document.createElement("tr");
   const name = document.createElement("input");
-  name.value = `cam${i + 1}`;
   name.className = "view-name";
+  name.dataset.testid = `new-view-name-${i}`;
   const calib = select(files.calibrations, files.calibrations[i]);
   calib.className = "view-calibration";
   const image = select(files.images, files.images[i], "(no image)");
@@ -39,16 +51,27 @@ function addView(files, i) {
     row.append(td);
   }
   $("view-rows").tBodies[0].append(row);
+  // the name follows the files chosen until it is typed in
+  name.value = defaultName(names, row);
+  name.addEventListener("input", () => {
+    name.dataset.typed = "true";
+  });
+  for (const s of [calib, image]) {
+    s.addEventListener("change", () => {
+      if (!name.dataset.typed) name.value = defaultName(names, row);
+    });
+  }
 }
 
 async function main() {
-  const { case_dir: dir, files } = await request("GET", "api/new");
+  const { case_dir: dir, files, view_names: names } = await request("GET", "api/new");
   $("case-dir").textContent = dir;
   for (const m of files.models) $("model").append(new Option(m, m));
   if (files.landmarks.length) $("landmarks").value = files.landmarks[0];
-  addView(files, 0);
-  addView(files, 1);
-  $("add-view").addEventListener("click", () => addView(files, $("view-rows").tBodies[0].rows.length));
+  addView(files, names, 0);
+  addView(files, names, 1);
+  $("add-view").addEventListener("click",
+    () => addView(files, names, $("view-rows").tBodies[0].rows.length));
   $("new-case").addEventListener("submit", async (ev) => {
     ev.preventDefault();
     const views = [...$("view-rows").tBodies[0].rows].map((r) => ({

@@ -12,7 +12,8 @@ import { contourPath, request } from "./api.js";
 import { COLORS, distanceToPolyline, polyline } from "./overlay.js";
 import { contourRow } from "./panels.js";
 
-const HIT_PX = 8;
+const ANCHOR_HIT_PX = 8; // how near (CSS px) a press must be to grab an anchor (drawn 8 px)
+const SAME_POINT_PX = 4; // an erase's second click this near (CSS px) the first is the same point
 const DRAG_SLOP_PX = 3;
 const enc = encodeURIComponent;
 const $ = (id) => document.getElementById(id);
@@ -72,6 +73,7 @@ export class OutlineTools {
     this.submode = "trace";
     this.zones = {}; // view -> [polygon]
     this.quality = {}; // view -> [{index, strength, median, verdict, ...}]
+    this.thresholds = {}; // view -> {weak, strong}: the server's, in the strength's units
     this.residuals = null; // {views: {view: [{index, mean_px, worst_mean_px, worst_uv}]}}
     this.showQuality = true;
     this.press = null; // the gesture in progress: {kind, view, start, points, moved, ...}
@@ -144,7 +146,7 @@ export class OutlineTools {
     if (!s || !s.contour.anchors) return -1;
     const [x, y] = viewer.toCanvas(...uv);
     let best = -1;
-    let bestD = HIT_PX;
+    let bestD = ANCHOR_HIT_PX;
     s.contour.anchors.forEach((a, i) => {
       const [ax, ay] = viewer.toCanvas(...a);
       const d = Math.hypot(ax - x, ay - y);
@@ -230,6 +232,11 @@ export class OutlineTools {
         return;
       }
       const f = this.eraseFrom;
+      if (f && f.view === viewer.name && f.index === hit && this.samePoint(viewer, f.uv, uv)) {
+        // a stretch of no length: nothing to erase (and the contour must not be split)
+        this.wb.status(`Erase: that is where the stretch starts; click its other end on contour #${hit}`);
+        return;
+      }
       if (!f || f.view !== viewer.name || f.index !== hit) {
         this.eraseFrom = { view: viewer.name, index: hit, uv: round2(uv) };
         this.wb.selectContour({ view: viewer.name, index: hit });
@@ -241,6 +248,12 @@ export class OutlineTools {
       this.run(viewer.name, () => outlineApi.erase(viewer.name, contour, f.uv, round2(uv)),
         (res) => `contour #${hit}: stretch erased (${res.pieces} piece(s) left)`);
     }
+  }
+
+  samePoint(viewer, a, b) {
+    const [ax, ay] = viewer.toCanvas(...a);
+    const [bx, by] = viewer.toCanvas(...b);
+    return Math.hypot(ax - bx, ay - by) < SAME_POINT_PX;
   }
 
   anchorDrop(viewer, p, uv) {
@@ -290,9 +303,12 @@ export class OutlineTools {
 
   removeZone(view, k) {
     this.wb.edit(async () => {
-      this.zones[view] = (await outlineApi.deleteZone(view, k)).zones;
-      this.wb.status(`${view}: exclusion zone ${k} removed (what it cut stays cut)`);
-      this.wb.refresh();
+      const res = await outlineApi.deleteZone(view, k);
+      this.zones[view] = res.zones;
+      this.wb.setViewAnnotations(view, res.view); // what the zone cut is back
+      const kept = res.not_restored
+        ? `; ${res.not_restored} edited since stay as they are` : "";
+      this.wb.status(`${view}: exclusion zone ${k} removed, ${res.restored} contour(s) restored${kept}`);
     });
   }
 
@@ -329,7 +345,9 @@ export class OutlineTools {
 
   async loadQuality(view) {
     try {
-      this.quality[view] = (await outlineApi.quality(view)).contours;
+      const q = await outlineApi.quality(view);
+      this.quality[view] = q.contours;
+      this.thresholds[view] = { weak: q.weak, strong: q.strong };
       this.decorateList();
       this.wb.redraw();
     } catch (err) {
@@ -357,7 +375,8 @@ export class OutlineTools {
     if (this.showQuality && this.wb.mode === "outline" && q) {
       for (const item of q) {
         const c = va.contours[item.index];
-        if (c && c.uv.length === item.strength.length) drawStrength(ctx, viewer, c, item.strength);
+        const th = this.thresholds[viewer.name];
+        if (c && c.uv.length === item.strength.length) drawStrength(ctx, viewer, c, item.strength, th);
       }
     }
     const s = this.selected(viewer);
@@ -420,7 +439,7 @@ export class OutlineTools {
         const badge = el("span", { class: cls, "data-testid": `quality-${view}-${q.index}` },
           `edge ${q.median.toFixed(2)}${q.verdict === "faint" ? " faint" : ""}`);
         badge.title =
-          `edge strength along the contour: median ${q.median} of the image's strong edges; ` +
+          `edge strength along the contour: median ${q.median} × a typical edge of this image; ` +
           `${Math.round(100 * q.weak_fraction)}% weak, ${Math.round(100 * q.strong_fraction)}% ` +
           "on the image's strongest edges (a bead or metal?)";
         row.querySelector(".meta").after(badge);
@@ -485,8 +504,8 @@ function drawZone(ctx, viewer, zone) {
 
 /** The contour in the colour of the edge under it: red weak, amber ordinary, blue among the
  * image's strongest edges (the thresholds the server sends with the quality). */
-function drawStrength(ctx, viewer, c, strength) {
-  const cls = (s) => (s < 0.2 ? "weak" : s >= 1 ? "strong" : "mid");
+function drawStrength(ctx, viewer, c, strength, { weak, strong }) {
+  const cls = (s) => (s < weak ? "weak" : s >= strong ? "strong" : "mid");
   let start = 0;
   for (let i = 1; i <= c.uv.length; i++) {
     if (i < c.uv.length && cls(strength[i]) === cls(strength[start])) continue;

@@ -71,7 +71,8 @@ export class RegisterPanel {
 
   /** On page load: show the last result, and follow a registration still running. */
   async init() {
-    await this.loadResult();
+    // a case never registered has no result to ask for (GET /api/result would be a 404)
+    if (this.wb.caseInfo.has_result) await this.loadResult();
     const status = await api.getRegister();
     if (status.state === "running") {
       this.follow();

@@ -9,7 +9,11 @@
 import { api } from "./api.js";
 import { distanceToPolyline } from "./overlay.js";
 
-const HIT_PX = 8; // how near (CSS px) a press must be to grab a landmark or select a contour
+const HIT_PX = 8; // how near (CSS px) a press must be to grab a landmark
+// How near (CSS px, on the screen: the same at any zoom) a click must be to select or erase a
+// contour; the nearest contour within it wins.
+export const CONTOUR_HIT_PX = 14;
+const SAME_ANCHOR_PX = 4; // an anchor this near (CSS px) to the last one is the same anchor
 const DRAG_SLOP_PX = 3; // a press on a landmark that moves less than this is a click
 const PREVIEW_DELAY_MS = 100; // livewire preview debounce: the contract's ~100 ms
 
@@ -173,14 +177,41 @@ export class OutlineTool {
       this.wb.selectContour(index < 0 ? null : { view: viewer.name, index });
       if (index >= 0) return;
     }
+    const refused = this.refuseAnchor(viewer, uv);
+    if (refused) {
+      this.wb.status(refused);
+      return;
+    }
     this.addAnchor(viewer.name, uv);
   }
 
-  /** Index of the contour of `viewer` within HIT_PX of uv, or -1. */
+  /** Why an anchor at uv would make the outline run over itself (null: it would not): the
+   * same point as the last anchor, or a point on the outline traced so far (going back along
+   * it). Near the first anchor is allowed (an outline may come round to where it began). */
+  refuseAnchor(viewer, uv) {
+    const t = this.trace;
+    const n = t.anchors.length;
+    if (!n) return null;
+    const [x, y] = viewer.toCanvas(...uv);
+    const [lx, ly] = viewer.toCanvas(...t.anchors[n - 1]);
+    if (Math.hypot(x - lx, y - ly) < SAME_ANCHOR_PX) return "That anchor is placed already.";
+    const [fx, fy] = viewer.toCanvas(...t.anchors[0]);
+    if (n >= 3 && Math.hypot(x - fx, y - fy) <= CONTOUR_HIT_PX) return null;
+    for (let i = 0; i < n - 1; i++) {
+      const path = t.segments[i] ?? [t.anchors[i], t.anchors[i + 1]];
+      if (distanceToPolyline(viewer, x, y, path, false) < SAME_ANCHOR_PX) {
+        return "That point is on the outline traced already: click further along the edge " +
+          "(Backspace drops the last anchor, Esc cancels the outline).";
+      }
+    }
+    return null;
+  }
+
+  /** Index of the contour of `viewer` nearest to uv within CONTOUR_HIT_PX, or -1. */
   hitContour(viewer, uv) {
     const [x, y] = viewer.toCanvas(...uv);
     let best = -1;
-    let bestDist = HIT_PX;
+    let bestDist = CONTOUR_HIT_PX;
     this.wb.viewAnnotations(viewer.name).contours.forEach((c, i) => {
       const d = distanceToPolyline(viewer, x, y, c.uv, c.closed);
       if (d <= bestDist) {
