@@ -46,12 +46,12 @@ from benchmarks.case_time import KNEE, child, compile_tree, git_rev  # noqa: E40
 FIGURES = """
 import json, statistics, sys, tempfile, time
 from pathlib import Path
-import biplanar_reg.cases.run as run
+from biplanar_reg.cases import single, truth
 from biplanar_reg.cases.case import load_case, to_view_observations
 case = load_case(sys.argv[1]); obs = to_view_observations(case)
-res = run._register(case, obs)
-errs, outl, src = run._view_errors(case, obs, res)
-gm, ve, al = run._ground_truth_metrics(case, res)
+res = single.register_observations(case, obs)
+errs, outl, src = single.view_errors(case, obs, res)
+gm, ve, al = truth.ground_truth_metrics(case, res)
 c0 = time.process_time()
 from biplanar_reg.report import case_report
 T = {"imports": time.process_time() - c0}
@@ -69,8 +69,8 @@ for n in NAMES:
 runs = []
 for i in range(int(sys.argv[2]) + 1):
     c = time.process_time()
-    doc = run.result_document(case, obs, res, errs, src, gm, {})
-    views = run._report_views(case, obs, res, outl)
+    doc = single.result_document(case, obs, res, errs, src, gm, {})
+    views = single.report_views(case, obs, res, outl)
     case_report.write_case_report(Path(tempfile.mkdtemp()), doc, views, vertices=res.vertices,
         faces=case.model.faces, vertex_error=ve, vertex_sd=res.vertex_sd_mm)
     T["whole report"] = time.process_time() - c
