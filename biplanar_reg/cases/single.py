@@ -323,6 +323,8 @@ def register_single_case(
                 vertex_error=vertex_error,
                 vertex_sd=res.vertex_sd_mm,
             )
+            # the report's own warnings (e.g. its 3D view's fallback) join the case's
+            result.warnings = [*result.warnings, *result.report.pop("warnings", [])]
             result.timings["report"] = time.perf_counter() - t2
         result.timings["total"] = load_seconds + (time.perf_counter() - t0)
         atomic_write_json(tmp / "result.json", result.to_json())
