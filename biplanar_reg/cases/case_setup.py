@@ -153,6 +153,13 @@ def read_case_setup(case_dir: str | os.PathLike, *, allow_outside: bool = False)
     """
     ctx = _Ctx(Path(case_dir).resolve(), allow_outside)
     doc = _read_toml(ctx)
+    for key in ("bones", "frames"):  # one bone in one frame: what an editor opens
+        if key in doc:
+            raise ctx.error(
+                f"[[{key}]]",
+                f"the workbench edits a case of one bone in one frame; this case lists "
+                f"{key}: open a case folder of one {key[:-1]} (register runs this one as it is)",
+            )
     case_id, units = _header(ctx, doc)
     model_path, n_vertices, lm_path, landmarks = _model_landmarks(ctx, doc)
     views = _load_views(ctx, doc, UNIT_SCALE[units])

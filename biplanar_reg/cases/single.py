@@ -353,6 +353,8 @@ def _write_report(tmp: Path, result, views, res, case: Case, vertex_error, t2: f
         vertex_error=vertex_error,
         vertex_sd=res.vertex_sd_mm,
     )
+    # the report's own warnings (e.g. its 3D view's fallback) join the case's
+    result.warnings = [*result.warnings, *result.report.pop("warnings", [])]
     result.timings["report"] = time.perf_counter() - t2
 
 

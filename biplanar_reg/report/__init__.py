@@ -1,10 +1,9 @@
-"""Error reports: figures (:mod:`.raster_plot`: OpenCV lines and fills, Pillow text; no
-matplotlib) and HTML pages (Jinja2).
+"""Error reports: 2D figures with matplotlib (:mod:`.plotting`), the 3D view with PyVista
+off-screen (:mod:`.render3d`, matplotlib 3D where OpenGL is missing) and HTML pages (Jinja2).
 
 The names below are loaded from their modules on first use, so that a light import (the
-workbench's :mod:`.shading`, the flag table of :mod:`.advice`, :mod:`.residuals`) does not load
-Pillow and Jinja2. Only the opt-in ``BIPLANAR_REG_RENDERER=matplotlib`` 3D view imports
-matplotlib.
+workbench's :mod:`.shading`, the flag table of :mod:`.advice`, :mod:`.residuals`) loads neither
+matplotlib, PyVista nor Jinja2.
 """
 
 from __future__ import annotations
@@ -18,7 +17,7 @@ if TYPE_CHECKING:
     from .figures import convergence_figure, histogram_figure, overlay_figure
     from .frames import write_frames_report
     from .html import render_template, write_page
-    from .render3d import render_error_mesh
+    from .render3d import render_error_mesh, render_surface
     from .residuals import ContourResidual, contour_residuals
     from .shading import shaded_faces
 
@@ -33,6 +32,7 @@ _HOMES = {
     "histogram_figure": "figures",
     "overlay_figure": "figures",
     "render_error_mesh": "render3d",
+    "render_surface": "render3d",
     "render_template": "html",
     "shaded_faces": "shading",
     "write_case_report": "case_report",
@@ -50,6 +50,7 @@ __all__ = [
     "histogram_figure",
     "overlay_figure",
     "render_error_mesh",
+    "render_surface",
     "render_template",
     "shaded_faces",
     "write_case_report",

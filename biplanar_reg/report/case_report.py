@@ -12,9 +12,10 @@ outline and landmarks against the annotations, on the radiograph or a blank canv
 ``errors_hist.png`` (landmark and contour reprojection errors in px, surface distance in mm),
 ``convergence.png`` (cost and certificate per iteration) and a 3D view of the registered
 surface: with a ground truth ``error_3d.png`` (coloured by its distance to the ground truth,
-colour bar in mm), without one ``registered_3d.png`` (one neutral colour), software-rendered
-(:mod:`.render3d`); with the per-vertex sd, ``uncertainty.png`` (:mod:`.uncertainty`). The mesh
-is projected into each view once, for its overlay and the uncertainty map.
+colour bar in mm), without one ``registered_3d.png`` (one neutral colour), rendered by PyVista
+off-screen or, where it cannot render, by matplotlib with a warning (:mod:`.render3d`); with the
+per-vertex sd, ``uncertainty.png`` (:mod:`.uncertainty`). The mesh is projected into each view
+once, for its overlay and the uncertainty map.
 """
 
 from __future__ import annotations
@@ -34,8 +35,9 @@ from ..annotation import ViewAnnotations
 from ..result import CaseResult
 from .advice import flag_advice
 from .figures import convergence_figure, histogram_figure, overlay_figure
+from .gl_probe import start_probe
 from .html import embedded_figures, write_page
-from .render3d import render_error_mesh
+from .render3d import render_surface
 from .residuals import ContourResidual, contour_residuals
 from .shading import painter_faces
 
@@ -307,17 +309,17 @@ def _surface_figure(
     vertices: np.ndarray,
     faces: np.ndarray,
     vertex_error: np.ndarray | None,
-) -> tuple[dict[str, str], str]:
-    """The 3D view of the registered surface; (entry, renderer). With a ground truth
-    ``error_3d.png`` (coloured by the distance to it), without one ``registered_3d.png``."""
+) -> tuple[dict[str, str], str, str | None]:
+    """The 3D view of the registered surface; (entry, renderer, warning or None). With a ground
+    truth ``error_3d.png`` (coloured by the distance to it), without one ``registered_3d.png``."""
     if result.bone.ground_truth is not None:
         fname, title = "error_3d.png", f"{result.id}: distance to ground truth (mm)"
         what = "Registered surface coloured by its distance to the ground truth, mm"
     else:
         fname, title = "registered_3d.png", f"{result.id}: registered surface (mm)"
         what, vertex_error = "Registered surface (world frame, mm; no ground truth)", None
-    renderer = render_error_mesh(folder / fname, vertices, faces, vertex_error, title)
-    return {"src": fname, "caption": f"{what} (rendered with {renderer})."}, renderer
+    renderer, warning = render_surface(folder / fname, vertices, faces, vertex_error, title)
+    return {"src": fname, "caption": f"{what} (rendered with {renderer})."}, renderer, warning
 
 
 def _uncertainty_entry(
@@ -368,9 +370,11 @@ def _write_html(
     result: CaseResult,
     figures: Mapping[str, list[dict[str, str]]],
     contour_rows: list[dict[str, Any]],
+    extra_warnings: Sequence[str] = (),
 ) -> None:
-    """``report.html``: flags with advice, metrics, the figures (embedded), the residual
-    tables and the tables of ``result``."""
+    """``report.html``: flags with advice, the warnings of ``result`` and ``extra_warnings``
+    (the report's own), metrics, the figures (embedded), the residual tables and the tables of
+    ``result``."""
     embedded = embedded_figures(folder, figures)
     options = result.options
     write_page(
@@ -382,7 +386,7 @@ def _write_html(
         silhouettes=result.silhouettes,
         phi=result.phi,
         flags=[(f, flag_advice(f)) for f in result.flags],
-        warnings=result.warnings,
+        warnings=[*result.warnings, *extra_warnings],
         metrics=metric_rows(result.metrics, result.timings),
         model_from_truth=bool((result.bone.ground_truth or {}).get("model_from_truth")),
         figures=embedded,
@@ -448,8 +452,10 @@ def write_case_report(
     -------
     dict
         ``html``, ``figures`` (file names: the 3D view first, then the overlays, the
-        histograms, the convergence) and ``renderer`` ("pyvista", "matplotlib" or None), for
-        ``result.json["report"]``.
+        histograms, the convergence), ``renderer`` ("pyvista", "matplotlib" or None) and
+        ``warnings`` (one line each, e.g. why the 3D view fell back to matplotlib; also listed
+        on the page), for ``result.json["report"]``; the caller adds the warnings to
+        ``result.json["warnings"]``.
 
     Notes
     -----
@@ -461,6 +467,8 @@ def write_case_report(
         doc, views, vertices, faces, vertex_error = _from_case(doc, views, *legacy)
     result = doc if isinstance(doc, CaseResult) else CaseResult.from_json(doc)
     folder = Path(folder)
+    if vertices is not None and faces is not None:
+        start_probe()  # the off-screen check runs while the 2D figures are drawn
     options = result.options
     figures: dict[str, list[dict[str, str]]] = {"surface": [], "views": [], "plots": []}
     contour_rows = []
@@ -473,17 +481,23 @@ def write_case_report(
         figures["views"].append(_view_overlay(folder, v, projected[v.name], residuals))
     figures["plots"].append(_histogram_figure(folder, result, vertex_error))
     figures["plots"].append(_convergence_figure(folder, result))
-    renderer = None
+    renderer, report_warnings = None, []
     if vertices is not None and faces is not None:
-        entry, renderer = _surface_figure(folder, result, vertices, faces, vertex_error)
+        entry, renderer, warning = _surface_figure(folder, result, vertices, faces, vertex_error)
         figures["surface"].append(entry)
+        report_warnings += [warning] if warning else []
         if vertex_sd is not None:
             figures["surface"].append(
                 _uncertainty_entry(folder, views, vertices, faces, vertex_sd, projected)
             )
-    _write_html(folder, result, figures, contour_rows)
+    _write_html(folder, result, figures, contour_rows, report_warnings)
     names = [f["src"] for group in ("surface", "views", "plots") for f in figures[group]]
-    return {"html": "report.html", "figures": names, "renderer": renderer}
+    return {
+        "html": "report.html",
+        "figures": names,
+        "renderer": renderer,
+        "warnings": report_warnings,
+    }
 
 
 def _from_case(case: Any, obs: Any, res: Any, doc: Any, outlines: Any, vertex_error: Any) -> tuple:

@@ -1,5 +1,4 @@
-"""The report's figures, drawn with :mod:`.raster_plot` (OpenCV lines and fills, Pillow text;
-no matplotlib).
+"""The report's 2D figures, drawn with matplotlib (:mod:`.plotting`: object API, Agg canvas).
 
 Pixels are ``(u, v)`` = (column, row), 0-based, origin at the centre of the top-left pixel: an
 image's pixel edges are at half-integer ``(u, v)`` (its extent ``(-0.5, W - 0.5)``), so that pixel
@@ -13,32 +12,30 @@ from collections.abc import Mapping, Sequence
 
 import cv2
 import numpy as np
+from matplotlib.artist import Artist
+from matplotlib.axes import Axes
+from matplotlib.collections import LineCollection
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
+from matplotlib.ticker import MaxNLocator
 
 from ..annotation import Contour, Landmark, ViewAnnotations
-from .raster_plot import Axes, Canvas, LegendEntry, data_limits, draw_legend
+from .plotting import HALO, log_scale, new_figure, save_figure, set_title
 
 __all__ = ["overlay_figure", "histogram_figure", "convergence_figure"]
 
 #: Colour (RGB) and opacity of the shaded registered bone over a radiograph.
 BONE_RGB = (1.0, 0.75, 0.4)
 BONE_ALPHA = 0.55
-#: A dark outline that keeps labels readable on bright and dark radiographs alike.
-_HALO = ("black", 0.8)
-#: The overlay figure, pixels (6.4 in at 100 dpi), and its axes box: fixed margins (figure
-#: fractions 0.12 left, 0.97 right, 0.08 bottom, 0.95 top).
+#: The overlay figure, pixels (6.4 in at 100 dpi), and its axes rectangle (left, bottom,
+#: width, height, figure fractions): fixed margins; equal aspect shrinks it about its centre.
 _OVERLAY_PX = 640
-_OVERLAY_BOX = (77, 32, 621, 589)
+_OVERLAY_RECT = (0.12, 0.08, 0.85, 0.87)
 #: Pixels across the overlay's background raster, the axes' side on the figure: the
 #: radiograph crop and the shaded bone are resampled to it once and drawn about pixel for
 #: pixel.
 _OVERLAY_RASTER_PX = 544
-
-
-def _box(size: tuple[int, int], left: float, right: float, bottom: float, top: float) -> tuple:
-    """A pixel box from figure fractions (matplotlib's ``subplots_adjust`` convention: from
-    the left and from the bottom)."""
-    w, h = size
-    return (round(left * w), round((1 - top) * h), round(right * w), round((1 - bottom) * h))
 
 
 def overlay_figure(
@@ -84,7 +81,7 @@ def overlay_figure(
         if outlines is not None:
             raise TypeError("overlay_figure: give outlines or silhouettes (its old name), not both")
         outlines = silhouettes
-    canvas = draw_overlay(
+    fig = draw_overlay(
         title,
         display=display,
         image_size=image_size,
@@ -94,7 +91,7 @@ def overlay_figure(
         shaded=shaded,
         marks=marks,
     )[0]
-    canvas.save(path)
+    save_figure(fig, path)
 
 
 def draw_overlay(
@@ -107,7 +104,7 @@ def draw_overlay(
     landmarks_px: Mapping[str, np.ndarray],
     shaded: tuple[np.ndarray, np.ndarray] | None = None,
     marks: Sequence[tuple[str, np.ndarray]] = (),
-) -> tuple[Canvas, Axes]:
+) -> tuple[Figure, Axes]:
     """The figure of :func:`overlay_figure` (not saved) and its axes, in pixel coordinates."""
     contours = [] if annotations is None else list(annotations.contours)
     annotated = {} if annotations is None else annotations.landmarks
@@ -119,28 +116,26 @@ def draw_overlay(
     size = (display.shape[1], display.shape[0]) if display is not None else image_size
     limits = _limits(drawn, size)
     has_bone = shaded is not None and len(shaded[0]) > 0
-    canvas = Canvas(_OVERLAY_PX, _OVERLAY_PX)
+    fig = new_figure(_OVERLAY_PX, _OVERLAY_PX)
+    ax = fig.add_axes(_OVERLAY_RECT)
     u0, u1, v0, v1 = (0.0, 1.0, 1.0, 0.0) if limits is None else limits
-    ax = canvas.axes(_OVERLAY_BOX, xlim=(u0, u1), ylim=(v1, v0))  # rows grow downwards
-    ax.set_aspect_equal()
     _draw_background(ax, display, image_size, limits, shaded if has_bone else None)
-    entries = [LegendEntry("registered bone (shaded)", BONE_RGB, patch=True, alpha=BONE_ALPHA)]
-    entries = entries if has_bone else []
-    entries += _polylines(ax, outlines, "cyan", "registered outline")
-    entries += _draw_contours(ax, contours)
-    entries += _draw_landmarks(ax, annotated, landmarks_px)
+    ax.set_xlim(u0, u1)
+    ax.set_ylim(v1, v0)  # image rows grow downwards
+    ax.set_aspect("equal", adjustable="box")
+    handles: list[Artist] = []
+    if has_bone:
+        handles.append(Patch(color=BONE_RGB, alpha=BONE_ALPHA, label="registered bone (shaded)"))
+    handles += _polylines(ax, outlines, "cyan", "registered outline")
+    handles += _draw_contours(ax, contours)
+    handles += _draw_landmarks(ax, annotated, landmarks_px)
     _draw_marks(ax, marks)
-    ax.legend_entries = entries
-    ax.finish(
-        xlabel="u (px)",
-        ylabel="v (px)",
-        title=title,
-        title_pt=10,
-        legend="lower right",
-        legend_pt=7,
-        legend_alpha=0.7,
-    )
-    return canvas, ax
+    ax.set_xlabel("u (px)")
+    ax.set_ylabel("v (px)")
+    set_title(ax, title, fontsize=10)
+    if handles:
+        ax.legend(handles=handles, loc="lower right", fontsize=7, framealpha=0.7)
+    return fig, ax
 
 
 def _shade_bone(
@@ -177,16 +172,6 @@ def _shade_bone(
     rgb += blend
 
 
-def _draw_marks(ax: Axes, marks: Sequence[tuple[str, np.ndarray]]) -> None:
-    """Labelled points as magenta rings with their label."""
-    if not marks:
-        return
-    uv = np.array([p for _, p in marks], float).reshape(-1, 2)
-    ax.markers(uv[:, 0], uv[:, 1], "o", "magenta", ms_pt=11, mew_pt=1.2, face=None)
-    for label, p in marks:
-        ax.text(p[0], p[1], label, offset_pt=(7, 5), rgb="magenta", size_pt=8, halo=_HALO)
-
-
 def _draw_background(
     ax: Axes,
     display: np.ndarray | None,
@@ -201,7 +186,7 @@ def _draw_background(
     integer ``(u, v)``."""
     if display is None and (shaded is None or limits is None):
         if image_size is not None:
-            ax.fill("#202020")
+            ax.set_facecolor("#202020")
         return
     if display is not None:
         H, W = display.shape
@@ -227,65 +212,101 @@ def _draw_background(
         _shade_bone(rgb, (edges[0], edges[2]), sxy, *shaded)
     rgb8 = np.clip(rgb * np.float32(255.0) + np.float32(0.5), 0.0, 255.0).astype(np.uint8)
     # as large as the axes: drawn about pixel for pixel; a smaller crop is enlarged smoothly
-    ax.image(rgb8, edges, smooth=max(w, h) < _OVERLAY_RASTER_PX - 1)
+    smooth = max(w, h) < _OVERLAY_RASTER_PX - 1
+    ax.imshow(
+        rgb8,
+        extent=(edges[0], edges[1], edges[3], edges[2]),
+        interpolation="bilinear" if smooth else "nearest",
+        aspect="auto",
+    )
+
+
+def _draw_marks(ax: Axes, marks: Sequence[tuple[str, np.ndarray]]) -> None:
+    """Labelled points as magenta rings with their label."""
+    if not marks:
+        return
+    uv = np.array([p for _, p in marks], float).reshape(-1, 2)
+    ax.plot(uv[:, 0], uv[:, 1], "o", color="magenta", ms=11, mew=1.2, mfc="none")
+    for label, p in marks:
+        ax.annotate(
+            label,
+            (p[0], p[1]),
+            xytext=(7, 5),
+            textcoords="offset points",
+            color="magenta",
+            fontsize=8,
+            path_effects=HALO,
+            annotation_clip=True,
+        )
 
 
 def _polylines(
-    ax: Axes, lines: Sequence[np.ndarray], color: str, label: str, lw: float = 1.0
-) -> list[LegendEntry]:
-    """(Q, 2) pixel polylines, ``lw`` points wide (outlines and contours look alike but for
-    colour); its legend entry (none when there are no lines)."""
+    ax: Axes, lines: Sequence[np.ndarray], color: str, label: str | None, lw: float = 1.0
+) -> list[Artist]:
+    """(Q, 2) pixel polylines, ``lw`` points wide, as one collection (outlines and contours
+    look alike but for colour); its legend handle (none when there are no lines or no
+    ``label``)."""
     lines = [np.asarray(line, float).reshape(-1, 2) for line in lines]
     if not lines:
         return []
-    ax.lines(lines, color, lw)
-    return [LegendEntry(label, color, lw_pt=lw)]
+    ax.add_collection(LineCollection(lines, colors=color, linewidths=lw), autolim=False)
+    return [Line2D([], [], color=color, lw=lw, label=label)] if label else []
 
 
 def _points(
     ax: Axes, uv: Sequence[np.ndarray], marker: str, color: str, label: str | None, **style
-) -> list[LegendEntry]:
-    """Points ``uv`` (each (2,), pixels) as markers; their legend entry when ``label`` is given
+) -> list[Artist]:
+    """Points ``uv`` (each (2,), pixels) as markers; their legend handle when ``label`` is given
     (none when there are no points)."""
     if not len(uv):
         return []
     xy = np.asarray(uv, float).reshape(-1, 2)
-    ax.markers(xy[:, 0], xy[:, 1], marker, color, **style)
-    return [LegendEntry(label, color, marker=marker, **style)] if label else []
+    (line,) = ax.plot(xy[:, 0], xy[:, 1], ls="none", marker=marker, color=color, **style)
+    if label:
+        line.set_label(label)
+        return [line]
+    return []
 
 
-def _draw_contours(ax: Axes, contours: Sequence[Contour]) -> list[LegendEntry]:
+def _draw_contours(ax: Axes, contours: Sequence[Contour]) -> list[Artist]:
     """Annotated contours in red (closed ones joined up), the ends of open ones as amber rings;
-    the legend entry."""
+    the legend handle."""
     lines = [np.vstack([c.uv, c.uv[:1]]) if c.closed else c.uv for c in contours]
-    entries = _polylines(ax, lines, "red", "annotated contour")
+    handles = _polylines(ax, lines, "red", "annotated contour")
     ends = [p for c in contours if not c.closed for p in c.uv[[0, -1]]]
-    _points(ax, ends, "o", "orange", None, ms_pt=4, face=None)
-    return entries
+    _points(ax, ends, "o", "orange", None, ms=4, mfc="none")
+    return handles
 
 
 def _draw_landmarks(
     ax: Axes, annotated: Mapping[str, Landmark], registered: Mapping[str, np.ndarray]
-) -> list[LegendEntry]:
+) -> list[Artist]:
     """Annotated landmarks (green +, named), each joined by a yellow line to the registered
     model's landmark of the same name; then the registered landmarks (blue x), pixels; the
-    legend entries."""
-    style = {"ms_pt": 9, "mew_pt": 1.5}
-    entries = _points(
-        ax, [lm.uv for lm in annotated.values()], "+", "lime", "annotated landmark", **style
-    )
-    for name, lm in annotated.items():
-        ax.text(lm.uv[0], lm.uv[1], name, offset_pt=(4, -4), rgb="lime", size_pt=7, halo=_HALO)
+    legend handles."""
     links = [
         np.array([lm.uv, registered[n]], float) for n, lm in annotated.items() if n in registered
     ]
-    if links:
-        ax.lines(links, "yellow", 0.8)
-    style = {"ms_pt": 7, "mew_pt": 1.5}
-    entries += _points(
-        ax, list(registered.values()), "x", "deepskyblue", "registered landmark", **style
+    _polylines(ax, links, "yellow", None, lw=0.8)
+    handles = _points(
+        ax, [lm.uv for lm in annotated.values()], "+", "lime", "annotated landmark", ms=9, mew=1.5
     )
-    return entries
+    for name, lm in annotated.items():
+        ax.annotate(
+            name,
+            (lm.uv[0], lm.uv[1]),
+            xytext=(4, -4),
+            textcoords="offset points",
+            color="lime",
+            fontsize=7,
+            va="top",
+            path_effects=HALO,
+            annotation_clip=True,
+        )
+    handles += _points(
+        ax, list(registered.values()), "x", "deepskyblue", "registered landmark", ms=7, mew=1.5
+    )
+    return handles
 
 
 def _limits(
@@ -315,24 +336,25 @@ def _hist_panel(ax: Axes, label: str, values: np.ndarray, unit: str) -> None:
     axes (``median 0.53``), kept over the axes near their ends."""
     v = np.asarray(values, float)
     counts, bins = np.histogram(v, bins=min(40, max(5, len(v) // 5)))
-    ax.x.lim, ax.y.lim = (
-        (float(bins[0]), float(bins[-1])),
-        (0.0, 1.05 * max(float(counts.max()), 1.0)),
-    )
-    ax.stairs(counts, bins, "steelblue", edge_rgb="white", edge_pt=0.5)
+    ax.stairs(counts, bins, fill=True, color="steelblue")
+    # the bars' white edges, one collection (not one patch per bar)
+    ax.vlines(bins[1:-1], 0, np.maximum(counts[:-1], counts[1:]), colors="white", lw=0.5)
+    ax.set_xlim(float(bins[0]), float(bins[-1]))
+    ax.set_ylim(0.0, 1.05 * max(float(counts.max()), 1.0))
     median = float(np.median(v))
-    ax.vline(median, "black", 1.0, dashed=True)
+    ax.axvline(median, color="black", lw=1.0, ls="--")
     at = (median - bins[0]) / max(bins[-1] - bins[0], 1e-300)
-    ((px, _),) = ax.to_px([median], [0.0])
-    ax.canvas.text(
-        px,
-        ax.box[1] - 0.01 * (ax.box[3] - ax.box[1]),
+    ax.text(
+        median,
+        1.01,
         f"median {median:.3g}",
-        size_pt=7,
+        transform=ax.get_xaxis_transform(),
+        fontsize=7,
         ha="left" if at < 0.15 else "right" if at > 0.85 else "center",
         va="bottom",
     )
-    ax.finish(xlabel=f"{label} ({unit})", ylabel="count")
+    ax.set_xlabel(f"{label} ({unit})")
+    ax.set_ylabel("count")
 
 
 def histogram_figure(
@@ -343,17 +365,15 @@ def histogram_figure(
     (``median 0.53``)."""
     series = [s for s in series if len(s[1])]
     n = max(1, len(series))
-    size = (400 * n, 320)
-    canvas = Canvas(*size)
+    fig = new_figure(400 * n, 320)
     # fixed margins: 0.6 in left, 0.2 in right; 0.3 of an axes' width between axes
-    x0, y0, x1, y1 = _box(size, 0.6 / (4.0 * n), 1 - 0.2 / (4.0 * n), 0.17, 0.92)
-    width = (x1 - x0) / (n + 0.3 * (n - 1))
+    left, right = 0.6 / (4.0 * n), 1 - 0.2 / (4.0 * n)
+    width = (right - left) / (n + 0.3 * (n - 1))
     for i, (label, values, unit) in enumerate(series):
-        left = x0 + i * 1.3 * width
-        _hist_panel(canvas.axes((left, y0, left + width, y1)), label, values, unit)
+        _hist_panel(fig.add_axes((left + i * 1.3 * width, 0.17, width, 0.75)), label, values, unit)
     if not series:
-        canvas.text(size[0] / 2, size[1] / 2, "no errors to show", ha="center")
-    canvas.save(path)
+        fig.text(0.5, 0.5, "no errors to show", ha="center", va="center")
+    save_figure(fig, path)
 
 
 def _convergence_panel(
@@ -362,18 +382,28 @@ def _convergence_panel(
     c: np.ndarray,
     matches: Sequence[int],
     best: int,
-    rgb: str,
+    colour: str,
     label: str,
 ) -> None:
     """The cost ``c[idx]`` (log) per iteration with the match counts annotated above each
     point and the returned iteration starred."""
-    ax.plot(idx, c[idx], rgb, marker="o", label=label)
+    ax.plot(idx, c[idx], "-o", color=colour, label=label)
     for i in idx:
-        ax.text(i, c[i], str(matches[i]), offset_pt=(0, 6), size_pt=7, ha="center")
+        ax.annotate(
+            str(matches[i]),
+            (i, c[i]),
+            xytext=(0, 6),
+            textcoords="offset points",
+            fontsize=7,
+            ha="center",
+        )
     if best in set(idx.tolist()):
-        ax.plot([best], [c[best]], "tab:red", marker="*", ms_pt=14, label="returned", line=False)
-    ax.set_ticks("x", idx, [str(i) for i in idx])
-    ax.set_log_ticks("y", c[idx])
+        ax.plot([best], [c[best]], "*", color="tab:red", ms=14, label="returned")
+    log_scale(ax, c[idx])
+    if len(idx) <= 12:
+        ax.set_xticks(idx, [str(i) for i in idx])
+    else:  # one label per iteration would overlap: about ten, at whole iterations
+        ax.xaxis.set_major_locator(MaxNLocator(10, integer=True))
 
 
 def convergence_figure(
@@ -399,50 +429,29 @@ def convergence_figure(
     sdp = np.array([k != "local" for k in kinds], dtype=bool)
     local = ~sdp
     two = bool(local.any())
-    size = (900 if two else 600, 340)
-    canvas = Canvas(*size)
+    fig = new_figure(900 if two else 600, 340)
     # fixed margins: the twin axis' labels sit between the panels
-    x0, y0, x1, y1 = (
-        _box(size, 0.085, 0.98, 0.15, 0.9) if two else _box(size, 0.13, 0.84, 0.15, 0.9)
-    )
+    x0, x1 = (0.085, 0.98) if two else (0.13, 0.84)
     width = (x1 - x0) / (2 + 0.6) if two else x1 - x0
-    box = (x0, y0, x0 + width, y1)
-    xlim = data_limits(idx[sdp])
-    ax = canvas.axes(box, xlim=xlim, ylim=data_limits(c[sdp], log=True), ylog=True)
-    ax2 = canvas.axes(box, xlim=xlim, ylim=data_limits(cert[sdp], log=True), ylog=True)
+    ax = fig.add_axes((x0, 0.15, width, 0.75))
     _convergence_panel(
         ax, idx[sdp], c, matches, best if 0 <= best < len(costs) else -1, "tab:blue", "cost"
     )
-    ax2.plot(idx[sdp], cert[sdp], "tab:green", marker="s", dashed=True, label="certificate")
-    ax2.set_log_ticks("y", cert[sdp])
-    ax.finish(
-        xlabel="iteration (0 = landmarks only)",
-        ylabel="match-independent cost",
-        ylabel_rgb="tab:blue",
-        title="convex iterations (numbers: outline matches)",
-        title_pt=9,
-    )
-    ax2.finish(
-        ylabel="certificate (lambda2 / lambda1)", ylabel_rgb="tab:green", right=True, frame=False
-    )
-    # one legend for both axes, placed where neither's data are
-    draw_legend(ax, ax.legend_entries + ax2.legend_entries, "best", 7, also_avoid=[ax2])
+    ax2 = ax.twinx()
+    ax2.plot(idx[sdp], cert[sdp], "--s", color="tab:green", label="certificate")
+    log_scale(ax2, cert[sdp])
+    ax.set_xlabel("iteration (0 = landmarks only)")
+    ax.set_ylabel("match-independent cost", color="tab:blue")
+    ax2.set_ylabel("certificate (lambda2 / lambda1)", color="tab:green")
+    set_title(ax, "convex iterations (numbers: outline matches)", fontsize=9)
+    # one legend for both axes
+    handles = ax.get_legend_handles_labels()[0] + ax2.get_legend_handles_labels()[0]
+    ax2.legend(handles=handles, loc="best", fontsize=7)
     if two:
-        left = x0 + 1.6 * width
-        axl = canvas.axes(
-            (left, y0, left + width, y1),
-            xlim=data_limits(idx[local]),
-            ylim=data_limits(c[local], log=True),
-            ylog=True,
-        )
+        axl = fig.add_axes((x0 + 1.6 * width, 0.15, width, 0.75))
         _convergence_panel(axl, idx[local], c, matches, best, "tab:purple", "objective")
-        axl.finish(
-            xlabel="iteration",
-            ylabel="refinement objective",
-            ylabel_rgb="tab:purple",
-            title="final refinement (numbers: outline samples)",
-            title_pt=9,
-            legend="best",
-            legend_pt=7,
-        )
-    canvas.save(path)
+        axl.set_xlabel("iteration")
+        axl.set_ylabel("refinement objective", color="tab:purple")
+        set_title(axl, "final refinement (numbers: outline samples)", fontsize=9)
+        axl.legend(loc="best", fontsize=7)
+    save_figure(fig, path)

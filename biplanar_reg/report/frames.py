@@ -37,6 +37,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
 
 from ..io.transforms import ANGLE_SEQUENCE, euler_from_rotation
 from ..result import CaseResult, FrameResult
@@ -44,7 +46,7 @@ from .advice import flag_advice
 from .case_report import ReportView, roi_text
 from .figures import overlay_figure
 from .html import embedded_figures, write_page
-from .raster_plot import Axes, Canvas, data_limits
+from .plotting import new_figure, save_figure, set_title
 from .shading import shaded_faces
 
 __all__ = ["frame_overlay_indices", "kinematics_components", "write_frames_report"]
@@ -80,49 +82,38 @@ def kinematics_components(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _frame_axis(ax: Axes, names: Sequence[str]) -> None:
     """Frame index on x (limits: the end frames' markers inside the axes), with the frame
-    names as tick labels when there are few."""
-    ax.x.lim = (-0.3, len(names) - 0.7)
+    names as tick labels when there are few; a grid."""
+    ax.set_xlim(-0.3, len(names) - 0.7)
     if len(names) <= 12:
-        ax.set_ticks("x", np.arange(len(names)), [f"{i}\n{n}" for i, n in enumerate(names)])
-        ax.x.tick_pt = 7
+        ax.set_xticks(np.arange(len(names)), [f"{i}\n{n}" for i, n in enumerate(names)])
+        ax.tick_params(axis="x", labelsize=7)
+    ax.grid(True, alpha=0.3)
 
 
 def _nan(x: Any) -> float:
     return float("nan") if x is None else float(x)
 
 
-def _box(size: tuple[int, int], left: float, right: float, bottom: float, top: float) -> tuple:
-    """A pixel box from figure fractions (from the left and from the bottom)."""
-    w, h = size
-    return (round(left * w), round((1 - top) * h), round(right * w), round((1 - bottom) * h))
+def _top(values: np.ndarray) -> float:
+    """The top of a y axis from 0 over ``values`` (5 % headroom; 1 when there are none)."""
+    finite = np.asarray(values, float)[np.isfinite(values)]
+    return 1.05 * float(finite.max()) if len(finite) and finite.max() > 0 else 1.0
 
 
-def _top_limits(values: np.ndarray) -> tuple[float, float]:
-    """y limits from 0 to the autoscaled top of ``values``."""
-    return 0.0, data_limits(np.concatenate([np.ravel(values), [0.0]]))[1]
-
-
-def _per_frame_axes(names: Sequence[str], ylim: tuple[float, float]) -> tuple[Canvas, Axes]:
-    """A 700 x 320 px canvas with one gridded axes of per-frame values (frame index on x)."""
-    size = (700, 320)
-    canvas = Canvas(*size)
-    ax = canvas.axes(_box(size, 0.09, 0.98, 0.2, 0.9), ylim=ylim)
+def _per_frame_axes(names: Sequence[str]) -> tuple[Figure, Axes]:
+    """A 700 x 320 px figure with one gridded axes of per-frame values (frame index on x)."""
+    fig = new_figure(700, 320)
+    ax = fig.add_axes((0.09, 0.2, 0.89, 0.7))
     _frame_axis(ax, names)
-    ax.draw_grid()
-    return canvas, ax
+    return fig, ax
 
 
-def _finish_per_frame(ax: Axes, ylabel: str, title: str, legend: str) -> None:
+def _label_per_frame(ax: Axes, ylabel: str, title: str, legend: str) -> None:
     """Labels, title and legend of a :func:`_per_frame_axes` plot."""
-    ax.finish(
-        xlabel="frame index",
-        ylabel=ylabel,
-        title=title,
-        title_pt=9,
-        legend=legend,
-        legend_pt=7,
-        grid=True,
-    )
+    ax.set_xlabel("frame index")
+    ax.set_ylabel(ylabel)
+    set_title(ax, title, fontsize=9)
+    ax.legend(loc=legend, fontsize=7)
 
 
 def _residuals_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> None:
@@ -133,19 +124,20 @@ def _residuals_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> None:
     ct = np.array([_nan(f["contour_rms_px"]) for f in frames])
     nb = np.array([f["started_from"] != "landmarks" for f in frames])
     top = np.nanmax(np.concatenate([lm, ct, [1.0]]))
-    canvas, ax = _per_frame_axes(names, (0.0, 1.2 * top))
+    fig, ax = _per_frame_axes(names)
+    ax.set_ylim(0.0, 1.2 * top)
     for y, colour, label in ((lm, "tab:green", "landmarks"), (ct, "tab:red", "contours")):
-        ax.plot(idx, y, colour, lw_pt=1.0)
-        ax.plot(idx[~nb], y[~nb], colour, marker="o", line=False, label=f"{label} RMS")
+        ax.plot(idx, y, "-", color=colour, lw=1.0)
+        ax.plot(idx[~nb], y[~nb], "o", color=colour, label=f"{label} RMS")
         if nb.any():
-            ax.plot(idx[nb], y[nb], colour, marker="o", face="white", line=False)
-    _finish_per_frame(
+            ax.plot(idx[nb], y[nb], "o", color=colour, mfc="white")
+    _label_per_frame(
         ax,
         "reprojection RMS (px)",
         "residuals per frame (hollow: pose started from the neighbours)",
         "lower right",
     )
-    canvas.save(path)
+    save_figure(fig, path)
 
 
 def _pose_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> None:
@@ -154,49 +146,37 @@ def _pose_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> None:
     names = [f["name"] for f in frames]
     angles, trans = kinematics_components(np.array([f["pose"] for f in frames], float))
     idx = np.arange(len(frames))
-    size = (700, 560)
-    canvas = Canvas(*size)
-    x0, y0, x1, y1 = _box(size, 0.11, 0.82, 0.1, 0.89)
-    h = (y1 - y0) / (2 + 0.45)
+    fig = new_figure(700, 560)
+    h = (0.89 - 0.1) / (2 + 0.45)
     for k, (vals, unit, keys) in enumerate(
         ((angles, "deg", ("rx", "ry", "rz")), (trans, "mm", ("tx", "ty", "tz")))
     ):
-        top = y0 + k * 1.45 * h
-        ax = canvas.axes((x0, top, x1, top + h), ylim=data_limits(vals))
+        ax = fig.add_axes((0.11, 0.89 - h - k * 1.45 * h, 0.71, h))
         _frame_axis(ax, names)
-        ax.draw_grid()
         for j, (key, colour) in enumerate(
             zip(keys, ("tab:red", "tab:green", "tab:blue"), strict=True)
         ):
-            ax.plot(
-                idx, vals[:, j], colour, marker="o", ms_pt=3, lw_pt=1.0, label=f"{key} ({unit})"
-            )
-        ax.finish(
-            xlabel="frame index",
-            ylabel="rotation (deg)" if unit == "deg" else "translation (mm)",
-            legend="center left",
-            legend_pt=7,
-            legend_anchor=(1.01, 0.5),
-            grid=True,
-        )
-    canvas.text(
-        size[0] / 2,
-        0.02 * size[1],
+            ax.plot(idx, vals[:, j], "-o", color=colour, ms=3, lw=1.0, label=f"{key} ({unit})")
+        ax.set_xlabel("frame index")
+        ax.set_ylabel("rotation (deg)" if unit == "deg" else "translation (mm)")
+        ax.legend(loc="center left", fontsize=7, bbox_to_anchor=(1.01, 0.5))
+    fig.text(
+        0.5,
+        0.98,
         "pose of the bone (model -> world) per frame, as in the kinematics CSV\n"
         "(intrinsic X-Y'-Z'' Cardan angles; translation of the model frame's origin)",
-        size_pt=9,
+        fontsize=9,
         ha="center",
         va="top",
     )
-    canvas.save(path)
+    save_figure(fig, path)
 
 
 def _uncertainty_figure(path: Path, by_frames: Sequence[Mapping[str, Any]]) -> None:
     """``frames_uncertainty.png`` (700 x 340 px): the shape's sd (mm) against the number of
     frames used."""
     n = np.array([b["n_frames"] for b in by_frames])
-    size = (700, 340)
-    canvas = Canvas(*size)
+    fig = new_figure(700, 340)
     series = (
         ("sd_median_mm", "tab:blue", "-", "posed vertex sd, median"),
         ("sd_p95_mm", "tab:blue", "--", "posed vertex sd, 95th pct"),
@@ -205,29 +185,22 @@ def _uncertainty_figure(path: Path, by_frames: Sequence[Mapping[str, Any]]) -> N
     )
     trunc = np.array([_nan(b["truncation_mm"]) for b in by_frames])
     ys = [np.array([_nan(b[key]) for b in by_frames]) for key, *_ in series]
-    ax = canvas.axes(
-        _box(size, 0.1, 0.64, 0.15, 0.9),
-        xlim=data_limits(n),
-        ylim=_top_limits(np.concatenate([*ys, trunc])),
-    )
+    ax = fig.add_axes((0.1, 0.15, 0.54, 0.75))
+    ax.set_ylim(0.0, _top(np.concatenate([*ys, trunc])))
     ticks = n if len(n) <= 12 else n[:: max(1, len(n) // 10)]
-    ax.set_ticks("x", ticks, [str(int(t)) for t in ticks])
-    ax.draw_grid()
+    ax.set_xticks(ticks, [str(int(t)) for t in ticks])
+    ax.grid(True, alpha=0.3)
     for y, (_, colour, ls, label) in zip(ys, series, strict=True):
-        ax.plot(n, y, colour, dashed=ls, marker="o", ms_pt=3, label=label)
-    ax.plot(n, trunc, "grey", dashed=":", label="model truncation (does not shrink)")
+        ax.plot(n, y, color=colour, ls=ls, marker="o", ms=3, label=label)
+    ax.plot(n, trunc, color="grey", ls=":", label="model truncation (does not shrink)")
     frame = by_frames[0]["frame"] if by_frames else 0
-    ax.finish(
-        xlabel="frames used (the first n)",
-        ylabel="sd (mm, RMS over axes)",
-        title=f"shape uncertainty as frames are added (bone posed in frame {frame})",
-        title_pt=9,
-        legend="center left",
-        legend_pt=7,
-        legend_anchor=(1.01, 0.5),
-        grid=True,
+    ax.set_xlabel("frames used (the first n)")
+    ax.set_ylabel("sd (mm, RMS over axes)")
+    set_title(
+        ax, f"shape uncertainty as frames are added (bone posed in frame {frame})", fontsize=9
     )
-    canvas.save(path)
+    ax.legend(loc="center left", fontsize=7, bbox_to_anchor=(1.01, 0.5))
+    save_figure(fig, path)
 
 
 def _gt_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> bool:
@@ -247,14 +220,15 @@ def _gt_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> bool:
         )
     ]
     series = [s for s in series if np.isfinite(s[0]).any()]
-    ylim = _top_limits(np.concatenate([y for y, _, _ in series]))
-    canvas, ax = _per_frame_axes([f["name"] for f in frames], ylim)
+    fig, ax = _per_frame_axes([f["name"] for f in frames])
+    # headroom above the lines for the legend
+    ax.set_ylim(0.0, 1.4 * _top(np.concatenate([y for y, _, _ in series])))
     for y, colour, label in series:
-        ax.plot(idx, y, colour, marker="o", ms_pt=4, lw_pt=1.0, label=label)
-    _finish_per_frame(
-        ax, "error to ground truth (mm)", "registered bone vs ground truth per frame", "best"
+        ax.plot(idx, y, "-o", color=colour, ms=4, lw=1.0, label=label)
+    _label_per_frame(
+        ax, "error to ground truth (mm)", "registered bone vs ground truth per frame", "upper right"
     )
-    canvas.save(path)
+    save_figure(fig, path)
     return True
 
 

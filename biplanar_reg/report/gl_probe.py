@@ -1,12 +1,16 @@
 """Can VTK render off-screen here? Asked once per process, in a short child process.
 
+This is what decides whether the report's 3D view is rendered by PyVista (:mod:`.render3d`):
+VTK is never called in the report's own process before this child has rendered successfully.
+
 Where neither an X display, EGL nor OSMesa is usable, creating VTK's off-screen render window
 does not raise an exception: VTK logs "Failed to initialize OpenGL functions!" and the process
 dies with a segmentation fault (measured with VTK 9.7.2 and libglvnd finding no EGL vendor
 library). Nothing in the process can catch that, so before PyVista renders, a child Python
 process creates the same window (the same environment, :func:`offscreen_env`), renders an
 8 x 8 image and reads it back. Its outcome is cached per process and per the environment
-variables that choose the OpenGL library (about 1 s, once).
+variables that choose the OpenGL library (about 0.4 CPU s, once). :func:`start_probe` starts the
+child without waiting for it, so that it runs while the report draws its 2D figures.
 """
 
 from __future__ import annotations
@@ -18,9 +22,10 @@ import subprocess
 import sys
 from collections.abc import Mapping
 
-__all__ = ["offscreen_env", "offscreen_rendering_available"]
+__all__ = ["offscreen_env", "offscreen_rendering_available", "start_probe"]
 
-#: Seconds the child process may take (it needs about 1 s).
+#: Seconds the child process may take (it needs about 0.4 CPU s; more wall time on a busy
+#: machine).
 PROBE_TIMEOUT_S = 30.0
 
 #: Environment variables that decide which OpenGL library VTK ends up with (the cache key).
@@ -55,7 +60,9 @@ window.Finalize()
 
 _ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 
+#: Outcomes per environment key, and children still running.
 _cache: dict[tuple[str | None, ...], tuple[bool, str]] = {}
+_running: dict[tuple[str | None, ...], subprocess.Popen] = {}
 
 
 def offscreen_env(environ: Mapping[str, str] | None = None) -> dict[str, str]:
@@ -73,37 +80,63 @@ def _last_line(text: str) -> str:
     return lines[-1][-200:] if lines else "no message"
 
 
-def _probe(env: dict[str, str], timeout: float) -> tuple[bool, str]:
+def _start(env: dict[str, str]) -> subprocess.Popen | tuple[bool, str]:
+    """The probe's child process, started; ``(False, why)`` when it cannot start."""
     try:
-        proc = subprocess.run(
+        return subprocess.Popen(
             [sys.executable, "-c", _PROBE],
             env=env,
             stdin=subprocess.DEVNULL,
-            capture_output=True,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
             text=True,
-            timeout=timeout,
-            check=False,
         )
-    except subprocess.TimeoutExpired:
-        return False, f"a test render did not finish in {timeout:g} s"
     except OSError as exc:
         return False, f"cannot start a test render ({exc})"
-    if proc.returncode == 0 and proc.stdout.startswith("ok"):
-        return True, f"test render with {proc.stdout.split()[-1]}"
+
+
+def _finish(proc: subprocess.Popen, timeout: float) -> tuple[bool, str]:
+    """Wait for the probe's child (killed after ``timeout`` s) and read its outcome."""
+    try:
+        stdout, stderr = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        return False, f"a test render did not finish in {timeout:g} s"
+    if proc.returncode == 0 and stdout.startswith("ok"):
+        return True, f"test render with {stdout.split()[-1]}"
     if proc.returncode < 0:
         try:
             name = signal.Signals(-proc.returncode).name
         except ValueError:
             name = f"signal {-proc.returncode}"
         return False, f"a test render crashed ({name}): no usable EGL, OSMesa or X display"
-    return False, f"a test render failed (exit {proc.returncode}: {_last_line(proc.stderr)})"
+    return False, f"a test render failed (exit {proc.returncode}: {_last_line(stderr)})"
+
+
+def _key(env: Mapping[str, str]) -> tuple[str | None, ...]:
+    return tuple(env.get(k) for k in _ENV_KEYS)
+
+
+def start_probe() -> None:
+    """Start the probe's child for the current environment unless its outcome is known or it
+    is running already; returns at once (:func:`offscreen_rendering_available` collects it)."""
+    env = offscreen_env()
+    key = _key(env)
+    if key not in _cache and key not in _running:
+        started = _start(env)
+        if isinstance(started, tuple):
+            _cache[key] = started
+        else:
+            _running[key] = started
 
 
 def offscreen_rendering_available(timeout: float = PROBE_TIMEOUT_S) -> tuple[bool, str]:
     """``(True, what rendered)`` when VTK can render off-screen in this environment, else
-    ``(False, why)`` (one line). Runs the child process once per process and environment."""
-    env = offscreen_env()
-    key = tuple(env.get(k) for k in _ENV_KEYS)
+    ``(False, why)`` (one line). Runs the child process once per process and environment
+    (waits for the one :func:`start_probe` started)."""
+    start_probe()
+    key = _key(offscreen_env())
     if key not in _cache:
-        _cache[key] = _probe(env, timeout)
+        _cache[key] = _finish(_running.pop(key), timeout)
     return _cache[key]

@@ -10,8 +10,9 @@ when there is one, each triangle coloured by the mean ``sd_mm`` of its corners
 The triangles are filled once with OpenCV into an image of the panel's crop at twice the size of
 the panel's axes on the saved figure, then reduced (anti-aliased edges; a pixel the triangles
 cover is filled, and the edge pixels keep the triangles' colour), blended at 85 % over the
-radiograph (area-averaged to the panel's size), and the image is drawn on axes in pixel units
-(:mod:`.raster_plot`). Fixed layout: the panels side by side, the colour bar beside the last.
+radiograph (area-averaged to the panel's size), and the image is drawn on matplotlib axes in
+pixel units (:mod:`.plotting`). Fixed layout: the panels side by side, the colour bar beside the
+last.
 """
 
 from __future__ import annotations
@@ -22,8 +23,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-
-from ..io.atomic import atomic_write_bytes
 
 if TYPE_CHECKING:
     from ..calibration import View
@@ -142,7 +141,9 @@ def uncertainty_figure(
         Per panel the mesh already projected into its view, the first two outputs of
         :func:`.shading.painter_faces` (``None``, or no sequence: projected here).
     """
-    from .raster_plot import Canvas, colour_bar, nice_ticks, viridis_rgb
+    from matplotlib import cm, colors
+
+    from .plotting import new_figure, save_figure, set_title, viridis_rgb
     from .shading import painter_faces
 
     V, F = np.asarray(vertices, float), np.asarray(faces, dtype=np.int64)
@@ -152,7 +153,7 @@ def uncertainty_figure(
     face_rgb = viridis_rgb(face_sd, 0.0, vmax)
     n = len(panels)
     width, height = _PANEL_IN[0] * n + _COLORBAR_IN, _PANEL_IN[1]
-    canvas = Canvas(round(width * _DPI), round(height * _DPI), dpi=_DPI)
+    fig = new_figure(round(width * _DPI), round(height * _DPI), dpi=_DPI)
     m = _MARGIN_IN
     px = _raster_px()
     for i, (name, view, display) in enumerate(panels):
@@ -161,35 +162,31 @@ def uncertainty_figure(
         lo, hi = tri.reshape(-1, 2).min(axis=0), tri.reshape(-1, 2).max(axis=0)
         pad = 0.08 * float(np.max(hi - lo))
         image, extent = _panel_image(tri, face_rgb[index], display, (lo - pad, hi + pad), px)
-        box = (
-            (i * _PANEL_IN[0] + m["left"]) * _DPI,
-            m["top"] * _DPI,
-            ((i + 1) * _PANEL_IN[0] - m["right"]) * _DPI,
-            (height - m["bottom"]) * _DPI,
+        rect = (
+            (i * _PANEL_IN[0] + m["left"]) / width,
+            m["bottom"] / height,
+            (_PANEL_IN[0] - m["left"] - m["right"]) / width,
+            (height - m["top"] - m["bottom"]) / height,
         )
-        ax = canvas.axes(
-            box,
-            xlim=(lo[0] - pad, hi[0] + pad),
-            ylim=(hi[1] + pad, lo[1] - pad),  # image rows grow downwards
-        )
-        ax.set_aspect_equal()
+        ax = fig.add_axes(rect)
         # as large as the axes: about pixel for pixel; a small crop is enlarged smoothly
-        left, right, bottom, top = extent
-        ax.image(image[:, :, :3], (left, right, top, bottom), smooth=max(image.shape[:2]) < px - 1)
-        ax.finish(xlabel="u (px)", ylabel="v (px)", title=f"{name}")
+        smooth = max(image.shape[:2]) < px - 1
+        ax.imshow(image[:, :, :3], extent=extent, interpolation="bilinear" if smooth else "nearest")
+        ax.set_xlim(lo[0] - pad, hi[0] + pad)
+        ax.set_ylim(hi[1] + pad, lo[1] - pad)  # image rows grow downwards
+        ax.set_aspect("equal", adjustable="box")
+        ax.set_xlabel("u (px)")
+        ax.set_ylabel("v (px)")
+        set_title(ax, name)
     # the colour bar beside the last panel's axes (their width follows the bone's aspect)
-    x0, y0, x1, y1 = ax.box
-    bar = (x1 + 0.3 * _DPI, y0, x1 + 0.5 * _DPI, y1)
-    colour_bar(
-        canvas, bar, 0.0, vmax, ticks=nice_ticks(0.0, vmax, 6), label="sd (mm, RMS over axes)"
-    )
-    canvas.text(
-        canvas.size[0] / 2,
-        0.02 * canvas.size[1],
+    ax.apply_aspect()  # the last axes' box with its equal aspect applied
+    box = ax.get_position()
+    cax = fig.add_axes((box.x1 + 0.3 / width, box.y0, 0.2 / width, box.height))
+    mappable = cm.ScalarMappable(colors.Normalize(0.0, vmax), "viridis")
+    fig.colorbar(mappable, cax=cax, label="sd (mm, RMS over axes)")
+    fig.suptitle(
         f"Posterior sd per vertex: median {np.median(sd_mm):.2f} mm, "
         f"95th percentile {np.percentile(sd_mm, 95):.2f} mm",
-        size_pt=12,
-        ha="center",
-        va="top",
+        fontsize=12,
     )
-    return atomic_write_bytes(path, canvas.png_bytes(), make_parents=False)
+    return save_figure(fig, path)

@@ -1,10 +1,11 @@
-"""How the report's figures are drawn cheaply: PNGs encoded once from the raster canvas (RGB),
-a rendering put on the canvas pixel for pixel, only the ticks within the limits made, the mesh
-projected once per view for the overlay and the uncertainty map, and imports of the package
-(light or the whole case report) that do not load matplotlib."""
+"""The report's figures on matplotlib's object API: PNGs encoded from the Agg canvas (RGB),
+the histogram's median labelled above its axes, log axes labelled in plain numbers, the mesh
+projected once per view for the overlay and the uncertainty map, and no pyplot (global state)
+anywhere in a report."""
 
 from __future__ import annotations
 
+import ast
 import io
 import os
 import subprocess
@@ -14,9 +15,9 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from biplanar_reg.report import figures, raster_plot, shaded_faces
-from biplanar_reg.report.figures import histogram_figure
-from biplanar_reg.report.raster_plot import Canvas
+from biplanar_reg.report import figures, shaded_faces
+from biplanar_reg.report.figures import convergence_figure
+from biplanar_reg.report.plotting import figure_rgb, log_scale, new_figure, png_bytes
 from biplanar_reg.report.shading import painter_faces
 from biplanar_reg.report.uncertainty import uncertainty_figure
 from biplanar_reg.simulate import look_at_view, synthetic_bone_model
@@ -30,61 +31,50 @@ def _decode(png: bytes) -> np.ndarray:
         return np.asarray(im)
 
 
-def _plot() -> Canvas:
-    canvas = Canvas(300, 200)
-    ax = canvas.axes((40, 20, 290, 170), xlim=(0.1, 0.9), ylim=(0.0, 1.0))
-    ax.plot([0.13, 0.87], [0.21, 0.79], "tab:blue", marker="o")
-    ax.finish(title="t")
-    return canvas
+def test_png_is_the_drawn_figure_in_rgb():
+    fig = new_figure(300, 200)
+    ax = fig.add_axes((0.1, 0.1, 0.8, 0.8))
+    ax.plot([0.13, 0.87], [0.21, 0.79], "-o", color="tab:blue")
+    rgb = figure_rgb(fig)
+    assert rgb.shape == (200, 300, 3) and rgb.dtype == np.uint8
+    assert np.array_equal(_decode(png_bytes(rgb)), rgb)
+    assert len(np.unique(rgb.reshape(-1, 3), axis=0)) > 10  # something is drawn
 
 
-def test_png_is_the_drawn_canvas_in_rgb():
-    canvas = _plot()
-    assert np.array_equal(_decode(canvas.png_bytes()), canvas.rgb)
-    assert len(np.unique(canvas.rgb.reshape(-1, 3), axis=0)) > 10  # something is drawn
-
-
-def test_png_paste_puts_an_image_on_the_figure_pixel_for_pixel():
-    patch = np.zeros((20, 30, 3), np.uint8)
-    patch[..., 1] = 200
-    patch[5, 7] = (255, 0, 0)
-    canvas = _plot()
-    canvas.paste(patch, 40, 10)
-    rgb = _decode(canvas.png_bytes())
-    assert np.array_equal(rgb[10:30, 40:70], patch)
-    assert rgb.shape == (200, 300, 3)
-
-
-def test_only_the_ticks_within_the_limits_are_made():
-    canvas = Canvas(300, 200)
-    ax = canvas.axes((40, 20, 290, 170), xlim=(0.1, 0.9), ylim=(0.0, 1.0))
-    ax.finish()
-    locs = ax.x.ticks
-    assert len(locs) and locs.min() >= 0.1 and locs.max() <= 0.9  # not the 0.0 and 1.0 beyond
-    assert len(ax.x.labels) == len(locs)
-
-
-def test_histogram_labels_its_median_on_the_line(tmp_path, monkeypatch):
-    texts, legends = [], []
-    text = raster_plot.Canvas.text
-    monkeypatch.setattr(
-        raster_plot.Canvas, "text", lambda self, *a, **k: (texts.append(a), text(self, *a, **k))[1]
-    )
-    monkeypatch.setattr(raster_plot, "draw_legend", lambda *a, **k: legends.append(a))
-    axes = []
-    hist_panel = figures._hist_panel
-    monkeypatch.setattr(
-        figures, "_hist_panel", lambda ax, *a: (axes.append(ax), hist_panel(ax, *a))[1]
-    )
+def test_histogram_labels_its_median_above_the_axes():
+    fig = new_figure(400, 320)
+    ax = fig.add_axes((0.15, 0.17, 0.8, 0.75))
     values = np.concatenate([np.linspace(0.0, 2.0, 101), [-3.0, 7.0]])
-    histogram_figure(tmp_path / "h.png", [("error", values, "px")])
-    assert not legends
-    ((x, y, label),) = [t for t in texts if t[2].startswith("median")]
-    (ax,) = axes
-    assert label == "median 1" and x == ax.to_px([1.0], [0.0])[0, 0]
-    assert y < ax.box[1]  # above the axes, clear of the bars
-    with Image.open(tmp_path / "h.png") as im:
-        assert im.size == (400, 320)
+    figures._hist_panel(ax, "error", values, "px")
+    fig.canvas.draw()
+    (label,) = [t for t in ax.texts if t.get_text().startswith("median")]
+    assert label.get_text() == "median 1"
+    x_px = ax.transData.transform((1.0, 0.0))[0]
+    box = label.get_window_extent()
+    assert abs((box.x0 + box.x1) / 2 - x_px) < 1.0  # centred on the median's line
+    assert box.y0 >= ax.get_window_extent().y1  # above the axes, clear of the bars
+    assert ax.get_legend() is None
+
+
+def test_log_axes_are_labelled_with_plain_numbers(tmp_path):
+    fig = new_figure(300, 200)
+    wide = fig.add_axes((0.1, 0.1, 0.35, 0.8))
+    wide.plot([0, 1], [1e-3, 10.0])
+    log_scale(wide, np.array([1e-3, 10.0]))
+    narrow = fig.add_axes((0.6, 0.1, 0.35, 0.8))
+    narrow.plot([0, 1], [2.0, 6.0])
+    log_scale(narrow, np.array([2.0, 6.0]))
+    fig.canvas.draw()
+    labels = [t.get_text() for t in wide.get_yticklabels() if t.get_visible()]
+    assert {"0.001", "0.01", "0.1", "1", "10"} <= set(labels)
+    assert not any("$" in t for t in labels)  # no mathtext
+    shown = [t.get_text() for t in narrow.get_yticklabels() if t.get_text()]
+    assert len(shown) >= 3 and all(float(t) > 0 for t in shown)
+    costs = [8.0, 6.0, 5.5, 40.0, 39.0, 148.0, 144.0]
+    kinds = ["sdp"] * 5 + ["local"] * 2
+    convergence_figure(tmp_path / "c.png", costs, [0.01] * 7, [0, 5, 6, 9, 9, 9, 9], 4, kinds)
+    with Image.open(tmp_path / "c.png") as im:
+        assert im.size == (900, 340) and im.mode == "RGB"
 
 
 def test_painter_faces_index_the_drawn_triangles():
@@ -123,31 +113,55 @@ def _run(code: str) -> list[str]:
     return out.stdout.split("\n")
 
 
-def test_light_report_imports_do_not_load_matplotlib_or_jinja2():
+def test_light_report_imports_load_no_plotting_library():
     code = (
         "import sys\n"
         "import biplanar_reg.report.shading, biplanar_reg.report.advice\n"
         "from biplanar_reg.report import FLAG_ADVICE, shaded_faces\n"
-        "print(sorted(m for m in ('matplotlib', 'jinja2') if m in sys.modules))\n"
+        "print(sorted(m for m in ('matplotlib', 'jinja2', 'pyvista', 'vtk') if m in sys.modules))\n"
         "from biplanar_reg.report import write_case_report\n"
-        "print('matplotlib' in sys.modules)\n"
+        "print(sorted(m for m in ('pyvista', 'vtkmodules') if m in sys.modules))\n"
     )
-    assert _run(code)[:2] == ["[]", "False"]
+    assert _run(code)[:2] == ["[]", "[]"]
 
 
-def test_case_and_frames_reports_do_not_import_matplotlib(tmp_path):
+def test_report_package_uses_no_pyplot():
+    """matplotlib's object API only (``Figure`` on its own Agg canvas), never pyplot: its
+    global figure list and backend switching. (PyVista imports pyplot for its colour maps;
+    the report's figures do not go through it.)"""
+    for path in sorted((ROOT / "biplanar_reg" / "report").glob("*.py")):
+        tree = ast.parse(path.read_text())
+        names = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+        names += [
+            f"{n.module}.{a.name}"
+            for n in ast.walk(tree)
+            if isinstance(n, ast.ImportFrom) and n.module
+            for a in n.names
+        ]
+        assert not [m for m in names if "pyplot" in m], path.name
+
+
+def test_whole_report_draws_every_figure(tmp_path):
     """A whole registration with its report (every figure: 3D view, overlays, uncertainty,
-    histograms, convergence) and the multi-frame report's module load no matplotlib."""
+    histograms, convergence), in a fresh process."""
     code = (
-        "import sys\n"
         "from biplanar_reg.cases import run_case_dir\n"
         "from biplanar_reg.simulate import write_synthetic_case\n"
         f"case = write_synthetic_case({str(tmp_path / 'c')!r}, seed=0)\n"
         "outcome = run_case_dir(case)\n"
-        "import biplanar_reg.report.frames\n"
-        "print(sorted(outcome.document['report']['figures']))\n"
-        "print('matplotlib' in sys.modules)\n"
+        "print(' '.join(sorted(outcome.document['report']['figures'])))\n"
     )
-    figures, loaded = _run(code)[:2]
-    assert "error_3d.png" in figures and "uncertainty.png" in figures
-    assert loaded == "False"
+    figures = _run(code)[0].split()
+    assert figures == sorted(
+        [
+            "convergence.png",
+            "error_3d.png",
+            "errors_hist.png",
+            "overlay_cam1.png",
+            "overlay_cam2.png",
+            "uncertainty.png",
+        ]
+    )
+    for name in figures:
+        with Image.open(tmp_path / "c" / "out" / name) as im:
+            assert im.mode == "RGB" and min(im.size) > 200

@@ -6,12 +6,13 @@ import logging
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from biplanar_reg.annotation import Contour, Landmark, ViewAnnotations
 from biplanar_reg.report import overlay_figure, render_template
 
 
-def test_software_fallback_when_pyvista_fails(tmp_path, monkeypatch, caplog):
+def test_matplotlib_fallback_when_pyvista_fails(tmp_path, monkeypatch, caplog):
     from biplanar_reg.report import render3d
     from biplanar_reg.simulate import synthetic_bone_model
 
@@ -20,32 +21,33 @@ def test_software_fallback_when_pyvista_fails(tmp_path, monkeypatch, caplog):
     def broken(*args, **kwargs):
         raise RuntimeError("no OpenGL context")
 
-    monkeypatch.setenv("BIPLANAR_REG_RENDERER", "pyvista")
+    monkeypatch.setattr(render3d, "offscreen_rendering_available", lambda: (True, "probe ok"))
     monkeypatch.setattr(render3d, "render_pyvista", broken)
     with caplog.at_level(logging.WARNING):
         used = render3d.render_error_mesh(
             tmp_path / "e.png", m.mean, m.faces, np.linspace(0, 1, m.n_vertices), "t"
         )
-    assert used == "software" and (tmp_path / "e.png").stat().st_size > 1000
-    assert any("using software" in r.message for r in caplog.records)
+    assert used == "matplotlib" and (tmp_path / "e.png").stat().st_size > 1000
+    (warning,) = [r.getMessage() for r in caplog.records]
+    assert "drawn with matplotlib" in warning and "no OpenGL context" in warning
 
 
-def test_software_render_shows_the_near_side_shaded():
-    """The isometric software image: the surface nearest the eye, lit from the eye (the
-    capsule bone is bright in the middle, darker towards its rim), background elsewhere."""
-    from biplanar_reg.report.render3d import software_image
+def test_matplotlib_view_shows_the_coloured_surface(tmp_path):
+    """The fallback's 900 x 700 px figure: the surface in viridis colours (the error), shaded,
+    on a white figure."""
+    from biplanar_reg.report.render3d import render_matplotlib
     from biplanar_reg.simulate import synthetic_bone_model
 
     m = synthetic_bone_model(0, resolution=(40, 21))
-    colour = np.tile([1.0, 0.0, 0.0], (m.n_vertices, 1))  # red unlit: the shade is the red
-    img = software_image(m.mean, m.faces, colour, (200, 200))
-    red, green = img[..., 0], img[..., 1]
-    covered = (green < 0.5) & (red > 0.05)
-    assert 0.1 < covered.mean() < 0.9
-    assert np.allclose(img[~covered & (green > 0.99)], 1.0)  # white background
-    rows, cols = np.nonzero(covered)
-    centre = red[int(rows.mean()), int(cols.mean())]
-    assert centre > 0.75 and centre > np.percentile(red[covered], 10) + 0.2
+    err = m.mean[:, 2] - m.mean[:, 2].min()
+    render_matplotlib(tmp_path / "e.png", m.mean, m.faces, err, "t")
+    with Image.open(tmp_path / "e.png") as im:
+        assert im.size == (900, 700) and im.mode == "RGB"
+        rgb = np.asarray(im, float) / 255.0
+    # viridis: blue-green-yellow, never red-dominant; a large part of the plot is coloured
+    surface = (np.abs(rgb[..., 2] - rgb[..., 0]) > 0.15) | (rgb[..., 1] - rgb[..., 0] > 0.15)
+    assert surface[:, :770].mean() > 0.05
+    assert rgb[5, 5].tolist() == [1.0, 1.0, 1.0]
 
 
 def test_overlay_on_blank_canvas(tmp_path):
