@@ -38,6 +38,7 @@ __all__ = [
     "CaseFailure",
     "CommandError",
     "SolverFailure",
+    "one_line",
 ]
 
 
@@ -87,3 +88,24 @@ class AnnotationError(ValueError):
         if more:
             text += f"\n  ... and {more} more"
         super().__init__(text)
+
+
+def one_line(error: BaseException | str, max_problems: int | None = None) -> str:
+    """A message on one line, for errors printed, logged or sent to the workbench page.
+
+    Every run of whitespace (newlines included) becomes one space. An error carrying
+    ``problems`` (:class:`AnnotationError`) gives them joined by ``"; "``, at most
+    ``max_problems`` of them followed by ``"; ... and N more"``. An exception without a message
+    gives its type's name.
+    """
+    problems = getattr(error, "problems", None)
+    if problems:
+        shown = list(problems)[: len(problems) if max_problems is None else max_problems]
+        more = len(problems) - len(shown)
+        text = "; ".join(shown) + (f"; ... and {more} more" if more > 0 else "")
+    else:
+        text = str(error)
+    text = " ".join(text.split())
+    if not text and isinstance(error, BaseException):
+        return type(error).__name__
+    return text

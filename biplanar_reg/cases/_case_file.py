@@ -15,8 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from .._validate import did_you_mean
-from ..annotation import AnnotationError
-from ..errors import CaseError
+from ..errors import CaseError, one_line
 
 __all__ = []
 
@@ -94,14 +93,6 @@ _MB_PER_FACE, _MB_BASE, _SECONDS_PER_FACE = 8.17e-3, 182.0, 1.68e-4
 # -- helpers -----------------------------------------------------------------------------------
 
 
-def _one_line(exc: BaseException) -> str:
-    """An exception's message on one line (multi-problem messages joined with '; ')."""
-    if isinstance(exc, AnnotationError):
-        more = len(exc.problems) - 5
-        return "; ".join(exc.problems[:5]) + (f"; ... and {more} more" if more > 0 else "")
-    return " ".join(str(exc).split("\n")).replace("  ", " ").strip() or type(exc).__name__
-
-
 def _resolved(path: Path) -> Path:
     """``path.resolve()``, with a symlink loop or an unresolvable name as ``ValueError``.
 
@@ -113,7 +104,7 @@ def _resolved(path: Path) -> Path:
     except RuntimeError:
         raise ValueError("symlink loop (a link that points back to itself)") from None
     except (OSError, ValueError) as exc:
-        raise ValueError(f"cannot resolve the path ({_one_line(exc)})") from None
+        raise ValueError(f"cannot resolve the path ({one_line(exc, max_problems=5)})") from None
 
 
 class _Ctx:
@@ -179,7 +170,9 @@ class _Ctx:
         try:
             is_file = path.is_file()
         except OSError as exc:  # e.g. a name too long for the file system
-            raise self.error(f"{where} {key}", f"{value!r}: {_one_line(exc)}") from None
+            raise self.error(
+                f"{where} {key}", f"{value!r}: {one_line(exc, max_problems=5)}"
+            ) from None
         if exists and not is_file:
             raise self.error(f"{where} {key}", f"{value}: file not found")
         if not exists and path.exists() and not path.is_file():
@@ -243,11 +236,11 @@ def _read_toml(ctx: _Ctx) -> dict:
     except FileNotFoundError:
         raise CaseError(f"{ctx.file}: file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
-        raise CaseError(f"{ctx.file}: cannot be read ({_one_line(exc)})") from None
+        raise CaseError(f"{ctx.file}: cannot be read ({one_line(exc, max_problems=5)})") from None
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise CaseError(f"{ctx.file}: not valid TOML ({_one_line(exc)})") from None
+        raise CaseError(f"{ctx.file}: not valid TOML ({one_line(exc, max_problems=5)})") from None
 
 
 def _header(ctx: _Ctx, doc: dict) -> tuple[str, str]:

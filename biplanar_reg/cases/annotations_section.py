@@ -11,6 +11,7 @@ import numpy as np
 from ..annotation import Annotations, load_annotations
 from ..annotation.image import read_image_size
 from ..calibration import load_calibration
+from ..errors import one_line
 from ..io import read_mesh
 from ..ssm import ShapeModel
 from ._case_file import (
@@ -18,7 +19,6 @@ from ._case_file import (
     MIN_OUTLINE_EXTENT_PX,
     MIN_VIEWS,
     _Ctx,
-    _one_line,
 )
 from .case_types import CaseFrame, CaseView, GroundTruth
 from .views_section import _check_pixels, _scale_view
@@ -63,7 +63,9 @@ def _load_annotations(
             path, known_views=[v.name for v in views], known_landmarks=landmarks, image_sizes=sizes
         )
     except ValueError as exc:
-        raise ctx.error("[annotations] file", f"{path.name}: {_one_line(exc)}") from None
+        raise ctx.error(
+            "[annotations] file", f"{path.name}: {one_line(exc, max_problems=5)}"
+        ) from None
     _check_outline_extents(ctx, "[annotations] file", path, ann)
     if start:  # a start pose: outlines alone may register (register_views checks the total)
         return ann, path
@@ -97,7 +99,7 @@ def _load_ground_truth(ctx: _Ctx, doc: dict, scale: float, model: ShapeModel) ->
     try:
         verts, faces = read_mesh(path)
     except (ValueError, OSError) as exc:
-        raise ctx.error("[ground_truth] mesh", _one_line(exc)) from None
+        raise ctx.error("[ground_truth] mesh", one_line(exc, max_problems=5)) from None
     up_to_pose, from_truth = (table.get(k, False) for k in ("up_to_pose", "model_from_truth"))
     for key, value in (("up_to_pose", up_to_pose), ("model_from_truth", from_truth)):
         if not isinstance(value, bool):
@@ -128,7 +130,7 @@ def _load_region(ctx: _Ctx, table: dict, model: ShapeModel) -> RegionSpec | None
     try:
         spec = read_region(path, model.n_vertices, model.landmarks)
     except (ValueError, OSError) as exc:
-        raise ctx.error(where, f"{path.name}: {_one_line(exc)}") from None
+        raise ctx.error(where, f"{path.name}: {one_line(exc, max_problems=5)}") from None
     mean = model.mean.reshape(-1, 3)
     mask, desc = region_mask(spec, mean, model.faces, mean)
     if not mask.any():
@@ -161,7 +163,7 @@ def _frame_view(ctx: _Ctx, cv: CaseView, where: str, image, calib, page, scale) 
         try:
             size = read_image_size(path, frame=frame)
         except (ValueError, OSError) as exc:
-            raise ctx.error(f"{where} images {cv.name}", _one_line(exc)) from None
+            raise ctx.error(f"{where} images {cv.name}", one_line(exc, max_problems=5)) from None
         if image is not None:  # the view's own image was checked with the view
             _check_pixels(ctx, f"{where} images {cv.name}", path)
     view = cv.view
@@ -172,7 +174,9 @@ def _frame_view(ctx: _Ctx, cv: CaseView, where: str, image, calib, page, scale) 
             view = dataclasses.replace(view, name=cv.name)
             view = view if fmt == "dicom" else _scale_view(view, scale)
         except (ValueError, OSError) as exc:
-            raise ctx.error(f"{where} calibrations {cv.name}", _one_line(exc)) from None
+            raise ctx.error(
+                f"{where} calibrations {cv.name}", one_line(exc, max_problems=5)
+            ) from None
     key = f"{ctx.file}: {where} images {cv.name}"
     return CaseView(
         cv.name, view, calib or cv.calibration, cv.calibration_format, path, frame, size, key
@@ -187,7 +191,7 @@ def _frame_ground_truth(ctx: _Ctx, table: dict, where: str, scale: float, model)
     try:
         verts, faces = read_mesh(path)
     except (ValueError, OSError) as exc:
-        raise ctx.error(f"{where} ground_truth", _one_line(exc)) from None
+        raise ctx.error(f"{where} ground_truth", one_line(exc, max_problems=5)) from None
     verts = verts * scale
     ratio = np.linalg.norm(np.ptp(verts, axis=0)) / np.linalg.norm(np.ptp(model.mean, axis=0))
     if not 0.2 <= ratio <= 5.0:
@@ -234,7 +238,9 @@ def _one_frame(
             path, known_views=[v.name for v in fviews], known_landmarks=landmarks, image_sizes=sizes
         )
     except ValueError as exc:
-        raise ctx.error(f"{where} annotations", f"{path.name}: {_one_line(exc)}") from None
+        raise ctx.error(
+            f"{where} annotations", f"{path.name}: {one_line(exc, max_problems=5)}"
+        ) from None
     _check_outline_extents(ctx, f"{where} annotations", path, ann)
     gt = _frame_ground_truth(ctx, table, where, scale, model)
     return CaseFrame(name, fviews, ann, path, gt)

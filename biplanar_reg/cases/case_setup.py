@@ -6,6 +6,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..errors import one_line
 from ..io import read_mesh
 from ..ssm import ShapeModel
 from ._case_file import (
@@ -13,7 +14,6 @@ from ._case_file import (
     _case_folder,
     _Ctx,
     _header,
-    _one_line,
     _read_toml,
 )
 from .annotations_section import _annotations_path
@@ -126,7 +126,7 @@ def _model_landmarks(ctx: _Ctx, doc: dict) -> tuple[Path, int, Path | None, dict
         else:
             n_vertices = len(read_mesh(path)[0])
     except (ValueError, OSError) as exc:
-        raise ctx.error(f"[model] {key}", _one_line(exc)) from None
+        raise ctx.error(f"[model] {key}", one_line(exc, max_problems=5)) from None
     lm_path = ctx.path(table, "landmarks", "[model]", required=False, exists=False)
     if lm_path is None:
         return path, n_vertices, None, stored

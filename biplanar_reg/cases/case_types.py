@@ -14,12 +14,11 @@ import numpy as np
 
 from ..annotation import Annotations, XrayImage, load_image
 from ..calibration.views import View
-from ..errors import CaseError
+from ..errors import CaseError, one_line
 from ..registration import RegistrationOptions
 from ..ssm import ShapeModel
 from ._case_file import (
     CASE_FILE,
-    _one_line,
 )
 
 __all__ = ["Case", "CaseFrame"]
@@ -61,7 +60,9 @@ class CaseView:
         try:
             return load_image(self.image_path, frame=self.image_frame)
         except (ValueError, OSError) as exc:
-            raise CaseError(f"{self.image_key or self.image_path}: {_one_line(exc)}") from None
+            raise CaseError(
+                f"{self.image_key or self.image_path}: {one_line(exc, max_problems=5)}"
+            ) from None
 
     @property
     def image_size(self) -> tuple[int, int] | None:

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import one_line
 from ..io import read_mesh
 from ..io.jsonfile import read_json
 from ..ssm import ShapeModel
@@ -19,7 +20,6 @@ from ._case_file import (
     MODEL_DEFAULTS,
     PLAUSIBLE_EXTENT_MM,
     _Ctx,
-    _one_line,
     _units_name,
 )
 
@@ -31,7 +31,7 @@ def _read_landmarks(ctx: _Ctx, path: Path, n_vertices: int) -> dict[str, int]:
     try:
         data = read_json(path)
     except ValueError as exc:
-        raise ctx.error(where, _one_line(exc)) from None
+        raise ctx.error(where, one_line(exc, max_problems=5)) from None
     if not isinstance(data, dict) or not data:
         raise ctx.error(where, f"{path.name}: expected a non-empty JSON object {{name: index}}")
     out: dict[str, int] = {}
@@ -78,7 +78,7 @@ def _load_model(ctx: _Ctx, doc: dict, scale: float) -> tuple[ShapeModel, dict, d
         try:
             model = ShapeModel.load(path)
         except ValueError as exc:
-            raise ctx.error("[model] ssm", _one_line(exc)) from None
+            raise ctx.error("[model] ssm", one_line(exc, max_problems=5)) from None
         n_faces = 0 if model.faces is None else len(model.faces)
         _check_model_size(ctx, "[model] ssm", path, model.n_vertices, n_faces)
         source: dict[str, Any] = {"ssm": str(path)}
@@ -87,7 +87,7 @@ def _load_model(ctx: _Ctx, doc: dict, scale: float) -> tuple[ShapeModel, dict, d
         try:
             verts, faces = read_mesh(path)
         except (ValueError, OSError) as exc:
-            raise ctx.error("[model] template", _one_line(exc)) from None
+            raise ctx.error("[model] template", one_line(exc, max_problems=5)) from None
         if faces is None:
             raise ctx.error("[model] template", f"{path.name}: a template needs faces (a mesh)")
         _check_model_size(ctx, "[model] template", path, len(verts), len(faces))

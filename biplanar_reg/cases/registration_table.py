@@ -16,9 +16,10 @@ import difflib
 from pathlib import Path
 from typing import Any
 
+from ..errors import one_line
 from ..io.jsonfile import read_json
 from ..registration import RegistrationOptions
-from ._case_file import _Ctx, _one_line
+from ._case_file import _Ctx
 
 __all__ = ["registration_options"]
 
@@ -135,7 +136,7 @@ def typed_options(ctx: _Ctx, values: dict[str, tuple[str, Any]]) -> Registration
     try:
         return RegistrationOptions(**kwargs)
     except (TypeError, ValueError) as exc:
-        msg = _one_line(exc)
+        msg = one_line(exc, max_problems=5)
         key = msg.split(":", 1)[0]
         section = values[key][0] if key in values else _home(key).split(" ")[0]
         raise ctx.error(section, msg) from None
@@ -180,7 +181,7 @@ def load_start(ctx: _Ctx, reg: dict, scale: float):
     try:
         doc = read_json(path)
     except (ValueError, OSError) as exc:
-        raise ctx.error(where, f"{path.name}: {_one_line(exc)}") from None
+        raise ctx.error(where, f"{path.name}: {one_line(exc, max_problems=5)}") from None
     if not isinstance(doc, dict) or "R" not in doc or "t" not in doc:
         raise ctx.error(where, f'{path.name}: expected an object {{"R": [[3x3]], "t": [3]}}')
     from .._validate import as_array, check_rotation
@@ -189,5 +190,5 @@ def load_start(ctx: _Ctx, reg: dict, scale: float):
         R = check_rotation("R", doc["R"], tol=1e-4)
         t = as_array("t", doc["t"], (3,))
     except (TypeError, ValueError) as exc:
-        raise ctx.error(where, f"{path.name}: {_one_line(exc)}") from None
+        raise ctx.error(where, f"{path.name}: {one_line(exc, max_problems=5)}") from None
     return (R, t * scale), path

@@ -14,13 +14,13 @@ from ..annotation import Annotations
 from ..annotation.image import read_image_size
 from ..calibration import FORMATS, load_calibration
 from ..calibration.views import OrthographicView, PerspectiveView, SlotScanningView, View
+from ..errors import one_line
 from ..registration import ViewObservations
 from ._case_file import (
     MAX_VIEWS,
     MIN_LANDMARK_OBSERVATIONS,
     MIN_VIEWS,
     _Ctx,
-    _one_line,
 )
 from .case_types import CaseView
 
@@ -96,7 +96,7 @@ def _load_views(ctx: _Ctx, doc: dict, scale: float) -> list[CaseView]:
             try:
                 size = read_image_size(image_path, frame=frame)
             except (ValueError, OSError) as exc:
-                raise ctx.error(f"{where} image", _one_line(exc)) from None
+                raise ctx.error(f"{where} image", one_line(exc, max_problems=5)) from None
             _check_pixels(ctx, f"{where} image", image_path)
         calib = ctx.path(table, "calibration", where)
         try:
@@ -108,14 +108,14 @@ def _load_views(ctx: _Ctx, doc: dict, scale: float) -> list[CaseView]:
                 name=name,
             )
         except (ValueError, OSError) as exc:
-            raise ctx.error(f"{where} calibration", _one_line(exc)) from None
+            raise ctx.error(f"{where} calibration", one_line(exc, max_problems=5)) from None
         used_fmt = (fmt or _detected(calib)).lower()
         view = dataclasses.replace(view, name=name)
         if used_fmt != "dicom":  # DICOM geometry is mm by the standard
             try:
                 view = _scale_view(view, scale)
             except ValueError as exc:
-                raise ctx.error(f"{where} calibration", _one_line(exc)) from None
+                raise ctx.error(f"{where} calibration", one_line(exc, max_problems=5)) from None
         key = f"{ctx.file}: {where} image"
         views.append(CaseView(name, view, calib, used_fmt, image_path, frame, size, key))
     if len(views) < MIN_VIEWS:

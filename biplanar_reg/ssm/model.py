@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .._validate import as_array
+from ..errors import one_line
 from ..io.atomic import atomic_path
 
 __all__ = ["ShapeModel"]
@@ -236,7 +237,7 @@ class ShapeModel:
             )
         except (json.JSONDecodeError, RecursionError) as exc:
             raise ValueError(
-                f"{path}: key 'landmarks_json' is not valid JSON ({_one_line(exc)})"
+                f"{path}: key 'landmarks_json' is not valid JSON ({one_line(exc)})"
             ) from None
         if not isinstance(landmarks, dict):
             raise ValueError(f"{path}: key 'landmarks_json': expected a JSON object")
@@ -253,7 +254,7 @@ class ShapeModel:
                 population_variances=arrays.get("population_variances"),
             )
         except (ValueError, TypeError) as exc:
-            raise ValueError(f"{path}: {_one_line(exc)}") from None
+            raise ValueError(f"{path}: {one_line(exc)}") from None
 
 
 def _json_object(path: Path, arrays: Mapping[str, np.ndarray], key: str) -> dict:
@@ -263,14 +264,10 @@ def _json_object(path: Path, arrays: Mapping[str, np.ndarray], key: str) -> dict
     try:
         value = json.loads(str(arrays[key]))
     except (json.JSONDecodeError, RecursionError) as exc:
-        raise ValueError(f"{path}: key {key!r} is not valid JSON ({_one_line(exc)})") from None
+        raise ValueError(f"{path}: key {key!r} is not valid JSON ({one_line(exc)})") from None
     if not isinstance(value, dict):
         raise ValueError(f"{path}: key {key!r}: expected a JSON object")
     return value
-
-
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 def _read_npz(path: Path) -> dict[str, np.ndarray]:
@@ -290,5 +287,5 @@ def _read_npz(path: Path) -> dict[str, np.ndarray]:
         raise ValueError(f"{path}: file not found") from None
     except Exception as exc:  # noqa: BLE001 - parser libraries raise anything on bad bytes
         raise ValueError(
-            f"{path}: not a readable .npz shape model ({type(exc).__name__}: {_one_line(exc)})"
+            f"{path}: not a readable .npz shape model ({type(exc).__name__}: {one_line(exc)})"
         ) from None

@@ -46,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import one_line
 from ..io.atomic import atomic_path
 from .model import ShapeModel
 
@@ -57,10 +58,6 @@ ORTHOGONALITY_TOL = 1e-6
 REPRESENTER_NAME = "itkStandardMeshRepresenter"
 
 log = logging.getLogger(__name__)
-
-
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 def _dataset(f: Any, key: str, path: Path) -> np.ndarray:
@@ -139,7 +136,7 @@ def read_statismo(path: str | os.PathLike) -> ShapeModel:
     try:
         f = h5py.File(path, "r")
     except OSError as exc:
-        raise ValueError(f"{path}: not a readable HDF5 file ({_one_line(exc)})") from None
+        raise ValueError(f"{path}: not a readable HDF5 file ({one_line(exc)})") from None
     with f:
         if "representer" not in f:
             raise ValueError(f"{path}: missing key 'representer' (not a statismo shape model)")
@@ -166,7 +163,7 @@ def read_statismo(path: str | os.PathLike) -> ShapeModel:
         try:
             extras = _extras(f)
         except (json.JSONDecodeError, TypeError, ValueError) as exc:
-            raise ValueError(f"{path}: group 'biplanar_reg': {_one_line(exc)}") from None
+            raise ValueError(f"{path}: group 'biplanar_reg': {one_line(exc)}") from None
     if (major, minor) == (0, 8):  # the 0.8 basis is U * sqrt(var)
         sd = np.sqrt(var)
         basis = np.divide(basis, sd, out=np.zeros_like(basis), where=sd > 1e-300)
@@ -174,7 +171,7 @@ def read_statismo(path: str | os.PathLike) -> ShapeModel:
     try:
         return ShapeModel(mean.reshape(-1, 3), modes, faces=faces, variances=var, **extras)
     except (ValueError, TypeError) as exc:
-        raise ValueError(f"{path}: {_one_line(exc)}") from None
+        raise ValueError(f"{path}: {one_line(exc)}") from None
 
 
 def _orthonormal_basis(model: ShapeModel) -> tuple[np.ndarray, np.ndarray]:

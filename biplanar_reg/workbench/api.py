@@ -30,6 +30,7 @@ from starlette.responses import HTMLResponse, JSONResponse, Response, StreamingR
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
+from ..errors import one_line
 from .access import Access, Guard
 from .outline_tools import outline_routes
 from .session import Conflict, NotFound, Workbench, require_version
@@ -59,12 +60,6 @@ def _error(status: int, message: str) -> JSONResponse:
     return JSONResponse({"error": message}, status_code=status)
 
 
-def _one_line(exc: BaseException) -> str:
-    problems = getattr(exc, "problems", None)  # AnnotationError: every problem, by its key
-    text = "; ".join(problems) if problems else str(exc)
-    return " ".join(text.split()) or type(exc).__name__
-
-
 Handler = Callable[[Request], Awaitable[Response]]
 
 
@@ -77,14 +72,14 @@ def _guarded(fn: Handler) -> Handler:
         except ApiError as exc:
             return _error(exc.status, exc.message)
         except NotFound as exc:
-            return _error(404, _one_line(exc))
+            return _error(404, one_line(exc))
         except Conflict as exc:
-            return _error(409, _one_line(exc))
+            return _error(409, one_line(exc))
         except ValueError as exc:  # bad input, named by its field (AnnotationError included)
-            return _error(400, _one_line(exc))
+            return _error(400, one_line(exc))
         except Exception as exc:  # noqa: BLE001 - the client gets one line, the log the rest
             log.exception("%s %s failed", request.method, request.url.path)
-            return _error(500, f"internal error: {type(exc).__name__}: {_one_line(exc)}")
+            return _error(500, f"internal error: {type(exc).__name__}: {one_line(exc)}")
 
     endpoint.__name__ = fn.__name__
     return endpoint
@@ -118,7 +113,7 @@ async def _body(request: Request) -> dict[str, Any]:
             raw.decode("utf-8"), parse_constant=_refuse_constant, object_pairs_hook=_unique_keys
         )
     except (ValueError, UnicodeDecodeError) as exc:
-        raise ApiError(400, f"body: not valid JSON ({_one_line(exc)})") from None
+        raise ApiError(400, f"body: not valid JSON ({one_line(exc)})") from None
     if not isinstance(doc, dict):
         raise ApiError(400, f"body: expected a JSON object, got {type(doc).__name__}")
     return doc

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..cases import run_case_dir
 from ..cases.case import CaseView
-from ..errors import CommandError
+from ..errors import CommandError, one_line
 from ..io import read_mesh
 from ..outline import outline_polylines
 from ..result import ViewResult, read_result
@@ -33,10 +33,6 @@ log = logging.getLogger(__name__)
 STATES = ("idle", "running", "done", "failed")
 #: A registration waits at most this long (s) for the previous one's report to be written.
 REPORT_WAIT_S = 60.0
-
-
-def _one_line(text: str) -> str:
-    return " ".join(str(text).split())
 
 
 class RegistrationJob:
@@ -91,7 +87,7 @@ class RegistrationJob:
     def _say(self, message: str) -> None:
         """The progress callback: one line per message."""
         with self._cond:
-            self._messages.append(_one_line(message))
+            self._messages.append(one_line(message))
             self._cond.notify_all()
 
     def _finish(self, state: str, result: dict[str, Any] | None, error: str | None) -> None:
@@ -115,7 +111,7 @@ class RegistrationJob:
                 raise
             # the result is out already: only its report failed (the page keeps the result)
             log.exception("the report of %s was not written", self.case_dir)
-            self._say(f"report not written: {type(exc).__name__}: {_one_line(str(exc))}")
+            self._say(f"report not written: {type(exc).__name__}: {one_line(str(exc))}")
             return
         if self._state != "done":  # a multi-bone or multi-frame case: no early result
             self._done(outcome)
@@ -129,13 +125,13 @@ class RegistrationJob:
             # message names the file and key, as `biplanar-reg register` prints it
             from .session import inside_only  # (no --allow-outside here)
 
-            msg = inside_only(_one_line(str(exc)))
+            msg = inside_only(one_line(str(exc)))
             self._say(f"failed: {msg}")
             self._finish("failed", None, msg)
             return
         except Exception as exc:  # noqa: BLE001 - a bug must not kill the server's thread
             log.exception("registration of %s failed", self.case_dir)
-            msg = f"internal error: {type(exc).__name__}: {_one_line(str(exc))}"
+            msg = f"internal error: {type(exc).__name__}: {one_line(str(exc))}"
             self._say(f"failed: {msg}")
             self._finish("failed", None, msg)
 

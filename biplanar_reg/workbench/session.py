@@ -41,7 +41,7 @@ from ..annotation.features import edge_cost
 from ..annotation.snap import MAX_RADIUS_PX
 from ..cases import CaseSetup, read_case_setup
 from ..cases.case import CaseView
-from ..errors import CaseError
+from ..errors import CaseError, one_line
 from ..io import atomic_write_json, read_json
 from .caselock import CaseLock
 from .checks import (  # the others import some of these from here
@@ -154,13 +154,6 @@ def _stamp(path: Path) -> tuple[int, int] | None:
     except FileNotFoundError:
         return None
     return st.st_mtime_ns, st.st_size
-
-
-def _one_line(exc: BaseException) -> str:
-    problems = getattr(exc, "problems", None)
-    if problems:
-        return "; ".join(problems)
-    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 def _fingerprint(contour: Contour) -> dict[str, Any]:
@@ -310,7 +303,7 @@ class Workbench:
             anchors = doc["contour_anchors"]
             return {str(k): list(v) for k, v in anchors.items() if isinstance(v, list)}
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
-            log.warning("%s: ignored (%s)", self._state_path, _one_line(exc))
+            log.warning("%s: ignored (%s)", self._state_path, one_line(exc))
             return {}
 
     def _current(self) -> Annotations:
@@ -325,7 +318,7 @@ class Workbench:
                 except ValueError as exc:
                     raise Conflict(
                         f"{self._ann_path.name}: changed outside the workbench and is not valid "
-                        f"now: {_one_line(exc)}"
+                        f"now: {one_line(exc)}"
                     ) from None
                 log.info("%s: changed on disk, re-read", self._ann_path)
                 # undoing would overwrite what the other program wrote
