@@ -13,6 +13,7 @@ the screenshots of ``docs/workbench.md`` (1400 x 900) there.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -20,6 +21,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -36,10 +38,11 @@ pytestmark = needs_chromium
 # ---- fixtures ------------------------------------------------------------------------------
 
 
-@pytest.fixture
-def server(case_dir: Path):
-    """``biplanar-reg workbench CASE --no-browser --port 0``; yields the printed URL."""
-    cmd = [sys.executable, "-m", "biplanar_reg.cli", "workbench", str(case_dir)]
+@contextlib.contextmanager
+def running_workbench(folder: Path, *options: str) -> Iterator[str]:
+    """``biplanar-reg workbench [OPTIONS] FOLDER --no-browser --port 0`` in a subprocess (this
+    checkout's package); yields the printed URL, stops the server on exit."""
+    cmd = [sys.executable, "-m", "biplanar_reg.cli", "workbench", *options, str(folder)]
     proc = subprocess.Popen(
         [*cmd, "--no-browser", "--port", "0"],
         stdout=subprocess.PIPE,
@@ -49,13 +52,20 @@ def server(case_dir: Path):
         env={**os.environ, "PYTHONPATH": str(ROOT)},  # this checkout's package
     )
     lines: list[str] = []
-    url = _read_url(proc, lines)
-    # keep draining the output so that the server never blocks on a full pipe
-    threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True).start()
     try:
+        url = _read_url(proc, lines)
+        # keep draining the output so that the server never blocks on a full pipe
+        threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True).start()
         yield url
     finally:
         stop_server(proc)
+
+
+@pytest.fixture
+def server(case_dir: Path):
+    """``biplanar-reg workbench CASE --no-browser --port 0``; yields the printed URL."""
+    with running_workbench(case_dir) as url:
+        yield url
 
 
 def _read_url(proc: subprocess.Popen, lines: list[str]) -> str:

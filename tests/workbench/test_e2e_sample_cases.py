@@ -4,16 +4,12 @@ one bone in one frame)."""
 
 from __future__ import annotations
 
-import os
 import shutil
-import subprocess
-import sys
-import threading
 from pathlib import Path
 
 import pytest
-from _browser import needs_chromium, stop_server
-from test_e2e import _read_url, _settle
+from _browser import needs_chromium
+from test_e2e import _settle, running_workbench
 
 from biplanar_reg.cases import read_case_setup
 from biplanar_reg.errors import CaseError
@@ -39,18 +35,7 @@ def test_each_sample_case_opens_without_a_console_error(name, page, tmp_path):
     page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
     failed: list[str] = []
     page.on("response", lambda r: failed.append(f"{r.status} {r.url}") if r.status >= 400 else None)
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "biplanar_reg.cli", "workbench", str(case), "--no-browser"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        cwd=ROOT,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-    )
-    lines: list[str] = []
-    try:
-        url = _read_url(proc, lines)
-        threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True).start()
+    with running_workbench(case) as url:
         page.goto(url)
         page.wait_for_selector("body[data-ready='true']")
         _settle(page)
@@ -58,6 +43,4 @@ def test_each_sample_case_opens_without_a_console_error(name, page, tmp_path):
         page.wait_for_selector("[data-testid=shortcut-list]:not([hidden])")
         page.keyboard.press("Escape")
         _settle(page)
-    finally:
-        stop_server(proc)
     assert errors == [] and page.errors == [] and failed == [], (errors, page.errors, failed)

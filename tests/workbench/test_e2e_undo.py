@@ -10,16 +10,12 @@ after their image files and the new case opens with no console error.
 from __future__ import annotations
 
 import json
-import os
 import shutil
-import subprocess
-import sys
-import threading
 from pathlib import Path
 
 import numpy as np
-from _browser import ROOT, SAMPLE, needs_chromium, stop_server
-from test_e2e import _client, _open, _read_url, _settle, _wheel_zoom, _zoom, server  # noqa: F401
+from _browser import SAMPLE, needs_chromium
+from test_e2e import _client, _open, _settle, _wheel_zoom, _zoom, running_workbench, server  # noqa: F401
 from test_e2e_keys import _console_errors, _screenshot
 
 pytestmark = needs_chromium
@@ -170,19 +166,7 @@ def test_a_fresh_case_names_its_views_after_the_images_and_logs_no_error(page, t
     errors = _console_errors(page)
     requests: list[str] = []
     page.on("response", lambda r: requests.append(f"{r.status} {r.url}"))
-    cmd = [sys.executable, "-m", "biplanar_reg.cli", "workbench", "--new", str(folder)]
-    proc = subprocess.Popen(
-        [*cmd, "--no-browser", "--port", "0"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        cwd=ROOT,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-    )
-    lines: list[str] = []
-    try:
-        url = _read_url(proc, lines)
-        threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True).start()
+    with running_workbench(folder, "--new") as url:
         page.goto(url)
         page.wait_for_selector("body[data-ready='true']")
         names = [page.get_by_test_id(f"new-view-name-{i}").input_value() for i in (0, 1)]
@@ -196,5 +180,3 @@ def test_a_fresh_case_names_its_views_after_the_images_and_logs_no_error(page, t
         assert views == names
         assert not [r for r in requests if r.startswith("4") or r.startswith("5")], requests
         assert errors == [] and page.errors == []
-    finally:
-        stop_server(proc)
