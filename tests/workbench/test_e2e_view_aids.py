@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from _browser import needs_chromium
 from test_e2e import _client, _open, _settle, server  # noqa: F401 - server is a fixture
+from test_view_aids import _distance
 
 from biplanar_reg.annotation import load_image
 from biplanar_reg.cases import read_case_setup
@@ -65,17 +66,6 @@ def _shot(page, tmp_path: Path, name: str, clip: dict) -> None:
     if target:
         Path(target).mkdir(parents=True, exist_ok=True)
         (Path(target) / out.name).write_bytes(out.read_bytes())
-
-
-def _distance(p: np.ndarray, pieces: list) -> float:
-    best = np.inf
-    for line in pieces:
-        line = np.asarray(line, float)
-        a, b = line[:-1], line[1:]
-        d = b - a
-        t = np.clip(((p - a) * d).sum(1) / np.maximum((d * d).sum(1), 1e-12), 0, 1)
-        best = min(best, float(np.min(np.linalg.norm(a + t[:, None] * d - p, axis=1))))
-    return best
 
 
 def shipped_annotations(case_dir: Path) -> dict:
