@@ -5,6 +5,7 @@
 
 import { request } from "./api.js";
 import { label } from "./overlay.js";
+import { el } from "./dom.js";
 
 const enc = encodeURIComponent;
 const COLOR = "#ff9f43"; // proposals: orange, dashed
@@ -12,15 +13,6 @@ const COLOR = "#ff9f43"; // proposals: orange, dashed
 /** Keyboard shortcuts of this module (none: its buttons are in the outline panel). */
 export const MARKER_SHORTCUTS = [];
 
-function el(tag, attrs = {}, ...children) {
-  const node = document.createElement(tag);
-  for (const [k, v] of Object.entries(attrs)) {
-    if (k.startsWith("on")) node.addEventListener(k.slice(2), v);
-    else node.setAttribute(k, v);
-  }
-  node.append(...children);
-  return node;
-}
 
 /** A button that gives the keyboard back after a click. */
 function button(attrs, text, fn) {

@@ -11,6 +11,7 @@
 import { contourPath, request } from "./api.js";
 import { COLORS, distanceToPolyline, polyline } from "./overlay.js";
 import { contourRow } from "./panels.js";
+import { el } from "./dom.js";
 
 const ANCHOR_HIT_PX = 8; // how near (CSS px) a press must be to grab an anchor (drawn 8 px)
 const SAME_POINT_PX = 4; // an erase's second click this near (CSS px) the first is the same point
@@ -56,15 +57,6 @@ function residualClass(px) {
   return "bad";
 }
 
-function el(tag, attrs = {}, ...children) {
-  const node = document.createElement(tag);
-  for (const [k, v] of Object.entries(attrs)) {
-    if (k.startsWith("on")) node.addEventListener(k.slice(2), v);
-    else node.setAttribute(k, v);
-  }
-  node.append(...children);
-  return node;
-}
 
 export class OutlineTools {
   constructor(wb, tracer) {

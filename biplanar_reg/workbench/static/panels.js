@@ -2,17 +2,8 @@
 // (select, remove). They are re-rendered from the state after every change (tens of items).
 
 import { chipMarker } from "./warnings.js";
+import { el } from "./dom.js";
 
-function el(tag, attrs = {}, ...children) {
-  const node = document.createElement(tag);
-  for (const [k, v] of Object.entries(attrs)) {
-    if (k === "dataset") Object.assign(node.dataset, v);
-    else if (k.startsWith("on")) node.addEventListener(k.slice(2), v);
-    else node.setAttribute(k, v);
-  }
-  node.append(...children);
-  return node;
-}
 
 /** Residual classes: within the landmarks' typical sigma, near the 5 px flag, beyond. */
 function residualClass(px) {

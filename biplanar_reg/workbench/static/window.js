@@ -9,6 +9,7 @@
 // Esc or a change (so the page's shortcuts work at once after using them).
 
 import { request } from "./api.js";
+import { el } from "./dom.js";
 
 const enc = encodeURIComponent;
 const DRAG_RATE = 0.004; // fraction of the raw range per screen pixel of a right-drag
@@ -19,12 +20,6 @@ export const WINDOW_SHORTCUTS = [
   { key: "right-drag", help: "window/level: horizontal width, vertical level" },
 ];
 
-function el(tag, attrs = {}, ...children) {
-  const node = document.createElement(tag);
-  for (const [k, v] of Object.entries(attrs)) node.setAttribute(k, v);
-  node.append(...children);
-  return node;
-}
 
 /** A window bound for display: whole numbers for 8/16-bit data, 4 digits otherwise. */
 export function fmt(x) {
