@@ -11,6 +11,8 @@ import logging
 import math
 import os
 import tomllib
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -118,6 +120,16 @@ class _Ctx:
 
     def error(self, key: str, what: str) -> CaseError:
         return CaseError(f"{self.file}: {key}: {what}")
+
+    @contextmanager
+    def reraise(self, key: str, file: Path | None = None) -> Iterator[None]:
+        """Turn a ``ValueError``/``OSError`` raised inside (a reader refusing a file) into this
+        case's one-line error at ``key``, prefixed with ``file``'s name when given."""
+        try:
+            yield
+        except (ValueError, OSError) as exc:
+            what = one_line(exc, max_problems=5)
+            raise self.error(key, f"{file.name}: {what}" if file is not None else what) from None
 
     def warn(self, text: str) -> None:
         msg = f"{self.file}: {text}"

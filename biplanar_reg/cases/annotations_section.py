@@ -11,7 +11,6 @@ import numpy as np
 from ..annotation import Annotations, load_annotations
 from ..annotation.image import read_image_size
 from ..calibration import load_calibration
-from ..errors import one_line
 from ..io import read_mesh
 from ..ssm import ShapeModel
 from ._case_file import (
@@ -58,14 +57,10 @@ def _load_annotations(
     ctx.unknown_keys(ctx.table(doc, "annotations", required=True), "annotations", "[annotations]")
     path = _annotations_path(ctx, doc)
     sizes = {v.name: v.image_size for v in views if v.image_size is not None}
-    try:
+    with ctx.reraise("[annotations] file", path):
         ann = load_annotations(
             path, known_views=[v.name for v in views], known_landmarks=landmarks, image_sizes=sizes
         )
-    except ValueError as exc:
-        raise ctx.error(
-            "[annotations] file", f"{path.name}: {one_line(exc, max_problems=5)}"
-        ) from None
     _check_outline_extents(ctx, "[annotations] file", path, ann)
     if start:  # a start pose: outlines alone may register (register_views checks the total)
         return ann, path
@@ -96,10 +91,8 @@ def _load_ground_truth(ctx: _Ctx, doc: dict, scale: float, model: ShapeModel) ->
     table = ctx.table(doc, "ground_truth", required=False)
     ctx.unknown_keys(table, "ground_truth", "[ground_truth]")
     path = ctx.path(table, "mesh", "[ground_truth]")
-    try:
+    with ctx.reraise("[ground_truth] mesh"):
         verts, faces = read_mesh(path)
-    except (ValueError, OSError) as exc:
-        raise ctx.error("[ground_truth] mesh", one_line(exc, max_problems=5)) from None
     up_to_pose, from_truth = (table.get(k, False) for k in ("up_to_pose", "model_from_truth"))
     for key, value in (("up_to_pose", up_to_pose), ("model_from_truth", from_truth)):
         if not isinstance(value, bool):
@@ -127,10 +120,8 @@ def _load_region(ctx: _Ctx, table: dict, model: ShapeModel) -> RegionSpec | None
     from .region import read_region, region_mask
 
     where = "[ground_truth] region"
-    try:
+    with ctx.reraise(where, path):
         spec = read_region(path, model.n_vertices, model.landmarks)
-    except (ValueError, OSError) as exc:
-        raise ctx.error(where, f"{path.name}: {one_line(exc, max_problems=5)}") from None
     mean = model.mean.reshape(-1, 3)
     mask, desc = region_mask(spec, mean, model.faces, mean)
     if not mask.any():
@@ -160,23 +151,17 @@ def _frame_view(ctx: _Ctx, cv: CaseView, where: str, image, calib, page, scale) 
     frame = page if page is not None else (0 if image is not None else cv.image_frame)
     size = None
     if path is not None:
-        try:
+        with ctx.reraise(f"{where} images {cv.name}"):
             size = read_image_size(path, frame=frame)
-        except (ValueError, OSError) as exc:
-            raise ctx.error(f"{where} images {cv.name}", one_line(exc, max_problems=5)) from None
         if image is not None:  # the view's own image was checked with the view
             _check_pixels(ctx, f"{where} images {cv.name}", path)
     view = cv.view
     if calib is not None:
         fmt = cv.calibration_format
-        try:
+        with ctx.reraise(f"{where} calibrations {cv.name}"):
             view = load_calibration(calib, fmt, image_size=size, name=cv.name)
             view = dataclasses.replace(view, name=cv.name)
             view = view if fmt == "dicom" else _scale_view(view, scale)
-        except (ValueError, OSError) as exc:
-            raise ctx.error(
-                f"{where} calibrations {cv.name}", one_line(exc, max_problems=5)
-            ) from None
     key = f"{ctx.file}: {where} images {cv.name}"
     return CaseView(
         cv.name, view, calib or cv.calibration, cv.calibration_format, path, frame, size, key
@@ -188,10 +173,8 @@ def _frame_ground_truth(ctx: _Ctx, table: dict, where: str, scale: float, model)
     path = ctx.path(table, "ground_truth", where, required=False)
     if path is None:
         return None
-    try:
+    with ctx.reraise(f"{where} ground_truth"):
         verts, faces = read_mesh(path)
-    except (ValueError, OSError) as exc:
-        raise ctx.error(f"{where} ground_truth", one_line(exc, max_problems=5)) from None
     verts = verts * scale
     ratio = np.linalg.norm(np.ptp(verts, axis=0)) / np.linalg.norm(np.ptp(model.mean, axis=0))
     if not 0.2 <= ratio <= 5.0:
@@ -233,14 +216,10 @@ def _one_frame(
     ]
     path = annotations if annotations is not None else ctx.path(table, "annotations", where)
     sizes = {v.name: v.image_size for v in fviews if v.image_size is not None}
-    try:
+    with ctx.reraise(f"{where} annotations", path):
         ann = load_annotations(
             path, known_views=[v.name for v in fviews], known_landmarks=landmarks, image_sizes=sizes
         )
-    except ValueError as exc:
-        raise ctx.error(
-            f"{where} annotations", f"{path.name}: {one_line(exc, max_problems=5)}"
-        ) from None
     _check_outline_extents(ctx, f"{where} annotations", path, ann)
     gt = _frame_ground_truth(ctx, table, where, scale, model)
     return CaseFrame(name, fviews, ann, path, gt)

@@ -6,7 +6,6 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..errors import one_line
 from ..io import read_mesh
 from ..ssm import ShapeModel
 from ._case_file import (
@@ -119,14 +118,12 @@ def _model_landmarks(ctx: _Ctx, doc: dict) -> tuple[Path, int, Path | None, dict
     key = "ssm" if "ssm" in table else "template"
     path = ctx.path(table, key, "[model]")
     stored: dict[str, int] = {}
-    try:
+    with ctx.reraise(f"[model] {key}"):
         if key == "ssm":
             model = ShapeModel.load(path)
             n_vertices, stored = model.n_vertices, dict(model.landmarks)
         else:
             n_vertices = len(read_mesh(path)[0])
-    except (ValueError, OSError) as exc:
-        raise ctx.error(f"[model] {key}", one_line(exc, max_problems=5)) from None
     lm_path = ctx.path(table, "landmarks", "[model]", required=False, exists=False)
     if lm_path is None:
         return path, n_vertices, None, stored

@@ -7,7 +7,6 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import one_line
 from ..io import read_mesh
 from ..io.jsonfile import read_json
 from ..ssm import ShapeModel
@@ -28,10 +27,8 @@ __all__ = []
 
 def _read_landmarks(ctx: _Ctx, path: Path, n_vertices: int) -> dict[str, int]:
     where = "[model] landmarks"
-    try:
+    with ctx.reraise(where):
         data = read_json(path)
-    except ValueError as exc:
-        raise ctx.error(where, one_line(exc, max_problems=5)) from None
     if not isinstance(data, dict) or not data:
         raise ctx.error(where, f"{path.name}: expected a non-empty JSON object {{name: index}}")
     out: dict[str, int] = {}
@@ -75,19 +72,15 @@ def _load_model(ctx: _Ctx, doc: dict, scale: float) -> tuple[ShapeModel, dict, d
         raise ctx.error("[model]", "give exactly one of 'ssm' and 'template'")
     if has_ssm:
         path = ctx.path(table, "ssm", "[model]")
-        try:
+        with ctx.reraise("[model] ssm"):
             model = ShapeModel.load(path)
-        except ValueError as exc:
-            raise ctx.error("[model] ssm", one_line(exc, max_problems=5)) from None
         n_faces = 0 if model.faces is None else len(model.faces)
         _check_model_size(ctx, "[model] ssm", path, model.n_vertices, n_faces)
         source: dict[str, Any] = {"ssm": str(path)}
     else:
         path = ctx.path(table, "template", "[model]")
-        try:
+        with ctx.reraise("[model] template"):
             verts, faces = read_mesh(path)
-        except (ValueError, OSError) as exc:
-            raise ctx.error("[model] template", one_line(exc, max_problems=5)) from None
         if faces is None:
             raise ctx.error("[model] template", f"{path.name}: a template needs faces (a mesh)")
         _check_model_size(ctx, "[model] template", path, len(verts), len(faces))

@@ -178,10 +178,8 @@ def load_start(ctx: _Ctx, reg: dict, scale: float):
     if path is None:
         return None, None
     where = "[registration] start"
-    try:
+    with ctx.reraise(where, path):
         doc = read_json(path)
-    except (ValueError, OSError) as exc:
-        raise ctx.error(where, f"{path.name}: {one_line(exc, max_problems=5)}") from None
     if not isinstance(doc, dict) or "R" not in doc or "t" not in doc:
         raise ctx.error(where, f'{path.name}: expected an object {{"R": [[3x3]], "t": [3]}}')
     from .._validate import as_array, check_rotation

@@ -14,7 +14,6 @@ from ..annotation import Annotations
 from ..annotation.image import read_image_size
 from ..calibration import FORMATS, load_calibration
 from ..calibration.views import OrthographicView, PerspectiveView, SlotScanningView, View
-from ..errors import one_line
 from ..registration import ViewObservations
 from ._case_file import (
     MAX_VIEWS,
@@ -93,29 +92,17 @@ def _load_views(ctx: _Ctx, doc: dict, scale: float) -> list[CaseView]:
         frame, size = 0, None
         if image_path is not None:  # the header only: pixels are decoded when needed
             frame = ctx.number(table, "image_frame", where, int, 0)
-            try:
+            with ctx.reraise(f"{where} image"):
                 size = read_image_size(image_path, frame=frame)
-            except (ValueError, OSError) as exc:
-                raise ctx.error(f"{where} image", one_line(exc, max_problems=5)) from None
             _check_pixels(ctx, f"{where} image", image_path)
         calib = ctx.path(table, "calibration", where)
-        try:
-            view = load_calibration(
-                calib,
-                fmt,
-                dlt_column=dlt_column,
-                image_size=size,
-                name=name,
-            )
-        except (ValueError, OSError) as exc:
-            raise ctx.error(f"{where} calibration", one_line(exc, max_problems=5)) from None
+        with ctx.reraise(f"{where} calibration"):
+            view = load_calibration(calib, fmt, dlt_column=dlt_column, image_size=size, name=name)
         used_fmt = (fmt or _detected(calib)).lower()
         view = dataclasses.replace(view, name=name)
         if used_fmt != "dicom":  # DICOM geometry is mm by the standard
-            try:
+            with ctx.reraise(f"{where} calibration"):
                 view = _scale_view(view, scale)
-            except ValueError as exc:
-                raise ctx.error(f"{where} calibration", one_line(exc, max_problems=5)) from None
         key = f"{ctx.file}: {where} image"
         views.append(CaseView(name, view, calib, used_fmt, image_path, frame, size, key))
     if len(views) < MIN_VIEWS:
