@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from biplanar_reg.annotation.clean import distance_to_polyline
 from biplanar_reg.calibration.epipolar import clip_polyline, epipolar_curve, scene_sphere
 from biplanar_reg.calibration.views import OrthographicView, PerspectiveView, SlotScanningView
 
@@ -41,13 +42,8 @@ def _views() -> dict[str, object]:
 
 
 def _distance(p: np.ndarray, pieces: list[np.ndarray]) -> float:
-    best = np.inf
-    for line in pieces:
-        a, b = line[:-1], line[1:]
-        d = b - a
-        t = np.clip(((p - a) * d).sum(1) / np.maximum((d * d).sum(1), 1e-12), 0, 1)
-        best = min(best, float(np.min(np.linalg.norm(a + t[:, None] * d - p, axis=1))))
-    return best
+    """Pixels from ``p`` (2,) to the nearest of the curve's pieces."""
+    return min(float(distance_to_polyline(p[None], line)[0]) for line in pieces)
 
 
 KINDS = ["pinhole", "distorted", "ortho", "slot"]

@@ -28,6 +28,8 @@ import numpy as np
 import pytest
 from _browser import ROOT, needs_chromium, stop_server
 
+from biplanar_reg.annotation.clean import distance_to_polyline
+
 sync_api = pytest.importorskip("playwright.sync_api")
 
 SERVER_START_S = 60.0
@@ -171,17 +173,6 @@ class _Screens:
             Path(self.target).mkdir(parents=True, exist_ok=True)
             shutil.copyfile(path, Path(self.target) / path.name)
         self.seconds += time.perf_counter() - t0
-
-
-def _distance_to_polyline(points: np.ndarray, line: np.ndarray) -> np.ndarray:
-    """Distance of each point to the polyline (segments between consecutive vertices)."""
-    a, b = line[:-1], line[1:]
-    ab = b - a
-    t = np.einsum("psk,sk->ps", points[:, None, :] - a[None], ab) / np.maximum(
-        np.einsum("sk,sk->s", ab, ab), 1e-12
-    )
-    closest = a[None] + np.clip(t, 0.0, 1.0)[..., None] * ab[None]
-    return np.linalg.norm(points[:, None, :] - closest, axis=2).min(axis=1)
 
 
 # ---- the scenario --------------------------------------------------------------------------
@@ -416,7 +407,7 @@ def _check_saved_annotations(
         # The livewire through anchors on the shipped contour follows the same edge, and
         # nothing of it is left inside the exclusion circle.
         assert len(new) > 30
-        assert np.median(_distance_to_polyline(new, old)) < 2.0
+        assert np.median(distance_to_polyline(new, old)) < 2.0
         assert np.all(np.hypot(*(new - centre).T) > radius - 1e-6)
 
 

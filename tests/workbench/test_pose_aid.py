@@ -15,6 +15,7 @@ import pytest
 from _http import page_client
 from starlette.testclient import TestClient
 
+from biplanar_reg.annotation.clean import distance_to_polyline
 from biplanar_reg.cases import read_case_setup
 from biplanar_reg.io import read_mesh, write_mesh
 from biplanar_reg.workbench import Workbench, create_app
@@ -56,17 +57,6 @@ def posed(synthetic_case: Path) -> Iterator[tuple[TestClient, Path, dict]]:
     with Workbench(synthetic_case) as wb:
         client = page_client(create_app(wb, TOKEN), TOKEN)
         yield client, synthetic_case, truth
-
-
-def _distance_to_line(points: np.ndarray, line: np.ndarray) -> np.ndarray:
-    """Each point's distance (px) to a polyline (its segments, not only its vertices)."""
-    a, b = line[:-1], line[1:]
-    ab = b - a
-    t = np.einsum("pkj,kj->pk", points[:, None] - a[None], ab) / np.maximum(
-        np.einsum("kj,kj->k", ab, ab), 1e-12
-    )
-    foot = a[None] + np.clip(t, 0, 1)[..., None] * ab[None]
-    return np.linalg.norm(points[:, None] - foot, axis=2).min(axis=1)
 
 
 def _click(client: TestClient, view: str, name: str, uv) -> None:
@@ -204,8 +194,8 @@ def test_propose_outline_follows_the_posed_outline_on_the_image_edges(posed):
         assert ((uv >= -0.5) & (uv <= 511.5)).all()
         # the anchors are taken on the posed piece; the path stays near it
         line = np.vstack([posed_line, posed_line[:1]]) if closed else posed_line
-        assert _distance_to_line(anchors, line).max() < 0.05
-        assert np.median(_distance_to_line(uv, line)) < 10  # snapped to edges near it
+        assert distance_to_polyline(anchors, line).max() < 0.05
+        assert np.median(distance_to_polyline(uv, line)) < 10  # snapped to edges near it
     assert (case / "annotations.json").read_bytes() == saved  # a proposal is not saved
     for body in ({"spacing_px": 1}, {"spacing_px": "a"}):
         r = client.post("/api/views/cam1/propose-outline", json=body)

@@ -13,6 +13,7 @@ import pytest
 from _http import page_client
 from starlette.testclient import TestClient
 
+from biplanar_reg.annotation.clean import distance_to_polyline
 from biplanar_reg.workbench import Workbench, create_app
 
 TOKEN = "t" * 24
@@ -25,14 +26,8 @@ def wrist(wrist_case) -> Iterator[tuple[TestClient, Workbench]]:
 
 
 def _distance(p: np.ndarray, pieces: list) -> float:
-    best = np.inf
-    for line in pieces:
-        line = np.asarray(line, float)
-        a, b = line[:-1], line[1:]
-        d = b - a
-        t = np.clip(((p - a) * d).sum(1) / np.maximum((d * d).sum(1), 1e-12), 0, 1)
-        best = min(best, float(np.min(np.linalg.norm(a + t[:, None] * d - p, axis=1))))
-    return best
+    """Pixels from ``p`` (2,) to the nearest of the curve's pieces."""
+    return min(float(distance_to_polyline(np.asarray(p)[None], line)[0]) for line in pieces)
 
 
 def test_epipolar_curve_passes_through_the_other_projection(wrist) -> None:
