@@ -403,16 +403,16 @@ def _mode_report(model: ShapeModel) -> tuple[list[dict], list[str]]:
     return rows, lines
 
 
-def _parse_mirror(spec: str | None, correspond: bool) -> tuple[str | None, str | None, list[str]]:
-    """``--mirror`` -> (mode, axis, files): mode ``None``, ``"auto"``, ``"files"``, ``"model"``."""
+def _parse_mirror(spec: str | None, correspond: bool) -> tuple[str | None, str, list[str]]:
+    """``--mirror`` -> (mode, axis, files) of :func:`biplanar_reg.ssm.build_model_from_files`."""
     from ..ssm.mirror import AXES
 
     if spec is None:
-        return None, None, []
+        return None, "x", []
     if spec == "auto":
         if not correspond:
             raise ValueError("--mirror auto: needs --correspond")
-        return "auto", None, []
+        return "auto", "x", []
     axis, _, names = spec.partition(":")
     if axis not in AXES:
         raise ValueError(
@@ -425,86 +425,6 @@ def _parse_mirror(spec: str | None, correspond: bool) -> tuple[str | None, str |
     if files and not correspond:
         raise ValueError(f"--mirror {spec}: mirroring input files needs --correspond")
     return ("files" if files else "model"), axis, files
-
-
-def _correspond_inputs(args: argparse.Namespace) -> tuple[Any, Any, list[Path], dict]:
-    """Read, check, (mirror) and correspond the inputs; returns shapes, faces, files and
-    the model's provenance. Progress goes to stderr, one line per subject."""
-    import sys
-
-    import numpy as np
-
-    from ..io.meshes import read_mesh
-    from ..ssm.correspond import check_subjects, correspond_meshes
-    from ..ssm.inputs import read_meshes
-    from ..ssm.mirror import mirror_mesh
-
-    mode, axis, mirror_files = _parse_mirror(args.mirror, True)
-    meshes, files = read_meshes(args.inputs)
-    if len(files) < 2:
-        raise ValueError(f"need at least 2 meshes to build a model, got {len(files)}")
-    names = [str(f) for f in files]
-    template_name = args.template or names[0]
-    template = read_mesh(args.template) if args.template else meshes[0]
-    for warning in check_subjects([template, *meshes], [template_name, *names]):
-        log.warning("%s", warning)
-    if mode == "files":  # before choosing the default template: it may be listed too
-        unknown = [m for m in mirror_files if not any(_same_file(m, f) for f in files)]
-        if unknown:
-            raise ValueError(f"--mirror: {unknown[0]} is not one of the input meshes")
-        meshes = [
-            mirror_mesh(v, f, axis) if any(_same_file(m, p) for m in mirror_files) else (v, f)
-            for (v, f), p in zip(meshes, files, strict=True)
-        ]
-    if not args.template:
-        template = meshes[0]
-    passes = args.groupwise + 1
-
-    def progress(pass_index: int, i: int, fit: Any) -> None:
-        state = "converged" if fit.converged else "NOT CONVERGED"
-        mirrored = ", mirrored" if fit.mirrored else ""
-        print(
-            f"[pass {pass_index + 1}/{passes}] {i + 1}/{len(files)} {files[i].name}: residual "
-            f"mean {fit.residual_mean:.3f} mm, max {fit.residual_max:.3f} mm, {state}{mirrored}",
-            file=sys.stderr,
-            flush=True,
-        )
-
-    result = correspond_meshes(
-        template[0],
-        template[1],
-        meshes,
-        groupwise=args.groupwise,
-        auto_mirror=(mode == "auto"),
-        samples=args.samples,
-        progress=progress,
-    )
-    provenance: dict = {
-        "correspondence": {
-            "template": template_name,
-            "groupwise": args.groupwise,
-            "samples": args.samples,
-            "subjects": names,
-            "residual_mean_mm": [f.residual_mean for f in result.fits],
-            "residual_max_mm": [f.residual_max for f in result.fits],
-            "converged": [f.converged for f in result.fits],
-        }
-    }
-    mirrored = [
-        n
-        for n, p, fit in zip(names, files, result.fits, strict=True)
-        if fit.mirrored or any(_same_file(m, p) for m in mirror_files)
-    ]
-    if mirrored:
-        provenance["mirrored_subjects"] = mirrored
-        provenance["mirror_axis"] = axis or "x"
-    return np.asarray(result.shapes), result.faces, files, provenance
-
-
-def _same_file(name: str, path: Path) -> bool:
-    """``name`` (from --mirror) names ``path``: the same file, or its bare file name."""
-    p = Path(name)
-    return p.name == path.name if len(p.parts) == 1 else p.resolve() == path.resolve()
 
 
 def _residual_table(provenance: dict) -> list[str]:
@@ -534,49 +454,45 @@ def _residual_table(provenance: dict) -> list[str]:
 
 
 def _cmd_build(args: argparse.Namespace) -> int:
-    from ..ssm.build import build_ssm
-    from ..ssm.inputs import read_landmarks, read_shapes
-    from ..ssm.mirror import mirror_model
+    import sys
+
+    from ..ssm.from_files import build_model_from_files
 
     out = _npz_path(args.output)
-    mode, axis, _ = _parse_mirror(args.mirror, args.correspond)
+    mode, axis, mirror_files = _parse_mirror(args.mirror, args.correspond)
     if (args.template or args.groupwise) and not args.correspond:
         raise ValueError("--template/--groupwise: need --correspond")
-    provenance: dict = {}
-    if args.correspond:
-        shapes, faces, files, provenance = _correspond_inputs(args)
-    else:
-        shapes, faces, files = read_shapes(args.inputs)
-    if args.quality and len(files) < 3:
+    built = build_model_from_files(
+        args.inputs,
+        correspond=args.correspond,
+        template=args.template,
+        mirror=mode,
+        mirror_axis=axis,
+        mirror_files=mirror_files,
+        groupwise=args.groupwise,
+        samples=args.samples,
+        n_modes=args.modes,
+        variance=args.variance,
+        align=args.align,
+        landmarks=args.landmarks,
+        progress=lambda line: print(line, file=sys.stderr, flush=True),
+    )
+    model, files, provenance = built.model, built.files, built.provenance
+    if args.quality and len(files) < 3:  # before anything is written
         raise ValueError(
             f"--quality: the quality measures need at least 3 shapes, got {len(files)}"
         )
-    landmarks = read_landmarks(args.landmarks) if args.landmarks else None
-    try:
-        model = build_ssm(
-            shapes,
-            faces,
-            n_modes=args.modes,
-            variance=args.variance,
-            align=args.align,
-            landmarks=landmarks,
-        )
-    except ValueError as exc:
-        if args.landmarks and "landmarks" in str(exc):
-            raise ValueError(f"{args.landmarks}: {exc}") from None
-        raise
-    model.provenance.update(provenance)
-    if mode == "model":
-        model = mirror_model(model, axis)
     model.save(out)
     quality = None
     if args.quality:
-        quality = _quality_report(shapes, args.align, out.with_name(out.stem + "_quality.json"))
+        quality = _quality_report(
+            built.shapes, args.align, out.with_name(out.stem + "_quality.json")
+        )
     rows, lines = _mode_report(model)
     lines = [*_residual_table(provenance), *lines]
     header = (
         f"wrote {out}: {model.n_vertices} vertices, {model.n_modes} modes from {len(files)} "
-        f"shapes ({'mesh' if faces is not None else 'points'}, align {args.align})"
+        f"shapes ({'mesh' if model.faces is not None else 'points'}, align {args.align})"
     )
     result = {
         "output": str(out),

@@ -12,6 +12,8 @@ _LAZY = {
     **dict.fromkeys(
         ("affine_fractions", "build_ssm", "explained_fractions", "procrustes_align"), ".build"
     ),
+    "BuiltModel": ".from_files",
+    "build_model_from_files": ".from_files",
     "Correspondence": ".correspond",
     "correspond_meshes": ".correspond",
     "densify": ".dense",
@@ -47,6 +49,7 @@ __all__ = [
     "FAMILIES",
     "BoneSurface",
     "BoxCage",
+    "BuiltModel",
     "Correspondence",
     "ModelFit",
     "ModelQuality",
@@ -56,6 +59,7 @@ __all__ = [
     "augment_model",
     "bone_surface",
     "box_cage",
+    "build_model_from_files",
     "build_ssm",
     "correspond_meshes",
     "compactness",

@@ -142,3 +142,38 @@ def test_cli_build_correspond(tmp_path, population, capsys):
     assert all(model.provenance["correspondence"]["converged"])
     assert main([*args[:-1], "x:nope.ply"]) == 2
     assert "--mirror: nope.ply is not one of the input meshes" in capsys.readouterr().err
+
+
+def test_build_model_from_files_is_the_command(tmp_path, population):
+    """The library call builds what `ssm build --correspond --mirror x:s1.ply` builds, reports
+    each fitted subject through ``progress``, and refuses a mirror mode it cannot apply."""
+    from biplanar_reg.ssm import build_model_from_files
+
+    _, _, _, subjects, _ = population
+    files = []
+    for i, (v, f) in enumerate(subjects[1:3]):
+        files.append(tmp_path / f"s{i}.ply")
+        write_mesh(files[-1], v, f)
+    lines: list[str] = []
+    built = build_model_from_files(
+        files,
+        correspond=True,
+        mirror="files",
+        mirror_files=["s1.ply"],
+        n_modes=1,
+        samples=1000,
+        progress=lines.append,
+    )
+    out = tmp_path / "cli.npz"
+    cli = ["ssm", "build", *map(str, files), "-o", str(out), "--correspond", "--mirror"]
+    assert main([*cli, "x:s1.ply", "--modes", "1", "--samples", "1000"]) == 0
+    ref = ShapeModel.load(out)
+    np.testing.assert_allclose(built.model.mean, ref.mean, atol=1e-9)
+    np.testing.assert_allclose(built.model.modes, ref.modes, atol=1e-9)
+    assert built.files == files and built.shapes.shape == (2, len(subjects[1][0]), 3)
+    assert built.provenance["mirrored_subjects"] == [str(files[1])]
+    assert len(lines) == 2 and lines[1].startswith("[pass 1/1] 2/2 s1.ply: residual mean")
+    with pytest.raises(ValueError, match=r"mirror='files': needs correspond=True"):
+        build_model_from_files(files, mirror="files", mirror_files=["s1.ply"])
+    with pytest.raises(ValueError, match=r"mirror: expected one of auto, files, model"):
+        build_model_from_files(files, correspond=True, mirror="both")
