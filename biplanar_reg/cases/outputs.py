@@ -51,6 +51,7 @@ from ..calibration.autoscoper import (
 from ..calibration.views import PerspectiveView
 from ..io.atomic import atomic_write_json, current_umask, exchange_paths, remove_orphaned_parts
 from ..io.jsonfile import read_json
+from ..io.lock import LockFile
 from ..io.meshes import write_mesh
 from ..io.transforms import (
     rigid_pose,
@@ -152,7 +153,22 @@ def unwritable(exc: OSError, out: Path, what: str, inside: Iterable[Path] = ()) 
 
 
 @contextlib.contextmanager
-def output_lock(out: str | os.PathLike) -> Iterator[None]:
+def holding(lock: LockFile, out: Path, folder: Path, what: str) -> Iterator[None]:
+    """Hold ``lock`` (on the output folder ``out``) for the block, creating ``folder`` (where
+    its lock file goes) first: this is also the check, before any work, that the output can be
+    written; an ``OSError`` then is one line naming ``out`` and ``what`` (:func:`unwritable`)."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        lock.acquire()
+    except OSError as exc:
+        raise unwritable(exc, out, what, [out.parent]) from None
+    try:
+        yield
+    finally:
+        lock.release()
+
+
+def output_lock(out: str | os.PathLike) -> contextlib.AbstractContextManager[None]:
     """Hold the registration lock of the output folder ``out`` for the block.
 
     Creates ``out``'s missing parent folders and the lock file ``.<name>.register.lock`` beside
@@ -168,19 +184,8 @@ def output_lock(out: str | os.PathLike) -> Iterator[None]:
         names ``out`` (:func:`unwritable`).
     """
     out = Path(out)
-    lock = RegisterLock(out)
-    try:
-        if not out.parent.is_dir():
-            out.parent.mkdir(parents=True, exist_ok=True)
-        lock.acquire()
-    except OSError as exc:
-        raise unwritable(
-            exc, out, "the output folder cannot be written; nothing was done", [out.parent]
-        ) from None
-    try:
-        yield
-    finally:
-        lock.release()
+    what = "the output folder cannot be written; nothing was done"
+    return holding(RegisterLock(out), out, out.parent, what)
 
 
 def _remove(path: Path) -> None:
