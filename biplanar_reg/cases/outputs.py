@@ -32,7 +32,6 @@ import glob
 import hashlib
 import logging
 import os
-import re
 import shutil
 import tempfile
 import tomllib
@@ -53,6 +52,7 @@ from ..io.atomic import atomic_write_json, current_umask, exchange_paths, remove
 from ..io.jsonfile import read_json
 from ..io.lock import LockFile
 from ..io.meshes import write_mesh
+from ..io.names import file_name_word
 from ..io.transforms import (
     rigid_pose,
     write_itk_tfm,
@@ -456,9 +456,10 @@ def inputs_changed(case_dir: str | os.PathLike, out: Path) -> list[str] | None:
 
 
 # -- exports for Autoscoper and 3D Slicer (docs/exports.md) -------------------------------------
-def _safe(name: str) -> str:
-    """``name`` as a file-name word (the case id may hold any characters)."""
-    return re.sub(r"[^A-Za-z0-9_.-]", "_", name).lstrip(".") or "case"
+def _trial_name(case: Any) -> str:
+    """The case id as the Autoscoper trial's file-name word (the id may hold any characters;
+    the trial file ``<word>.cfg`` is not hidden)."""
+    return file_name_word(case.id.lstrip("."), "case")
 
 
 def _autoscoper_volume(bone: str) -> AutoscoperVolume:
@@ -547,7 +548,7 @@ def export_warnings(case: Any, files: list) -> list[str]:
     (:func:`~biplanar_reg.calibration.autoscoper.distortion_warnings`)."""
     if not any(Path(f).parts[:1] == ("autoscoper",) for f in files):
         return []
-    return distortion_warnings([cv.view for cv in case.views], _safe(case.id))
+    return distortion_warnings([cv.view for cv in case.views], _trial_name(case))
 
 
 def autoscoper_exports(tmp: Path, out: Path, case: Any, poses: dict[str, np.ndarray]) -> list[Path]:
@@ -571,12 +572,12 @@ def autoscoper_exports(tmp: Path, out: Path, case: Any, poses: dict[str, np.ndar
     dirs = _radiograph_dirs(case)
     files = write_autoscoper_trial(
         folder,
-        _safe(case.id),
+        _trial_name(case),
         views,
         dirs,
         [_autoscoper_volume(bone) for bone in poses],
         final_folder=out / "autoscoper",
     )
     for bone, P in poses.items():
-        files.append(write_tra(folder / "Tracking" / f"{_safe(case.id)}_{bone}.tra", P))
+        files.append(write_tra(folder / "Tracking" / f"{_trial_name(case)}_{bone}.tra", P))
     return files

@@ -37,18 +37,7 @@ try:
 except ImportError:  # pragma: no cover - Windows
     fcntl = None  # type: ignore[assignment]
 
-__all__ = [
-    "LockFile",
-    "LockedError",
-    "describe",
-    "holder_alive",
-    "holder_hint",
-    "holder_record",
-    "parse_holder",
-    "probe",
-    "same_file",
-    "try_flock",
-]
+__all__: list[str] = []  # internal: the locks of the case pipeline and the workbench
 
 
 class LockedError(ValueError):
