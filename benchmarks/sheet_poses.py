@@ -1,12 +1,12 @@
-"""G-SfT-P on a near-planar deformable sheet (issue 16 item 2): does a view's pose flip?
+"""G-SfT-P on a near-planar deformable sheet: does a view's pose flip?
 
 The set-up mimics the Bramante39M paper data (a deformable sheet seen by 3 perspective views
 with 6, 19 and 15 disjoint keypoints): a 120 x 90 mm sheet (11 x 9 grid, a slight bow of
 3 mm) whose 5 modes bend it out of plane (about 2-4 mm per unit weight), truth weights
 ~ N(0, 1), three sources 700 mm away looking at it from 25-50 deg off its normal, keypoint
 noise 0.5 px. For each seed and view configuration it prints the largest view-rotation error
-(deg) of the rounded SDP solution, of the refinement from the rounding alone (the
-behaviour before the mirror starts) and of the result, and the result's shape error after a
+(deg) of the rounded SDP solution, of the refinement from the rounding alone (without
+the mirror starts) and of the result, and the result's shape error after a
 rigid alignment (mm).
 
 Run: ``python benchmarks/sheet_poses.py [n_seeds]`` (default 9).
