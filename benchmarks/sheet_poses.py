@@ -18,6 +18,7 @@ import sys
 
 import numpy as np
 
+from biplanar_reg.pose import Pose
 from biplanar_reg.registration.rays import RayObservations
 from biplanar_reg.registration.rotations import rotation_angle
 from biplanar_reg.registration.unknown_poses import solve_gsft_unknown_poses
@@ -74,10 +75,8 @@ def max_rotation_error(views, view_R) -> float:
 
 def aligned_rms(A: np.ndarray, B: np.ndarray) -> float:
     """RMS (mm) of ``A`` rigidly aligned onto ``B``."""
-    a, b = A - A.mean(0), B - B.mean(0)
-    U, _, Vt = np.linalg.svd(b.T @ a)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return float(np.sqrt(np.mean(np.sum((a @ (U @ D @ Vt).T - b) ** 2, axis=1))))
+    d = Pose.fit_rigid(A, B).apply(A) - B
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
 
 
 def main(n_seeds: int) -> None:

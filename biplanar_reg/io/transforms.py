@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..pose import Pose
 from .atomic import atomic_write_json, atomic_write_text
 from .jsonfile import read_json
 
@@ -293,11 +294,9 @@ def rotvec_from_rotation(R: np.ndarray) -> np.ndarray:
 
 
 def rigid_pose(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
-    """The 4x4 homogeneous matrix ``[[R, t], [0, 0, 0, 1]]`` (maps model -> world, mm)."""
-    T = np.eye(4)
-    T[:3, :3] = np.asarray(rotation, float)
-    T[:3, 3] = np.asarray(translation, float).reshape(3)
-    return T
+    """The 4x4 homogeneous matrix ``[[R, t], [0, 0, 0, 1]]`` (maps model -> world, mm):
+    ``Pose(rotation, translation).as_matrix()`` (:class:`biplanar_reg.pose.Pose`)."""
+    return Pose(rotation, translation).as_matrix()
 
 
 def _check_poses(poses: np.ndarray, what: str) -> np.ndarray:
