@@ -104,9 +104,10 @@ class Pose:
     Parameters
     ----------
     R : (3, 3) array
-        Rotation, source frame axes to target frame axes. The constructor checks the shape and
-        finiteness only; :meth:`from_rt` and :meth:`from_matrix` also check that it is a proper
-        rotation.
+        Rotation, source frame axes to target frame axes. The constructor checks the shapes
+        only (a solver's non-finite state passes through to the solver's own check, as with
+        plain arrays); :meth:`from_rt` and :meth:`from_matrix` also check that the values are
+        finite and ``R`` a proper rotation.
     t : (3,) array
         Translation, mm: the source frame's origin in the target frame.
 
@@ -132,8 +133,6 @@ class Pose:
             raise ValueError(
                 f"Pose: expected R (3, 3) and t (3,), got shapes {R.shape} and {t.shape}"
             )
-        if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
-            raise ValueError("Pose: R and t must be finite (an untracked frame has no Pose)")
         R.flags.writeable = False
         t.flags.writeable = False
         object.__setattr__(self, "R", R)
@@ -151,7 +150,7 @@ class Pose:
         ``tol`` (entrywise on ``R R^T - I``) with ``det R > 0``; ``ValueError`` naming ``name``.
         """
         pose = cls(R, t)
-        _check_rigid(name, pose.R, tol)
+        _check_rigid(name, pose, tol)
         return pose
 
     @classmethod
@@ -276,7 +275,10 @@ class SimilarityFit:
         return self.scale * np.asarray(points, dtype=float) @ self.pose.R.T + self.pose.t
 
 
-def _check_rigid(name: str, R: np.ndarray, tol: float) -> None:
+def _check_rigid(name: str, pose: Pose, tol: float) -> None:
+    R = pose.R
+    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(pose.t))):
+        raise ValueError(f"{name}: R and t must be finite")
     err = float(np.abs(R @ R.T - np.eye(3)).max())
     if err > tol:
         raise ValueError(f"{name}: R is not orthonormal (max |R R^T - I| = {err:.3g} > {tol:g})")

@@ -51,8 +51,9 @@ def test_identity_and_read_only_arrays():
 def test_bad_poses_are_refused_with_the_reason():
     with pytest.raises(ValueError, match=r"expected R \(3, 3\) and t \(3,\), got shapes \(2, 2\)"):
         Pose(np.eye(2), np.zeros(3))
-    with pytest.raises(ValueError, match="must be finite"):
-        Pose(np.eye(3), [0.0, np.nan, 0.0])
+    with pytest.raises(ValueError, match="pose: R and t must be finite"):
+        Pose.from_rt(np.eye(3), [0.0, np.nan, 0.0])
+    assert np.isnan(Pose(np.eye(3), [0.0, np.nan, 0.0]).t[1])  # unchecked: as plain arrays
     T = np.eye(4)
     T[3, 0] = 0.5
     with pytest.raises(ValueError, match="cam.tra: the last row must be 0 0 0 1"):

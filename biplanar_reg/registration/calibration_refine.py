@@ -235,8 +235,6 @@ def _refined_result(
     """New extrinsics: world -> gauge camera (kept) -> view x through the refined relative
     pose; the corrections and residuals."""
     Rs, ts, w = fit.state
-    if not all(np.all(np.isfinite(a)) for a in (Rs, ts, w)):
-        raise SolverFailure("refine_view_poses: the solution contains non-finite values")
     camera = Pose(Rv[gauge], tv[gauge])  # world -> gauge camera, kept
     obj = camera.inverse() @ Pose(Rs[gauge], ts[gauge])  # object -> world
     new_R, new_t = np.empty_like(Rv), np.empty_like(tv)

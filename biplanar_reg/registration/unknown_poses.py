@@ -660,9 +660,10 @@ def solve_gsft_unknown_poses(
     )
 
 
-def _in_first_view(Rs: np.ndarray, ts: np.ndarray) -> list[Pose]:
-    """Each view's pose relative to the first view (first view frame -> view ``x``) from the
-    object's poses ``(Rs[x], ts[x])`` (object -> view ``x``), all finite."""
+def relative_view_poses(Rs: np.ndarray, ts: np.ndarray) -> list[Pose]:
+    """Each view's pose relative to the first view's camera frame (first view frame -> view
+    ``x`` frame, mm), from the object's pose ``(Rs[x], ts[x])`` in every view (object -> view
+    ``x``): ``P_x o P_0^-1``."""
     from_first = Pose(Rs[0], ts[0]).inverse()
     return [Pose(R, t) @ from_first for R, t in zip(Rs, ts, strict=True)]
 
@@ -683,13 +684,13 @@ def _unknown_result(
     """Everything in the first view's frame (the gauge)."""
     Rs, ts, w = fit.state
     Rs_sdp, ts_sdp, _ = rounded.state
-    vertices = model.instance(w) @ Rs[0].T + ts[0]
-    if not all(np.all(np.isfinite(a)) for a in (vertices, w, Rs, ts)):
-        raise SolverFailure("G-SfT-P: the solution contains non-finite values")
-    rel = _in_first_view(Rs, ts)
-    rel_sdp = _in_first_view(Rs_sdp, ts_sdp)
+    rel = relative_view_poses(Rs, ts)
+    rel_sdp = relative_view_poses(Rs_sdp, ts_sdp)
     view_R = np.array([r.R for r in rel])
     view_t = np.array([r.t for r in rel])
+    vertices = model.instance(w) @ Rs[0].T + ts[0]
+    if not all(np.all(np.isfinite(a)) for a in (vertices, w, view_R, view_t, Rs, ts)):
+        raise SolverFailure("G-SfT-P: the solution contains non-finite values")
     return UnknownPosesResult(
         vertices=vertices,
         weights=w,
