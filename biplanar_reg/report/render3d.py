@@ -14,6 +14,9 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -33,6 +36,73 @@ def _error_max(error_mm: np.ndarray) -> float:
     return max(float(np.max(error_mm)), 1e-6)
 
 
+@dataclass
+class _Scene:
+    """An off-screen PyVista plotter with the surface's actor and the title: the mesh it shows
+    (drawings copy theirs into it, so the actor and its smooth-shading filter update in place)."""
+
+    plotter: Any
+    mesh: Any
+    actor: Any
+    title: Any
+
+
+#: The scenes kept for the main thread, per (size, coloured by an error): VTK's first render
+#: in a window (its OpenGL context, the shaders) is most of a render's time, and a batch
+#: worker renders one view per case. Other threads (the workbench's) make a scene per view:
+#: an OpenGL context is current in one thread at a time.
+_scenes: dict[tuple[tuple[int, int], bool], _Scene] = {}
+
+
+def forget_scenes() -> None:
+    """Close the plotters kept for the main thread (the next view makes a new one)."""
+    while _scenes:
+        _scenes.popitem()[1].plotter.close()
+
+
+def _new_scene(mesh, error_mm: np.ndarray | None, size: tuple[int, int]) -> _Scene:
+    """A plotter showing ``mesh``: coloured by its point array "error (mm)" (viridis, colour
+    bar in mm) when ``error_mm`` is given, else ivory; smooth shading, white background."""
+    import pyvista as pv
+
+    # no multisampling: with Mesa's software OpenGL it doubles the render's time (measured
+    # 0.21 vs 0.125 CPU s for 14,640 triangles at 900 x 700 px) for slightly smoother edges
+    theme = pv.themes.DocumentTheme()
+    theme.multi_samples = 1
+    theme.anti_aliasing = None
+    plotter = pv.Plotter(off_screen=True, window_size=size, theme=theme)
+    try:
+        plotter.set_background("white")
+        if error_mm is not None:
+            actor = plotter.add_mesh(
+                mesh,
+                scalars="error (mm)",
+                cmap="viridis",
+                clim=(0.0, _error_max(error_mm)),
+                smooth_shading=True,
+                scalar_bar_args={"title": "error (mm)", "color": "black", "vertical": True},
+            )
+        else:
+            actor = plotter.add_mesh(mesh, color="ivory", smooth_shading=True)
+        title = plotter.add_text("", font_size=10, color="black")
+    except BaseException:
+        plotter.close()
+        raise
+    return _Scene(plotter, mesh, actor, title)
+
+
+def _draw(scene: _Scene, mesh, error_mm: np.ndarray | None, title: str) -> np.ndarray:
+    """Show ``mesh`` (with its "error (mm)" array when ``error_mm`` is given) titled ``title``
+    in ``scene``, isometric view; the screenshot (H, W, 3 or 4) uint8."""
+    if mesh is not scene.mesh:
+        scene.mesh.copy_from(mesh)  # in place: the actor's pipeline follows
+    if error_mm is not None:
+        scene.actor.mapper.scalar_range = (0.0, _error_max(error_mm))  # and the colour bar
+    scene.title.set_text("upper_left", title)
+    scene.plotter.view_isometric()  # the camera fitted to this mesh
+    return scene.plotter.screenshot(None, return_img=True)
+
+
 def render_pyvista(
     path: str | os.PathLike,
     vertices: np.ndarray,
@@ -43,7 +113,8 @@ def render_pyvista(
     size: tuple[int, int] = SIZE_PX,
 ) -> None:
     """Render with PyVista off-screen (surface, error colour map, colour bar in mm; without
-    ``error_mm`` one ivory colour), isometric view.
+    ``error_mm`` one ivory colour), isometric view. In the main thread the plotter is kept for
+    the next view of the same size and kind (:data:`_scenes`).
 
     Raises
     ------
@@ -56,38 +127,28 @@ def render_pyvista(
         raise RuntimeError(f"off-screen rendering is not available here ({why})")
     for key, value in offscreen_env().items():  # the probe's environment (the EGL window)
         os.environ.setdefault(key, value)
-    import pyvista as pv
-
     from ..io.atomic import atomic_write_bytes
     from ..io.meshes import to_polydata
     from .plotting import png_bytes
 
     mesh = to_polydata(np.asarray(vertices, float), np.asarray(faces))
-    # no multisampling: with Mesa's software OpenGL it doubles the render's time (measured
-    # 0.21 vs 0.125 CPU s for 14,640 triangles at 900 x 700 px) for slightly smoother edges
-    theme = pv.themes.DocumentTheme()
-    theme.multi_samples = 1
-    theme.anti_aliasing = None
-    plotter = pv.Plotter(off_screen=True, window_size=size, theme=theme)
+    if error_mm is not None:
+        mesh.point_data["error (mm)"] = np.asarray(error_mm, float)
+    key = (tuple(size), error_mm is not None)
+    keep = threading.current_thread() is threading.main_thread()
+    scene = _scenes.pop(key, None) if keep else None
+    if scene is None:
+        scene = _new_scene(mesh, error_mm, size)
     try:
-        plotter.set_background("white")
-        if error_mm is not None:
-            mesh.point_data["error (mm)"] = np.asarray(error_mm, float)
-            plotter.add_mesh(
-                mesh,
-                scalars="error (mm)",
-                cmap="viridis",
-                clim=(0.0, _error_max(error_mm)),
-                smooth_shading=True,
-                scalar_bar_args={"title": "error (mm)", "color": "black", "vertical": True},
-            )
-        else:
-            plotter.add_mesh(mesh, color="ivory", smooth_shading=True)
-        plotter.add_text(title, font_size=10, color="black")
-        plotter.view_isometric()
-        rgb = plotter.screenshot(None, return_img=True)
+        rgb = _draw(scene, mesh, error_mm, title)
+    except BaseException:
+        keep = False  # a failed scene is not drawn on again
+        raise
     finally:
-        plotter.close()
+        if keep:
+            _scenes[key] = scene
+        else:
+            scene.plotter.close()
     atomic_write_bytes(path, png_bytes(np.asarray(rgb)[:, :, :3]), make_parents=False)
 
 
