@@ -105,6 +105,10 @@ def _register_locked(
 ) -> RunOutcome:
     """:func:`register_case` into ``out_dir`` while holding its :func:`.outputs.output_lock`."""
     clean_stale(out_dir)
+    if report:  # the report's set-up overlaps the registration
+        from ..report.prepare import prepare_report
+
+        prepare_report(len(case.views))
     return write_case(
         case,
         out_dir,

@@ -21,9 +21,18 @@ from matplotlib.patches import Patch
 from matplotlib.ticker import MaxNLocator
 
 from ..annotation import Contour, Landmark, ViewAnnotations
-from .plotting import HALO, log_scale, new_figure, reused_figure, save_figure, set_title
+from .plotting import (
+    HALO,
+    image_rgba,
+    log_scale,
+    new_figure,
+    reused_figure,
+    save_figure,
+    set_title,
+    warm_figure,
+)
 
-__all__ = ["overlay_figure", "histogram_figure", "convergence_figure"]
+__all__ = ["overlay_figure", "histogram_figure", "convergence_figure", "warm_figures"]
 
 #: Colour (RGB) and opacity of the shaded registered bone over a radiograph.
 BONE_RGB = (1.0, 0.75, 0.4)
@@ -249,7 +258,7 @@ def _draw_background(
     # as large as the axes: drawn about pixel for pixel; a smaller crop is enlarged smoothly
     smooth = max(w, h) < _OVERLAY_RASTER_PX - 1
     ax.imshow(
-        rgb8,
+        image_rgba(rgb8),
         extent=(edges[0], edges[1], edges[3], edges[2]),
         interpolation="bilinear" if smooth else "nearest",
         aspect="auto",
@@ -507,3 +516,12 @@ def _convergence_layout(two: bool) -> tuple[Figure, list[Axes], None]:
     if two:
         axes.append(fig.add_axes((x0 + 1.6 * width, 0.15, width, 0.75)))
     return fig, axes, None
+
+
+def warm_figures() -> None:
+    """Build the overlay, the histograms (two and three panels) and the convergence figure with
+    the final refinement's panel, each drawn empty once (:func:`.plotting.warm_figure`)."""
+    warm_figure("overlay", _overlay_layout)
+    for n in (3, 2):
+        warm_figure(("histogram", n), lambda n=n: _histogram_layout(n))
+    warm_figure(("convergence", True), lambda: _convergence_layout(True))

@@ -34,6 +34,7 @@ from ..io.atomic import atomic_write_bytes
 __all__ = [
     "HALO",
     "figure_rgb",
+    "image_rgba",
     "log_scale",
     "new_figure",
     "forget_figures",
@@ -42,6 +43,7 @@ __all__ = [
     "save_figure",
     "set_title",
     "viridis_rgb",
+    "warm_figure",
 ]
 
 #: A dark outline around labels drawn over radiographs, readable on bright and dark alike.
@@ -85,6 +87,15 @@ def log_scale(ax: Axes, values: np.ndarray, axis: str = "y") -> None:
         target.set_minor_locator(ticker.LogLocator(10.0, subs=(2.0, 5.0)))
         target.set_minor_formatter(plain if span < 2.0 else ticker.NullFormatter())
     target.set_major_formatter(plain)
+
+
+def image_rgba(rgb: np.ndarray) -> np.ndarray:
+    """An (H, W, 3) uint8 RGB image as the (H, W, 4) float32 RGBA array matplotlib's ``imshow``
+    draws it from (the same values): given uint8 RGB, matplotlib makes a float64 RGBA copy at
+    each drawing and resamples that, twice as slow as drawing from this."""
+    rgba = np.ones((*rgb.shape[:2], 4), np.float32)
+    np.divide(rgb, 0xFF, out=rgba[:, :, :3], dtype=np.float32)
+    return rgba
 
 
 def figure_rgb(fig: Figure) -> np.ndarray:
@@ -157,14 +168,22 @@ class _Kept:
             if id(artist) not in self.built:
                 artist.remove()
         for ax, face in zip(self.axes, self.faces, strict=True):
-            ax.set_xscale("linear")  # also the default locators and formatters
-            ax.set_yscale("linear")
+            for axis, set_scale in ((ax.xaxis, ax.set_xscale), (ax.yaxis, ax.set_yscale)):
+                if not _default_linear(axis):
+                    set_scale("linear")  # also the default locators and formatters
             ax.relim()  # forget the removed artists' data limits
             ax.set_xlim(0.0, 1.0)
             ax.set_ylim(0.0, 1.0)
             ax.set_autoscale_on(True)
             ax.set_aspect("auto")
             ax.set_facecolor(face)
+
+
+def _default_linear(axis) -> bool:
+    """Whether ``axis`` is linear with its default locators and formatters (setting the scale
+    again costs as much as a few tick labels)."""
+    defaults = (axis.isDefault_majloc, axis.isDefault_minloc, axis.isDefault_majfmt)
+    return axis.get_scale() == "linear" and all(defaults) and axis.isDefault_minfmt
 
 
 def _drawn(fig: Figure, axes: Sequence[Axes]) -> list:
@@ -211,6 +230,13 @@ def reused_figure(key: Hashable, build: Builder) -> Iterator[Kept]:
         raise
     finally:
         kept.lock.release()
+
+
+def warm_figure(key: Hashable, build: Builder) -> None:
+    """Build the figure of layout ``key`` (:func:`reused_figure`) and draw it empty once:
+    its axes, their ticks and the fonts made ready for the first real drawing."""
+    with reused_figure(key, build) as (fig, _, _):
+        fig.canvas.draw()
 
 
 def forget_figures() -> None:

@@ -27,7 +27,7 @@ import numpy as np
 if TYPE_CHECKING:
     from ..calibration import View
 
-__all__ = ["uncertainty_figure"]
+__all__ = ["uncertainty_figure", "warm_uncertainty"]
 
 #: Figure resolution (dots per inch) and layout, inches: per view a panel ``_PANEL_IN`` wide,
 #: its axes inset by the margins; the colour bar in a strip on the right.
@@ -169,7 +169,7 @@ def uncertainty_figure(
         Per panel the mesh already projected into its view, the first two outputs of
         :func:`.shading.painter_faces` (``None``, or no sequence: projected here).
     """
-    from .plotting import reused_figure, save_figure, set_title, viridis_rgb
+    from .plotting import image_rgba, reused_figure, save_figure, set_title, viridis_rgb
     from .shading import painter_faces
 
     V, F = np.asarray(vertices, float), np.asarray(faces, dtype=np.int64)
@@ -191,7 +191,9 @@ def uncertainty_figure(
             # as large as the axes: about pixel for pixel; a small crop is enlarged smoothly
             smooth = max(image.shape[:2]) < px - 1
             ax.imshow(
-                image[:, :, :3], extent=extent, interpolation="bilinear" if smooth else "nearest"
+                image_rgba(image[:, :, :3]),
+                extent=extent,
+                interpolation="bilinear" if smooth else "nearest",
             )
             ax.set_xlim(lo[0] - pad, hi[0] + pad)
             ax.set_ylim(hi[1] + pad, lo[1] - pad)  # image rows grow downwards
@@ -210,3 +212,11 @@ def uncertainty_figure(
             fontsize=12,
         )
         return save_figure(fig, path)
+
+
+def warm_uncertainty(views: int) -> None:
+    """Build the uncertainty figure of ``views`` panels and draw it empty once
+    (:func:`.plotting.warm_figure`)."""
+    from .plotting import warm_figure
+
+    warm_figure(("uncertainty", views), lambda: _layout(views))

@@ -185,3 +185,34 @@ def test_3d_views(tmp_path):
             assert np.array_equal(expected, _pixels(tmp_path / "kept.png"))
             kept |= {id(scene) for scene in render3d._scenes.values()}
         assert len(kept) == 1  # one scene drew them all
+
+
+def test_figures_built_ahead_draw_the_same(tmp_path):
+    """The figures built and drawn empty by :func:`warm_figures` (while a registration runs)
+    give the pixels of new ones."""
+    from biplanar_reg.report.figures import warm_figures
+    from biplanar_reg.report.uncertainty import warm_uncertainty
+
+    rng = np.random.default_rng(1)
+    m = synthetic_bone_model(0, resolution=(24, 13))
+    view = look_at_view(np.array([0.0, -900.0, 0.0]), sdd=1200.0, pixel=0.3, image_size=(512, 512))
+    sd = np.linspace(0.1, 0.5, m.n_vertices)
+    kinds = ["sdp"] * 3 + ["local"] * 2
+    overlay = _overlay_args("radiograph", 0.0)
+    panels = [("a", view, None), ("b", view, None)]
+    draws = {
+        "hist": lambda p: histogram_figure(p, [(k, rng.gamma(2.0, 1.0, 50), "px") for k in "abc"]),
+        "conv": lambda p: convergence_figure(p, [5, 4, 3, 9, 8], [0.1] * 5, [1] * 5, 2, kinds),
+        "overlay": lambda p: overlay_figure(p, **overlay),
+        "uncertainty": lambda p: uncertainty_figure(p, panels, m.mean, m.faces, sd),
+    }
+    for name, draw in draws.items():
+        plotting.forget_figures()
+        rng = np.random.default_rng(1)
+        draw(tmp_path / "new.png")
+        plotting.forget_figures()
+        warm_figures()
+        warm_uncertainty(2)
+        rng = np.random.default_rng(1)
+        draw(tmp_path / "warm.png")
+        assert np.array_equal(_pixels(tmp_path / "new.png"), _pixels(tmp_path / "warm.png")), name
