@@ -108,7 +108,7 @@ def _register_locked(
     if report:  # the report's set-up overlaps the registration
         from ..report.prepare import prepare_report
 
-        prepare_report(len(case.views))
+        prepare_report(len(case.views), case.ground_truth is not None)
     return write_case(
         case,
         out_dir,

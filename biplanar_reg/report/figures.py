@@ -518,10 +518,11 @@ def _convergence_layout(two: bool) -> tuple[Figure, list[Axes], None]:
     return fig, axes, None
 
 
-def warm_figures() -> None:
-    """Build the overlay, the histograms (two and three panels) and the convergence figure with
-    the final refinement's panel, each drawn empty once (:func:`.plotting.warm_figure`)."""
+def warm_figures(ground_truth: bool = True) -> None:
+    """Build the overlay, the histograms (three panels with a ``ground_truth``, else two) and
+    the convergence figure with the final refinement's panel, each drawn empty once
+    (:func:`.plotting.warm_figure`)."""
+    n = 3 if ground_truth else 2
     warm_figure("overlay", _overlay_layout)
-    for n in (3, 2):
-        warm_figure(("histogram", n), lambda n=n: _histogram_layout(n))
+    warm_figure(("histogram", n), lambda: _histogram_layout(n))
     warm_figure(("convergence", True), lambda: _convergence_layout(True))

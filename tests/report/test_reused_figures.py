@@ -216,3 +216,36 @@ def test_figures_built_ahead_draw_the_same(tmp_path):
         rng = np.random.default_rng(1)
         draw(tmp_path / "warm.png")
         assert np.array_equal(_pixels(tmp_path / "new.png"), _pixels(tmp_path / "warm.png")), name
+
+
+def test_prepare_report_builds_the_figures_and_the_scene_in_the_background():
+    """What ``register`` starts before its registration (a fresh process): the figures of a
+    two-view case with a ground truth, and the 3D view's scene where VTK renders here."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    code = (
+        "import threading, time\n"
+        "from biplanar_reg.report import plotting, render3d\n"
+        "from biplanar_reg.report.gl_probe import offscreen_rendering_available\n"
+        "from biplanar_reg.report.prepare import prepare_report\n"
+        "t0 = time.perf_counter()\n"
+        "prepare_report(2, True)\n"
+        "print(time.perf_counter() - t0 < 0.5)\n"  # returns at once
+        "[t.join() for t in threading.enumerate() if t.name == 'report-prepare']\n"
+        "render3d._vtk().submit(lambda: None).result()\n"  # the scene's job done
+        "print(sorted(map(str, plotting._kept)))\n"
+        "print(sorted(render3d._scenes) if offscreen_rendering_available()[0] else 'no GL')\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env
+    )
+    quick, figures, scenes = out.stdout.split("\n")[:3]
+    assert quick == "True"
+    expected = ["('convergence', True)", "('histogram', 3)", "('uncertainty', 2)", "overlay"]
+    assert figures == str(expected)
+    assert scenes in ("[((900, 700), True)]", "no GL")
