@@ -32,7 +32,7 @@ from .plotting import (
     warm_figure,
 )
 
-__all__ = ["overlay_figure", "histogram_figure", "convergence_figure", "warm_figures"]
+__all__ = ["overlay_figure", "histogram_figure", "convergence_figure"]
 
 #: Colour (RGB) and opacity of the shaded registered bone over a radiograph.
 BONE_RGB = (1.0, 0.75, 0.4)

@@ -27,7 +27,7 @@ import numpy as np
 if TYPE_CHECKING:
     from ..calibration import View
 
-__all__ = ["uncertainty_figure", "warm_uncertainty"]
+__all__ = ["uncertainty_figure"]
 
 #: Figure resolution (dots per inch) and layout, inches: per view a panel ``_PANEL_IN`` wide,
 #: its axes inset by the margins; the colour bar in a strip on the right.
