@@ -1,7 +1,7 @@
 """Pieces of ``result.json`` every case pipeline writes, and :class:`RunOutcome`.
 
 The document itself is :class:`biplanar_reg.result.CaseResult` (bones x frames, one format);
-the pipelines (:mod:`.single`, :mod:`.multi_frame`, :mod:`.bones`) build its entries from a
+the pipeline (:mod:`.pipeline`, :mod:`.bone_result`, :mod:`.bones`) builds its entries from a
 loaded :class:`~biplanar_reg.cases.case.Case` with these helpers.
 """
 
@@ -32,6 +32,8 @@ SIGNED_METHOD = (
     "outside it (sign of the ground truth's angle-weighted pseudo-normal at the nearest "
     "point); roi_*: the same over the region of interest (metrics['roi'])"
 )
+#: DICOM attributes shown with --include-phi (never read otherwise).
+PHI_TAGS = ("PatientName", "PatientID", "PatientBirthDate", "StudyDate", "AccessionNumber")
 #: ``result.json["frame"]`` of a case with calibrated views.
 WORLD_FRAME = "world frame of the calibrations (OpenCV: X_cam = R @ X + t)"
 
@@ -95,3 +97,23 @@ def stage_reporter(case: Case, progress: Callable[[str], None] | None) -> Callab
             progress(msg)
 
     return say
+
+
+def dicom_identifiers(case: Case) -> dict[str, dict[str, str]]:
+    """Patient identifiers of the case's DICOM images and calibrations, every frame's
+    (``result.json["phi"]``, ``--include-phi``), per file relative to the case folder."""
+    import pydicom
+
+    out: dict[str, dict[str, str]] = {}
+    views = [cv for src in [case, *case.frames] for cv in src.views]
+    for path in dict.fromkeys(p for cv in views for p in (cv.image_path, cv.calibration)):
+        if path is None or path.suffix.lower() not in (".dcm", ".dicom", ".ima", ""):
+            continue
+        try:
+            ds = pydicom.dcmread(path, stop_before_pixels=True)
+        except Exception:  # noqa: BLE001 - not DICOM: nothing to show
+            continue
+        tags = {k: str(ds.get(k, "")) for k in PHI_TAGS if k in ds}
+        if tags:
+            out[relative_path(path, case.case_dir)] = tags
+    return out

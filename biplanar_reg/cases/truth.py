@@ -1,14 +1,16 @@
 """Metrics of a registered bone against its ground truth (mm), for ``result.json``.
 
-Single-frame cases: :func:`ground_truth_metrics` (vertex and surface distances, over the region
-of interest too, the mean-shape baseline and the model floor). Multi-frame cases:
-:func:`frames_ground_truth` (per frame, and pooled over the frames). The surface distances are
-:func:`~biplanar_reg.cases.metrics.surface_metrics`.
+:func:`bone_truth` measures a bone over its frames (:class:`~biplanar_reg.cases.bone_fit.
+BoneFit`): a bone registered in one frame with :func:`ground_truth_metrics` (vertex and surface
+distances, over the region of interest too, the mean-shape baseline and the model floor), a
+bone registered jointly over frames with :func:`frames_ground_truth` (per frame, and pooled
+over the frames). The surface distances are :func:`~biplanar_reg.cases.metrics.surface_metrics`.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -16,17 +18,63 @@ from ..errors import CaseError
 from ..pose import Pose
 from ..registration import RegistrationResult
 from ..registration.frames import FrameRegistrationResult
-from ..result import jsonable
+from ..result import SINGLE, jsonable
 from .case import Case
-from .documents import SURFACE_METHOD, relative_path
+from .documents import SIGNED_METHOD, SURFACE_METHOD, relative_path
 from .metrics import surface_metrics
 
-__all__ = ["ground_truth_metrics"]
+if TYPE_CHECKING:
+    from .bone_fit import BoneFit
+
+__all__ = ["BoneTruth", "bone_truth", "ground_truth_metrics"]
 
 #: Surface samples per frame of the per-frame ground-truth metrics (a quarter of a single-frame
 #: case's: F frames cost F times as much; measured: surface RMS 0.3 % apart, 5.5x faster).
 FRAME_SURFACE_SAMPLES = 5000
 FRAME_SURFACE_METHOD = SURFACE_METHOD.replace("20000", str(FRAME_SURFACE_SAMPLES)) + ", per frame"
+
+
+@dataclass
+class BoneTruth:
+    """A bone's ground-truth measurements (mm).
+
+    Attributes
+    ----------
+    entry : dict or None
+        ``result.json["ground_truth"]`` (None without a ground truth).
+    metrics : dict
+        The keys it adds to ``result.json["metrics"]``, with the methods' descriptions.
+    per_frame : list of dict or None
+        Per frame its own metrics (a joint fit; None for frames without a truth).
+    vertex_error : (N,) array or None
+        Frame 0's per-vertex distance to the truth (a single-frame fit; the report's colours).
+    """
+
+    entry: dict[str, Any] | None
+    metrics: dict[str, Any]
+    per_frame: list[dict[str, Any] | None]
+    vertex_error: np.ndarray | None = None
+
+
+def bone_truth(case: Case, fit: BoneFit) -> BoneTruth:
+    """The ground-truth measurements of ``fit`` (mm): those of :func:`ground_truth_metrics`
+    for a bone registered in one frame, of :func:`frames_ground_truth` over frames."""
+    if fit.layout == SINGLE:
+        metrics, vertex_error, alignment = ground_truth_metrics(case, fit.result)
+        entry = ground_truth_entry(case)
+        if alignment is not None:
+            entry["alignment"] = alignment
+        if any(k.startswith("surface_") for k in metrics):
+            metrics["surface_distance_method"] = SURFACE_METHOD
+        if "surface_signed_mean_mm" in metrics:
+            metrics["signed_distance_method"] = SIGNED_METHOD
+        return BoneTruth(entry, metrics, [None], vertex_error)
+    per_frame, pooled = frames_ground_truth(case, fit.result) or ([None] * len(fit.names), {})
+    if any(per_frame):
+        pooled["surface_distance_method"] = FRAME_SURFACE_METHOD
+    if "surface_signed_mean_mm" in pooled:
+        pooled["signed_distance_method"] = SIGNED_METHOD + ", per frame"
+    return BoneTruth(frames_ground_truth_entry(case), pooled, per_frame)
 
 
 def ground_truth_entry(case: Case) -> dict[str, Any] | None:
