@@ -72,18 +72,19 @@ def lap(name):
     c, w = time.process_time(), time.perf_counter()
     T[name] = [c - c0, w - w0]
     c0, w0 = c, w
-from biplanar_reg.cases import single, truth
-from biplanar_reg.cases.case import load_case, to_view_observations
+from biplanar_reg.cases import bone_fit, bone_result, pipeline, truth
+from biplanar_reg.cases.case import load_case, to_frame_observations
 lap("imports")
-case = load_case(sys.argv[1]); obs = to_view_observations(case); lap("load")
-res = single.register_observations(case, obs); lap("registration")
-errs, outl, src = single.view_errors(case, obs, res)
-gm, ve, al = truth.ground_truth_metrics(case, res); lap("metrics")
+case = load_case(sys.argv[1]); frames = to_frame_observations(case); lap("load")
+res = bone_fit.fit_bone(case, frames, lambda msg: None); lap("registration")
+fit = bone_fit.bone_fit(case, frames, res)
+gt = truth.bone_truth(case, fit); lap("metrics")
 from biplanar_reg.report import case_report; lap("report imports")
-doc = single.result_document(case, obs, res, errs, src, gm, {})
-views = single.report_views(case, obs, res, outl)
-case_report.write_case_report(Path(tempfile.mkdtemp()), doc, views, vertices=res.vertices,
-                              faces=case.model.faces, vertex_error=ve, vertex_sd=res.vertex_sd_mm)
+result = bone_result.bone_case_result(case, frames, fit, gt, {})
+views = pipeline.report_views(case, frames, fit, [0])[0]
+case_report.write_case_report(Path(tempfile.mkdtemp()), result, views,
+                              vertices=fit.frame_vertices[0], faces=case.model.faces,
+                              vertex_error=gt.vertex_error, vertex_sd=fit.vertex_sd[0])
 lap("report")
 print(json.dumps(T))
 """

@@ -47,12 +47,11 @@ from benchmarks.case_time import KNEE, child, compile_tree, git_rev  # noqa: E40
 FIGURES = """
 import json, statistics, sys, tempfile, time
 from pathlib import Path
-from biplanar_reg.cases import single, truth
-from biplanar_reg.cases.case import load_case, to_view_observations
-case = load_case(sys.argv[1]); obs = to_view_observations(case)
-res = single.register_observations(case, obs)
-errs, outl, src = single.view_errors(case, obs, res)
-gm, ve, al = truth.ground_truth_metrics(case, res)
+from biplanar_reg.cases import bone_fit, bone_result, pipeline, truth
+from biplanar_reg.cases.case import load_case, to_frame_observations
+case = load_case(sys.argv[1]); frames = to_frame_observations(case)
+fit = bone_fit.bone_fit(case, frames, bone_fit.fit_bone(case, frames, lambda msg: None))
+gt = truth.bone_truth(case, fit)
 c0 = time.process_time()
 from biplanar_reg.report import case_report
 T = {"imports": time.process_time() - c0}
@@ -71,10 +70,11 @@ for n in NAMES:
 runs = []
 for i in range(int(sys.argv[2]) + 1):
     c = time.process_time()
-    doc = single.result_document(case, obs, res, errs, src, gm, {})
-    views = single.report_views(case, obs, res, outl)
-    case_report.write_case_report(Path(tempfile.mkdtemp()), doc, views, vertices=res.vertices,
-        faces=case.model.faces, vertex_error=ve, vertex_sd=res.vertex_sd_mm)
+    doc = bone_result.bone_case_result(case, frames, fit, gt, {})
+    views = pipeline.report_views(case, frames, fit, [0])[0]
+    case_report.write_case_report(Path(tempfile.mkdtemp()), doc, views,
+        vertices=fit.frame_vertices[0], faces=case.model.faces, vertex_error=gt.vertex_error,
+        vertex_sd=fit.vertex_sd[0])
     T["whole report"] = time.process_time() - c
     runs.append(dict(T)); T.clear(); T["imports"] = 0.0
 first, rest = runs[0], runs[1:]

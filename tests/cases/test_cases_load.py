@@ -228,13 +228,13 @@ def test_broken_case_corpus(case, capsys, name, edit, fragment):
 def test_solver_failure_exit_1_no_output(case, capsys, monkeypatch):
     # No case input found makes the convex solver fail for real (it flags instead), so the
     # failure is injected where the solver reports it.
-    from biplanar_reg.cases import single
+    from biplanar_reg.cases import bone_fit
     from biplanar_reg.registration import SolverFailure
 
     def fail(*args, **kwargs):
         raise SolverFailure("SDP interior-point solver did not converge (injected)")
 
-    monkeypatch.setattr(single, "register_views", fail)
+    monkeypatch.setattr(bone_fit, "register_views", fail)
     rc = main(["register", str(case)])
     err = capsys.readouterr().err.strip()
     assert rc == 1

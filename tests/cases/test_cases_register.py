@@ -137,7 +137,7 @@ def test_report_from_document_and_former_signature_agree(registered, tmp_path):
 
     from biplanar_reg.cases import load_case, to_view_observations
     from biplanar_reg.cases.metrics import model_outlines
-    from biplanar_reg.cases.single import report_views as _report_views
+    from biplanar_reg.cases.pipeline import report_views
     from biplanar_reg.report import ReportView, write_case_report
 
     case_dir, out, doc = registered
@@ -148,7 +148,8 @@ def test_report_from_document_and_former_signature_agree(registered, tmp_path):
     res = SimpleNamespace(vertices=V, view_poses={})
     outlines = {o.name: model_outlines(V, F, o.view) for o in obs}
     error = np.linspace(0.0, 1.0, len(V))
-    views = _report_views(case, obs, res, outlines)
+    fit = SimpleNamespace(frame_vertices=[V], view_poses={}, outlines=[outlines])
+    views = report_views(case, [obs], fit, [0])[0]
     assert [v.name for v in views] == ["cam1", "cam2"] and isinstance(views[0], ReportView)
     assert set(views[0].landmarks_px) == set(doc["views"]["cam1"]["landmark_errors_px"])
     new, old = tmp_path / "new", tmp_path / "old"

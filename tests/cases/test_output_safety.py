@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from biplanar_reg.cases import single as run_module
+from biplanar_reg.cases import bone_fit, pipeline
 from biplanar_reg.cli import main
 from biplanar_reg.errors import SolverFailure
 from biplanar_reg.io import atomic as atomic_module
@@ -59,22 +59,22 @@ def _fail_registration(monkeypatch) -> None:
     def fail(*args, **kwargs):
         raise SolverFailure("stopped by the test")
 
-    monkeypatch.setattr(run_module, "register_views", fail)
+    monkeypatch.setattr(bone_fit, "register_views", fail)
 
 
 def test_a_second_registration_of_a_busy_output_is_refused(fresh, monkeypatch, capsys):
     """The second run (a terminal, while the workbench's Register is writing) gets one line and
     exit 2, and leaves the first run's temporary folder alone; the first run completes."""
     second: list[int] = []
-    real = run_module.write_exports
+    real = pipeline.write_pose_exports
 
-    def exports_then_a_second_run(tmp, out, case, res):
+    def exports_then_a_second_run(tmp, out, case, poses, vertices):
         # the first run is writing its outputs into its temporary folder: start another one
         second.append(main(["register", str(fresh), "--no-report"]))
         second.append(_err_line(capsys))
-        return real(tmp, out, case, res)
+        return real(tmp, out, case, poses, vertices)
 
-    monkeypatch.setattr(run_module, "write_exports", exports_then_a_second_run)
+    monkeypatch.setattr(pipeline, "write_pose_exports", exports_then_a_second_run)
     before = (fresh / "out" / "result.json").read_bytes()
     assert main(["register", str(fresh), "--no-report"]) == 0
     rc, line = second
@@ -197,10 +197,8 @@ def test_a_read_only_output_is_refused_before_the_registration(
     fresh, tmp_path, monkeypatch, capsys
 ):
     ran: list[int] = []
-    real = run_module.register_views
-    monkeypatch.setattr(
-        run_module, "register_views", lambda *a, **k: ran.append(1) or real(*a, **k)
-    )
+    real = bone_fit.register_views
+    monkeypatch.setattr(bone_fit, "register_views", lambda *a, **k: ran.append(1) or real(*a, **k))
     ro = tmp_path / "ro"
     ro.mkdir()
     tried = _read_only(monkeypatch, ro)

@@ -188,10 +188,10 @@ class _Sized:
 
 
 def test_advice_covers_every_flag_the_registration_raises():
-    from biplanar_reg.cases import single
+    from biplanar_reg.cases.bone_result import bone_case_result
 
-    prefixes = _flag_prefixes(register._flags) | _flag_prefixes(single.result_document)
-    assert len(_flag_prefixes(register._flags)) >= 4 and _flag_prefixes(single.result_document)
+    prefixes = _flag_prefixes(register._flags) | _flag_prefixes(bone_case_result)
+    assert len(_flag_prefixes(register._flags)) >= 4 and _flag_prefixes(bone_case_result)
     kinds = {p.split("(")[0].split(":")[0].strip() for p in prefixes}
     assert kinds <= set(FLAG_ADVICE), kinds - set(FLAG_ADVICE)
     # and at run time: every flag raised at once, each with its own advice
@@ -242,7 +242,7 @@ def test_page_shows_each_flag_with_its_advice(no_truth, tmp_path):
 def test_report_views_use_the_registrations_view_poses(no_truth):
     """With estimated poses (``poses = "refine"``/``"unknown"``) the report projects with the
     pose the registration used, not the calibration's."""
-    from biplanar_reg.cases.single import report_views as _report_views
+    from biplanar_reg.cases.pipeline import report_views
 
     case_dir, out, _ = no_truth
     case = load_case(case_dir)
@@ -250,8 +250,14 @@ def test_report_views_use_the_registrations_view_poses(no_truth):
     V, _ = read_mesh(out / "registered.ply")
     o = obs[0]
     moved = {o.name: {"R": o.view.R, "t": o.view.t + np.array([5.0, 0.0, 0.0])}}
-    as_calibrated = _report_views(case, obs, SimpleNamespace(vertices=V, view_poses={}), {})
-    posed = _report_views(case, obs, SimpleNamespace(vertices=V, view_poses=moved), {})
+    outlines = [{v.name: [] for v in obs}]
+
+    def _report_views(poses):
+        fit = SimpleNamespace(frame_vertices=[V], view_poses=poses, outlines=outlines)
+        return report_views(case, [obs], fit, [0])[0]
+
+    as_calibrated = _report_views({})
+    posed = _report_views(moved)
     np.testing.assert_allclose(posed[0].view.t, moved[o.name]["t"])
     name = next(iter(posed[0].landmarks_px))
     shift = posed[0].landmarks_px[name] - as_calibrated[0].landmarks_px[name]
