@@ -58,7 +58,6 @@ class BoneFit:
         The frame names.
     poses : (F, 4, 4) array
         Model -> world pose per frame.
-    weights : (M,) array
     frame_vertices : list of (N, 3) arrays
         The registered surface posed in each frame (world, mm).
     model_vertices : (N, 3) array or None
@@ -78,17 +77,14 @@ class BoneFit:
     case_fields, metric_fields : dict
         :class:`~biplanar_reg.result.CaseResult` keywords and ``metrics`` keys only this
         registration reports.
-    flags, rejected : list
-    timings : dict
-        The registration's own stages (s).
+    rejected : list of (view, landmark)
     result : RegistrationResult or FrameRegistrationResult
-        The library's result.
+        The library's result (``weights``, ``flags``, ``timings``: its stages in s).
     """
 
     layout: str
     names: list[str]
     poses: np.ndarray
-    weights: np.ndarray
     frame_vertices: list[np.ndarray]
     model_vertices: np.ndarray | None
     vertex_sd: list[np.ndarray | None]
@@ -100,9 +96,7 @@ class BoneFit:
     frame_fields: list[dict[str, Any]]
     case_fields: dict[str, Any]
     metric_fields: dict[str, Any]
-    flags: list[str]
     rejected: list[tuple[str, str]]
-    timings: dict[str, float]
     result: RegistrationResult | FrameRegistrationResult
 
 
@@ -184,7 +178,6 @@ def _single_fit(case: Case, obs: list[ViewObservations], res: RegistrationResult
         layout=SINGLE,
         names=["0"],
         poses=rigid_pose(res.rotation, res.translation)[None],
-        weights=res.weights,
         frame_vertices=[res.vertices],
         model_vertices=None,
         vertex_sd=[res.vertex_sd_mm],
@@ -221,9 +214,7 @@ def _single_fit(case: Case, obs: list[ViewObservations], res: RegistrationResult
             "contour_errors_source": "; ".join(sorted(sources)) if measured else None,
             "certificate": res.certificate,
         },
-        flags=list(res.flags),
         rejected=[(v, n) for v, n in res.rejected],
-        timings=res.timings,
         result=res,
     )
 
@@ -236,14 +227,11 @@ def _joint_fit(case: Case, frames: Frames, res: FrameRegistrationResult) -> Bone
         layout=FRAMES,
         names=list(res.frame_names),
         poses=res.poses(),
-        weights=res.weights,
         frame_vertices=[res.frame_vertices(f) for f in range(n)],
         model_vertices=res.vertices,
         vertex_sd=sd,
         landmark_errors_px=res.landmark_errors_px,
-        contour_errors_px=[
-            {k: np.asarray(v, float) for k, v in d.items()} for d in res.contour_errors_px
-        ],
+        contour_errors_px=res.contour_errors_px,
         outlines=[{} for _ in range(n)],
         view_poses={},
         view_fields={},
@@ -270,9 +258,7 @@ def _joint_fit(case: Case, frames: Frames, res: FrameRegistrationResult) -> Bone
             },
         },
         metric_fields={},
-        flags=list(res.flags),
         rejected=[],
-        timings=res.timings,
         result=res,
     )
 

@@ -115,13 +115,13 @@ def bone_case_result(
     bone = BoneResult(
         case.bone,
         results,
-        weights=fit.weights,
+        weights=fit.result.weights,
         ground_truth=truth.entry,
         model=model_entry(case),
         uncertainty=fields.pop("uncertainty"),
     )
     rejected = sorted(set(fit.rejected))
-    flags = list(fit.flags)
+    flags = list(fit.result.flags)
     if rejected and not any("reject" in f for f in flags):
         flags.append(f"rejected observations: {rejected}")
     frame = CAMERA_FRAME if case.poses == "unknown" else WORLD_FRAME

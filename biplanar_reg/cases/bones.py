@@ -1,8 +1,9 @@
 """Register a multi-bone case (``[[bones]]``, docs/bones.md) and write its outputs atomically.
 
 Each bone is registered as the single-bone case :func:`~biplanar_reg.cases.case.load_case`
-built for it (``Case.bones``), through the pipeline its shape picks (``register_bone``:
-:func:`~biplanar_reg.cases.pipeline.write_case`), into ``out/bones/<name>/``. Then, over the
+built for it (``Case.bones``), over the case's frames, by the one path of every bone
+(``register_bone``: :func:`~biplanar_reg.cases.pipeline.write_bone`), into
+``out/bones/<name>/``. Then, over the
 bones' registered surfaces and poses: the non-penetration check of every pair
 (:mod:`.contact`) and the relative kinematics (the pose of each later bone in the frame of each
 earlier one, per frame). The whole ``out/`` is one
@@ -243,8 +244,8 @@ def register_bones_case(
     """Register every bone of ``case`` (``case.bones``) and write ``out_dir`` atomically
     (``warm_from``: the output folder whose bones' results they may start from).
 
-    ``register_bone(bone, folder, include_phi=, progress=, report=)`` registers one bone (a
-    :class:`Case` of one bone) into ``folder`` (:func:`.pipeline.write_case`).
+    ``register_bone(bone, folder, include_phi=, progress=, report=, warm_from=)`` registers
+    one bone (a :class:`Case` of one bone) into ``folder`` (:func:`.pipeline.write_bone`).
 
     Returns
     -------

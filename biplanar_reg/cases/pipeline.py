@@ -102,7 +102,7 @@ def write_bone(
     fit = bone_fit(case, frames, res)
     truth = bone_truth(case, fit)
     timings = {"load": load_seconds, "registration": t_reg, "metrics": time.perf_counter() - t1}
-    timings |= {f"registration_{k}": v for k, v in fit.timings.items()}
+    timings |= {f"registration_{k}": v for k, v in fit.result.timings.items()}
     extra = {"phi": dicom_identifiers(case)} if include_phi else None
     result = bone_case_result(case, frames, fit, truth, timings, extra)
     model_ply = "registered_model.ply, " if fit.model_vertices is not None else ""

@@ -6,8 +6,8 @@ Error mapping (exit codes of ``biplanar-reg register``): bad input -> :class:`Ca
 in ``result.json``, never raised.
 
 This module takes the output folder's lock, records the case's inputs and hands the case to
-:func:`.pipeline.write_case`, which picks the pipeline of the case's shape (one bone in one
-frame, one bone over frames, several bones); the result is a
+:func:`.pipeline.write_case`: a case is bones x frames, and every bone takes the one path
+:func:`.pipeline.write_bone`, in one frame or several; the result is a
 :class:`~biplanar_reg.result.CaseResult` (``RunOutcome.result``).
 """
 
@@ -138,7 +138,7 @@ def run_case_dir(
     progress display; False: no report.html). ``warm``: start from the result in the output
     folder when it was made with the same model, views and options and no landmark moved far
     (re-registration after an edit; :mod:`.warm`, ``result.json["restart"]`` says which start
-    was used). ``on_written`` (a single-bone, single-frame case) is called with the outcome as
+    was used). ``on_written`` (a case of one bone) is called with the outcome as
     soon as ``out`` holds the result and the mesh; the report is written after it returns
     (``out`` replaced again, with the report), for a page that shows the result first. The
     output folder's lock is taken before the case is read (a busy or unwritable output is
