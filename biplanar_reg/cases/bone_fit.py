@@ -30,7 +30,7 @@ from .metrics import contour_errors, model_outlines
 from .outputs import uncertainty_summary
 from .warm import NO_PREVIOUS, previous_fit
 
-__all__ = ["BoneFit", "fit_bone"]
+__all__ = ["BoneFit", "bone_fit", "fit_bone"]
 
 Frames = list[list[ViewObservations]]
 

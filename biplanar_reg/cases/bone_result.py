@@ -22,7 +22,7 @@ from .metrics import summary_stats
 from .outputs import uncertainty_summary
 from .truth import BoneTruth
 
-__all__ = ["bone_case_result", "finite"]
+__all__ = ["bone_case_result"]
 
 #: ``result.json["frame"]`` of a case whose view poses were all estimated.
 CAMERA_FRAME = "camera frame of the first view (poses = 'unknown')"
