@@ -106,11 +106,8 @@ def write_bone(
     extra = {"phi": dicom_identifiers(case)} if include_phi else None
     result = bone_case_result(case, frames, fit, truth, timings, extra)
     model_ply = "registered_model.ply, " if fit.model_vertices is not None else ""
-    report_note = " and the report"
-    say(
-        f"writing registered.ply, {model_ply}the pose exports, result.json"
-        + (report_note if report else "")
-    )
+    and_report = " and the report" if report else ""
+    say(f"writing registered.ply, {model_ply}the pose exports, result.json{and_report}")
     write_report = functools.partial(_write_report, case=case, frames=frames, fit=fit, truth=truth)
     with atomic_output_dir(out_dir) as tmp:
         _write_files(tmp, out_dir, case, fit, result)
