@@ -77,7 +77,7 @@ from biplanar_reg.cases.case import load_case, to_frame_observations
 lap("imports")
 case = load_case(sys.argv[1]); frames = to_frame_observations(case); lap("load")
 res = bone_fit.fit_bone(case, frames, lambda msg: None); lap("registration")
-fit = bone_fit.bone_fit(case, frames, res)
+fit = bone_fit.BoneFit.of(case, frames, res)
 gt = truth.bone_truth(case, fit); lap("metrics")
 from biplanar_reg.report import case_report; lap("report imports")
 result = bone_result.bone_case_result(case, frames, fit, gt, {})

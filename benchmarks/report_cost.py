@@ -50,7 +50,7 @@ from pathlib import Path
 from biplanar_reg.cases import bone_fit, bone_result, pipeline, truth
 from biplanar_reg.cases.case import load_case, to_frame_observations
 case = load_case(sys.argv[1]); frames = to_frame_observations(case)
-fit = bone_fit.bone_fit(case, frames, bone_fit.fit_bone(case, frames, lambda msg: None))
+fit = bone_fit.BoneFit.of(case, frames, bone_fit.fit_bone(case, frames, lambda msg: None))
 gt = truth.bone_truth(case, fit)
 c0 = time.process_time()
 from biplanar_reg.report import case_report

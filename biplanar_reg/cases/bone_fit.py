@@ -30,7 +30,7 @@ from .metrics import contour_errors, model_outlines
 from .outputs import uncertainty_summary
 from .warm import NO_PREVIOUS, previous_fit
 
-__all__ = ["BoneFit", "bone_fit", "fit_bone"]
+__all__ = ["BoneFit", "fit_bone"]
 
 Frames = list[list[ViewObservations]]
 
@@ -76,7 +76,7 @@ class BoneFit:
         Per frame the :class:`~biplanar_reg.result.FrameResult` keywords of a joint fit.
     case_fields, metric_fields : dict
         :class:`~biplanar_reg.result.CaseResult` keywords and ``metrics`` keys only this
-        registration reports.
+        registration reports (``registration``: its entries besides the case's settings).
     rejected : list of (view, landmark)
     result : RegistrationResult or FrameRegistrationResult
         The library's result (``weights``, ``flags``, ``timings``: its stages in s).
@@ -98,6 +98,16 @@ class BoneFit:
     metric_fields: dict[str, Any]
     rejected: list[tuple[str, str]]
     result: RegistrationResult | FrameRegistrationResult
+
+    @classmethod
+    def of(
+        cls, case: Case, frames: Frames, res: RegistrationResult | FrameRegistrationResult
+    ) -> BoneFit:
+        """The fit ``res`` of :func:`fit_bone` over ``frames`` (the contour errors of a view
+        the single-frame registration reported none for measured here, on the outline)."""
+        if isinstance(res, FrameRegistrationResult):
+            return _joint_fit(case, frames, res)
+        return _single_fit(case, frames[0], res)
 
 
 def fit_bone(
@@ -142,16 +152,6 @@ def fit_bone(
     if warm_from is not None and not res.restart.get("reason") and res.restart["start"] == "cold":
         res = dataclasses.replace(res, restart={**res.restart, "reason": NO_PREVIOUS})
     return res
-
-
-def bone_fit(
-    case: Case, frames: Frames, res: RegistrationResult | FrameRegistrationResult
-) -> BoneFit:
-    """The :class:`BoneFit` of a registration's result (the contour errors of a view the
-    single-frame registration reported none for measured here, on the registered outline)."""
-    if isinstance(res, FrameRegistrationResult):
-        return _joint_fit(case, frames, res)
-    return _single_fit(case, frames[0], res)
 
 
 def _single_fit(case: Case, obs: list[ViewObservations], res: RegistrationResult) -> BoneFit:
@@ -199,12 +199,7 @@ def _single_fit(case: Case, obs: list[ViewObservations], res: RegistrationResult
             "certificate": res.certificate,
             "iterations": [dataclasses.asdict(r) for r in res.iterations],
             "best_iteration": res.best_iteration,
-            "registration": {
-                "poses": case.poses,
-                "pose_estimation": res.pose_info,
-                "silhouettes": case.silhouettes,
-                "options": dataclasses.asdict(case.options),
-            },
+            "registration": {"pose_estimation": res.pose_info},
             "noise": {k: v for k, v in res.noise.items() if k != "landmarks"} or None,
             "gaussian_process": res.gp or None,
             "uncertainty": uncertainty_summary(res.vertex_sd_mm),
@@ -245,12 +240,7 @@ def _joint_fit(case: Case, frames: Frames, res: FrameRegistrationResult) -> Bone
         ],
         case_fields={
             "converged": res.converged,
-            "registration": {
-                "poses": "known",
-                "frames": len(frames),
-                "silhouettes": case.silhouettes,
-                "options": dataclasses.asdict(case.options),
-            },
+            "registration": {"frames": len(frames)},
             "uncertainty": _frames_uncertainty(res),
             "extra": {
                 "registered_ply": "the shape posed in frame 0 (world frame)",

@@ -9,6 +9,7 @@ entries ``result.json`` holds (docs/cases.md, docs/frames.md).
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -111,6 +112,8 @@ def bone_case_result(
     ``extra``: top-level keys to add (e.g. ``phi``)."""
     results = [_frame_result(fit, f, obs, truth.per_frame[f]) for f, obs in enumerate(frames)]
     fields = dict(fit.case_fields)
+    settings = {"silhouettes": case.silhouettes, "options": dataclasses.asdict(case.options)}
+    fields["registration"] = {"poses": case.poses, **fields["registration"], **settings}
     extra = {**fields.pop("extra", {}), **(extra or {})}
     bone = BoneResult(
         case.bone,

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 from ..io import write_mesh
 from ..io.atomic import atomic_write_json
 from ..result import FRAMES, CaseResult
-from .bone_fit import BoneFit, bone_fit, fit_bone
+from .bone_fit import BoneFit, fit_bone
 from .bone_result import bone_case_result, finite
 from .bones import register_bones_case
 from .case import Case, to_frame_observations
@@ -99,7 +99,7 @@ def write_bone(
     res = fit_bone(case, frames, say, warm_from)
     t_reg = time.perf_counter() - t0
     t1 = time.perf_counter()
-    fit = bone_fit(case, frames, res)
+    fit = BoneFit.of(case, frames, res)
     truth = bone_truth(case, fit)
     timings = {"load": load_seconds, "registration": t_reg, "metrics": time.perf_counter() - t1}
     timings |= {f"registration_{k}": v for k, v in fit.result.timings.items()}
