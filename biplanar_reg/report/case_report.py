@@ -4,7 +4,7 @@ The report is drawn from the result (:class:`~biplanar_reg.result.CaseResult`, t
 ``result.json``) and the arrays it does not hold: per view a :class:`ReportView` (radiograph,
 annotations, projected outline and landmarks of the registered model, pixels, and the view
 itself) and the registered surface (mm). It knows nothing of case folders: the case pipeline
-(:mod:`biplanar_reg.cases.single`) gathers these and calls :func:`write_case_report`.
+(:mod:`biplanar_reg.cases.pipeline`) gathers these and calls :func:`write_case_report`.
 
 Figures (PNG files beside the page, and embedded in it as ``data:`` URIs, so the page alone
 shows everything): ``overlay_<view>.png`` per view (the registered bone shaded, its projected
