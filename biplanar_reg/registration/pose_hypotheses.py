@@ -6,10 +6,11 @@ rays. A compact patch of a nearly flat object has two nearly equal minima of tha
 patch tilted either way), and the joint refinement from one start stays in the basin it starts
 in: a flipped view drags the shared shape along (the shape bends until the flip fits), so the
 view's own best pose at that shape may be the flipped one even where the lower joint cost lies
-near the truth. The starts built here are every combination of the views' lowest single-view
-minima at a given shape; each is then refined jointly (the caller's refinement) and the lowest
-joint cost wins. This is a search over the objective's own basins: it never prefers a solution
-the objective does not.
+near the truth. The starts built here combine every view's own lowest minima, each found with
+the view's shape fitted to that view's rays alone (so a view is judged by what its points
+allow, not by a shape another view's pose has bent); each start is then refined jointly (the
+caller's refinement) and the lowest joint cost wins. This is a search over the objective's own
+basins: it never prefers a solution the objective does not.
 
 :func:`view_pose_minima`
     The local minima of one view's ray-distance cost over its object pose, the shape fixed: the
@@ -17,9 +18,12 @@ the objective does not.
     entries), a near-uniform grid of rotations is scored at once and the best distinct ones are
     polished by Levenberg-Marquardt on SO(3). Poses that put an observed point behind its ray's
     origin (the source) are dropped.
+:func:`view_hypotheses`
+    Every minimum of :func:`view_pose_minima` (at the given shapes) refined in pose and shape
+    on the view's rays alone.
 :func:`hypothesis_starts`
-    The joint refinement's starts at a state's shape: combinations of every view's minima,
-    at most :data:`MAX_COMBINATIONS` of them, none near a state already refined.
+    The joint refinement's starts: combinations of every view's :func:`view_hypotheses`, at
+    most :data:`MAX_COMBINATIONS` of them, none near a state already refined.
 
 Units: mm; poses map the object frame to each view's camera frame, ``V = R Q + t``.
 """
