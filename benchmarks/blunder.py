@@ -1,6 +1,6 @@
 """One landmark blunder (40 px) with silhouette boosting: flagged? how close to the clean fit?
 
-The issue asks that a blunder be flagged and the error stay within 20 % of the blunder-free
+The target: a blunder is flagged and the error stays within 20 % of the blunder-free
 result. Per trial three fits of the same data are compared:
 
 * clean: 6 landmarks (3 per view), all where they belong;

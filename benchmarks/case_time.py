@@ -20,7 +20,7 @@ seed 0, landmarks from :func:`synthetic_landmarks`).
 2. Stages inside one process (a driver calling the functions ``register`` calls): imports,
    case loading, registration, contour errors + ground-truth metrics, report imports, report.
 3. ``batch --workers 2`` over ``--batch`` copies of the knee-sized case (wall time), with and
-   without reports; ``--batch-trees this`` times this tree only (issue 17's 100-case target:
+   without reports; ``--batch-trees this`` times this tree only (the 100-case target:
    ``--batch 100 --batch-trees this`` on a quiet machine, ~20 min).
 
 Usage::
@@ -273,7 +273,7 @@ def report(args, trees, reg, stages, batch, knee_size, total) -> str:
         "Stages: imports = `biplanar_reg.cases.run` and the case loader; load = `load_case`; "
         "registration = `register_views` (solver, outline matching, refinement); metrics = "
         "contour errors and ground-truth surface metrics; report imports = the report package "
-        "(matplotlib and Jinja2 up to 5f5b503; Pillow and Jinja2 since); report = "
+        "(Pillow and Jinja2; matplotlib and Jinja2 in older trees); report = "
         "`write_case_report` (figures, 3D render, HTML). The "
         "interpreter start (~0.05 s) is outside the sum.",
         "",
@@ -319,7 +319,7 @@ def main() -> None:
     if not (args.reference / "biplanar_reg").is_dir():
         sys.exit(
             f"--reference {args.reference}: not a biplanar_reg source tree "
-            "(git worktree add --detach /tmp/speedbase 266f442)"
+            "(e.g. git worktree add --detach /tmp/speedbase <an earlier version>)"
         )
     t0 = time.perf_counter()
     trees = {"reference": args.reference.resolve(), "this tree": args.tree.resolve()}

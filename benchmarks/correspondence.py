@@ -1,7 +1,7 @@
 """Correspondence for model building (``ssm build --correspond``) on a population of known truth.
 
 The wrist radius template (``sample_cases/wrist_radius/model/radius_template.ply``, 2,002
-vertices) is subdivided once (8,002 vertices, ~10k as the issue asks) and a harmonic population
+vertices) is subdivided once (8,002 vertices, the ~10k target) and a harmonic population
 of S members is synthesised from it (default families, seed 0): the truth, in correspondence.
 Every member is remeshed (subdivided, then decimated by a member-specific fraction: a different
 vertex count and topology), randomly rotated and shifted, and every third one mirrored across

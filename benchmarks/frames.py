@@ -1,4 +1,4 @@
-"""One shape over many frames (issue 20): shape error vs frames used, per-frame pose error.
+"""One shape over many frames: shape error vs frames used, per-frame pose error.
 
 Cases: :func:`biplanar_reg.simulate.sequence.make_sequence` on the default wrist scene (the
 radius truth out of the 8-member, 6-mode SSM's span; the ulna overlapping it; open
@@ -179,7 +179,7 @@ def render(results: list[dict], command: str, seconds: float) -> str:
     floors = list({r["seed"]: r["floor_mm"] for r in results}.values())
     seeds = sorted({r["seed"] for r in results})
     lines = [
-        "# One shape over many frames (issue 20)",
+        "# One shape over many frames",
         "",
         f"Command: `{command}`  ",
         f"Machine: {platform.machine()}, 2 cores shared, Python {platform.python_version()}, "

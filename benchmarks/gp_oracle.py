@@ -20,7 +20,7 @@ case generator), per seed, world vertex RMS over the case's model floor:
     the same with the model augmented by the pipeline's kernel (``gaussian``, 25 mm), its
     amplitude tuned (the best of 0.1, 0.25, 0.5 and 1 mm per case).
 ``pipeline / oracle gp``
-    the ratio of the first and the last (the issue's yardstick: median <= 1.10, max <= 1.5).
+    the ratio of the first and the last (the target: median <= 1.10, max <= 1.5).
 
 Usage::
 

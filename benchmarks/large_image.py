@@ -1,4 +1,4 @@
-"""Memory of a case with very large radiographs (issue 18: "an 8000x8000 radiograph takes 4.9 GB").
+"""Memory of a case with very large radiographs (two 8000 x 8000 16-bit radiographs by default).
 
 Builds a synthetic two-view case whose radiographs are 16-bit TIFFs of ``--size`` x ``--size``
 pixels (rendered at 1000 px by :func:`biplanar_reg.simulate.write_synthetic_case`, upsampled, with
@@ -11,8 +11,8 @@ fresh process each of:
 * ``register``: ``biplanar-reg register CASE --out OUT`` (registration and report).
 
 Reported per step: the peak resident memory of the process (MB, ``ru_maxrss``) and its CPU
-seconds. With ``--base PATH`` (another checkout, e.g. ``git worktree add /tmp/base <commit>``)
-the same steps run on that code too, side by side, in the same run.
+seconds. With ``--base PATH`` (another checkout, e.g. ``git worktree add /tmp/base <an earlier
+version>``) the same steps run on that code too, side by side, in the same run.
 
 Usage::
 

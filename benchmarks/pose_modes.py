@@ -1,5 +1,4 @@
-"""Pose modes with 3 landmarks per view plus outlines, and outline-only registration
-(issue 16 items 1 and 6).
+"""Pose modes with 3 landmarks per view plus outlines, and outline-only registration.
 
 Scene: the synthetic bone of the tests (8 modes, truth in the span, RMS radius 22.3 mm), the two
 views of ``biplanar_views`` (75 deg apart), 80 % of each outline, 0.5 px noise

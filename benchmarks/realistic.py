@@ -1,4 +1,4 @@
-"""Registration on realistic cases (issue 16): vertex RMS and its ratio to the model floor per
+"""Registration on realistic cases: vertex RMS and its ratio to the model floor per
 condition, this tree and optionally a base checkout side by side.
 
 Cases: :func:`biplanar_reg.simulate.realistic.make_realistic_case` on the default wrist scene
@@ -50,7 +50,7 @@ first view) and the largest view rotation error, refusals (``ValueError`` from
 Each tree runs in its own subprocess (``PYTHONPATH`` = the tree, one BLAS thread) on the same
 cases, generated once by this tree and passed as plain arrays (the model with its truncation
 modes), so a checkout without
-``simulate/realistic.py`` (e.g. ``git worktree add /tmp/realbase 266f442``) runs too::
+``simulate/realistic.py`` (e.g. ``git worktree add /tmp/realbase <an earlier version>``) runs too::
 
     python benchmarks/realistic.py [--seeds 10] [--quick] [--base /tmp/realbase]
         [--conditions known-3,blunder-3] [--out benchmarks/results/realistic.md]
@@ -576,7 +576,7 @@ def run_all(args: argparse.Namespace) -> dict:
 
 
 def _targets(jobs: list[dict], results: list[dict]) -> list[str]:
-    """The issue's targets, measured on one tree's results."""
+    """The targets, measured on one tree's results."""
     floor = {j["seed"]: j["floor_mm"] for j in jobs}
     by = {(r["condition"], r["seed"]): r for r in results if r["status"] == "ok"}
     seeds = sorted(floor)
@@ -663,7 +663,7 @@ def report(record: dict) -> str:
     for label, run in runs.items():
         targets += [f"Targets, `{label}`:", "", *_targets(jobs, run["results"]), ""]
     lines = [
-        "# Registration on realistic cases (issue 16)",
+        "# Registration on realistic cases",
         "",
         f"Command: `{record['command']}`  ",
         f"Machine: {record['machine']}, one BLAS thread per tree; total {record['total_s']:.0f} "

@@ -1,4 +1,4 @@
-"""Where the known-pose error of the realistic cases comes from (issue 16, known-3).
+"""Where the known-pose error of the realistic cases comes from (condition known-3).
 
 On the ``known-3`` cases of ``benchmarks/realistic.py`` (same scene, seeds and case generator),
 every figure is a vertex RMS in the world frame over the case's model floor (the best
@@ -246,7 +246,7 @@ def report(rows: list[dict], seeds: list[int], command: str, seconds: float) -> 
     keys = list(rows[0])
     fmt = {"floor mm": "{:.3f}", "F(result)": "{:.0f}", "F(oracle)": "{:.0f}"}
     lines = [
-        "# Known-pose error on the realistic cases: where it comes from (issue 16, known-3)",
+        "# Known-pose error on the realistic cases: where it comes from (known-3)",
         "",
         f"Command: `{command}`  ",
         f"Machine: {platform.machine()}, Python {platform.python_version()}; {seconds:.0f} s. "

@@ -1,4 +1,4 @@
-"""Levers tried on the known-pose realistic cases (issue 16, known-3): one variant per run.
+"""Levers tried on the known-pose realistic cases (condition known-3): one variant per run.
 
 The cases are those of ``benchmarks/realistic.py`` (same generator, seeds and conditions; made
 once per run by :func:`realistic.make_bundle` into a temporary folder); every variant registers

@@ -1,4 +1,4 @@
-"""What ``poses="refine"`` can reach on the realistic cases (issue 16's refine target).
+"""What ``poses="refine"`` can reach on the realistic cases (against the refine target).
 
 On the ``refine-3`` cases of ``benchmarks/realistic.py`` (the same scene, seeds, case generator
 and calibration-error draws: the second view's pose off by U(1, 2) deg and U(3, 5) mm about the
@@ -292,7 +292,7 @@ def _med(rows, key):
 def render(rows: list[dict], args, seconds: float, refine: bool) -> str:
     ratio = lambda r, k: r[k] / r["known"]  # noqa: E731
     lines = [
-        '# What `poses="refine"` can reach on the realistic cases (issue 16)',
+        '# What `poses="refine"` can reach on the realistic cases',
         "",
         f"Command: `python benchmarks/refine_bound.py --seeds {args.seeds} --weak-mm {args.weak_mm}"
         + ("" if refine else " --no-refine")

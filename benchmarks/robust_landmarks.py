@@ -1,6 +1,6 @@
 """Landmark blunders when the model does not span the truth: good landmarks kept? blunder dropped?
 
-Issue 16 items 3 and 5. Per trial (seed) the synthetic bone's truth is a random instance of its
+Per trial (seed) the synthetic bone's truth is a random instance of its
 8 modes; the registration model keeps only the first ``--modes`` (default 4), so the truth lies
 outside the model's span and every landmark keeps a residual of a few pixels (the model floor:
 the best rigid + model fit of the true vertices, reported). Two views 75 deg apart,

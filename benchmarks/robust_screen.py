@@ -4,7 +4,7 @@
 :func:`.stages.robust_start` tries a start without them (deleted residual above the robust
 loss's width; ``--top K``: only the K largest of those, to measure a cap). Per case
 family, clean and with one blunder: how many landmarks the screen passes (each costs a start
-and a short boosted fit; before the screen every landmark did), and the blunder's rank among
+and a short boosted fit; without the screen every landmark would), and the blunder's rank among
 the deleted residuals (1 = largest) and whether the screen passes it.
 
 Cases: the realistic wrist cases of ``benchmarks/realistic.py`` (``make_realistic_case``, 3 and
@@ -118,7 +118,7 @@ def main() -> None:
         + "`  ",
         "",
         "Per family, `--seeds` clean and as many blunder cases. Passed: landmarks the screen "
-        "passes (a start and a short fit each; before the screen: every landmark, L). Rank: "
+        "passes (a start and a short fit each; without the screen: every landmark, L). Rank: "
         "the blunder's among the deleted residuals (1 = largest).",
         "",
         "| cases | L | passed, clean (mean / max) | passed, blunder (mean / max) "

@@ -2,7 +2,7 @@
 
 :func:`biplanar_reg.registration.stages.choose_start` compares the landmark-only start with the
 mean shape posed by the landmarks (each by a short boosted fit) when the landmark-only
-relaxation is not tight. Here every such comparison is recorded with the observation rule off
+relaxation is not tight. Here every such comparison is recorded with the redundancy rule off
 (``rigid_start_redundancy`` huge), on the out-of-span synthetic cases of
 ``benchmarks/robust_landmarks.py`` (truth: the 8-mode synthetic bone; model: its first
 ``--modes``; two views, 80 % outlines, 1.5 px click noise) with 3 to 8 landmarks per view,
@@ -121,7 +121,7 @@ def main() -> None:
         f"Machine: {platform.machine()}, Python {platform.python_version()}, one BLAS thread; "
         f"{time.perf_counter() - t0:.0f} s.",
         "",
-        "Every comparison of `choose_start` (relaxation not tight) with the observation rule off. "
+        "Every comparison of `choose_start` (relaxation not tight) with the redundancy rule off. "
         "L = landmark observations weighted; P = pose + shape parameters.",
         "",
         "| cases | L | P | L / P | 2 L - P | comparisons | rigid start won "

@@ -1,4 +1,4 @@
-"""G-SfT-P on a near-planar deformable sheet (issue 16 item 2): does a view's pose flip?
+"""G-SfT-P on a near-planar deformable sheet: does a view's pose flip?
 
 The set-up mimics the Bramante39M paper data (a deformable sheet seen by 3 perspective views
 with 6, 19 and 15 disjoint keypoints): a 120 x 90 mm sheet (11 x 9 grid, a slight bow of

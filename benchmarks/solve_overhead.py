@@ -66,7 +66,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--sizes", type=int, nargs="+", default=[6, 20, 100])
     ap.add_argument("--modes", type=int, nargs="+", default=[8])
-    ap.add_argument("--base", type=Path, default=None, help="checkout of the base commit")
+    ap.add_argument("--base", type=Path, default=None, help="checkout of the version to compare")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
     load = os.getloadavg()

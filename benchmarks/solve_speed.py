@@ -1,5 +1,5 @@
-"""Speed of the known-pose G-SfT SDP: this tree's interior-point method against the base
-commit's and against the straightforward cvxpy + Clarabel statement, side by side.
+"""Speed of the known-pose G-SfT SDP: this tree's interior-point method against a base
+tree's and against the straightforward cvxpy + Clarabel statement, side by side.
 
 For every (M, K, repeat) one scene is made, normalised as ``solve_gsft`` does, and solved, in
 turn, by
@@ -246,7 +246,7 @@ def main() -> None:
     ap.add_argument("--sizes", type=int, nargs="+", default=[20, 100, 300, 1000, 3000, 10000])
     ap.add_argument("--modes", type=int, nargs="+", default=[8, 32])
     ap.add_argument("--noise", type=float, default=1.0, help="pixel noise (px)")
-    ap.add_argument("--base", type=Path, default=None, help="checkout of the base commit")
+    ap.add_argument("--base", type=Path, default=None, help="checkout of the version to compare")
     ap.add_argument("--cvxpy-max-k", type=int, default=3000)
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()

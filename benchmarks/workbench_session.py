@@ -1,4 +1,4 @@
-"""Wall time of annotating the wrist case from scratch through the workbench page (issue 15).
+"""Wall time of annotating the wrist case from scratch through the workbench page.
 
 A scripted session in Chromium (Playwright, 1400 x 900) against the real server
 (``biplanar-reg workbench CASE --no-browser``) on a copy of ``sample_cases/wrist_radius`` whose

@@ -1,4 +1,4 @@
-"""Server response times of the workbench's outline tools (issue 15), through the ASGI app.
+"""Server response times of the workbench's outline tools, through the ASGI app.
 
 On a copy of the shipped wrist case (two 1760 x 1760 radiographs), after ``warm_up()`` (what
 the command does in the background at start):

@@ -1,20 +1,10 @@
 """biplanar_reg: silhouette-boosted Generalised Shape-from-Template registration of bones."""
 
-from typing import Any
+from ._lazy import lazy_dir, lazy_getattr
+
+#: The version, read from the installed package's metadata on first use only.
+_LAZY = {"__version__": "._version"}
+__getattr__ = lazy_getattr(__name__, _LAZY)
+__dir__ = lazy_dir(__name__, _LAZY)
 
 __all__ = ["__version__"]
-
-
-def __getattr__(name: str) -> Any:
-    # The version is read from the installed package's metadata on first use only: the lookup
-    # scans the installed distributions (~0.02 CPU s), which a registration never needs.
-    if name != "__version__":
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        value = version("biplanar-reg")
-    except PackageNotFoundError:  # running from a source tree that is not installed
-        value = "0.0.0+unknown"
-    globals()["__version__"] = value
-    return value

@@ -25,10 +25,11 @@ PACKAGE_DIR = Path(biplanar_reg.__file__).resolve().parent
 #: Layer of each top-level module or package (README, "How data flows"): a module
 #: may import its own package and lower layers only.
 LAYERS: dict[str, int] = {
-    "": 0,  # biplanar_reg/__init__.py: the version only
+    "": 0,  # biplanar_reg/__init__.py: the version only (lazily, from _version)
     "_validate": 0,
     "_threads": 0,
     "_lazy": 0,
+    "_version": 0,
     "errors": 0,
     "io": 0,
     "calibration": 1,

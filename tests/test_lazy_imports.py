@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from biplanar_reg._lazy import lazy_getattr
+from biplanar_reg._lazy import lazy_dir, lazy_getattr
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -42,6 +42,34 @@ def test_lazy_name_is_imported_once_and_cached(monkeypatch):
     assert thing is sub.thing and pkg.__dict__["thing"] is sub.thing  # cached in the package
     with pytest.raises(AttributeError, match="no attribute 'other'"):
         pkg.__getattr__("other")
+
+
+def test_dir_lists_lazy_names_before_they_are_loaded(monkeypatch):
+    pkg = types.ModuleType("lazy_pkg_for_dir")
+    pkg.__path__ = []
+    pkg.eager = 1
+    monkeypatch.setitem(sys.modules, "lazy_pkg_for_dir", pkg)
+    pkg.__dir__ = lazy_dir("lazy_pkg_for_dir", {"thing": ".impl"})
+    names = dir(pkg)
+    assert "thing" in names and "eager" in names and names == sorted(names)
+    assert "lazy_pkg_for_dir.impl" not in sys.modules  # listed, not imported
+
+
+@pytest.mark.parametrize(
+    ("package", "lazy"),
+    [("biplanar_reg", "__version__"), ("biplanar_reg.report", "write_case_report")],
+)
+def test_package_names_stay_unloaded_until_used(package, lazy):
+    """The package and the report list their lazy names in ``dir()`` without loading them (the
+    version's metadata lookup; matplotlib, PyVista and Jinja2 for the report)."""
+    code = (
+        f"import sys, importlib\nm = importlib.import_module({package!r})\n"
+        f"before = ({lazy!r} in dir(m), {lazy!r} in vars(m), "
+        "sorted(k for k in ('matplotlib', 'jinja2', 'pyvista', 'biplanar_reg._version') "
+        "if k in sys.modules))\n"
+        f"getattr(m, {lazy!r})\nprint(*before, {lazy!r} in vars(m))\n"
+    )
+    assert _last_line_of(code, timeout=120) == "True False [] True"
 
 
 def test_lazy_name_equal_to_its_module_is_refused():

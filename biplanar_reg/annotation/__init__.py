@@ -5,7 +5,7 @@ See ``docs/annotation.md``; the package exports the names listed in ``docs/api.m
 implementation modules hold more, for the package's own use).
 """
 
-from .._lazy import lazy_getattr
+from .._lazy import lazy_dir, lazy_getattr
 from ..errors import AnnotationError
 from .annotations import (
     Annotations,
@@ -38,6 +38,7 @@ _LAZY = {
 
 
 __getattr__ = lazy_getattr(__name__, _LAZY)
+__dir__ = lazy_dir(__name__, _LAZY)
 
 
 __all__ = [

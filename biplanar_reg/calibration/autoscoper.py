@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io.atomic import atomic_write_text
+from ..io.names import is_path_component
 from .mayacam import format_mayacam2
 from .pinhole import distort_normalized
 from .views import View
@@ -145,12 +146,19 @@ def write_autoscoper_trial(
     Raises
     ------
     ValueError
-        A view that is not a pinhole camera or has no image size (MayaCam 2.0 cannot hold it).
+        A view that is not a pinhole camera or has no image size (MayaCam 2.0 cannot hold it),
+        or a trial or view name that is not a plain file name.
     """
     folder = Path(folder)
     final = Path(final_folder) if final_folder is not None else folder
     if len(image_dirs) != len(views):
         raise ValueError(f"{len(image_dirs)} image folders for {len(views)} views")
+    for what, text in (("trial name", name), *(("view name", v.name) for v in views)):
+        if not is_path_component(text):  # the files named after it must stay in ``folder``
+            raise ValueError(
+                f"{what} {text!r} cannot name a file of the trial (empty, hidden, or holding "
+                "a path separator)"
+            )
     texts = {f"calibration/{v.name}.txt": format_mayacam2(v) for v in views}  # raises first
     cams = [f"mayaCam_csv {rel}" for rel in texts]
     roots = [

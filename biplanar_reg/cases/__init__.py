@@ -12,7 +12,7 @@ imported only when a case is written or a cluster is used, and the batch module 
 pool and locks) on first use of :func:`run_batch` or :class:`BatchSummary`.
 """
 
-from .._lazy import lazy_getattr
+from .._lazy import lazy_dir, lazy_getattr
 from ..errors import CaseError, CaseFailure
 from .case import (
     Case,
@@ -32,6 +32,7 @@ _LAZY = {"run_batch": ".batch", "BatchSummary": ".batch"}
 
 
 __getattr__ = lazy_getattr(__name__, _LAZY)
+__dir__ = lazy_dir(__name__, _LAZY)
 
 
 __all__ = [

@@ -17,6 +17,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from ..io.names import is_path_component
+
 __all__: list[str] = []
 
 #: ``format`` of summary.json and of the shard summaries.
@@ -90,17 +92,6 @@ def _number(x: object) -> bool:
     return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
 
 
-def _safe_name(name: object) -> bool:
-    """A case folder name (no separator, not hidden, not ``..``)."""
-    return (
-        isinstance(name, str)
-        and bool(name)
-        and not name.startswith(".")
-        and "/" not in name
-        and "\\" not in name
-    )
-
-
 def _load(path: Path) -> dict[str, Any]:
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
@@ -113,8 +104,8 @@ def _load(path: Path) -> dict[str, Any]:
         and isinstance(doc.get("study_cases"), list)
         and isinstance(doc.get("rows"), list)
         and all(_number(doc.get(k)) for k in ("started", "finished"))
-        and all(isinstance(r, dict) and _safe_name(r.get("case")) for r in doc["rows"])
-        and all(_safe_name(c) for c in doc["study_cases"])
+        and all(isinstance(r, dict) and is_path_component(r.get("case")) for r in doc["rows"])
+        and all(is_path_component(c) for c in doc["study_cases"])
     )
     m = _SHARD_FILE.match(path.name)
     if (

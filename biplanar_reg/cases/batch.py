@@ -31,7 +31,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import math
@@ -40,7 +39,7 @@ import signal
 import socket
 import sys
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -49,8 +48,9 @@ import numpy as np
 
 from .._threads import available_cores
 from ..io.atomic import atomic_write_text, remove_orphaned_parts
+from ..io.lock import describe, probe
 from ..result import CaseResult, read_result
-from ._lock import OutputLock, RunPermit, describe, probe, remove_stale_permits
+from ._lock import OutputLock, RunPermit, remove_stale_permits
 from ._shards import (
     SUMMARY_FORMAT,
     check_split,
@@ -59,7 +59,7 @@ from ._shards import (
     shard_file,
     shard_names,
 )
-from .outputs import batch_permit, inputs_changed, is_complete, tidy_output, unwritable
+from .outputs import batch_permit, holding, inputs_changed, is_complete, tidy_output
 
 __all__ = ["BatchSummary", "run_batch", "merge_batch"]
 
@@ -638,7 +638,8 @@ def run_batch(
         by_name = {d.name: d for d in dirs}
         dirs = [by_name[n] for n in shard_names(study, shard_)]
         check_split(out, shard_)
-    with _output_lock(out, shard_):
+    what = "the batch output folder cannot be written; no case was run"
+    with holding(OutputLock(out, shard_), out, out, what):
         remove_orphaned_parts(out)
         remove_stale_permits(out)
         rec = _Recorder(len(dirs), progress_stream)
@@ -657,23 +658,6 @@ def run_batch(
         else:
             write_shard_summary(out, summary, study, started)
     return summary
-
-
-@contextlib.contextmanager
-def _output_lock(out: Path, shard: tuple[int, int] | None) -> Iterator[None]:
-    """Hold the batch's lock on ``out`` (created) for the block; a folder that cannot be
-    written is one line naming it (:func:`.outputs.unwritable`), before any case runs."""
-    lock = OutputLock(out, shard)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        lock.acquire()
-    except OSError as exc:
-        what = "the batch output folder cannot be written; no case was run"
-        raise unwritable(exc, out, what, [out.parent]) from None
-    try:
-        yield
-    finally:
-        lock.release()
 
 
 def _listing(items: Sequence[str], n: int = 3) -> str:

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..io import read_mesh
 from ..io.atomic import atomic_write_json
+from ..io.names import file_name_word
 from ..io.transforms import (
     ANGLE_SEQUENCE,
     euler_from_rotation,
@@ -203,7 +204,7 @@ def _overlays(tmp: Path, case: Case, surfaces: dict) -> list[str]:
         except ValueError as exc:  # e.g. a vertex behind the source: the outlines still show
             log.warning("%s: no shaded bones (%s)", cv.name, exc)
             shaded = None
-        name = f"overlay_{''.join(c if c.isalnum() or c in '-_.' else '_' for c in cv.name)}.png"
+        name = f"overlay_{file_name_word(cv.name, 'view')}.png"
         overlay_figure(
             tmp / name,
             f"{cv.name}: {', '.join(surfaces)} registered (frame 0)",

@@ -283,7 +283,7 @@ def _load_outputs(ctx: _Ctx, doc: dict) -> tuple[tuple[str, ...], str]:
             "[outputs] mesh_formats", f"expected a list of {', '.join(allowed)}; got {fmts!r}"
         )
     bone = table.get("bone", "bone")
-    if not isinstance(bone, str) or not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", bone):
+    if not isinstance(bone, str) or not BONE_NAME.fullmatch(bone):
         raise ctx.error(
             "[outputs] bone", f"expected a name of letters, digits, '_', '-', '.'; got {bone!r}"
         )

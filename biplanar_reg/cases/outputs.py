@@ -32,7 +32,6 @@ import glob
 import hashlib
 import logging
 import os
-import re
 import shutil
 import tempfile
 import tomllib
@@ -51,7 +50,9 @@ from ..calibration.autoscoper import (
 from ..calibration.views import PerspectiveView
 from ..io.atomic import atomic_write_json, current_umask, exchange_paths, remove_orphaned_parts
 from ..io.jsonfile import read_json
+from ..io.lock import LockFile
 from ..io.meshes import write_mesh
+from ..io.names import file_name_word
 from ..io.transforms import (
     rigid_pose,
     write_itk_tfm,
@@ -152,7 +153,22 @@ def unwritable(exc: OSError, out: Path, what: str, inside: Iterable[Path] = ()) 
 
 
 @contextlib.contextmanager
-def output_lock(out: str | os.PathLike) -> Iterator[None]:
+def holding(lock: LockFile, out: Path, folder: Path, what: str) -> Iterator[None]:
+    """Hold ``lock`` (on the output folder ``out``) for the block, creating ``folder`` (where
+    its lock file goes) first: this is also the check, before any work, that the output can be
+    written; an ``OSError`` then is one line naming ``out`` and ``what`` (:func:`unwritable`)."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        lock.acquire()
+    except OSError as exc:
+        raise unwritable(exc, out, what, [out.parent]) from None
+    try:
+        yield
+    finally:
+        lock.release()
+
+
+def output_lock(out: str | os.PathLike) -> contextlib.AbstractContextManager[None]:
     """Hold the registration lock of the output folder ``out`` for the block.
 
     Creates ``out``'s missing parent folders and the lock file ``.<name>.register.lock`` beside
@@ -168,19 +184,8 @@ def output_lock(out: str | os.PathLike) -> Iterator[None]:
         names ``out`` (:func:`unwritable`).
     """
     out = Path(out)
-    lock = RegisterLock(out)
-    try:
-        if not out.parent.is_dir():
-            out.parent.mkdir(parents=True, exist_ok=True)
-        lock.acquire()
-    except OSError as exc:
-        raise unwritable(
-            exc, out, "the output folder cannot be written; nothing was done", [out.parent]
-        ) from None
-    try:
-        yield
-    finally:
-        lock.release()
+    what = "the output folder cannot be written; nothing was done"
+    return holding(RegisterLock(out), out, out.parent, what)
 
 
 def _remove(path: Path) -> None:
@@ -451,9 +456,10 @@ def inputs_changed(case_dir: str | os.PathLike, out: Path) -> list[str] | None:
 
 
 # -- exports for Autoscoper and 3D Slicer (docs/exports.md) -------------------------------------
-def _safe(name: str) -> str:
-    """``name`` as a file-name word (the case id may hold any characters)."""
-    return re.sub(r"[^A-Za-z0-9_.-]", "_", name).lstrip(".") or "case"
+def _trial_name(case: Any) -> str:
+    """The case id as the Autoscoper trial's file-name word (the id may hold any characters;
+    the trial file ``<word>.cfg`` is not hidden)."""
+    return file_name_word(case.id.lstrip("."), "case")
 
 
 def _autoscoper_volume(bone: str) -> AutoscoperVolume:
@@ -542,7 +548,7 @@ def export_warnings(case: Any, files: list) -> list[str]:
     (:func:`~biplanar_reg.calibration.autoscoper.distortion_warnings`)."""
     if not any(Path(f).parts[:1] == ("autoscoper",) for f in files):
         return []
-    return distortion_warnings([cv.view for cv in case.views], _safe(case.id))
+    return distortion_warnings([cv.view for cv in case.views], _trial_name(case))
 
 
 def autoscoper_exports(tmp: Path, out: Path, case: Any, poses: dict[str, np.ndarray]) -> list[Path]:
@@ -566,12 +572,12 @@ def autoscoper_exports(tmp: Path, out: Path, case: Any, poses: dict[str, np.ndar
     dirs = _radiograph_dirs(case)
     files = write_autoscoper_trial(
         folder,
-        _safe(case.id),
+        _trial_name(case),
         views,
         dirs,
         [_autoscoper_volume(bone) for bone in poses],
         final_folder=out / "autoscoper",
     )
     for bone, P in poses.items():
-        files.append(write_tra(folder / "Tracking" / f"{_safe(case.id)}_{bone}.tra", P))
+        files.append(write_tra(folder / "Tracking" / f"{_trial_name(case)}_{bone}.tra", P))
     return files

@@ -5,7 +5,7 @@ See ``docs/ssm.md`` (meshes, volumes) and ``README.md``; the package exports the
 in ``docs/api.md``.
 """
 
-from .._lazy import lazy_getattr
+from .._lazy import lazy_dir, lazy_getattr
 from .atomic import atomic_path, atomic_write_bytes, atomic_write_json, atomic_write_text
 from .jsonfile import read_json
 from .meshes import read_mesh, write_mesh
@@ -26,6 +26,7 @@ from .transforms import (
 #: CT volumes, imported on first use (a registration reads none).
 _LAZY = dict.fromkeys(("Volume", "read_dicom_series", "read_volume"), ".volumes")
 __getattr__ = lazy_getattr(__name__, _LAZY)
+__dir__ = lazy_dir(__name__, _LAZY)
 
 __all__ = [
     "ANGLE_SEQUENCE",

@@ -37,10 +37,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-try:
-    import fcntl
-except ImportError:  # pragma: no cover - Windows
-    fcntl = None  # type: ignore[assignment]
+from .lock import try_flock
 
 __all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text", "atomic_write_json"]
 
@@ -145,9 +142,8 @@ def atomic_path(path: str | os.PathLike[str], *, make_parents: bool = False) -> 
         )
     except OSError as exc:
         raise _naming(exc, path) from None
-    if fcntl is not None:  # held until the end: a live write, not an orphan (module docstring)
-        with contextlib.suppress(OSError):
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    if os.name != "nt":  # held until the end: a live write, not an orphan (module docstring)
+        try_flock(fd)
     else:  # pragma: no cover - Windows: an open file could not be replaced
         os.close(fd)
         fd = -1
@@ -190,14 +186,9 @@ def _orphaned(path: Path) -> bool:
     except OSError:
         return False
     try:
-        if fcntl is not None:
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                return True  # nobody holds it: its writer is gone (our lock ends with the fd)
-            except BlockingIOError:
-                return False
-            except OSError:  # a file system without flock: fall back on the age
-                pass
+        state = try_flock(fd)  # "held": nobody holds it, its writer is gone (ours ends with fd)
+        if state != "unsupported":  # a file system without flock: fall back on the age
+            return state == "held"
         return time.time() - os.fstat(fd).st_mtime > ORPHAN_AGE_WITHOUT_LOCKS
     finally:
         os.close(fd)

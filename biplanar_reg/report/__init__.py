@@ -8,8 +8,9 @@ matplotlib, PyVista nor Jinja2.
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from .._lazy import lazy_dir, lazy_getattr
 
 if TYPE_CHECKING:
     from .advice import FLAG_ADVICE, flag_advice
@@ -22,23 +23,25 @@ if TYPE_CHECKING:
     from .shading import shaded_faces
 
 #: Each exported name and the module (of this package) that defines it.
-_HOMES = {
-    "FLAG_ADVICE": "advice",
-    "ContourResidual": "residuals",
-    "ReportView": "case_report",
-    "contour_residuals": "residuals",
-    "convergence_figure": "figures",
-    "flag_advice": "advice",
-    "histogram_figure": "figures",
-    "overlay_figure": "figures",
-    "render_error_mesh": "render3d",
-    "render_surface": "render3d",
-    "render_template": "html",
-    "shaded_faces": "shading",
-    "write_case_report": "case_report",
-    "write_frames_report": "frames",
-    "write_page": "html",
+_LAZY = {
+    "FLAG_ADVICE": ".advice",
+    "ContourResidual": ".residuals",
+    "ReportView": ".case_report",
+    "contour_residuals": ".residuals",
+    "convergence_figure": ".figures",
+    "flag_advice": ".advice",
+    "histogram_figure": ".figures",
+    "overlay_figure": ".figures",
+    "render_error_mesh": ".render3d",
+    "render_surface": ".render3d",
+    "render_template": ".html",
+    "shaded_faces": ".shading",
+    "write_case_report": ".case_report",
+    "write_frames_report": ".frames",
+    "write_page": ".html",
 }
+__getattr__ = lazy_getattr(__name__, _LAZY)
+__dir__ = lazy_dir(__name__, _LAZY)
 
 __all__ = [
     "FLAG_ADVICE",
@@ -57,16 +60,3 @@ __all__ = [
     "write_frames_report",
     "write_page",
 ]
-
-
-def __getattr__(name: str) -> Any:
-    home = _HOMES.get(name)
-    if home is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{home}", __name__), name)
-    globals()[name] = value  # looked up once
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})

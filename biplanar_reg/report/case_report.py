@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import logging
 import os
-import re
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -32,6 +31,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..annotation import ViewAnnotations
+from ..io.names import file_name_word
 from ..result import CaseResult
 from .advice import flag_advice
 from .figures import convergence_figure, histogram_figure, overlay_figure
@@ -88,11 +88,6 @@ _METRICS = (
     ("contour_max_px", "contour reprojection error, max", "px"),
     ("certificate", "certificate (lambda2 / lambda1 of the Gram matrix)", ""),
 )
-
-
-def safe_name(name: str) -> str:
-    """A file-name-safe version of a view name."""
-    return re.sub(r"[^A-Za-z0-9_.-]", "_", name) or "view"
 
 
 def metric_rows(
@@ -254,7 +249,7 @@ def _view_overlay(
 ) -> dict[str, str]:
     """``overlay_<view>.png`` of one view (the bone shaded when it is ``projected``, the output
     of :func:`_project`; the worst stretch of each contour marked); its figure entry."""
-    fname = f"overlay_{safe_name(v.name)}.png"
+    fname = f"overlay_{file_name_word(v.name, 'view')}.png"
     shaded = None if projected is None else (projected[0], projected[2])
     overlay_figure(
         folder / fname,

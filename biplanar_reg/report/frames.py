@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import logging
 import os
-import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -40,6 +39,7 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
+from ..io.names import file_name_word
 from ..io.transforms import ANGLE_SEQUENCE, euler_from_rotation
 from ..result import CaseResult, FrameResult
 from .advice import flag_advice
@@ -56,10 +56,6 @@ log = logging.getLogger(__name__)
 #: Sequences up to this many frames get an overlay of every frame; longer ones the first, the
 #: middle and the last frame.
 ALL_FRAMES_UP_TO = 4
-
-
-def _safe(name: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]", "_", name) or "x"
 
 
 def frame_overlay_indices(n_frames: int) -> list[int]:
@@ -234,7 +230,7 @@ def _gt_figure(path: Path, frames: Sequence[Mapping[str, Any]]) -> bool:
 
 def _overlay(folder: Path, frame: str, v: ReportView, vertices, faces) -> dict[str, str]:
     """``overlay_<frame>_<view>.png``: one view of one frame (bone shaded when it can be)."""
-    fname = f"overlay_{_safe(frame)}_{_safe(v.name)}.png"
+    fname = f"overlay_{file_name_word(frame, 'x')}_{file_name_word(v.name, 'x')}.png"
     shaded = None
     if v.view is not None and vertices is not None and faces is not None:
         try:

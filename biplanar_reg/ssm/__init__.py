@@ -3,7 +3,7 @@
 See ``docs/ssm.md``; the package exports the names listed in ``docs/api.md``.
 """
 
-from .._lazy import lazy_getattr
+from .._lazy import lazy_dir, lazy_getattr
 from .model import ShapeModel
 
 #: Everything but the model itself is imported on first use: a registration needs only
@@ -43,6 +43,7 @@ _LAZY = {
 }
 
 __getattr__ = lazy_getattr(__name__, _LAZY)
+__dir__ = lazy_dir(__name__, _LAZY)
 
 
 __all__ = [

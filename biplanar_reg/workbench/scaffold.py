@@ -19,6 +19,7 @@ from typing import Any
 
 from ..cases import CaseSetup, read_case_setup
 from ..io import atomic_write_text
+from ..io.names import file_name_word
 
 __all__ = [
     "NewView",
@@ -258,7 +259,7 @@ def view_names(paths: Sequence[str]) -> dict[str, str]:
     ``_``, at most 64 characters, made unique with ``_2``, ``_3``, ... in the order given."""
     out: dict[str, str] = {}
     for path in paths:
-        stem = re.sub(r"[^A-Za-z0-9_.-]", "_", PurePosixPath(path).stem).strip("._") or "view"
+        stem = file_name_word(PurePosixPath(path).stem, "view", strip="._")
         name, k = stem[:64], 2
         while name in out.values():
             tail = f"_{k}"

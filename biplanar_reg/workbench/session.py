@@ -207,8 +207,8 @@ class Workbench:
             raise CaseError(inside_only(str(exc))) from None
         self.setup: CaseSetup = setup
         self.case_dir: Path = setup.case_dir
-        self._lock = CaseLock(self.case_dir / LOCK_NAME)
-        self._lock.acquire(port)
+        self._lock = CaseLock(self.case_dir / LOCK_NAME, {"pid": os.getpid(), "port": port})
+        self._lock.acquire()
         try:
             self._open(setup)
         except BaseException:
@@ -253,7 +253,7 @@ class Workbench:
 
     def set_port(self, port: int) -> None:
         """Record the server's port in the lock file."""
-        self._lock.update(port)
+        self._lock.update(port=port)
 
     def close(self) -> None:
         """Release the lock (edits are already saved)."""

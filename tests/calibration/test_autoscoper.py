@@ -61,6 +61,19 @@ def test_trial_refuses_views_mayacam2_cannot_hold(tmp_path):
     assert not (tmp_path / "t.cfg").exists()
 
 
+@pytest.mark.parametrize("bad", ["../../outside", "a/b", ".hidden", ""])
+def test_trial_refuses_names_that_leave_its_folder(tmp_path, bad):
+    import dataclasses
+
+    v = _views()[0]
+    folder = tmp_path / "trial"
+    with pytest.raises(ValueError, match="view name .* cannot name a file of the trial"):
+        write_autoscoper_trial(folder, "t", [dataclasses.replace(v, name=bad)], [None], [])
+    with pytest.raises(ValueError, match="trial name .* cannot name a file of the trial"):
+        write_autoscoper_trial(folder, bad, [v], [None], [])
+    assert not any(tmp_path.rglob("*.*"))
+
+
 @pytest.mark.parametrize(
     ("text", "message"),
     [

@@ -72,6 +72,36 @@ def test_stale_lock_is_taken_over(synthetic_case):
     assert not lock.exists()
 
 
+def test_a_lock_whose_flock_nobody_holds_is_stale_even_if_its_pid_lives(synthetic_case):
+    """The workbench holds the lock's ``flock`` while it runs: a lock file without it is a
+    killed workbench's, whatever process its PID now names (here: a live one)."""
+    lock = synthetic_case / ".workbench.lock"
+    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        lock.write_text(json.dumps({"pid": sleeper.pid, "port": 4242}))
+        with Workbench(synthetic_case):
+            assert json.loads(lock.read_text())["pid"] == os.getpid()
+        # a live holder, seen through its flock: refused, in another process too
+        with Workbench(synthetic_case):
+            code = (
+                "from biplanar_reg.workbench import Workbench, WorkbenchError\n"
+                "try:\n"
+                f"    Workbench({str(synthetic_case)!r})\n"
+                "except WorkbenchError as exc:\n"
+                "    print('refused:', exc)\n"
+            )
+            env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+            run = subprocess.run(
+                [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120
+            )
+            refused = f"refused: {lock}: the case is open in another workbench (pid {os.getpid()},"
+            assert refused in run.stdout, run.stderr[-500:]
+    finally:
+        sleeper.kill()
+        sleeper.wait()
+    assert not lock.exists()
+
+
 def test_bad_case_and_escaping_paths_are_refused_without_a_lock(synthetic_case, tmp_path):
     toml = synthetic_case / "case.toml"
     text = toml.read_text()
