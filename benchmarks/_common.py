@@ -27,7 +27,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from biplanar_reg.io.atomic import atomic_path, atomic_write_text
-from biplanar_reg.registration.unknown_poses import similarity_fit
+from biplanar_reg.pose import Pose
 from biplanar_reg.simulate import look_at_view
 from biplanar_reg.ssm import build_ssm, synthesise_population
 from biplanar_reg.ssm.model import ShapeModel
@@ -166,8 +166,7 @@ def rms(a: np.ndarray, b: np.ndarray) -> float:
 
 def rms_rigid(a: np.ndarray, b: np.ndarray) -> float:
     """Vertex RMS after the best rigid alignment of ``a`` onto ``b`` (shape error only), mm."""
-    _, R, _ = similarity_fit(a, b)  # the least-squares rotation does not depend on the scale
-    return rms((a - a.mean(axis=0)) @ R.T + b.mean(axis=0), b)
+    return rms(Pose.fit_rigid(a, b).apply(a), b)
 
 
 def fmt(values: object, digits: int = 2) -> str:

@@ -35,8 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from biplanar_reg.pose import Pose
 from biplanar_reg.registration import GsftResult, RayObservations, solve_gsft
-from biplanar_reg.registration.unknown_poses import similarity_fit
 from biplanar_reg.ssm.build import procrustes_align
 from biplanar_reg.ssm.model import ShapeModel
 
@@ -347,8 +347,7 @@ def combine_reconstructions(shapes: object) -> np.ndarray:
         raise ValueError("shapes: at least one reconstruction is needed")
     mean = procrustes_align(x).mean(axis=0)
     target = x.mean(axis=0)
-    _, R, _ = similarity_fit(mean, target)  # the rotation does not depend on the scale
-    return (mean - mean.mean(axis=0)) @ R.T + target.mean(axis=0)
+    return Pose.fit_rigid(mean, target).apply(mean)
 
 
 def _min_observations(ids: np.ndarray) -> bool:

@@ -57,6 +57,7 @@ import numpy as np
 
 from biplanar_reg.calibration import PerspectiveView
 from biplanar_reg.io.atomic import atomic_write_text
+from biplanar_reg.pose import Pose, SimilarityFit
 from biplanar_reg.registration import (
     RayObservations,
     ViewObservations,
@@ -192,12 +193,8 @@ def leave_one_out_model(
 def aligned_rms(A: np.ndarray, B: np.ndarray, scale: bool = False) -> tuple[float, float]:
     """RMS (mm) of ``A`` aligned onto ``B`` by a rigid (or, with ``scale``, similarity)
     transform, and the scale used (1 for rigid)."""
-    a, b = A - A.mean(axis=0), B - B.mean(axis=0)
-    U, S, Vt = np.linalg.svd(b.T @ a)
-    D = np.array([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    R = (U * D) @ Vt
-    s = float(np.sum(S * D) / np.sum(a * a)) if scale else 1.0
-    return float(np.sqrt(np.mean(np.sum((s * a @ R.T - b) ** 2, axis=1)))), s
+    fit = Pose.fit_similarity(A, B) if scale else SimilarityFit(1.0, Pose.fit_rigid(A, B))
+    return float(np.sqrt(np.mean(np.sum((fit.apply(A) - B) ** 2, axis=1)))), fit.scale
 
 
 def pair_errors(R_est: np.ndarray, R_ref: np.ndarray) -> list[float]:

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from biplanar_reg.pose import Pose
 from biplanar_reg.registration import register_views
 from biplanar_reg.registration.rotations import rotation_angle
 from biplanar_reg.simulate import boosting_case, synthetic_bone_model
@@ -31,10 +32,8 @@ COUNTS = ((3, 3), (3, 2), (3, 1))
 
 def aligned_rms(A: np.ndarray, B: np.ndarray) -> float:
     """RMS (mm) of ``A`` rigidly aligned onto ``B``."""
-    a, b = A - A.mean(0), B - B.mean(0)
-    U, _, Vt = np.linalg.svd(b.T @ a)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return float(np.sqrt(np.mean(np.sum((a @ (U @ D @ Vt).T - b) ** 2, axis=1))))
+    d = Pose.fit_rigid(A, B).apply(A) - B
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
 
 
 def one(model, seed: int, counts: tuple[int, int]) -> tuple[float, float, float]:

@@ -48,10 +48,11 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from biplanar_reg.pose import Pose  # noqa: E402
 from biplanar_reg.registration import register_views  # noqa: E402
 from biplanar_reg.registration.frames import register_frames  # noqa: E402
 from biplanar_reg.registration.rotations import rotation_angle  # noqa: E402
-from biplanar_reg.simulate.realistic import _kabsch, wrist_scene  # noqa: E402
+from biplanar_reg.simulate.realistic import wrist_scene  # noqa: E402
 from biplanar_reg.simulate.sequence import make_sequence, subsequence  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -77,14 +78,14 @@ def _sd_ratio(case, weights, rotations, translations, sd) -> float | None:
 def _errors(case, weights, rotations, translations) -> dict:
     """Shape error (aligned, model frame) and per-frame pose / world errors."""
     V = case.model.instance(weights)
-    Ra, ta = _kabsch(V, case.truth_shape)  # registered model frame -> truth model frame
-    shape = float(np.sqrt(np.mean(np.sum((V @ Ra.T + ta - case.truth_shape) ** 2, axis=1))))
+    align = Pose.fit_rigid(V, case.truth_shape)  # registered model frame -> truth model frame
+    shape = float(np.sqrt(np.mean(np.sum((align.apply(V) - case.truth_shape) ** 2, axis=1))))
     c = case.truth_shape.mean(axis=0)
     rot, tr, world = [], [], []
     for f in range(len(rotations)):
         T = case.truth_poses[f]
-        R_bone = rotations[f] @ Ra.T  # pose of the truth shape implied by the registration
-        t_bone = translations[f] - R_bone @ ta
+        # the pose of the truth shape implied by the registration
+        R_bone, t_bone = (Pose(rotations[f], translations[f]) @ align.inverse()).rt
         rot.append(float(np.degrees(rotation_angle(R_bone, T[:3, :3]))))
         tr.append(float(np.linalg.norm((R_bone @ c + t_bone) - (T[:3, :3] @ c + T[:3, 3]))))
         Vw = V @ rotations[f].T + translations[f]

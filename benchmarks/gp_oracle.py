@@ -39,12 +39,13 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from biplanar_reg.pose import Pose
+
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 from realistic_diagnose import (  # noqa: E402
     ORACLE_SIGMA_MM,
     WRIST_DATA,
-    _kabsch,
     _rms,
     rim_terms,
 )
@@ -69,7 +70,7 @@ def oracle_fit(case, model, prior_weight: float) -> np.ndarray:
     correspondences (module docstring), from the mean shape's rigid fit of the truth."""
     T = case.truth_vertices
     rims, marks = rim_terms(case, traced=True), landmark_terms(case)
-    R0, t0 = _kabsch(model.mean, T)
+    R0, t0 = Pose.fit_rigid(model.mean, T).rt
     x0 = np.concatenate([Rotation.from_matrix(R0).as_rotvec(), t0, np.zeros(model.n_modes)])
     lam = np.sqrt(prior_weight)
 

@@ -57,6 +57,7 @@ from scipy.spatial.transform import Rotation
 
 from biplanar_reg.calibration.views import View
 from biplanar_reg.outline import HalfEdges, half_edges, mesh_outline
+from biplanar_reg.pose import Pose as RigidPose
 from biplanar_reg.ssm import ShapeModel
 
 if TYPE_CHECKING:  # the input container only; no registration stage is used
@@ -162,8 +163,9 @@ class Correspondences:
 
 
 @dataclass(frozen=True)
-class Pose:
-    """A rigid pose about the mean's centroid ``c``: ``X = R (S - c) + c + t`` (mm)."""
+class CentredPose:
+    """A rigid pose about the mean's centroid ``c``: ``X = R (S - c) + c + t`` (mm), the
+    parameterisation the baseline's local fit moves in."""
 
     R: np.ndarray
     t: np.ndarray
@@ -240,7 +242,7 @@ def gather(views: Sequence[ViewObservations], spacing: float) -> Observed:
 
 
 # -- geometry -------------------------------------------------------------------------------------
-def posed(S: np.ndarray, pose: Pose, c: np.ndarray) -> np.ndarray:
+def posed(S: np.ndarray, pose: CentredPose, c: np.ndarray) -> np.ndarray:
     """Model-frame points ``S`` (K, 3) moved by ``pose`` about the centroid ``c``: world, mm."""
     return (S - c) @ pose.R.T + c + pose.t
 
@@ -352,7 +354,12 @@ def outline_blocks(
 
 
 def _residuals(
-    p: np.ndarray, model: ShapeModel, blocks: list[_Block], pose: Pose, c: np.ndarray, shape: bool
+    p: np.ndarray,
+    model: ShapeModel,
+    blocks: list[_Block],
+    pose: CentredPose,
+    c: np.ndarray,
+    shape: bool,
 ) -> np.ndarray:
     """Residual vector at ``p`` = (rotation vector applied before ``pose.R``, translation
     added to ``pose.t`` (mm), SSM weights (SD) if ``shape``); the weights are their own prior
@@ -365,7 +372,7 @@ def _residuals(
         S = model.mean[ids]
         if len(w):
             S = S + np.tensordot(w, model.modes[:, ids], axes=1)
-        X = posed(S, Pose(R, pose.t + p[3:6]), c)
+        X = posed(S, CentredPose(R, pose.t + p[3:6]), c)
         n = len(blk.a)
         Xq = X[:n] + blk.s[:, None] * (X[n:] - X[:n])
         d = blk.view.project(Xq) - blk.uv
@@ -378,10 +385,10 @@ def _residuals(
 def solve(
     model: ShapeModel,
     blocks: list[_Block],
-    pose: Pose,
+    pose: CentredPose,
     c: np.ndarray,
     w0: np.ndarray | None,
-) -> tuple[Pose, np.ndarray]:
+) -> tuple[CentredPose, np.ndarray]:
     """Least squares over the pose update and (unless ``w0`` is None) the SSM weights.
 
     Returns the new pose and weights (zeros of length 0 for a pose-only solve).
@@ -394,14 +401,14 @@ def solve(
         _residuals, p0, args=(model, blocks, pose, c, shape), method=method, x_scale="jac"
     )
     R = Rotation.from_rotvec(sol.x[:3]).as_matrix() @ pose.R
-    return Pose(R, pose.t + sol.x[3:6]), sol.x[6:]
+    return CentredPose(R, pose.t + sol.x[3:6]), sol.x[6:]
 
 
 # -- objective and start --------------------------------------------------------------------------
 def objective(
     model: ShapeModel,
     obs: Observed,
-    pose: Pose,
+    pose: CentredPose,
     w: np.ndarray,
     c: np.ndarray,
     topology: HalfEdges,
@@ -452,10 +459,12 @@ def centre_guess(obs: Observed) -> np.ndarray:
     return np.linalg.solve(A, rhs)
 
 
-def _distinct(poses: list[tuple[Pose, float]], deg: float = 5.0, mm: float = 2.0) -> list[Pose]:
+def _distinct(
+    poses: list[tuple[CentredPose, float]], deg: float = 5.0, mm: float = 2.0
+) -> list[CentredPose]:
     """``poses`` (with costs) sorted by cost, without near-duplicates (rotation within ``deg``
     and translation within ``mm`` of a cheaper one)."""
-    kept: list[Pose] = []
+    kept: list[CentredPose] = []
     for pose, _ in sorted(poses, key=lambda pc: pc[1]):
         same = any(
             Rotation.from_matrix(pose.R @ k.R.T).magnitude() < np.deg2rad(deg)
@@ -467,7 +476,7 @@ def _distinct(poses: list[tuple[Pose, float]], deg: float = 5.0, mm: float = 2.0
     return kept
 
 
-def landmark_starts(model: ShapeModel, obs: Observed, c: np.ndarray) -> list[Pose]:
+def landmark_starts(model: ShapeModel, obs: Observed, c: np.ndarray) -> list[CentredPose]:
     """Distinct rigid poses of the mean shape minimising the landmark reprojection error, from
     the 24 axis-aligned rotations at :func:`centre_guess` (cheapest first); without landmarks
     the 24 rotations themselves."""
@@ -475,7 +484,7 @@ def landmark_starts(model: ShapeModel, obs: Observed, c: np.ndarray) -> list[Pos
     blocks = landmark_blocks(obs)
     found = []
     for R in cube_rotations():
-        start = Pose(R, t0)
+        start = CentredPose(R, t0)
         if not blocks:
             found.append((start, 0.0))
             continue
@@ -499,11 +508,11 @@ def _signature(corr: Sequence[Correspondences | None]) -> tuple:
 def fit_from(
     model: ShapeModel,
     obs: Observed,
-    start: Pose,
+    start: CentredPose,
     c: np.ndarray,
     topology: HalfEdges,
     opts: BaselineOptions,
-) -> tuple[Pose, np.ndarray, int, bool]:
+) -> tuple[CentredPose, np.ndarray, int, bool]:
     """Alternate correspondences and least squares from ``start`` (module doc, step 2).
 
     Returns the pose, the weights (SD), the number of updates and whether they settled.
@@ -653,14 +662,6 @@ def wrist_jobs(tmp: Path) -> Iterator[Job]:
 
 
 # -- benchmark: runs ------------------------------------------------------------------------------
-def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """``src`` (N, 3) moved by its best rigid fit onto ``dst`` (N, 3)."""
-    cs, cd = src.mean(axis=0), dst.mean(axis=0)
-    U, _, Vt = np.linalg.svd((src - cs).T @ (dst - cd))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    return (src - cs) @ (Vt.T @ D @ U.T).T + cd
-
-
 def _rms(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
 
@@ -678,7 +679,7 @@ def _timed(fn: Callable[[], object]) -> tuple[object | None, float, str]:
 def _scores(vertices: np.ndarray | None, job: Job) -> dict:
     if vertices is None:
         return {"world_mm": None, "aligned_mm": None}
-    aligned = _rms(_kabsch(vertices, job.truth), job.truth)
+    aligned = _rms(RigidPose.fit_rigid(vertices, job.truth).apply(vertices), job.truth)
     return {"world_mm": _rms(vertices, job.truth) if job.world else None, "aligned_mm": aligned}
 
 

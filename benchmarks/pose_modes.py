@@ -22,6 +22,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from biplanar_reg.pose import Pose
 from biplanar_reg.registration import register_views
 from biplanar_reg.registration.rotations import rotation_angle, so3_exp
 from biplanar_reg.simulate import boosting_case, synthetic_bone_model
@@ -33,10 +34,7 @@ def rms(a: np.ndarray, b: np.ndarray) -> float:
 
 def aligned_rms(A: np.ndarray, B: np.ndarray) -> float:
     """RMS (mm) of ``A`` rigidly aligned onto ``B``."""
-    a, b = A - A.mean(0), B - B.mean(0)
-    U, _, Vt = np.linalg.svd(b.T @ a)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return float(np.sqrt(np.mean(np.sum((a @ (U @ D @ Vt).T - b) ** 2, axis=1))))
+    return rms(Pose.fit_rigid(A, B).apply(A), B)
 
 
 def perturb(view, rng, deg: float, mm: float):

@@ -62,6 +62,8 @@ modes), so a checkout without
 from __future__ import annotations
 
 import argparse
+import functools
+import importlib.util
 import json
 import os
 import platform
@@ -222,12 +224,16 @@ def make_bundle(folder: Path, seeds: list[int], conditions: list[str]) -> int:
 
 
 # -- worker (any tree: only long-standing public API) ---------------------------------------------
-def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """``src`` (N, 3) moved by its best rigid fit onto ``dst``."""
-    cs, cd = src.mean(axis=0), dst.mean(axis=0)
-    U, _, Vt = np.linalg.svd((src - cs).T @ (dst - cd))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    return (src - cs) @ (Vt.T @ D @ U.T).T + cd
+@functools.cache
+def _pose_type() -> type:
+    """:class:`biplanar_reg.pose.Pose` of this checkout, loaded from its file (numpy only): the
+    worker runs with another tree's ``biplanar_reg`` first on the path, which may predate it,
+    and every tree's results are aligned by the same fits."""
+    spec = importlib.util.spec_from_file_location("_realistic_pose", REPO / "biplanar_reg/pose.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module.Pose
 
 
 def _similarity(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, float]:
@@ -236,13 +242,8 @@ def _similarity(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, float]:
     With free view poses two views fix the scene only up to scale (the size then comes from
     the model's prior alone), so ``unknown`` is also compared after this alignment.
     """
-    cs, cd = src.mean(axis=0), dst.mean(axis=0)
-    a, b = src - cs, dst - cd
-    U, S, Vt = np.linalg.svd(a.T @ b)
-    d = np.array([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ np.diag(d) @ U.T
-    scale = float((S * d).sum() / np.sum(a**2))
-    return scale * a @ R.T + cd, scale
+    fit = _pose_type().fit_similarity(src, dst)
+    return fit.apply(src), fit.scale
 
 
 def _rms(a: np.ndarray, b: np.ndarray) -> float:
@@ -271,7 +272,9 @@ def _metrics(job: dict, res) -> dict:
     sim, scale = _similarity(res.vertices, truth_res)
     return {
         "world_mm": _rms(res.vertices, truth_res),
-        "aligned_mm": _rms(_kabsch(res.vertices, truth_res), truth_res),
+        "aligned_mm": _rms(
+            _pose_type().fit_rigid(res.vertices, truth_res).apply(res.vertices), truth_res
+        ),
         "similarity_mm": _rms(sim, truth_res),
         "scale": scale,
         "view_rot_err_deg": rot_err,

@@ -64,6 +64,8 @@ from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from biplanar_reg.pose import Pose
+
 REPO = Path(__file__).resolve().parents[1]
 WRIST_DATA = REPO / "sample_cases" / "wrist_radius" / "data"
 RESULTS = REPO / "benchmarks" / "results"
@@ -73,15 +75,6 @@ ORACLE_SIGMA_MM = 0.2
 
 def _rms(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
-
-
-def _kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares rotation and translation taking ``src`` (N, 3) onto ``dst``."""
-    cs, cd = src.mean(axis=0), dst.mean(axis=0)
-    U, _, Vt = np.linalg.svd((src - cs).T @ (dst - cd))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    return R, cd - R @ cs
 
 
 def variant_views(case, outline: str, exact_landmarks: bool) -> list:
@@ -138,7 +131,7 @@ def oracle_2d(case, traced: bool, model=None) -> tuple[np.ndarray, np.ndarray, n
     truth."""
     m, T = case.model if model is None else model, case.truth_vertices
     terms = rim_terms(case, traced)
-    R0, t0 = _kabsch(m.mean, T)
+    R0, t0 = Pose.fit_rigid(m.mean, T).rt
     x0 = np.concatenate([Rotation.from_matrix(R0).as_rotvec(), t0, np.zeros(m.n_modes)])
 
     def residuals(x):
@@ -157,10 +150,9 @@ def oracle_3d(case) -> np.ndarray:
     P = m.modes[:, ids].reshape(m.n_modes, -1).T
     w = np.zeros(m.n_modes)
     for _ in range(200):
-        R, t = _kabsch(m.instance(w)[ids], T[ids])
-        w = np.linalg.lstsq(P, (((T[ids] - t) @ R) - m.mean[ids]).ravel(), rcond=None)[0]
-    R, t = _kabsch(m.instance(w)[ids], T[ids])
-    return m.instance(w) @ R.T + t
+        local = Pose.fit_rigid(m.instance(w)[ids], T[ids]).inverse().apply(T[ids])
+        w = np.linalg.lstsq(P, (local - m.mean[ids]).ravel(), rcond=None)[0]
+    return Pose.fit_rigid(m.instance(w)[ids], T[ids]).apply(m.instance(w))
 
 
 def objective(case, state, gsft, max_iter: int):
@@ -211,9 +203,8 @@ def diagnose(case, cut: np.ndarray) -> dict[str, float]:
     m, T, fl = case.model, case.truth_vertices, case.floor_mm
     row: dict[str, float] = {"floor mm": fl}
     res = register_views(m, case.views)
-    R, t = _kabsch(res.vertices, T)
     row["pipeline"] = _rms(res.vertices, T) / fl
-    row["pipeline aligned"] = _rms(res.vertices @ R.T + t, T) / fl
+    row["pipeline aligned"] = _rms(Pose.fit_rigid(res.vertices, T).apply(res.vertices), T) / fl
     for name, outline in (
         ("exact lm", "traced"),
         ("snapped+exact", "snapped"),

@@ -88,18 +88,19 @@ def _rms(a: np.ndarray, b: np.ndarray) -> float:
 def floor_state(model, truth: np.ndarray, iterations: int = 200):
     """The truth's best prior-free rigid + model fit ``(R, t, w)`` (object -> world, mm), by
     the alternation of :func:`biplanar_reg.simulate.realistic.model_floor`."""
-    from biplanar_reg.simulate.realistic import _kabsch
+    from biplanar_reg.pose import Pose
 
     P = model.modes.reshape(model.n_modes, -1).T
     w, prev = np.zeros(model.n_modes), np.inf
     for _ in range(iterations):
-        R, t = _kabsch(model.instance(w), truth)
-        w = np.linalg.lstsq(P, (((truth - t) @ R) - model.mean).ravel(), rcond=None)[0]
-        cost = _rms(model.instance(w) @ R.T + t, truth)
+        pose = Pose.fit_rigid(model.instance(w), truth)
+        local = pose.inverse().apply(truth)  # the truth in the model frame
+        w = np.linalg.lstsq(P, (local - model.mean).ravel(), rcond=None)[0]
+        cost = _rms(pose.apply(model.instance(w)), truth)
         if prev - cost <= 1e-12 * max(cost, 1e-300):
             break
         prev = cost
-    R, t = _kabsch(model.instance(w), truth)
+    R, t = Pose.fit_rigid(model.instance(w), truth).rt
     return R, t, w
 
 

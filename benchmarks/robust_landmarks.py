@@ -29,6 +29,7 @@ import numpy as np
 from _common import rms, write_optional
 from threadpoolctl import threadpool_limits
 
+from biplanar_reg.pose import Pose
 from biplanar_reg.registration import RegistrationOptions, register_views
 from biplanar_reg.simulate import boosting_case, synthetic_bone_model
 from biplanar_reg.ssm.model import ShapeModel
@@ -40,16 +41,11 @@ def model_floor(model: ShapeModel, X: np.ndarray, iterations: int = 30) -> float
     w = np.zeros(model.n_modes)
     P = model.modes.reshape(model.n_modes, -1).T
     for _ in range(iterations):
-        Q = model.instance(w)
-        qc, xc = Q.mean(0), X.mean(0)
-        U, _, Vt = np.linalg.svd((Q - qc).T @ (X - xc))
-        D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-        R = (U @ D @ Vt).T
-        t = xc - qc @ R.T
-        Y = (X - t) @ R  # truth in the model frame
+        pose = Pose.fit_rigid(model.instance(w), X)
+        Y = pose.inverse().apply(X)  # truth in the model frame
         if model.n_modes:
             w = np.linalg.lstsq(P, (Y - model.mean).ravel(), rcond=None)[0]
-    return rms(model.instance(w) @ R.T + t, X)
+    return rms(pose.apply(model.instance(w)), X)
 
 
 def trial(full: ShapeModel, model: ShapeModel, seed: int, args, opts) -> dict:

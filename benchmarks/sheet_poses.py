@@ -26,6 +26,7 @@ import argparse
 
 import numpy as np
 
+from biplanar_reg.pose import Pose
 from biplanar_reg.registration import unknown_poses as up
 from biplanar_reg.registration.joint_refine import joint_cost
 from biplanar_reg.registration.rays import RayObservations
@@ -95,10 +96,8 @@ def max_rotation_error(views, view_R) -> float:
 
 def aligned_rms(A: np.ndarray, B: np.ndarray) -> float:
     """RMS (mm) of ``A`` rigidly aligned onto ``B``."""
-    a, b = A - A.mean(0), B - B.mean(0)
-    U, _, Vt = np.linalg.svd(b.T @ a)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return float(np.sqrt(np.mean(np.sum((a @ (U @ D @ Vt).T - b) ** 2, axis=1))))
+    d = Pose.fit_rigid(A, B).apply(A) - B
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
 
 
 def _relative(state) -> np.ndarray:

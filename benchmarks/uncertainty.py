@@ -32,25 +32,17 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _common import reference, write_optional
+from _common import reference, rms_rigid, write_optional
 from threadpoolctl import threadpool_limits
 
 from biplanar_reg.annotation import Contour
 from biplanar_reg.outline import outline_polylines
+from biplanar_reg.pose import Pose
 from biplanar_reg.registration import RegistrationOptions, register_views
 from biplanar_reg.simulate import biplanar_views, outline_stretch, random_pose, vertex_landmarks
 from biplanar_reg.ssm import ShapeModel, synthesise_population
 
 WRIST_DATA = Path(__file__).resolve().parents[1] / "sample_cases" / "wrist_radius" / "data"
-
-
-def rigid_fit(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares rotation and translation ``dst ~ R src + t`` (Kabsch)."""
-    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
-    U, _, Vt = np.linalg.svd((dst - mu_d).T @ (src - mu_s))
-    D = np.array([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    R = (U * D) @ Vt
-    return R, mu_d - R @ mu_s
 
 
 def model_floor(model: ShapeModel, X: np.ndarray, iterations: int = 30) -> float:
@@ -60,12 +52,10 @@ def model_floor(model: ShapeModel, X: np.ndarray, iterations: int = 30) -> float
     P = model.modes.reshape(model.n_modes, -1).T
     for _ in range(iterations):
         shape = model.instance(w)
-        R, t = rigid_fit(shape, X)
-        local = (X - t) @ R
+        local = Pose.fit_rigid(shape, X).inverse().apply(X)  # X in the model frame
         w = np.linalg.lstsq(P, (local - model.mean).ravel(), rcond=None)[0]
     shape = model.instance(w)
-    R, t = rigid_fit(shape, X)
-    return float(np.sqrt(np.mean(np.sum((shape @ R.T + t - X) ** 2, axis=1))))
+    return rms_rigid(shape, X)
 
 
 def synthetic_case(model, template, seed, n_landmarks, noise_px, outline_noise_px):

@@ -38,9 +38,10 @@ from pathlib import Path
 import numpy as np
 from _common import random_view, rms, rms_rigid, write_text
 
+from biplanar_reg.pose import Pose
 from biplanar_reg.registration import RayObservations, solve_gsft
 from biplanar_reg.registration.rotations import rotation_angle
-from biplanar_reg.registration.unknown_poses import relative_pose, solve_gsft_unknown_poses
+from biplanar_reg.registration.unknown_poses import solve_gsft_unknown_poses
 from biplanar_reg.simulate import random_pose
 from biplanar_reg.ssm.model import ShapeModel
 
@@ -205,17 +206,19 @@ def trial(poses, test, counts, n_modes, noise_px, rng):
         views.append((ids, dw @ cam.R.T))  # directions in the camera's own frame
         truth.append(X @ cam.R.T + cam.t)
     P = len(counts)
-    rel_true = [relative_pose(cams[0].R, cams[0].t, c.R, c.t) for c in cams]  # world->cam
+    from_first = Pose(cams[0].R, cams[0].t).inverse()  # camera 1 -> world
+    rel_true = [Pose(c.R, c.t) @ from_first for c in cams]  # camera 1 -> camera x
 
     def score(Rs, ts, ws):
         est = [model.instance(ws[x]) @ Rs[x].T + ts[x] for x in range(P)]
         shape = np.mean([rms(est[x], truth[x]) for x in range(P)])
         aligned = np.mean([rms_rigid(est[x], truth[x]) for x in range(P)])
         rot, cen = [], []
-        for x in range(1, P):
-            Rr, tr = relative_pose(Rs[0], ts[0], Rs[x], ts[x])
-            rot.append(np.degrees(rotation_angle(Rr, rel_true[x][0])))
-            cen.append(np.linalg.norm(Rr.T @ tr - rel_true[x][0].T @ rel_true[x][1]))
+        for x in range(1, P):  # view x relative to view 1, from the object's pose in both
+            rel = Pose(Rs[x], ts[x]) @ Pose(Rs[0], ts[0]).inverse()
+            rot.append(np.degrees(rotation_angle(rel.R, rel_true[x].R)))
+            # the source of view x in view 1's frame
+            cen.append(np.linalg.norm(rel.inverse().t - rel_true[x].inverse().t))
         return shape, aligned, float(np.mean(rot)), float(np.mean(cen))
 
     out = {}

@@ -103,7 +103,21 @@ def test_the_workbench_without_its_extra_is_a_one_line_error(tmp_path):
     assert not (case / ".workbench.lock").exists()
 
 
+def released_version(changelog: str) -> str | None:
+    """The first version heading of a changelog (``## 0.2.0``), past an ``## Unreleased``
+    section of changes not released yet."""
+    heads = re.findall(r"^## (\S+)", changelog, re.MULTILINE)
+    heads = heads[1:] if heads[:1] == ["Unreleased"] else heads
+    return heads[0] if heads else None
+
+
+def test_released_version_skips_only_a_leading_unreleased_section():
+    assert released_version("# C\n\n## Unreleased\n\nx\n\n## 0.2.0\n") == "0.2.0"
+    assert released_version("# C\n\n## 0.3.0\n\n## 0.2.0\n") == "0.3.0"
+    assert released_version("# C\n\n## 0.2.0\n\n## Unreleased\n") == "0.2.0"
+    assert released_version("# C\n") is None
+
+
 def test_the_changelog_names_this_version():
     text = (ROOT / "CHANGELOG.md").read_text(encoding="utf-8")
-    first = re.search(r"^## (\S+)", text, re.MULTILINE)
-    assert first and first.group(1) == PROJECT["version"]
+    assert released_version(text) == PROJECT["version"]

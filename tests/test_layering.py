@@ -32,6 +32,7 @@ LAYERS: dict[str, int] = {
     "_version": 0,
     "errors": 0,
     "io": 0,
+    "pose": 0,  # Pose: the one rigid-transform type every layer passes (numpy only)
     "calibration": 1,
     "outline": 2,
     "annotation": 3,

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from biplanar_reg.io import atomic_write_json, read_json, read_volume, write_mesh
+from biplanar_reg.pose import Pose
 from biplanar_reg.ssm import ShapeModel, bone_surface, build_ssm, synthesise_population
 
 HERE = Path(__file__).resolve().parent
@@ -44,11 +45,8 @@ DEFORM_SEED = 101
 
 def _kabsch_rms(a: np.ndarray, b: np.ndarray) -> float:
     """Vertex RMS (mm) of ``a`` after its best rigid alignment onto ``b``."""
-    ca, cb = a.mean(axis=0), b.mean(axis=0)
-    U, _, Vt = np.linalg.svd((a - ca).T @ (b - cb))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    return float(np.sqrt(np.mean(np.sum(((a - ca) @ R.T + cb - b) ** 2, axis=1))))
+    d = Pose.fit_rigid(a, b).apply(a) - b
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
 
 
 def radius_landmarks(v: np.ndarray) -> dict[str, int]:

@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..pose import Pose
+
 __all__ = ["RigidAlignment", "align_rigid"]
 
 #: Ground-truth points moved by the ICP, and target points they are matched to.
@@ -32,53 +34,34 @@ ICP_ITERATIONS = 60
 
 @dataclass(frozen=True)
 class RigidAlignment:
-    """``aligned = vertices @ R.T + t`` (mm) and how it was obtained."""
+    """``aligned = pose.apply(vertices)`` (ground truth -> registered surface, mm) and how it
+    was obtained."""
 
-    R: np.ndarray
-    t: np.ndarray
+    pose: Pose
     init: str  # "vertex correspondence" or "principal axes"
     icp_cost_mm2: float  # final ICP cost: mean squared closest-point distance of the samples
 
     def apply(self, points: np.ndarray) -> np.ndarray:
         """Move points (K, 3) of the ground truth onto the registered surface."""
-        return np.asarray(points, float) @ self.R.T + self.t
+        return self.pose.apply(points)
 
 
-def _kabsch(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Proper rotation ``R`` and translation ``t`` minimising ``|source @ R.T + t - target|``.
-
-    Parameters
-    ----------
-    source, target : (K, 3) arrays
-        Corresponding points, mm.
-    """
-    a = np.asarray(source, float)
-    b = np.asarray(target, float)
-    ca, cb = a.mean(axis=0), b.mean(axis=0)
-    U, _, Vt = np.linalg.svd((a - ca).T @ (b - cb))
-    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
-    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
-    return R, cb - R @ ca
-
-
-def _principal_axes_init(
-    src: np.ndarray, dst_vertices: np.ndarray, dst_faces: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def _principal_axes_init(src: np.ndarray, dst_vertices: np.ndarray, dst_faces: np.ndarray) -> Pose:
     from .metrics import _Surface
 
     target = _Surface(dst_vertices, dst_faces)  # prepared once for the 4 candidates
     ca, cb = src.mean(axis=0), dst_vertices.mean(axis=0)
     ea = np.linalg.svd(src - ca, full_matrices=False)[2]
     eb = np.linalg.svd(dst_vertices - cb, full_matrices=False)[2]
-    best = (np.inf, np.eye(3), cb - ca)
+    best = (np.inf, Pose(np.eye(3), cb - ca))
     for s0, s1 in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
         S = np.diag([s0, s1, s0 * s1 * np.linalg.det(ea) * np.linalg.det(eb)])
         R = eb.T @ S @ ea
-        t = cb - R @ ca
-        cost = float(np.mean(target.distance(src @ R.T + t)))
+        pose = Pose(R, cb - R @ ca)
+        cost = float(np.mean(target.distance(pose.apply(src))))
         if cost < best[0]:
-            best = (cost, R, t)
-    return best[1], best[2]
+            best = (cost, pose)
+    return best[1]
 
 
 def align_rigid(
@@ -111,20 +94,20 @@ def align_rigid(
     V = np.asarray(vertices, float)
     T = np.asarray(target_vertices, float)
     if len(V) == len(T):
-        R, t = _kabsch(V, T)
+        pose = Pose.fit_rigid(V, T)
         init = "vertex correspondence"
     else:
-        R, t = _principal_axes_init(V, T, np.asarray(target_faces))
+        pose = _principal_axes_init(V, T, np.asarray(target_faces))
         init = "principal axes"
     pts = sample_surface(V, faces, ICP_SAMPLES, seed)
     tree = cKDTree(sample_surface(T, target_faces, ICP_TARGET_SAMPLES, seed + 1))
     cost = np.inf
     for _ in range(ICP_ITERATIONS):
-        d, idx = tree.query(pts @ R.T + t)
+        d, idx = tree.query(pose.apply(pts))
         new_cost = float(np.mean(d**2))
         if cost - new_cost < 1e-8:
             cost = min(cost, new_cost)
             break
         cost = new_cost
-        R, t = _kabsch(pts, tree.data[idx])
-    return RigidAlignment(R, t, init, cost)
+        pose = Pose.fit_rigid(pts, tree.data[idx])
+    return RigidAlignment(pose, init, cost)

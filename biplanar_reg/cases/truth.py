@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import CaseError
+from ..pose import Pose
 from ..registration import RegistrationResult
 from ..registration.frames import FrameRegistrationResult
 from ..result import jsonable
@@ -57,8 +58,8 @@ def ground_truth_metrics(
         gt_vertices = fit.apply(gt.vertices)
         alignment = jsonable(
             {
-                "R": fit.R,
-                "t": fit.t,
+                "R": fit.pose.R,
+                "t": fit.pose.t,
                 "init": fit.init,
                 "icp_cost_mm2": fit.icp_cost_mm2,
                 "note": "ground truth moved rigidly onto the registered surface (up_to_pose); "
@@ -145,7 +146,6 @@ def frames_ground_truth(case: Case, res: FrameRegistrationResult):
     if not any(truths):
         return None
     from ..ssm import fit_model
-    from .alignment import _kabsch as kabsch
 
     region, roi = region_of_interest(
         case, res.frame_vertices(0)
@@ -173,8 +173,7 @@ def frames_ground_truth(case: Case, res: FrameRegistrationResult):
     pooled["roi"] = roi
     ref = next((g for g in truths if g is not None and len(g.vertices) == len(res.vertices)), None)
     if ref is not None:
-        R, t = kabsch(res.vertices, ref.vertices)
-        d = res.vertices @ R.T + t - ref.vertices
+        d = Pose.fit_rigid(res.vertices, ref.vertices).apply(res.vertices) - ref.vertices
         pooled["shape_vertex_rms_mm"] = float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
         pooled["model_floor_vertex_rms_mm"] = float(floor)
         if floor > 1e-6:

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..pose import RIGID_TOL, Pose
 from .atomic import atomic_write_json, atomic_write_text
 from .jsonfile import read_json
 
@@ -61,7 +62,6 @@ __all__ = [
 #: Suntay (1983).
 ANGLE_SEQUENCE = "XYZ"
 
-_RIGID_TOL = 1e-6  # orthonormality of a pose's rotation block
 _MARKUPS_SCHEMA = (
     "https://raw.githubusercontent.com/slicer/slicer/master/Modules/Loadable/Markups/"
     "Resources/Schema/markups-schema-v1.0.3.json#"
@@ -293,11 +293,9 @@ def rotvec_from_rotation(R: np.ndarray) -> np.ndarray:
 
 
 def rigid_pose(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
-    """The 4x4 homogeneous matrix ``[[R, t], [0, 0, 0, 1]]`` (maps model -> world, mm)."""
-    T = np.eye(4)
-    T[:3, :3] = np.asarray(rotation, float)
-    T[:3, 3] = np.asarray(translation, float).reshape(3)
-    return T
+    """The 4x4 homogeneous matrix ``[[R, t], [0, 0, 0, 1]]`` (maps model -> world, mm):
+    ``Pose(rotation, translation).as_matrix()`` (:class:`biplanar_reg.pose.Pose`)."""
+    return Pose(rotation, translation).as_matrix()
 
 
 def _check_poses(poses: np.ndarray, what: str) -> np.ndarray:
@@ -316,8 +314,8 @@ def _check_poses(poses: np.ndarray, what: str) -> np.ndarray:
             )
         R = T[:3, :3]
         if (
-            np.abs(T[3] - [0, 0, 0, 1]).max() > _RIGID_TOL
-            or np.abs(R @ R.T - np.eye(3)).max() > _RIGID_TOL
+            np.abs(T[3] - [0, 0, 0, 1]).max() > RIGID_TOL
+            or np.abs(R @ R.T - np.eye(3)).max() > RIGID_TOL
             or np.linalg.det(R) < 0
         ):
             raise ValueError(f"{what}: frame {f}: not a rigid transform (rotation + translation)")

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._validate import as_array, check_rotation
+from ..pose import Pose
 from ..ssm.model import ShapeModel
 from .gsft import DEFAULT_EPS, GsftResult, check_model, check_options, solve_gsft
 from .rays import RayObservations, as_rays, check_rays
@@ -28,7 +29,6 @@ from .unknown_poses import (
     _distances,
     _JointFit,
     _refine,
-    relative_pose,
 )
 
 __all__ = ["RefinedPosesResult", "refine_view_poses"]
@@ -235,15 +235,12 @@ def _refined_result(
     """New extrinsics: world -> gauge camera (kept) -> view x through the refined relative
     pose; the corrections and residuals."""
     Rs, ts, w = fit.state
-    Rg, tg = Rv[gauge], tv[gauge]
+    camera = Pose(Rv[gauge], tv[gauge])  # world -> gauge camera, kept
+    obj = camera.inverse() @ Pose(Rs[gauge], ts[gauge])  # object -> world
     new_R, new_t = np.empty_like(Rv), np.empty_like(tv)
-    for x in range(len(Rv)):
-        Rr, tr_ = relative_pose(Rs[gauge], ts[gauge], Rs[x], ts[x])
-        new_R[x] = Rr @ Rg
-        new_t[x] = Rr @ tg + tr_
-    R_obj = Rg.T @ Rs[gauge]
-    t_obj = Rg.T @ (ts[gauge] - tg)
-    vertices = model.instance(w) @ R_obj.T + t_obj
+    for x in range(len(Rv)):  # world -> object -> view x
+        new_R[x], new_t[x] = (Pose(Rs[x], ts[x]) @ obj.inverse()).rt
+    vertices = obj.apply(model.instance(w))
     if not all(np.all(np.isfinite(a)) for a in (new_R, new_t, vertices)):
         raise SolverFailure("refine_view_poses: the solution contains non-finite values")
     centres_old = -np.einsum("xji,xj->xi", Rv, tv)
@@ -263,8 +260,8 @@ def _refined_result(
         translation_corrections=new_t - tv,
         vertices=vertices,
         weights=w,
-        rotation=R_obj,
-        translation=t_obj,
+        rotation=np.array(obj.R),
+        translation=np.array(obj.t),
         residuals_before=init.residuals,
         residuals=res_after,
         initial=init,

@@ -42,6 +42,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..io.transforms import rotation_from_rotvec, rotvec_from_rotation
+from ..pose import Pose
 from ..ssm.gaussian_process import ssm_part
 from ..ssm.model import ShapeModel
 from .frames_uncertainty import frame_linearisations, frames_vertex_sd, shape_sd
@@ -207,10 +208,10 @@ def _convex_start(model, frames, posed, names, opts):
         fit_model, list(blocks), eps=opts.eps, prior_weight=opts.prior_weight, min_depth=depths
     )
     Rs, ts = {}, {}
-    for k, f in enumerate(posed):
-        cam = frames[f][0].view  # camera-frame object pose -> world
-        Rs[f] = cam.R.T @ est.object_rotations[k]
-        ts[f] = cam.R.T @ (est.object_translations[k] - cam.t)
+    for k, f in enumerate(posed):  # object -> camera (finite: checked by the solver) -> world
+        cam = frames[f][0].view
+        in_camera = Pose(est.object_rotations[k], est.object_translations[k])
+        Rs[f], ts[f] = (Pose(cam.R, cam.t).inverse() @ in_camera).rt
     w = np.zeros(model.n_modes) if rigid else est.weights
     return Rs, ts, w, rigid
 

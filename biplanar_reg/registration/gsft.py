@@ -26,6 +26,7 @@ from functools import lru_cache, partial
 
 import numpy as np
 
+from ..pose import nearest_rotation
 from ..ssm.model import ShapeModel
 from .ipm import smat, solve_conic
 from .lifting import point_map_values
@@ -38,7 +39,6 @@ from .refine import (
     refine_pose_shape,
     tangent_bases,
 )
-from .rotations import project_to_so3
 from .sdp import KnownPoseData, KnownPoseIPM, KnownPoseSDP, SdpSolution, SolverFailure, depth_reward
 
 __all__ = [
@@ -331,7 +331,7 @@ def _round(prob: _Normalised, sol: _SdpSolution) -> tuple[float, PoseShape]:
     """Certificate ``lambda_2 / lambda_1`` and the rounded ``(R, t, w)`` (world, mm)."""
     ev = np.linalg.eigvalsh(sol.gram)
     certificate = float(max(ev[-2], 0.0) / ev[-1]) if ev[-1] > 0 else 1.0
-    R = project_to_so3(sol.gram[0, 1:10].reshape(3, 3))
+    R = nearest_rotation(sol.gram[0, 1:10].reshape(3, 3))
     w = sol.gram[0, 10:].copy()
     # V = R (Q - cm) / s * s + s t_n + centre  =>  t = s t_n + centre - R cm
     t = prob.scale * sol.t_n + sol.centre - R @ prob.cm

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..pose import nearest_rotation
 from ..ssm.model import ShapeModel
 from .gp_stage import KernelBasis
 from .gsft import GsftResult
@@ -38,7 +39,6 @@ from .noise import GroupNoise, with_noise
 from .observations import ViewObservations
 from .options import RegistrationOptions
 from .problem import Problem, with_pose
-from .rotations import project_to_so3
 from .stages import pose_start
 
 __all__ = ["PreviousFit", "setup_fingerprint"]
@@ -211,7 +211,7 @@ def previous_start(problem: Problem, previous: PreviousFit) -> GsftResult:
     """The previous fit's pose and shape as the boosting's start (iteration 0), a result
     without a convex solve (its relaxation diagnostics are the pose itself)."""
     model = problem.model
-    R = project_to_so3(np.asarray(previous.rotation, float))
+    R = nearest_rotation(np.asarray(previous.rotation, float))
     t = np.asarray(previous.translation, float)
     w = np.asarray(previous.weights, float)[: model.n_modes]
     quiet = dataclasses.replace(problem, say=lambda msg: None)

@@ -18,6 +18,7 @@ import numpy as np
 
 from .._validate import as_array, check_rotation
 from ..outline import chain_edges
+from ..pose import nearest_rotation
 from ..ssm.gaussian_process import split_modes
 from ..ssm.model import ShapeModel
 from .blunders import rejected_landmarks, robust_cost
@@ -46,7 +47,6 @@ from .quality import (
     shape_plausibility,
     view_separation,
 )
-from .rotations import project_to_so3
 from .stages import (
     FitMemo,
     Refined,
@@ -176,7 +176,7 @@ def _check_start(start: object) -> tuple[np.ndarray, np.ndarray] | None:
     if isinstance(start, (str, bytes)) or not hasattr(start, "__len__") or len(start) != 2:
         raise ValueError("start: expected (R, t): a 3x3 rotation and a translation [3] (mm)")
     R = check_rotation("start: R", start[0], tol=1e-4)
-    return project_to_so3(R), as_array("start: t", start[1], (3,))
+    return nearest_rotation(R), as_array("start: t", start[1], (3,))
 
 
 def _check_views(

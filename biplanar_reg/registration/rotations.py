@@ -9,13 +9,6 @@ from ..io.transforms import rotvec_from_rotation
 __all__: list[str] = []
 
 
-def project_to_so3(M: np.ndarray) -> np.ndarray:
-    """Nearest rotation (Frobenius norm) to a 3x3 matrix, by SVD with the determinant fixed."""
-    U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    return U @ D @ Vt
-
-
 def skew(v: np.ndarray) -> np.ndarray:
     """``[v]_x`` for a 3-vector (3, 3) or for each row of (K, 3) -> (K, 3, 3)."""
     v = np.asarray(v, dtype=float)

@@ -48,6 +48,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .._validate import as_array, check_rotation
+from ..pose import Pose, nearest_rotation
 from ..ssm.model import ShapeModel
 from .gsft import (
     DEFAULT_DEPTH_REWARD,
@@ -64,7 +65,7 @@ from .lifting import point_map_values
 from .pose_hypotheses import hypothesis_starts
 from .rays import RayObservations, check_rays
 from .refine import DEFAULT_MAX_REFINE_ITER, ray_distances
-from .rotations import project_to_so3, rotation_angle
+from .rotations import rotation_angle
 from .sdp import KnownPoseData, SolverFailure, depth_reward
 from .unknown_sdp import MultiViewSdpSolution, SdpViewBlock, solve_multiview_sdp
 
@@ -193,45 +194,6 @@ class UnknownPosesResult:
     timings: dict = field(default_factory=dict)
     candidate_object_rotations: list = field(default_factory=list)
     candidate_object_translations: list = field(default_factory=list)
-
-
-# -- geometry helpers -----------------------------------------------------------------------------
-def similarity_fit(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Least-squares similarity ``dst ~ s R src + t`` (Umeyama), ``R`` a proper rotation.
-
-    Parameters
-    ----------
-    src, dst : (N, 3) arrays
-        Corresponding points (any common unit).
-
-    Returns
-    -------
-    s : float
-        Scale.
-    R : (3, 3) array
-    t : (3,) array
-    """
-    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
-    a, b = src - mu_s, dst - mu_d
-    U, S, Vt = np.linalg.svd(b.T @ a)
-    sign = np.sign(np.linalg.det(U @ Vt)) or 1.0
-    D = np.array([1.0, 1.0, sign])
-    R = (U * D) @ Vt
-    var = float(np.sum(a * a))
-    s = float(np.sum(S * D) / var) if var > 0 else 1.0
-    return s, R, mu_d - s * R @ mu_s
-
-
-def relative_pose(
-    R_ref: np.ndarray, t_ref: np.ndarray, R_x: np.ndarray, t_x: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Pose of frame ``x`` relative to frame ``ref`` from the object's pose in both.
-
-    With ``V_ref = R_ref Q + t_ref`` and ``V_x = R_x Q + t_x``, returns ``(R, t)`` such that
-    ``V_x = R V_ref + t``.
-    """
-    R = R_x @ R_ref.T
-    return R, t_x - R @ t_ref
 
 
 # -- validation -----------------------------------------------------------------------------------
@@ -405,11 +367,12 @@ def _round_view(
     Q = model.instance(w)
     A = gram[0, 1:10].reshape(3, 3)
     Y = (Q - cm) @ A.T + scale * t_n + centre  # the SDP's shape in the view frame, mm
-    s, R, t = similarity_fit(Q, Y)
+    fit = Pose.fit_similarity(Q, Y)
+    s, (R, t) = fit.scale, fit.pose.rt
     if central and s > 1e-9:
         # scaling about the source keeps every ray through it: undo the relaxation's drift
         return R, t / s, s
-    R = project_to_so3(A)
+    R = nearest_rotation(A)
     return R, Y.mean(axis=0) - R @ Q.mean(axis=0), s
 
 
@@ -448,14 +411,12 @@ def _prior_start(views: list[UnknownPoseView], sdp: ViewPoses) -> ViewPoses | No
     if any(v.prior_rotation is None for v in views):
         return None
     Rs_sdp, ts_sdp, w = sdp
-    R1, t1 = views[0].prior_rotation, views[0].prior_translation
+    first = Pose(views[0].prior_rotation, views[0].prior_translation)  # world -> view 1
+    in_first = first.inverse() @ Pose(Rs_sdp[0], ts_sdp[0])  # object -> world
     P = len(views)
     Rs, ts = np.empty((P, 3, 3)), np.empty((P, 3))
-    for x, v in enumerate(views):
-        # world -> view 1 vs world -> view x
-        Rr, tr_ = relative_pose(R1, t1, v.prior_rotation, v.prior_translation)
-        Rs[x] = Rr @ Rs_sdp[0]
-        ts[x] = Rr @ ts_sdp[0] + tr_
+    for x, v in enumerate(views):  # object -> world -> view x
+        Rs[x], ts[x] = (Pose(v.prior_rotation, v.prior_translation) @ in_first).rt
     return Rs, ts, w
 
 
@@ -509,8 +470,7 @@ def _distinct_candidates(fits: list[_JointFit], best_R: np.ndarray, tol_deg: flo
     out = []
     for f in fits:
         Rs, ts, _ = f.state
-        rel = [relative_pose(Rs[0], ts[0], Rs[x], ts[x]) for x in range(len(Rs))]
-        vr = np.array([r[0] for r in rel])
+        vr = Rs @ Rs[0].T  # the view rotations relative to the first view
         far = all(
             max(np.degrees(rotation_angle(a, b)) for a, b in zip(vr, k, strict=True)) > tol_deg
             for k in kept_R
@@ -739,6 +699,14 @@ def solve_gsft_unknown_poses(
     )
 
 
+def relative_view_poses(Rs: np.ndarray, ts: np.ndarray) -> list[Pose]:
+    """Each view's pose relative to the first view's camera frame (first view frame -> view
+    ``x`` frame, mm), from the object's pose ``(Rs[x], ts[x])`` in every view (object -> view
+    ``x``): ``P_x o P_0^-1``."""
+    from_first = Pose(Rs[0], ts[0]).inverse()
+    return [Pose(R, t) @ from_first for R, t in zip(Rs, ts, strict=True)]
+
+
 def _unknown_result(
     model: ShapeModel,
     rays: list[RayObservations],
@@ -755,11 +723,10 @@ def _unknown_result(
     """Everything in the first view's frame (the gauge)."""
     Rs, ts, w = fit.state
     Rs_sdp, ts_sdp, _ = rounded.state
-    P = len(rays)
-    rel = [relative_pose(Rs[0], ts[0], Rs[x], ts[x]) for x in range(P)]
-    rel_sdp = [relative_pose(Rs_sdp[0], ts_sdp[0], Rs_sdp[x], ts_sdp[x]) for x in range(P)]
-    view_R = np.array([r[0] for r in rel])
-    view_t = np.array([r[1] for r in rel])
+    rel = relative_view_poses(Rs, ts)
+    rel_sdp = relative_view_poses(Rs_sdp, ts_sdp)
+    view_R = np.array([r.R for r in rel])
+    view_t = np.array([r.t for r in rel])
     vertices = model.instance(w) @ Rs[0].T + ts[0]
     if not all(np.all(np.isfinite(a)) for a in (vertices, w, view_R, view_t, Rs, ts)):
         raise SolverFailure("G-SfT-P: the solution contains non-finite values")
@@ -776,8 +743,8 @@ def _unknown_result(
         certificates=rounded.certificates,
         scale_drift=rounded.scale_drift,
         depth_constrained=constrained,
-        sdp_view_rotations=np.array([r[0] for r in rel_sdp]),
-        sdp_view_translations=np.array([r[1] for r in rel_sdp]),
+        sdp_view_rotations=np.array([r.R for r in rel_sdp]),
+        sdp_view_translations=np.array([r.t for r in rel_sdp]),
         sdp_weights=rounded.state[2],
         residuals=_distances(model, rays, fit.state),
         sigmas=fit.sigmas,

@@ -35,6 +35,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
+from ..pose import Pose
 from ..ssm.model import ShapeModel
 from .calibration_subspace import fit_seen_corrections
 from .gsft import GsftResult
@@ -49,7 +50,7 @@ from .pose_search import is_central, outline_scores, outline_target, search_view
 from .problem import Problem, with_pose
 from .rays import RayObservations
 from .rotations import rotation_angle
-from .unknown_poses import UnknownPoseView, solve_gsft_unknown_poses
+from .unknown_poses import UnknownPoseView, relative_view_poses, solve_gsft_unknown_poses
 from .view_starts import hop_joint_fit, joint_fit
 
 __all__: list[str] = []
@@ -159,9 +160,11 @@ def _in_world(views, state):
     """Object poses in the view frames -> object poses in the world seen through each view's
     extrinsics (``O_x = E_x^-1 o P_x``)."""
     Rs, ts, w = state
-    R = np.array([v.view.R.T @ Rp for v, Rp in zip(views, Rs, strict=True)])
-    t = np.array([v.view.R.T @ (tp - v.view.t) for v, tp in zip(views, ts, strict=True)])
-    return R, t, w
+    world = [
+        Pose(v.view.R, v.view.t).inverse() @ Pose(R, t)
+        for v, R, t in zip(views, Rs, ts, strict=True)
+    ]
+    return np.array([p.R for p in world]), np.array([p.t for p in world]), w
 
 
 def _with_poses(views, Rs, ts) -> list[ViewObservations]:
@@ -332,12 +335,10 @@ def _searched_view_poses(model: ShapeModel, views: list[ViewObservations]) -> Po
     combos = combos[:MAX_PNP_STARTS]
     w = np.zeros(model.n_modes)
     states = [(np.array([c[0] for c in x]), np.array([c[1] for c in x]), w) for x in combos]
-    Rs, ts, _ = states[0]
     # view x sees the object at P_x; in the first view's camera frame (the world) it is at
     # P_0, so view x's extrinsics are P_x o P_0^-1
-    view_R = [R @ Rs[0].T for R in Rs]
-    view_t = [t - Rv @ ts[0] for Rv, t in zip(view_R, ts, strict=True)]
-    posed = _with_poses(views, view_R, view_t)
+    extrinsics = relative_view_poses(*states[0][:2])
+    posed = _with_poses(views, [p.R for p in extrinsics], [p.t for p in extrinsics])
     searched = [v.name for v in views if free_pose_parameters(v) > 0]
     info = {"mode": "unknown", "outline_search": searched}
     return PosedViews(posed, info, [_in_world(posed, s) for s in states])
@@ -346,8 +347,7 @@ def _searched_view_poses(model: ShapeModel, views: list[ViewObservations]) -> Po
 def _composed(view_R, view_t, Ro, to, Rg, tg):
     """Extrinsics seeing, at world pose ``(Rg, tg)``, what ``(view_R, view_t)`` sees at
     ``(Ro, to)``: ``E' = E o O o G^-1``."""
-    Rc = Ro @ Rg.T
-    return view_R @ Rc, view_R @ (to - Rc @ tg) + view_t
+    return (Pose(view_R, view_t) @ Pose(Ro, to) @ Pose(Rg, tg).inverse()).rt
 
 
 def joint_sigma_factor(options: RegistrationOptions, poses: str) -> float:

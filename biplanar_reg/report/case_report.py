@@ -37,7 +37,7 @@ from .advice import flag_advice
 from .figures import convergence_figure, histogram_figure, overlay_figure
 from .gl_probe import start_probe
 from .html import embedded_figures, write_page
-from .render3d import render_surface
+from .render3d import finish_surface, start_surface
 from .residuals import ContourResidual, contour_residuals
 from .shading import painter_faces
 
@@ -298,22 +298,31 @@ def _contour_rows(
     ]
 
 
-def _surface_figure(
+def _start_surface(
     folder: Path,
     result: CaseResult,
     vertices: np.ndarray,
     faces: np.ndarray,
     vertex_error: np.ndarray | None,
-) -> tuple[dict[str, str], str, str | None]:
-    """The 3D view of the registered surface; (entry, renderer, warning or None). With a ground
-    truth ``error_3d.png`` (coloured by the distance to it), without one ``registered_3d.png``."""
+) -> tuple:
+    """Start the 3D view of the registered surface (:func:`.render3d.start_surface`: it renders
+    while the 2D figures are drawn); what :func:`_surface_figure` finishes. With a ground truth
+    ``error_3d.png`` (coloured by the distance to it), without one ``registered_3d.png``."""
     if result.bone.ground_truth is not None:
         fname, title = "error_3d.png", f"{result.id}: distance to ground truth (mm)"
         what = "Registered surface coloured by its distance to the ground truth, mm"
     else:
         fname, title = "registered_3d.png", f"{result.id}: registered surface (mm)"
         what, vertex_error = "Registered surface (world frame, mm; no ground truth)", None
-    renderer, warning = render_surface(folder / fname, vertices, faces, vertex_error, title)
+    args = (folder / fname, vertices, faces, vertex_error, title)
+    return fname, what, args, start_surface(*args)
+
+
+def _surface_figure(started: tuple) -> tuple[dict[str, str], str, str | None]:
+    """The 3D view :func:`_start_surface` started, finished (matplotlib where PyVista could not
+    draw it); (entry, renderer, warning or None)."""
+    fname, what, args, future = started
+    renderer, warning = finish_surface(future, *args)
     return {"src": fname, "caption": f"{what} (rendered with {renderer})."}, renderer, warning
 
 
@@ -462,8 +471,10 @@ def write_case_report(
         doc, views, vertices, faces, vertex_error = _from_case(doc, views, *legacy)
     result = doc if isinstance(doc, CaseResult) else CaseResult.from_json(doc)
     folder = Path(folder)
+    surface = None
     if vertices is not None and faces is not None:
-        start_probe()  # the off-screen check runs while the 2D figures are drawn
+        start_probe()  # the off-screen check and the 3D view run while the 2D figures are drawn
+        surface = _start_surface(folder, result, vertices, faces, vertex_error)
     options = result.options
     figures: dict[str, list[dict[str, str]]] = {"surface": [], "views": [], "plots": []}
     contour_rows = []
@@ -477,8 +488,8 @@ def write_case_report(
     figures["plots"].append(_histogram_figure(folder, result, vertex_error))
     figures["plots"].append(_convergence_figure(folder, result))
     renderer, report_warnings = None, []
-    if vertices is not None and faces is not None:
-        entry, renderer, warning = _surface_figure(folder, result, vertices, faces, vertex_error)
+    if surface is not None:
+        entry, renderer, warning = _surface_figure(surface)
         figures["surface"].append(entry)
         report_warnings += [warning] if warning else []
         if vertex_sd is not None:

@@ -21,7 +21,16 @@ from matplotlib.patches import Patch
 from matplotlib.ticker import MaxNLocator
 
 from ..annotation import Contour, Landmark, ViewAnnotations
-from .plotting import HALO, log_scale, new_figure, save_figure, set_title
+from .plotting import (
+    HALO,
+    image_rgba,
+    log_scale,
+    new_figure,
+    reused_figure,
+    save_figure,
+    set_title,
+    warm_figure,
+)
 
 __all__ = ["overlay_figure", "histogram_figure", "convergence_figure"]
 
@@ -81,17 +90,25 @@ def overlay_figure(
         if outlines is not None:
             raise TypeError("overlay_figure: give outlines or silhouettes (its old name), not both")
         outlines = silhouettes
-    fig = draw_overlay(
-        title,
-        display=display,
-        image_size=image_size,
-        annotations=annotations,
-        outlines=[] if outlines is None else list(outlines),
-        landmarks_px=landmarks_px,
-        shaded=shaded,
-        marks=marks,
-    )[0]
-    save_figure(fig, path)
+    with reused_figure("overlay", _overlay_layout) as (fig, (ax,), _):
+        _overlay_on(
+            ax,
+            title,
+            display=display,
+            image_size=image_size,
+            annotations=annotations,
+            outlines=[] if outlines is None else list(outlines),
+            landmarks_px=landmarks_px,
+            shaded=shaded,
+            marks=marks,
+        )
+        save_figure(fig, path)
+
+
+def _overlay_layout() -> tuple[Figure, list[Axes], None]:
+    """The overlay's figure and its axes (fixed rectangle)."""
+    fig = new_figure(_OVERLAY_PX, _OVERLAY_PX)
+    return fig, [fig.add_axes(_OVERLAY_RECT)], None
 
 
 def draw_overlay(
@@ -105,7 +122,37 @@ def draw_overlay(
     shaded: tuple[np.ndarray, np.ndarray] | None = None,
     marks: Sequence[tuple[str, np.ndarray]] = (),
 ) -> tuple[Figure, Axes]:
-    """The figure of :func:`overlay_figure` (not saved) and its axes, in pixel coordinates."""
+    """The figure of :func:`overlay_figure` (a new one, not saved) and its axes, in pixel
+    coordinates."""
+    fig, (ax,), _ = _overlay_layout()
+    _overlay_on(
+        ax,
+        title,
+        display=display,
+        image_size=image_size,
+        annotations=annotations,
+        outlines=outlines,
+        landmarks_px=landmarks_px,
+        shaded=shaded,
+        marks=marks,
+    )
+    return fig, ax
+
+
+def _overlay_on(
+    ax: Axes,
+    title: str,
+    *,
+    display: np.ndarray | None,
+    image_size: tuple[int, int] | None,
+    annotations: ViewAnnotations | None,
+    outlines: Sequence[np.ndarray],
+    landmarks_px: Mapping[str, np.ndarray],
+    shaded: tuple[np.ndarray, np.ndarray] | None = None,
+    marks: Sequence[tuple[str, np.ndarray]] = (),
+) -> None:
+    """Draw the overlay of :func:`overlay_figure` on ``ax`` (the axes of
+    :func:`_overlay_layout`)."""
     contours = [] if annotations is None else list(annotations.contours)
     annotated = {} if annotations is None else annotations.landmarks
     # zoom on what is drawn (a bone covers a small part of a radiograph), within the image
@@ -116,8 +163,6 @@ def draw_overlay(
     size = (display.shape[1], display.shape[0]) if display is not None else image_size
     limits = _limits(drawn, size)
     has_bone = shaded is not None and len(shaded[0]) > 0
-    fig = new_figure(_OVERLAY_PX, _OVERLAY_PX)
-    ax = fig.add_axes(_OVERLAY_RECT)
     u0, u1, v0, v1 = (0.0, 1.0, 1.0, 0.0) if limits is None else limits
     _draw_background(ax, display, image_size, limits, shaded if has_bone else None)
     ax.set_xlim(u0, u1)
@@ -135,7 +180,6 @@ def draw_overlay(
     set_title(ax, title, fontsize=10)
     if handles:
         ax.legend(handles=handles, loc="lower right", fontsize=7, framealpha=0.7)
-    return fig, ax
 
 
 def _shade_bone(
@@ -214,7 +258,7 @@ def _draw_background(
     # as large as the axes: drawn about pixel for pixel; a smaller crop is enlarged smoothly
     smooth = max(w, h) < _OVERLAY_RASTER_PX - 1
     ax.imshow(
-        rgb8,
+        image_rgba(rgb8),
         extent=(edges[0], edges[1], edges[3], edges[2]),
         interpolation="bilinear" if smooth else "nearest",
         aspect="auto",
@@ -364,16 +408,23 @@ def histogram_figure(
     triples (empty skipped). Each median is a dashed line labelled above the axes
     (``median 0.53``)."""
     series = [s for s in series if len(s[1])]
-    n = max(1, len(series))
-    fig = new_figure(400 * n, 320)
+    layout = ("histogram", len(series)), lambda: _histogram_layout(len(series))
+    with reused_figure(*layout) as (fig, axes, _):
+        for ax, (label, values, unit) in zip(axes, series, strict=True):
+            _hist_panel(ax, label, values, unit)
+        if not series:
+            fig.text(0.5, 0.5, "no errors to show", ha="center", va="center")
+        save_figure(fig, path)
+
+
+def _histogram_layout(n: int) -> tuple[Figure, list[Axes], None]:
+    """The histogram figure of ``n`` panels (one when ``n`` is 0) and their axes."""
+    fig = new_figure(400 * max(1, n), 320)
     # fixed margins: 0.6 in left, 0.2 in right; 0.3 of an axes' width between axes
-    left, right = 0.6 / (4.0 * n), 1 - 0.2 / (4.0 * n)
-    width = (right - left) / (n + 0.3 * (n - 1))
-    for i, (label, values, unit) in enumerate(series):
-        _hist_panel(fig.add_axes((left + i * 1.3 * width, 0.17, width, 0.75)), label, values, unit)
-    if not series:
-        fig.text(0.5, 0.5, "no errors to show", ha="center", va="center")
-    save_figure(fig, path)
+    k = max(1, n)
+    left, right = 0.6 / (4.0 * k), 1 - 0.2 / (4.0 * k)
+    width = (right - left) / (k + 0.3 * (k - 1))
+    return fig, [fig.add_axes((left + i * 1.3 * width, 0.17, width, 0.75)) for i in range(n)], None
 
 
 def _convergence_panel(
@@ -429,29 +480,49 @@ def convergence_figure(
     sdp = np.array([k != "local" for k in kinds], dtype=bool)
     local = ~sdp
     two = bool(local.any())
+    with reused_figure(("convergence", two), lambda: _convergence_layout(two)) as (fig, axes, _):
+        ax, ax2 = axes[:2]
+        _convergence_panel(
+            ax, idx[sdp], c, matches, best if 0 <= best < len(costs) else -1, "tab:blue", "cost"
+        )
+        ax2.plot(idx[sdp], cert[sdp], "--s", color="tab:green", label="certificate")
+        log_scale(ax2, cert[sdp])
+        ax.set_xlabel("iteration (0 = landmarks only)")
+        ax.set_ylabel("match-independent cost", color="tab:blue")
+        ax2.set_ylabel("certificate (lambda2 / lambda1)", color="tab:green")
+        set_title(ax, "convex iterations (numbers: outline matches)", fontsize=9)
+        # one legend for both axes
+        handles = ax.get_legend_handles_labels()[0] + ax2.get_legend_handles_labels()[0]
+        ax2.legend(handles=handles, loc="best", fontsize=7)
+        if two:
+            axl = axes[2]
+            _convergence_panel(axl, idx[local], c, matches, best, "tab:purple", "objective")
+            axl.set_xlabel("iteration")
+            axl.set_ylabel("refinement objective", color="tab:purple")
+            set_title(axl, "final refinement (numbers: outline samples)", fontsize=9)
+            axl.legend(loc="best", fontsize=7)
+        save_figure(fig, path)
+
+
+def _convergence_layout(two: bool) -> tuple[Figure, list[Axes], None]:
+    """The convergence figure (``two``: with the final refinement's panel) and its axes: the
+    convex iterations' axes, their twin (the certificate) and the refinement's."""
     fig = new_figure(900 if two else 600, 340)
     # fixed margins: the twin axis' labels sit between the panels
     x0, x1 = (0.085, 0.98) if two else (0.13, 0.84)
     width = (x1 - x0) / (2 + 0.6) if two else x1 - x0
     ax = fig.add_axes((x0, 0.15, width, 0.75))
-    _convergence_panel(
-        ax, idx[sdp], c, matches, best if 0 <= best < len(costs) else -1, "tab:blue", "cost"
-    )
-    ax2 = ax.twinx()
-    ax2.plot(idx[sdp], cert[sdp], "--s", color="tab:green", label="certificate")
-    log_scale(ax2, cert[sdp])
-    ax.set_xlabel("iteration (0 = landmarks only)")
-    ax.set_ylabel("match-independent cost", color="tab:blue")
-    ax2.set_ylabel("certificate (lambda2 / lambda1)", color="tab:green")
-    set_title(ax, "convex iterations (numbers: outline matches)", fontsize=9)
-    # one legend for both axes
-    handles = ax.get_legend_handles_labels()[0] + ax2.get_legend_handles_labels()[0]
-    ax2.legend(handles=handles, loc="best", fontsize=7)
+    axes = [ax, ax.twinx()]
     if two:
-        axl = fig.add_axes((x0 + 1.6 * width, 0.15, width, 0.75))
-        _convergence_panel(axl, idx[local], c, matches, best, "tab:purple", "objective")
-        axl.set_xlabel("iteration")
-        axl.set_ylabel("refinement objective", color="tab:purple")
-        set_title(axl, "final refinement (numbers: outline samples)", fontsize=9)
-        axl.legend(loc="best", fontsize=7)
-    save_figure(fig, path)
+        axes.append(fig.add_axes((x0 + 1.6 * width, 0.15, width, 0.75)))
+    return fig, axes, None
+
+
+def warm_figures(ground_truth: bool = True) -> None:
+    """Build the overlay, the histograms (three panels with a ``ground_truth``, else two) and
+    the convergence figure with the final refinement's panel, each drawn empty once
+    (:func:`.plotting.warm_figure`)."""
+    n = 3 if ground_truth else 2
+    warm_figure("overlay", _overlay_layout)
+    warm_figure(("histogram", n), lambda: _histogram_layout(n))
+    warm_figure(("convergence", True), lambda: _convergence_layout(True))

@@ -20,6 +20,7 @@ import re
 import signal
 import subprocess
 import sys
+import threading
 from collections.abc import Mapping
 
 __all__ = ["offscreen_env", "offscreen_rendering_available", "start_probe"]
@@ -60,9 +61,13 @@ window.Finalize()
 
 _ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 
-#: Outcomes per environment key, and children still running.
+#: Outcomes per environment key, and children still running (both under ``_lock``, held
+#: briefly; the report and :mod:`.prepare`'s thread may ask at once). One thread at a time waits
+#: for a child (``_collecting``); the others then find its outcome.
 _cache: dict[tuple[str | None, ...], tuple[bool, str]] = {}
 _running: dict[tuple[str | None, ...], subprocess.Popen] = {}
+_lock = threading.Lock()
+_collecting = threading.Lock()
 
 
 def offscreen_env(environ: Mapping[str, str] | None = None) -> dict[str, str]:
@@ -123,7 +128,9 @@ def start_probe() -> None:
     is running already; returns at once (:func:`offscreen_rendering_available` collects it)."""
     env = offscreen_env()
     key = _key(env)
-    if key not in _cache and key not in _running:
+    with _lock:
+        if key in _cache or key in _running:
+            return
         started = _start(env)
         if isinstance(started, tuple):
             _cache[key] = started
@@ -137,6 +144,13 @@ def offscreen_rendering_available(timeout: float = PROBE_TIMEOUT_S) -> tuple[boo
     (waits for the one :func:`start_probe` started)."""
     start_probe()
     key = _key(offscreen_env())
-    if key not in _cache:
-        _cache[key] = _finish(_running.pop(key), timeout)
-    return _cache[key]
+    with _collecting:
+        with _lock:
+            if key in _cache:
+                return _cache[key]
+            proc = _running[key]
+        outcome = _finish(proc, timeout)
+        with _lock:
+            _cache[key] = outcome
+            del _running[key]
+        return outcome

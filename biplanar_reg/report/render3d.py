@@ -8,18 +8,34 @@ instead of raising, so VTK is called only after :func:`.gl_probe.offscreen_rende
 has rendered in a child process (once per process). When it has not, or PyVista raises, the
 view is drawn with matplotlib's 3D axes (:func:`render_matplotlib`) and a one-line warning says
 why (:func:`render_surface` returns it for ``result.json["warnings"]``).
+
+VTK is called from one thread of its own (:func:`_vtk`), which keeps each plotter for the next
+view (:data:`_scenes`; the next mesh is copied into the shown one): a report starts its 3D
+view there (:func:`start_surface`) and draws its 2D figures meanwhile, and
+:func:`warm_scene` builds the scene while the registration runs.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import threading
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from .gl_probe import offscreen_env, offscreen_rendering_available
 
-__all__ = ["render_error_mesh", "render_surface"]
+__all__ = [
+    "finish_surface",
+    "forget_scenes",
+    "render_error_mesh",
+    "render_surface",
+    "start_surface",
+    "warm_scene",
+]
 
 #: The rendered figure, pixels.
 SIZE_PX = (900, 700)
@@ -33,6 +49,93 @@ def _error_max(error_mm: np.ndarray) -> float:
     return max(float(np.max(error_mm)), 1e-6)
 
 
+@dataclass
+class _Scene:
+    """An off-screen PyVista plotter with the surface's actor and the title: the mesh it shows
+    (drawings copy theirs into it, so the actor and its smooth-shading filter update in place)."""
+
+    plotter: Any
+    mesh: Any
+    actor: Any
+    title: Any
+
+
+#: The scenes kept per (size, coloured by an error): VTK's first render in a window (its OpenGL
+#: context, the shaders) is most of a render's time, and a batch worker renders one view per
+#: case. Only the VTK thread (:func:`_vtk`) touches them: an OpenGL context is current in one
+#: thread at a time.
+_scenes: dict[tuple[tuple[int, int], bool], _Scene] = {}
+_VTK_THREAD = "report-vtk"
+_executor: ThreadPoolExecutor | None = None
+_executor_lock = threading.Lock()
+
+
+def _vtk() -> ThreadPoolExecutor:
+    """The one thread that calls VTK (started on first use). Its renders run beside the
+    caller's 2D figures: VTK releases the GIL while it renders."""
+    global _executor
+    with _executor_lock:
+        if _executor is None:
+            _executor = ThreadPoolExecutor(1, thread_name_prefix=_VTK_THREAD)
+        return _executor
+
+
+def _in_vtk_thread() -> bool:
+    return threading.current_thread().name.startswith(_VTK_THREAD)
+
+
+def forget_scenes() -> None:
+    """Close the kept plotters (the next view makes a new one)."""
+    if not _in_vtk_thread():
+        _vtk().submit(forget_scenes).result()
+        return
+    while _scenes:
+        _scenes.popitem()[1].plotter.close()
+
+
+def _new_scene(mesh, error_mm: np.ndarray | None, size: tuple[int, int]) -> _Scene:
+    """A plotter showing ``mesh``: coloured by its point array "error (mm)" (viridis, colour
+    bar in mm) when ``error_mm`` is given, else ivory; smooth shading, white background."""
+    import pyvista as pv
+
+    # no multisampling: with Mesa's software OpenGL it doubles the render's time (measured
+    # 0.21 vs 0.125 CPU s for 14,640 triangles at 900 x 700 px) for slightly smoother edges
+    theme = pv.themes.DocumentTheme()
+    theme.multi_samples = 1
+    theme.anti_aliasing = None
+    plotter = pv.Plotter(off_screen=True, window_size=size, theme=theme)
+    try:
+        plotter.set_background("white")
+        if error_mm is not None:
+            actor = plotter.add_mesh(
+                mesh,
+                scalars="error (mm)",
+                cmap="viridis",
+                clim=(0.0, _error_max(error_mm)),
+                smooth_shading=True,
+                scalar_bar_args={"title": "error (mm)", "color": "black", "vertical": True},
+            )
+        else:
+            actor = plotter.add_mesh(mesh, color="ivory", smooth_shading=True)
+        title = plotter.add_text("", font_size=10, color="black")
+    except BaseException:
+        plotter.close()
+        raise
+    return _Scene(plotter, mesh, actor, title)
+
+
+def _draw(scene: _Scene, mesh, error_mm: np.ndarray | None, title: str) -> np.ndarray:
+    """Show ``mesh`` (with its "error (mm)" array when ``error_mm`` is given) titled ``title``
+    in ``scene``, isometric view; the screenshot (H, W, 3 or 4) uint8."""
+    if mesh is not scene.mesh:
+        scene.mesh.copy_from(mesh)  # in place: the actor's pipeline follows
+    if error_mm is not None:
+        scene.actor.mapper.scalar_range = (0.0, _error_max(error_mm))  # and the colour bar
+    scene.title.set_text("upper_left", title)
+    scene.plotter.view_isometric()  # the camera fitted to this mesh
+    return scene.plotter.screenshot(None, return_img=True)
+
+
 def render_pyvista(
     path: str | os.PathLike,
     vertices: np.ndarray,
@@ -43,7 +146,9 @@ def render_pyvista(
     size: tuple[int, int] = SIZE_PX,
 ) -> None:
     """Render with PyVista off-screen (surface, error colour map, colour bar in mm; without
-    ``error_mm`` one ivory colour), isometric view.
+    ``error_mm`` one ivory colour), isometric view, in the VTK thread (:func:`_vtk`; the caller
+    waits), where the plotter is kept for the next view of the same size and kind
+    (:data:`_scenes`).
 
     Raises
     ------
@@ -51,43 +156,29 @@ def render_pyvista(
         Off-screen rendering does not work here (:func:`.gl_probe.offscreen_rendering_available`
         failed); VTK is not called, since it would crash the process.
     """
+    if not _in_vtk_thread():
+        args = (path, vertices, faces, error_mm, title)
+        return _vtk().submit(render_pyvista, *args, size=size).result()
     ok, why = offscreen_rendering_available()
     if not ok:
         raise RuntimeError(f"off-screen rendering is not available here ({why})")
     for key, value in offscreen_env().items():  # the probe's environment (the EGL window)
         os.environ.setdefault(key, value)
-    import pyvista as pv
-
     from ..io.atomic import atomic_write_bytes
     from ..io.meshes import to_polydata
     from .plotting import png_bytes
 
     mesh = to_polydata(np.asarray(vertices, float), np.asarray(faces))
-    # no multisampling: with Mesa's software OpenGL it doubles the render's time (measured
-    # 0.21 vs 0.125 CPU s for 14,640 triangles at 900 x 700 px) for slightly smoother edges
-    theme = pv.themes.DocumentTheme()
-    theme.multi_samples = 1
-    theme.anti_aliasing = None
-    plotter = pv.Plotter(off_screen=True, window_size=size, theme=theme)
+    if error_mm is not None:
+        mesh.point_data["error (mm)"] = np.asarray(error_mm, float)
+    key = (tuple(size), error_mm is not None)
+    scene = _scenes.pop(key, None) or _new_scene(mesh, error_mm, size)
     try:
-        plotter.set_background("white")
-        if error_mm is not None:
-            mesh.point_data["error (mm)"] = np.asarray(error_mm, float)
-            plotter.add_mesh(
-                mesh,
-                scalars="error (mm)",
-                cmap="viridis",
-                clim=(0.0, _error_max(error_mm)),
-                smooth_shading=True,
-                scalar_bar_args={"title": "error (mm)", "color": "black", "vertical": True},
-            )
-        else:
-            plotter.add_mesh(mesh, color="ivory", smooth_shading=True)
-        plotter.add_text(title, font_size=10, color="black")
-        plotter.view_isometric()
-        rgb = plotter.screenshot(None, return_img=True)
-    finally:
-        plotter.close()
+        rgb = _draw(scene, mesh, error_mm, title)
+    except BaseException:
+        scene.plotter.close()  # a failed scene is not drawn on again
+        raise
+    _scenes[key] = scene
     atomic_write_bytes(path, png_bytes(np.asarray(rgb)[:, :, :3]), make_parents=False)
 
 
@@ -136,6 +227,51 @@ def render_matplotlib(
     save_figure(fig, path)
 
 
+def _pyvista_job(path, vertices, faces, error_mm, title) -> str | None:
+    """In the VTK thread: PyVista's view to ``path`` (None), or why it could not be drawn."""
+    ok, why = offscreen_rendering_available()  # VTK would crash the process otherwise
+    if not ok:
+        return why
+    try:
+        render_pyvista(path, vertices, faces, error_mm, title)
+    except Exception as exc:  # noqa: BLE001 - any VTK/OpenGL failure: use the fallback
+        return f"PyVista failed: {exc}"
+    return None
+
+
+def start_surface(
+    path: str | os.PathLike,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    error_mm: np.ndarray | None,
+    title: str,
+) -> Future:
+    """Start PyVista's view of :func:`render_surface` in the VTK thread (after the off-screen
+    check) and return at once; :func:`finish_surface` collects it."""
+    return _vtk().submit(_pyvista_job, path, vertices, faces, error_mm, title)
+
+
+def finish_surface(
+    started: Future,
+    path: str | os.PathLike,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    error_mm: np.ndarray | None,
+    title: str,
+) -> tuple[str, str | None]:
+    """Wait for the view :func:`start_surface` started (same arguments); where PyVista could
+    not draw it, draw it with matplotlib. ``(renderer, warning)`` as :func:`render_surface`."""
+    why = started.result()
+    if why is None:
+        return "pyvista", None
+    warning = (
+        f"3D view drawn with matplotlib: PyVista off-screen rendering is not available here "
+        f"({why}); install the EGL library (Debian: libegl1) or OSMesa (libosmesa6)"
+    )
+    render_matplotlib(path, vertices, faces, error_mm, title)
+    return "matplotlib", " ".join(warning.split())
+
+
 def render_surface(
     path: str | os.PathLike,
     vertices: np.ndarray,
@@ -153,19 +289,35 @@ def render_surface(
     warning : str or None
         One line saying why the fallback was used (``None`` with PyVista).
     """
-    ok, why = offscreen_rendering_available()  # VTK would crash the process otherwise
-    if ok:
-        try:
-            render_pyvista(path, vertices, faces, error_mm, title)
-            return "pyvista", None
-        except Exception as exc:  # noqa: BLE001 - any VTK/OpenGL failure: use the fallback
-            why = f"PyVista failed: {exc}"
-    warning = (
-        f"3D view drawn with matplotlib: PyVista off-screen rendering is not available here "
-        f"({why}); install the EGL library (Debian: libegl1) or OSMesa (libosmesa6)"
-    )
-    render_matplotlib(path, vertices, faces, error_mm, title)
-    return "matplotlib", " ".join(warning.split())
+    args = (path, vertices, faces, error_mm, title)
+    return finish_surface(start_surface(*args), *args)
+
+
+def _warm_job(with_error: bool, size: tuple[int, int]) -> None:
+    """In the VTK thread: the scene of ``(size, with_error)`` built and rendered once."""
+    if (tuple(size), with_error) in _scenes or not offscreen_rendering_available()[0]:
+        return
+    for key, value in offscreen_env().items():
+        os.environ.setdefault(key, value)
+    import pyvista as pv
+
+    mesh = pv.Sphere()
+    error = np.abs(mesh.points[:, 2]) if with_error else None
+    if error is not None:
+        mesh.point_data["error (mm)"] = error
+    scene = _new_scene(mesh, error, size)
+    try:
+        _draw(scene, mesh, error, "")
+    except BaseException:
+        scene.plotter.close()
+        raise
+    _scenes[(tuple(size), with_error)] = scene
+
+
+def warm_scene(with_error: bool, size: tuple[int, int] = SIZE_PX) -> Future:
+    """Build the 3D view's scene (PyVista imported, the window opened, its shaders compiled by
+    one render) in the VTK thread, where off-screen rendering works; returns at once."""
+    return _vtk().submit(_warm_job, with_error, size)
 
 
 def render_error_mesh(

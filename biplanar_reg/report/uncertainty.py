@@ -114,6 +114,34 @@ def _panel_image(
     return image, (lo[0], hi[0], hi[1], lo[1])
 
 
+def _layout(n: int):
+    """The uncertainty figure of ``n`` panels: the figure, the panels' axes (fixed rectangles
+    side by side), and ``(colour bar axes, its mappable)`` (its range and place are set per
+    drawing); the title's text too."""
+    from matplotlib import cm, colors
+
+    from .plotting import new_figure
+
+    width, height = _PANEL_IN[0] * n + _COLORBAR_IN, _PANEL_IN[1]
+    fig = new_figure(round(width * _DPI), round(height * _DPI), dpi=_DPI)
+    m = _MARGIN_IN
+    rects = [
+        (
+            (i * _PANEL_IN[0] + m["left"]) / width,
+            m["bottom"] / height,
+            (_PANEL_IN[0] - m["left"] - m["right"]) / width,
+            (height - m["top"] - m["bottom"]) / height,
+        )
+        for i in range(n)
+    ]
+    axes = [fig.add_axes(r) for r in rects]
+    cax = fig.add_axes((rects[-1][0] + rects[-1][2], rects[-1][1], 0.2 / width, rects[-1][3]))
+    scale = cm.ScalarMappable(colors.Normalize(0.0, 1.0), "viridis")
+    fig.colorbar(scale, cax=cax, label="sd (mm, RMS over axes)")
+    fig.suptitle("", fontsize=12)
+    return fig, axes, (cax, scale)
+
+
 def uncertainty_figure(
     path: str | os.PathLike,
     panels: Sequence[tuple[str, View, np.ndarray | None]],
@@ -141,9 +169,7 @@ def uncertainty_figure(
         Per panel the mesh already projected into its view, the first two outputs of
         :func:`.shading.painter_faces` (``None``, or no sequence: projected here).
     """
-    from matplotlib import cm, colors
-
-    from .plotting import new_figure, save_figure, set_title, viridis_rgb
+    from .plotting import image_rgba, reused_figure, save_figure, set_title, viridis_rgb
     from .shading import painter_faces
 
     V, F = np.asarray(vertices, float), np.asarray(faces, dtype=np.int64)
@@ -152,41 +178,45 @@ def uncertainty_figure(
     vmax = max(float(np.percentile(face_sd, 99)), 1e-6)
     face_rgb = viridis_rgb(face_sd, 0.0, vmax)
     n = len(panels)
-    width, height = _PANEL_IN[0] * n + _COLORBAR_IN, _PANEL_IN[1]
-    fig = new_figure(round(width * _DPI), round(height * _DPI), dpi=_DPI)
-    m = _MARGIN_IN
+    width = _PANEL_IN[0] * n + _COLORBAR_IN
     px = _raster_px()
-    for i, (name, view, display) in enumerate(panels):
-        given = None if projected is None else projected[i]
-        tri, index = given if given is not None else painter_faces(view, V, F)[:2]
-        lo, hi = tri.reshape(-1, 2).min(axis=0), tri.reshape(-1, 2).max(axis=0)
-        pad = 0.08 * float(np.max(hi - lo))
-        image, extent = _panel_image(tri, face_rgb[index], display, (lo - pad, hi + pad), px)
-        rect = (
-            (i * _PANEL_IN[0] + m["left"]) / width,
-            m["bottom"] / height,
-            (_PANEL_IN[0] - m["left"] - m["right"]) / width,
-            (height - m["top"] - m["bottom"]) / height,
+    with reused_figure(("uncertainty", n), lambda: _layout(n)) as (fig, axes, (cax, scale)):
+        for ax, (name, view, display), given in zip(
+            axes, panels, projected or [None] * n, strict=True
+        ):
+            tri, index = given if given is not None else painter_faces(view, V, F)[:2]
+            lo, hi = tri.reshape(-1, 2).min(axis=0), tri.reshape(-1, 2).max(axis=0)
+            pad = 0.08 * float(np.max(hi - lo))
+            image, extent = _panel_image(tri, face_rgb[index], display, (lo - pad, hi + pad), px)
+            # as large as the axes: about pixel for pixel; a small crop is enlarged smoothly
+            smooth = max(image.shape[:2]) < px - 1
+            ax.imshow(
+                image_rgba(image[:, :, :3]),
+                extent=extent,
+                interpolation="bilinear" if smooth else "nearest",
+            )
+            ax.set_xlim(lo[0] - pad, hi[0] + pad)
+            ax.set_ylim(hi[1] + pad, lo[1] - pad)  # image rows grow downwards
+            ax.set_aspect("equal", adjustable="box")
+            ax.set_xlabel("u (px)")
+            ax.set_ylabel("v (px)")
+            set_title(ax, name)
+        # the colour bar beside the last panel's axes (their width follows the bone's aspect)
+        ax.apply_aspect()  # the last axes' box with its equal aspect applied
+        box = ax.get_position()
+        cax.set_position((box.x1 + 0.3 / width, box.y0, 0.2 / width, box.height))
+        scale.set_clim(0.0, vmax)  # the colour bar follows its mappable
+        fig.suptitle(
+            f"Posterior sd per vertex: median {np.median(sd_mm):.2f} mm, "
+            f"95th percentile {np.percentile(sd_mm, 95):.2f} mm",
+            fontsize=12,
         )
-        ax = fig.add_axes(rect)
-        # as large as the axes: about pixel for pixel; a small crop is enlarged smoothly
-        smooth = max(image.shape[:2]) < px - 1
-        ax.imshow(image[:, :, :3], extent=extent, interpolation="bilinear" if smooth else "nearest")
-        ax.set_xlim(lo[0] - pad, hi[0] + pad)
-        ax.set_ylim(hi[1] + pad, lo[1] - pad)  # image rows grow downwards
-        ax.set_aspect("equal", adjustable="box")
-        ax.set_xlabel("u (px)")
-        ax.set_ylabel("v (px)")
-        set_title(ax, name)
-    # the colour bar beside the last panel's axes (their width follows the bone's aspect)
-    ax.apply_aspect()  # the last axes' box with its equal aspect applied
-    box = ax.get_position()
-    cax = fig.add_axes((box.x1 + 0.3 / width, box.y0, 0.2 / width, box.height))
-    mappable = cm.ScalarMappable(colors.Normalize(0.0, vmax), "viridis")
-    fig.colorbar(mappable, cax=cax, label="sd (mm, RMS over axes)")
-    fig.suptitle(
-        f"Posterior sd per vertex: median {np.median(sd_mm):.2f} mm, "
-        f"95th percentile {np.percentile(sd_mm, 95):.2f} mm",
-        fontsize=12,
-    )
-    return save_figure(fig, path)
+        return save_figure(fig, path)
+
+
+def warm_uncertainty(views: int) -> None:
+    """Build the uncertainty figure of ``views`` panels and draw it empty once
+    (:func:`.plotting.warm_figure`)."""
+    from .plotting import warm_figure
+
+    warm_figure(("uncertainty", views), lambda: _layout(views))

@@ -56,6 +56,7 @@ from ..annotation.render import path_lengths
 from ..calibration import load_calibration
 from ..calibration.views import PerspectiveView
 from ..io import read_json, read_volume
+from ..pose import Pose
 from ..registration import ViewObservations
 from ..ssm import ShapeModel, bone_surface, build_ssm, synthesise_population
 from .case_folder import synthetic_landmarks
@@ -174,15 +175,6 @@ class RealisticCase:
 
 
 # -- the model floor ------------------------------------------------------------------------------
-def _kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares rotation and translation taking ``src`` (N, 3) onto ``dst``."""
-    cs, cd = src.mean(axis=0), dst.mean(axis=0)
-    U, _, Vt = np.linalg.svd((src - cs).T @ (dst - cd))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    return R, cd - R @ cs
-
-
 def model_floor(
     model: ShapeModel, truth: np.ndarray, iterations: int = 200, tol: float = 1e-10
 ) -> tuple[float, np.ndarray]:
@@ -204,8 +196,7 @@ def model_floor(
     prev = np.inf
     for _ in range(iterations):
         shape = model.instance(w)
-        R, t = _kabsch(shape, truth)
-        local = (truth - t) @ R  # truth in the model frame (R orthogonal)
+        local = Pose.fit_rigid(shape, truth).inverse().apply(truth)  # truth in the model frame
         if P.shape[1]:
             w = np.linalg.lstsq(P, (local - model.mean).ravel(), rcond=None)[0]
         cost = float(np.mean(np.sum((model.instance(w) - local) ** 2, axis=1)))
@@ -213,8 +204,7 @@ def model_floor(
             break
         prev = cost
     shape = model.instance(w)
-    R, t = _kabsch(shape, truth)
-    fit = shape @ R.T + t
+    fit = Pose.fit_rigid(shape, truth).apply(shape)
     return float(np.sqrt(np.mean(np.sum((fit - truth) ** 2, axis=1)))), fit
 
 

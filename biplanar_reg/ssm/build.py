@@ -20,6 +20,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from .._validate import as_array
+from ..pose import Pose, SimilarityFit
 from .model import ShapeModel
 
 __all__ = ["procrustes_align", "build_ssm", "explained_fractions", "affine_fractions"]
@@ -27,18 +28,11 @@ __all__ = ["procrustes_align", "build_ssm", "explained_fractions", "affine_fract
 ALIGNMENTS = ("rigid", "similarity", "none")
 
 
-def _fit_transform(
-    source: np.ndarray, target: np.ndarray, scaling: bool
-) -> tuple[float, np.ndarray, np.ndarray]:
-    """Least-squares ``s, R, t`` with ``s * source @ R.T + t ~ target`` (Umeyama, proper R)."""
-    mu_s, mu_t = source.mean(axis=0), target.mean(axis=0)
-    a, b = source - mu_s, target - mu_t
-    u, sig, vt = np.linalg.svd(b.T @ a)
-    d = np.sign(np.linalg.det(u @ vt)) or 1.0
-    corr = np.diag([1.0, 1.0, d])
-    rot = u @ corr @ vt
-    scale = float(np.trace(np.diag(sig) @ corr) / np.sum(a * a)) if scaling else 1.0
-    return scale, rot, mu_t - scale * mu_s @ rot.T
+def _fit(source: np.ndarray, target: np.ndarray, scaling: bool) -> SimilarityFit:
+    """Least-squares ``source -> target`` fit: a similarity, or rigid (scale 1)."""
+    if scaling:
+        return Pose.fit_similarity(source, target)
+    return SimilarityFit(1.0, Pose.fit_rigid(source, target))
 
 
 def procrustes_align(
@@ -65,20 +59,17 @@ def procrustes_align(
     aligned = x.copy()
     for _ in range(int(max_iter)):
         for i in range(len(x)):
-            s, r, t = _fit_transform(x[i], mean, scaling)
-            aligned[i] = s * x[i] @ r.T + t
+            aligned[i] = _fit(x[i], mean, scaling).apply(x[i])
         new_mean = aligned.mean(axis=0)
         if scaling:  # keep the reference size fixed, otherwise the mean shrinks
-            s, r, t = _fit_transform(new_mean, x[0], True)
-            new_mean = s * new_mean @ r.T + t
+            new_mean = Pose.fit_similarity(new_mean, x[0]).apply(new_mean)
         size = np.sqrt(np.mean(np.sum((new_mean - new_mean.mean(0)) ** 2, axis=1)))
         change = np.sqrt(np.mean(np.sum((new_mean - mean) ** 2, axis=1)))
         mean = new_mean
         if change <= tol * max(size, 1e-300):
             break
     # Express everything in the first shape's frame (rigid only: sizes stay as aligned).
-    _, r, t = _fit_transform(aligned.mean(axis=0), x[0], False)
-    return aligned @ r.T + t
+    return Pose.fit_rigid(aligned.mean(axis=0), x[0]).apply(aligned)
 
 
 def build_ssm(

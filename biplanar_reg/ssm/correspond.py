@@ -39,7 +39,8 @@ from scipy.spatial import cKDTree
 
 from .._validate import as_array
 from ..io.meshes import check_manifold
-from .build import _fit_transform, procrustes_align
+from ..pose import Pose
+from .build import procrustes_align
 from .mirror import mirror_mesh
 
 __all__ = [
@@ -250,7 +251,8 @@ def _similarity_icp(c: _Clouds, start: np.ndarray, iters: int) -> np.ndarray:
     a = start
     for _ in range(iters):
         _, j = c.tree.query(_apply(c.src, a))
-        a = _as_affine(*_fit_transform(c.src, c.dst[j], True))
+        fit = Pose.fit_similarity(c.src, c.dst[j])
+        a = _as_affine(fit.scale, fit.pose.R, fit.pose.t)
     return a
 
 

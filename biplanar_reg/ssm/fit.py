@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..pose import nearest_rotation
 from .model import ShapeModel
 
 __all__ = ["ModelFit", "fit_model"]
@@ -127,11 +128,8 @@ class _Steps:
 
     def rigid(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rotation and translation (mm) of the Kabsch fit of ``mean + w modes`` to the points
-        (as :func:`.build._fit_transform` without scaling)."""
-        H = self.H0 + np.tensordot(w, self.Hw, axes=1)
-        u, _, vt = np.linalg.svd(H)
-        d = np.sign(np.linalg.det(u @ vt)) or 1.0
-        rot = u @ np.diag([1.0, 1.0, d]) @ vt
+        (as :meth:`biplanar_reg.pose.Pose.fit_rigid`, from the cross-covariance)."""
+        rot = nearest_rotation(self.H0 + np.tensordot(w, self.Hw, axes=1))
         return rot, self.centre - (self.mean_c + w @ self.modes_c) @ rot.T
 
     def weights(self, rot: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from biplanar_reg.calibration.views import OrthographicView
+from biplanar_reg.pose import Pose
 from biplanar_reg.registration import pose_search, register_views
 from biplanar_reg.registration.options import RegistrationOptions
 from biplanar_reg.registration.rotations import rotation_angle
@@ -37,11 +38,8 @@ def _case(model, seed: int, landmarks: tuple[int, int]):
 
 def _aligned_rms(a: np.ndarray, b: np.ndarray) -> float:
     """Vertex RMS (mm) after the best rigid alignment of ``a`` onto ``b``."""
-    ca, cb = a.mean(axis=0), b.mean(axis=0)
-    U, _, Vt = np.linalg.svd((a - ca).T @ (b - cb))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    moved = (a - ca) @ (Vt.T @ D @ U.T).T + cb
-    return float(np.sqrt(np.mean(np.sum((moved - b) ** 2, axis=1))))
+    d = Pose.fit_rigid(a, b).apply(a) - b
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
 
 
 def _unknown_errors(model, views, X) -> tuple[float, float]:

@@ -13,7 +13,6 @@ from biplanar_reg.registration.calibration_refine import refine_view_poses
 from biplanar_reg.registration.rotations import rotation_angle, so3_exp
 from biplanar_reg.registration.unknown_poses import (
     UnknownPoseView,
-    similarity_fit,
     solve_gsft_unknown_poses,
 )
 from biplanar_reg.simulate import biplanar_views, look_at_view, random_pose, synthetic_bone_model
@@ -159,15 +158,6 @@ def test_refine_mode_recovers_perturbed_relative_pose():
     assert abs(res.centre_corrections_mm[1] - 20.0) < 0.5
     assert np.median(res.residuals_before) > 1.0 and res.residuals.max() < 1e-6
     assert np.sqrt(np.mean(np.sum((res.vertices - X) ** 2, axis=1))) < 1e-3
-
-
-def test_similarity_fit_recovers_scale_rotation_translation():
-    rng = np.random.default_rng(0)
-    src = rng.normal(size=(20, 3))
-    R = so3_exp([0.3, -0.2, 0.9])
-    s, R_fit, t_fit = similarity_fit(src, 0.4 * src @ R.T + [1.0, 2.0, 3.0])
-    assert abs(s - 0.4) < 1e-12 and rotation_angle(R_fit, R) < 1e-12
-    assert np.allclose(t_fit, [1.0, 2.0, 3.0])
 
 
 # -- bad input -------------------------------------------------------------------------------------

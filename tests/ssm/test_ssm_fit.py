@@ -48,7 +48,7 @@ def test_bad_points_are_refused(bone):
 def _plain_alternation(model, pts, iterations=100, tol_mm=1e-9):
     """The model floor's alternation written out step by step (Kabsch of the instance on the
     points, least-squares weights in the model frame), every sum over the vertices each time."""
-    from biplanar_reg.ssm.build import _fit_transform
+    from biplanar_reg.pose import Pose
 
     def rms(a):
         return float(np.sqrt(np.mean(np.sum((a - pts) ** 2, axis=1))))
@@ -56,12 +56,12 @@ def _plain_alternation(model, pts, iterations=100, tol_mm=1e-9):
     solve = np.linalg.pinv(model.modes.reshape(model.n_modes, -1).T)
     w = np.zeros(model.n_modes)
     inst = model.instance(w)
-    _, rot, t = _fit_transform(inst, pts, scaling=False)
+    rot, t = Pose.fit_rigid(inst, pts).rt
     err = rms(inst @ rot.T + t)
     for _ in range(iterations):
         w = solve @ ((pts - t) @ rot - model.mean).ravel()
         inst = model.instance(w)
-        _, rot, t = _fit_transform(inst, pts, scaling=False)
+        rot, t = Pose.fit_rigid(inst, pts).rt
         new = rms(inst @ rot.T + t)
         done, err = err - new < tol_mm, new
         if done:
