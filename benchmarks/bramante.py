@@ -602,7 +602,8 @@ def _why_flipped(r: dict, median_floor: float) -> str:
         return (
             f"configuration {c}: the search missed: the local optimum near the truth has a lower "
             f"cost ({near:.1f} against {cost:.1f}); no refinement start (the SDP's rounding, "
-            "its mirror-ambiguous variants) lay in its basin"
+            "its mirror-ambiguous variants, the combinations of each view's own pose minima) "
+            "lay in its basin"
         )
     if r["floor_mm"] > 2 * median_floor:
         return (

@@ -24,7 +24,10 @@ The entry point:
        of a rank-relaxed solution; for a central (perspective) view scaling about its source
        leaves every ray unchanged, so the pose is ``(R_x, t / sigma_x)``;
     5. joint Levenberg-Marquardt over the shape weights and every view's object pose
-       (``joint_refine.py``), equivalent to "object pose + every view's pose but the gauge";
+       (``joint_refine.py``), equivalent to "object pose + every view's pose but the gauge",
+       from the rounding, its mirror-ambiguous variants (:func:`mirror_starts`), the priors
+       and the combinations of every view's own pose minima
+       (:func:`.pose_hypotheses.hypothesis_starts`); the lowest cost wins;
     6. report everything in the first view's frame (the gauge).
 
 :func:`.calibration_refine.refine_view_poses` (its own module) refines known-but-inaccurate
@@ -59,11 +62,16 @@ from .gsft import (
 )
 from .joint_refine import ViewPoses, joint_cost, refine_views
 from .lifting import point_map_values
+from .pose_hypotheses import hypothesis_starts
 from .rays import RayObservations, check_rays
 from .refine import DEFAULT_MAX_REFINE_ITER, ray_distances
 from .rotations import rotation_angle
 from .sdp import KnownPoseData, SolverFailure, depth_reward
 from .unknown_sdp import MultiViewSdpSolution, SdpViewBlock, solve_multiview_sdp
+
+#: Rounds of per-view pose hypotheses (:func:`_with_hypotheses`): a second round runs only
+#: when the first found a lower cost, at that solution's shape.
+HYPOTHESIS_ROUNDS = 2
 
 __all__ = [
     "UnknownPoseView",
@@ -129,9 +137,10 @@ class UnknownPosesResult:
     sigmas : list of (K_x,) arrays
         Standard deviations used by the refinement (given or estimated), per view.
     start : str
-        ``"sdp"``, ``"mirror"`` or ``"prior"``: the refinement start that gave the lowest
-        cost (``"mirror"``: the rounded SDP solution with some views' mirror-ambiguous
-        rotation, see :func:`mirror_starts`).
+        ``"sdp"``, ``"mirror"``, ``"prior"`` or ``"views"``: the refinement start that gave
+        the lowest cost (``"mirror"``: the rounded SDP solution with some views'
+        mirror-ambiguous rotation, see :func:`mirror_starts`; ``"views"``: a combination of
+        the views' own pose minima, see :func:`.pose_hypotheses.hypothesis_starts`).
     objective : float
         SDP objective (normalised units).
     status : str
@@ -554,6 +563,33 @@ def _refine(
     return sorted(fits, key=lambda f: joint_cost(model, common, f.state, prior_weight))
 
 
+def _with_hypotheses(
+    model: ShapeModel,
+    rays: Sequence[RayObservations],
+    fits: list[_JointFit],
+    prior_weight: float,
+    max_iter: int,
+) -> list[_JointFit]:
+    """``fits`` and the refinements from every view's own pose minima at the best fit's shape
+    (:func:`.pose_hypotheses.hypothesis_starts`, start index -1), repeated at the new best's
+    shape while one wins (at most :data:`HYPOTHESIS_ROUNDS` rounds); lowest cost first, all
+    compared with the rounding start's sigmas as in :func:`_refine`."""
+    sig = next(f.sigmas for f in fits if f.start == 0)
+    common = [r.with_sigmas(s) for r, s in zip(rays, sig, strict=True)]
+    for _ in range(HYPOTHESIS_ROUNDS):
+        best = fits[0]
+        starts = hypothesis_starts(
+            model, common, best.state, [f.state[0] for f in fits], prior_weight
+        )
+        fits = fits + [
+            replace(_refine_from(model, rays, s, prior_weight, max_iter), start=-1) for s in starts
+        ]
+        fits.sort(key=lambda f: joint_cost(model, common, f.state, prior_weight))
+        if fits[0] is best:
+            break
+    return fits
+
+
 def _unrefined(
     model: ShapeModel, rays: Sequence[RayObservations], state: ViewPoses, prior_weight: float
 ) -> _JointFit:
@@ -642,8 +678,11 @@ def solve_gsft_unknown_poses(
         if prior is not None:
             starts.append(prior)
         fits = _refine(model, rays, starts, prior_weight, max_refine_iter)
-        # the start's kind: 0 the rounding, 1 a mirror start, 2 the prior
+        fits = _with_hypotheses(model, rays, fits, prior_weight, max_refine_iter)
+        # the start's kind: 0 the rounding, 1 a mirror start, 2 the prior, 3 a combination
+        # of the views' own pose minima (index -1)
         kind = min(fits[0].start, 1) if fits[0].start < len(starts) - (prior is not None) else 2
+        kind = 3 if fits[0].start < 0 else kind
         fit = replace(fits[0], start=kind)
     else:
         fit = _unrefined(model, rays, rounded.state, prior_weight)
@@ -709,7 +748,7 @@ def _unknown_result(
         sdp_weights=rounded.state[2],
         residuals=_distances(model, rays, fit.state),
         sigmas=fit.sigmas,
-        start=("sdp", "mirror", "prior")[fit.start],
+        start=("sdp", "mirror", "prior", "views")[fit.start],
         objective=sol.objective,
         status=sol.status,
         min_depths=f_mm,
