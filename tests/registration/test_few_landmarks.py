@@ -13,6 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from registration_problems import aligned_rms
 
 from biplanar_reg.calibration.views import OrthographicView
 from biplanar_reg.registration import pose_search, register_views
@@ -35,22 +36,13 @@ def _case(model, seed: int, landmarks: tuple[int, int]):
     return views, R, t, X
 
 
-def _aligned_rms(a: np.ndarray, b: np.ndarray) -> float:
-    """Vertex RMS (mm) after the best rigid alignment of ``a`` onto ``b``."""
-    ca, cb = a.mean(axis=0), b.mean(axis=0)
-    U, _, Vt = np.linalg.svd((a - ca).T @ (b - cb))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    moved = (a - ca) @ (Vt.T @ D @ U.T).T + cb
-    return float(np.sqrt(np.mean(np.sum((moved - b) ** 2, axis=1))))
-
-
 def _unknown_errors(model, views, X) -> tuple[float, float]:
     """``poses = "unknown"``: the second view's rotation error relative to the first (deg)
     and the shape's aligned vertex RMS (mm)."""
     res = register_views(model, views, poses="unknown")
     truth = views[1].view.R @ views[0].view.R.T
     err = float(np.degrees(rotation_angle(res.view_poses["cam2"]["R"], truth)))
-    return err, _aligned_rms(res.vertices, views[0].view.to_camera(X))
+    return err, aligned_rms(res.vertices, views[0].view.to_camera(X))
 
 
 def _without_search(monkeypatch) -> None:
@@ -234,4 +226,4 @@ def test_start_pose_with_two_landmarks_and_a_blunder(small) -> None:
         fixed.append(vertex_landmarks(v.name, v.view, ids, uv, v.contours))
     res = register_views(small, fixed, start=(R, t))
     assert res.rejected == [("cam2", f"v{ids[1]}")]
-    assert _aligned_rms(res.vertices, X) < 0.5
+    assert aligned_rms(res.vertices, X) < 0.5
