@@ -5,9 +5,8 @@ With fewer than 3 distinct landmark points the start is searched on the outlines
 (:mod:`.start_search`), and its score, the rigid mean shape's outline distance, says little
 about where the fit from it ends: the fit moves the pose and, with one border traced in a view
 or a landmark rejected on the way, the shape into one of several basins whose costs differ by
-a few percent. On the real wrist radiographs (``benchmarks/real_wrist.py``) the fits from the
-search's best 4 starts ended 0.4-3.8 mm apart in vertex RMS on one case, and the best score
-picked the best fit in few cases.
+a few percent (the real wrist radiographs of ``benchmarks/real_wrist.py``; the figures with
+and without this choice are in ``docs/real_wrist.md``).
 
 So with few landmarks (the data that need the search) every refined candidate of the search
 is carried through the whole fit (:func:`fit_from_pose`: outline boosting, the final
@@ -18,8 +17,9 @@ gates and contour sides, so the fits are compared under each of them in turn
 (:func:`cross_objectives`: fit ``a`` under fit ``b``'s terms, the same sigmas and rejected
 landmarks for every fit in a column) and the fit kept is the one whose cost is the lowest
 relative to the best of each column, on the geometric mean over the columns
-(:func:`preferred_fit`): no one fit's noise estimate decides. Cases with 3 or more distinct
-landmarks start from the landmark-only solve and never come here.
+(:func:`preferred_fit`): no one fit's noise estimate decides. Registrations whose landmarks
+start the fit alone (4 observations of 3 different points), or that are given a start pose,
+never come here.
 
 World frame, mm; image quantities in pixels.
 """
