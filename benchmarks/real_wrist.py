@@ -212,6 +212,12 @@ def targets(results: dict) -> list[str]:
     if sig:
         out.append(f"* sigma 1 vs 3 px: largest relative difference {100 * max(sig):.2f} % "
                    "(target <= 5 %)")  # fmt: skip
+    cpu = [r["cpu_s"] for r in results.values() if "cpu_s" in r]
+    if cpu:
+        out.append(
+            f"* CPU seconds per registration: median {np.median(cpu):.1f}, max "
+            f"{np.max(cpu):.1f}, total {np.sum(cpu):.0f} ({len(cpu)} registrations)"
+        )
     flagged = [k for k, r in results.items() if k.endswith("/outlines") and r.get("flags")]
     out.append(f"* flags on the cases as annotated: {len(flagged)} of "
                f"{sum(k.endswith('/outlines') for k in results)}")  # fmt: skip

@@ -507,7 +507,7 @@ def refine_on_outlines(
         ``callback((R, t, w), F, n_active)`` after every accepted step.
     """
     R0, t0, w0 = (np.asarray(a, dtype=float) for a in start)
-    n_views = max([t.index for t in outlines] + [int(landmarks.view_index.max(initial=0))]) + 1
+    n_views = _n_views(landmarks, outlines)
     cb = None if callback is None else (lambda s, f, n: callback((s[0][0], s[1][0], s[2]), f, n))
     return refine_poses_on_outlines(
         model,
@@ -521,3 +521,29 @@ def refine_on_outlines(
         he=he,
         callback=cb,
     )
+
+
+def _n_views(landmarks: RayObservations, outlines: list[OutlineTerm]) -> int:
+    """How many views the terms refer to (the largest view index + 1)."""
+    return max([t.index for t in outlines] + [int(landmarks.view_index.max(initial=0))]) + 1
+
+
+def objective(
+    model: ShapeModel,
+    state: PoseShape,
+    landmarks: RayObservations,
+    outlines: list[OutlineTerm],
+    *,
+    prior_weight: float = 1.0,
+    he: object | None = None,
+) -> float:
+    """``F`` of the module docstring at ``state = (R, t, w)`` (object -> world, mm; the
+    weights), the terms as :func:`refine_on_outlines` has them, no step taken: what a
+    refinement with these terms would start from (dimensionless)."""
+    R, t, w = (np.asarray(a, dtype=float) for a in state)
+    poses = (R[None], t[None], w)
+    pose_of_view = np.zeros(_n_views(landmarks, outlines), dtype=int)
+    fit = _PoseFit(model, landmarks, outlines, pose_of_view, None, prior_weight, he, None)
+    fit.z0 = _view_depths(model, outlines, pose_of_view, poses)  # no step: the guard passes
+    r, _ = fit.residuals(poses)
+    return 0.5 * float(r @ r)

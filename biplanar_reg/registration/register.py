@@ -24,6 +24,7 @@ from ..ssm.model import ShapeModel
 from .blunders import rejected_landmarks, robust_cost
 from .gp_stage import GpOutcome, gp_stage, kernel_basis, registration_model
 from .gsft import GsftResult
+from .multi_start import STARTS, best_of_starts
 from .noise import used_sigma
 from .observations import ViewObservations
 from .options import IterationRecord, RegistrationOptions
@@ -56,7 +57,7 @@ from .stages import (
     refine_final,
     robust_start,
 )
-from .start_search import few_landmarks_centre, search_start
+from .start_search import REFINED, few_landmarks_centre, search_start
 from .uncertainty import registration_uncertainty
 from .view_poses import (
     PosedViews,
@@ -426,29 +427,11 @@ def _register_posed(model, posed, poses, opts, silhouettes, say, start_pose):
     if few:  # the landmark-only solve cannot place the bone: near the landmark rays
         c = few_landmarks_centre(posed.views)
     problem = make_problem(model, posed.views, opts, silhouettes, say, c)
-    if few:
-        found = search_start(problem)
-        start_pose = (found.rotation, found.translation)
-    memo = FitMemo()  # the start's boosted fits, retraced by the boosting (stages.FitMemo)
-    if start_pose is not None:
-        start = pose_start(problem, *start_pose)
-        unweighted = None
+    if few:  # every searched start fitted, the objective's choice kept (multi_start)
+        found = search_start(problem, refined=max(REFINED, STARTS))
+        final = best_of_starts(problem, list(found.candidates))
     else:
-        unweighted = landmark_start(problem)
-        start = robust_start(problem, unweighted, memo)
-        unweighted = unweighted.result
-    # blunder restarts start from the landmarks alone: not possible with few of them
-    detect = opts.robust and len(problem.landmarks) > 0 and not few
-    run = boost(
-        problem,
-        start.result,
-        start.weights,
-        opts.max_iterations,
-        detect=detect,
-        unweighted=unweighted,
-        memo=memo,
-    )
-    final = refine_final(problem, run)
+        final = _fit(problem, start_pose)
     problem = final.problem or problem
     if poses == "known" or not problem.use_outlines:
         return problem, final
@@ -465,6 +448,31 @@ def _register_posed(model, posed, poses, opts, silhouettes, say, start_pose):
     run = boost(problem, res, final.weights, 0, detect=False)
     final = refine_final(problem, run)
     return final.problem or problem, final
+
+
+def _fit(problem: Problem, start_pose: tuple | None) -> Refined:
+    """The fit from the landmarks (:func:`.stages.robust_start`) or from ``start_pose`` (the
+    mean shape there): outline boosting with the landmarks' robust reweighting, then the
+    final refinement."""
+    opts = problem.options
+    memo = FitMemo()  # the start's boosted fits, retraced by the boosting (stages.FitMemo)
+    if start_pose is not None:
+        start = pose_start(problem, *start_pose)
+        unweighted = None
+    else:
+        unweighted = landmark_start(problem)
+        start = robust_start(problem, unweighted, memo)
+        unweighted = unweighted.result
+    run = boost(
+        problem,
+        start.result,
+        start.weights,
+        opts.max_iterations,
+        detect=opts.robust and len(problem.landmarks) > 0,
+        unweighted=unweighted,
+        memo=memo,
+    )
+    return refine_final(problem, run)
 
 
 def _enough_landmark_points(views: list[ViewObservations]) -> bool:

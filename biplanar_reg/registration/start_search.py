@@ -21,9 +21,10 @@ decide what the landmarks leave open. The search (:func:`search_start`):
    distances of the annotated outline samples to the posed mean shape's outline, each capped
    at ``SEARCH_GATE_PX``; the landmarks only admit candidates, their errors on real
    radiographs being tens of pixels);
-4. the best ``REFINED``, a grid spacing apart, are refined rigidly on landmarks and outlines
-   (:func:`.outline_fit.refine_on_outlines` with the modes left out) and the one with the
-   lowest outline score after refinement is the start.
+4. the best ``REFINED`` (or ``refined``), a grid spacing apart, are refined rigidly on
+   landmarks and outlines (:func:`.outline_fit.refine_on_outlines` with the modes left out)
+   and the one with the lowest outline score after refinement is the start; all of them,
+   ordered by that score, are the candidates :mod:`.multi_start` carries through the fit.
 
 Frames and units: world frame of the views, mm; image quantities in pixels.
 """
@@ -106,6 +107,8 @@ class SearchResult:
     translation: np.ndarray
     score: float  # the capped mean squared pixel distance of the start (see module doc)
     n_scored: int  # rotations scored on the outlines
+    #: every refined rotation's pose ``(R, t)``, the lowest outline score first (the start's)
+    candidates: tuple = ()
 
 
 def few_landmarks_centre(views: list[ViewObservations]) -> np.ndarray:
@@ -308,11 +311,13 @@ def _errors(problem: Problem, Rs, ts, pts) -> np.ndarray:
     return _landmark_errors(problem, np.einsum("nab,lb->nla", Rs, pts) + ts[:, None])
 
 
-def search_start(problem: Problem, n_grid: int = GRID_SIZE) -> SearchResult:
+def search_start(problem: Problem, n_grid: int = GRID_SIZE, refined: int = REFINED) -> SearchResult:
     """The start pose of the mean shape from the landmarks and the outlines (module doc).
 
     Needs landmark rays that fix a translation for every rotation (at least 2 observations,
-    not all along one ray) and outlines in some view (the problem's targets).
+    not all along one ray) and outlines in some view (the problem's targets). ``refined``
+    rotations, a grid spacing apart, are refined (:data:`REFINED`); the result's
+    ``candidates`` are their poses, best outline score first.
     """
     model = problem.model
     ids = problem.landmarks.rays.vertex_ids
@@ -337,14 +342,15 @@ def search_start(problem: Problem, n_grid: int = GRID_SIZE) -> SearchResult:
     proxy = _proxy_scores(problem, Rs, ts, cand)
     cand = cand[np.argsort(proxy, kind="stable")][:MAX_SCORED]
     scores = np.array([_outline_score(problem, model.mean @ Rs[j].T + ts[j]) for j in cand])
-    best = _distinct(Rs, cand[np.argsort(scores, kind="stable")], spacing, REFINED)
+    best = _distinct(Rs, cand[np.argsort(scores, kind="stable")], spacing, refined)
     results = []
     for j in best:
         R, t = _refine(problem, Rs[j], ts[j])
         results.append((_outline_score(problem, model.mean @ R.T + t), R, t))
-    score, R, t = min(results, key=lambda r: r[0])
+    results.sort(key=lambda r: r[0])  # stable: ties keep the search's order
+    score, R, t = results[0]
     problem.say(
         f"start search: {len(proxy)} of {n_grid} rotations fit the landmarks within "
         f"{slack:.0f} px, scored on the outlines; best score {score:.3g} px^2"
     )
-    return SearchResult(R, t, score, len(proxy))
+    return SearchResult(R, t, score, len(proxy), tuple((r[1], r[2]) for r in results))

@@ -1,5 +1,6 @@
 """Seeded registration problems shared by ``test_registration_stages.py`` and
-``test_registration_options.py`` (not a test module).
+``test_registration_options.py``, and the shape error of the few-landmark tests (not a test
+module).
 
 The set-up is that of ``tests/registration/test_boosting.py`` and ``benchmarks/blunder.py``: the
 synthetic bone (1,282 vertices, 8 modes, truth in the span), two views 75 deg apart, 3
@@ -14,11 +15,12 @@ from dataclasses import replace
 
 import numpy as np
 
+from biplanar_reg.pose import Pose
 from biplanar_reg.registration import RegistrationOptions, ViewObservations
 from biplanar_reg.registration.problem import Problem, make_problem
 from biplanar_reg.simulate import boosting_case
 
-__all__ = ["clean_views", "with_blunder", "problem_for", "BLUNDER_PX"]
+__all__ = ["clean_views", "with_blunder", "problem_for", "aligned_rms", "BLUNDER_PX"]
 
 #: The benchmark's blunder: 40 px, along (0.6, 0.8).
 BLUNDER_PX = 40.0 * np.array([0.6, 0.8])
@@ -55,3 +57,10 @@ def problem_for(
     to mm at the centroid of an equal-weight landmark-only solve (:func:`rough_centre`)."""
     opts = options or RegistrationOptions()
     return make_problem(model, views, opts, outlines, say or (lambda msg: None))
+
+
+def aligned_rms(a: np.ndarray, b: np.ndarray) -> float:
+    """Vertex RMS (mm) after the best rigid alignment of ``a`` onto ``b`` (both (N, 3), in
+    vertex correspondence): the shape's error, whatever the pose."""
+    d = Pose.fit_rigid(a, b).apply(a) - b
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))

@@ -13,9 +13,9 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from registration_problems import aligned_rms
 
 from biplanar_reg.calibration.views import OrthographicView
-from biplanar_reg.pose import Pose
 from biplanar_reg.registration import pose_search, register_views
 from biplanar_reg.registration.options import RegistrationOptions
 from biplanar_reg.registration.rotations import rotation_angle
@@ -36,19 +36,13 @@ def _case(model, seed: int, landmarks: tuple[int, int]):
     return views, R, t, X
 
 
-def _aligned_rms(a: np.ndarray, b: np.ndarray) -> float:
-    """Vertex RMS (mm) after the best rigid alignment of ``a`` onto ``b``."""
-    d = Pose.fit_rigid(a, b).apply(a) - b
-    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
-
-
 def _unknown_errors(model, views, X) -> tuple[float, float]:
     """``poses = "unknown"``: the second view's rotation error relative to the first (deg)
     and the shape's aligned vertex RMS (mm)."""
     res = register_views(model, views, poses="unknown")
     truth = views[1].view.R @ views[0].view.R.T
     err = float(np.degrees(rotation_angle(res.view_poses["cam2"]["R"], truth)))
-    return err, _aligned_rms(res.vertices, views[0].view.to_camera(X))
+    return err, aligned_rms(res.vertices, views[0].view.to_camera(X))
 
 
 def _without_search(monkeypatch) -> None:
@@ -232,4 +226,4 @@ def test_start_pose_with_two_landmarks_and_a_blunder(small) -> None:
         fixed.append(vertex_landmarks(v.name, v.view, ids, uv, v.contours))
     res = register_views(small, fixed, start=(R, t))
     assert res.rejected == [("cam2", f"v{ids[1]}")]
-    assert _aligned_rms(res.vertices, X) < 0.5
+    assert aligned_rms(res.vertices, X) < 0.5
