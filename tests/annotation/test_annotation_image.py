@@ -10,22 +10,15 @@ import numpy as np
 import pydicom
 import pytest
 import tifffile
-from pydicom.dataset import FileDataset, FileMetaDataset
-from pydicom.uid import ExplicitVRLittleEndian, SecondaryCaptureImageStorage, generate_uid
 
 from biplanar_reg.annotation.image import as_display, load_image
+from tests.dicom_files import new_dataset
 
 DATA = Path(__file__).resolve().parents[2] / "sample_cases" / "wrist_radius" / "data"
 
 
 def _write_dicom(path: Path, frames: np.ndarray, photometric: str, **extra) -> None:
-    meta = FileMetaDataset()
-    meta.MediaStorageSOPClassUID = SecondaryCaptureImageStorage
-    meta.MediaStorageSOPInstanceUID = generate_uid()
-    meta.TransferSyntaxUID = ExplicitVRLittleEndian
-    ds = FileDataset(str(path), {}, file_meta=meta, preamble=b"\0" * 128)
-    ds.SOPClassUID = meta.MediaStorageSOPClassUID
-    ds.SOPInstanceUID = meta.MediaStorageSOPInstanceUID
+    ds = new_dataset(path)
     ds.PatientName = "Doe^Jane"
     ds.PatientID = "SECRET-ID-123"
     ds.Modality = "DX"

@@ -16,14 +16,13 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from pydicom.dataset import FileDataset, FileMetaDataset
-from pydicom.uid import ExplicitVRLittleEndian, SecondaryCaptureImageStorage, generate_uid
 
 from biplanar_reg.cases import CaseError, CaseFailure, bone_fit, load_case, run_case_dir
 from biplanar_reg.cases.case import to_frame_observations
 from biplanar_reg.cases.documents import dicom_identifiers
 from biplanar_reg.errors import SolverFailure
 from biplanar_reg.simulate import write_synthetic_case
+from tests.dicom_files import new_dataset
 
 SAMPLES = Path(__file__).resolve().parents[2] / "sample_cases"
 FRAMES_CASE = SAMPLES / "wrist_radius_frames"
@@ -96,13 +95,7 @@ def test_registration_failures_are_one_line_errors(which, request, monkeypatch):
 
 def _dicom(path: Path, patient: str) -> Path:
     """A minimal DICOM file (no pixels) with a patient name."""
-    meta = FileMetaDataset()
-    meta.MediaStorageSOPClassUID = SecondaryCaptureImageStorage
-    meta.MediaStorageSOPInstanceUID = generate_uid()
-    meta.TransferSyntaxUID = ExplicitVRLittleEndian
-    ds = FileDataset(str(path), {}, file_meta=meta, preamble=b"\0" * 128)
-    ds.SOPClassUID = meta.MediaStorageSOPClassUID
-    ds.SOPInstanceUID = meta.MediaStorageSOPInstanceUID
+    ds = new_dataset(path)
     ds.PatientName = patient
     ds.save_as(path, enforce_file_format=True)
     return path

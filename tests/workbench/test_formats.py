@@ -12,23 +12,16 @@ import cv2
 import numpy as np
 import tifffile
 from _http import page_client
-from pydicom.dataset import FileDataset, FileMetaDataset
-from pydicom.uid import ExplicitVRLittleEndian, SecondaryCaptureImageStorage, generate_uid
 from starlette.testclient import TestClient
 
 from biplanar_reg.workbench import Workbench, create_app
+from tests.dicom_files import new_dataset
 
 TOKEN = "test-token-0123456789"
 
 
 def _dicom(path: Path, pixels: np.ndarray) -> None:
-    meta = FileMetaDataset()
-    meta.MediaStorageSOPClassUID = SecondaryCaptureImageStorage
-    meta.MediaStorageSOPInstanceUID = generate_uid()
-    meta.TransferSyntaxUID = ExplicitVRLittleEndian
-    ds = FileDataset(str(path), {}, file_meta=meta, preamble=b"\0" * 128)
-    ds.SOPClassUID = meta.MediaStorageSOPClassUID
-    ds.SOPInstanceUID = meta.MediaStorageSOPInstanceUID
+    ds = new_dataset(path)
     ds.Modality = "DX"
     ds.SamplesPerPixel = 1
     ds.PhotometricInterpretation = "MONOCHROME1"
