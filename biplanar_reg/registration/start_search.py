@@ -242,34 +242,48 @@ def _proxy_scores(problem: Problem, Rs, ts, cand: np.ndarray) -> np.ndarray:
     """A fast stand-in for :func:`_outline_score` of many candidates: the model's outline is
     taken as the convex hull of a few hundred of its projected vertices and the annotated
     outline as at most :data:`PROXY_SAMPLES` of its samples (the rank, not the value,
-    matters: the best are scored exactly)."""
+    matters: the best are scored exactly). :data:`PROXY_BATCH` candidates at a time."""
     mean = problem.model.mean
     sub = mean[:: max(1, len(mean) // PROXY_VERTICES)]
     gate2 = SEARCH_GATE_PX**2
-    targets = []
+    out = np.zeros(len(cand))
     for i, target in problem.targets.items():
+        view = problem.views[i].view
         q = target.points[target.usable]
-        targets.append((problem.views[i].view, q[:: max(1, len(q) // PROXY_SAMPLES)]))
-    out = np.empty(len(cand))
-    for k, j in enumerate(cand):
-        score = 0.0
-        posed = sub @ Rs[j].T + ts[j]
-        for view, q in targets:
-            hull = cv2.convexHull(view.project(posed).astype(np.float32))[:, 0].astype(float)
-            d2 = _polygon_distance2(q, hull)
-            score += float(np.mean(np.minimum(d2, gate2)))
-        out[k] = score
+        q = q[:: max(1, len(q) // PROXY_SAMPLES)]
+        for lo in range(0, len(cand), PROXY_BATCH):
+            j = cand[lo : lo + PROXY_BATCH]
+            posed = np.einsum("nab,vb->nva", Rs[j], sub) + ts[j][:, None]
+            uv = view.project(posed.reshape(-1, 3)).reshape(len(j), len(sub), 2)
+            hulls = [cv2.convexHull(p.astype(np.float32))[:, 0].astype(float) for p in uv]
+            d2 = _polygons_distance2(q, hulls)
+            out[lo : lo + len(j)] += np.mean(np.minimum(d2, gate2), axis=1)
     return out
 
 
-def _polygon_distance2(q: np.ndarray, poly: np.ndarray) -> np.ndarray:
-    """Squared distance (Q,) of points ``q`` (Q, 2) to a closed polygon's edges (P, 2)."""
-    a, b = poly, np.roll(poly, -1, axis=0)
-    ab = b - a
-    ln2 = np.maximum(np.sum(ab * ab, axis=1), 1e-12)
-    t = np.clip(((q[:, None, :] - a[None]) * ab[None]).sum(axis=2) / ln2, 0.0, 1.0)
-    foot = a[None] + t[..., None] * ab[None]
-    return np.min(np.sum((q[:, None, :] - foot) ** 2, axis=2), axis=1)
+#: Candidates whose proxy scores are computed together (arrays of about
+#: ``PROXY_BATCH x PROXY_SAMPLES x hull vertices``).
+PROXY_BATCH = 512
+
+
+def _polygons_distance2(q: np.ndarray, polys: list[np.ndarray]) -> np.ndarray:
+    """Squared distance (n, Q) of points ``q`` (Q, 2) to each of ``n`` closed polygons'
+    edges (each (P_k, 2)). The polygons are padded to one length by repeating their first
+    vertex: the padding adds zero-length edges at a vertex, which change no distance."""
+    n_max = max(len(p) for p in polys)
+    a = np.stack([np.vstack([p, np.repeat(p[:1], n_max - len(p), axis=0)]) for p in polys])
+    ab = np.concatenate([a[:, 1:], a[:, :1]], axis=1) - a  # each edge, closed: (n, P, 2)
+    ln2 = np.maximum(np.sum(ab * ab, axis=2), 1e-12)
+    best = np.full((len(a), len(q)), np.inf)
+    # one edge at a time over (n, Q) arrays: numpy reduces slowly over a short last axis
+    for k in range(n_max):
+        dx = q[None, :, 0] - a[:, k, 0, None]
+        dy = q[None, :, 1] - a[:, k, 1, None]
+        ex, ey = ab[:, k, 0, None], ab[:, k, 1, None]
+        t = np.clip((dx * ex + dy * ey) / ln2[:, k, None], 0.0, 1.0)
+        rx, ry = dx - t * ex, dy - t * ey
+        np.minimum(best, rx * rx + ry * ry, out=best)
+    return best
 
 
 def _with_depths(problem: Problem, Rs, ts, cand, pts):

@@ -227,3 +227,20 @@ def test_start_pose_with_two_landmarks_and_a_blunder(small) -> None:
     res = register_views(small, fixed, start=(R, t))
     assert res.rejected == [("cam2", f"v{ids[1]}")]
     assert aligned_rms(res.vertices, X) < 0.5
+
+
+def test_the_search_s_polygon_distance_is_the_distance_to_the_edges():
+    """Points to closed polygons of different lengths, all at once: the distance to a dense
+    sampling of each polygon's edges (closing edge included)."""
+    from biplanar_reg.registration.start_search import _polygons_distance2
+
+    rng = np.random.default_rng(3)
+    q = rng.uniform(-60, 60, size=(40, 2))
+    polys = [rng.uniform(-40, 40, size=(n, 2)) for n in (3, 7, 12)]
+    got = _polygons_distance2(q, polys)
+    s = np.linspace(0.0, 1.0, 2001)[:, None]
+    for k, p in enumerate(polys):
+        a, b = p, np.roll(p, -1, axis=0)
+        dense = np.concatenate([a[i] + s * (b[i] - a[i]) for i in range(len(p))])
+        want = np.min(np.sum((q[:, None] - dense[None]) ** 2, axis=2), axis=1)
+        np.testing.assert_allclose(np.sqrt(got[k]), np.sqrt(want), atol=0.05)

@@ -5,6 +5,8 @@ landmarks seen in both views."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from registration_problems import aligned_rms
@@ -81,9 +83,35 @@ def test_several_starts_are_fitted_only_with_few_landmarks(two_landmarks):
     model, views, X, *_ = two_landmarks
     said: list[str] = []
     res = register_views(model, views, progress=said.append)
-    assert any(s.startswith(f"start search: {multi_start.STARTS} starts fitted") for s in said)
+    fitted = [s for s in said if re.match(r"start search: \d+ starts fitted", s)]
+    assert len(fitted) == 1 and int(fitted[0].split()[2]) == multi_start.STARTS
     assert aligned_rms(res.vertices, X) < 0.1
     full, _ = boosting_case(model, 0, fraction=0.8, noise_px=0.5, landmarks_per_view=3)
     said.clear()
     register_views(model, full, progress=said.append)
     assert not any(s.startswith("start search") for s in said)
+
+
+def test_starts_that_end_on_one_fit_are_refined_once(two_landmarks):
+    """Two starts at one pose end on one boosted fit: it is refined once, and counts for
+    both starts in the choice (the costs of three starts fitted on their own); the turned
+    start's fit is far from it and is refined."""
+    model, views, X, true_pose, turned = two_landmarks
+    said: list[str] = []
+    problem = make_problem(model, views, RegistrationOptions(), True, said.append,
+                           few_landmarks_centre(views))  # fmt: skip
+    runs, run_of = multi_start.distinct_runs(problem, [turned, true_pose, true_pose])
+    assert len(runs) == 2 and run_of == {0: 0, 1: 1, 2: 1}
+    assert "start search: start 3 ends on start 2's fit" in said
+    chosen = multi_start.best_of_starts(problem, [turned, true_pose, true_pose])
+    assert aligned_rms(chosen.result.vertices, X) < 0.1
+    assert any(s.startswith("start search: 3 starts fitted (2 distinct fits)") for s in said)
+    assert sum(s.startswith("outline refinement") for s in said) == 2  # refined once each
+
+
+def test_same_fit_is_within_a_fraction_of_a_pixel_in_every_view(two_landmarks):
+    model, views, X, *_ = two_landmarks
+    problem = _problem(model, views)
+    mm_per_px = max(problem.mm_per_px.values())
+    assert multi_start.same_fit(problem, X, X + [0.1 * mm_per_px, 0.0, 0.0])
+    assert not multi_start.same_fit(problem, X, X + [0.0, 0.0, 3.0 * mm_per_px])
