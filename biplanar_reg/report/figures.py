@@ -463,9 +463,7 @@ def _convergence_panel(
         )
 
 
-def _labelled_counts(
-    ax: Axes, idx: np.ndarray, c: np.ndarray, matches: Sequence[int]
-) -> list[int]:
+def _labelled_counts(ax: Axes, idx: np.ndarray, c: np.ndarray, matches: Sequence[int]) -> list[int]:
     """The iterations of ``idx`` whose count ``matches[i]`` is written above the point
     ``(i, c[i])``: the first, then each whose count differs from the last one written and
     whose label would not overlap it (apart by half their widths plus 2 px across, or by a
