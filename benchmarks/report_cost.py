@@ -10,8 +10,8 @@ leaves a package); no thread-count variable is set (the batch pool sets its work
    (:data:`case_time.KNEE`: 7,322 vertices, 14,640 triangles, two 1024 x 1024 views), with
    reports: CPU per case (user + system of the batch and all its workers and their children,
    divided by the cases done) and wall time; ``--batch-repeats`` runs per tree.
-2. ``biplanar-reg register KNEE --out OUT`` with its report: wall seconds (and CPU), median of
-   ``--repeats`` runs per tree.
+2. ``biplanar-reg register KNEE --out OUT`` with its report: wall seconds (and CPU, and the
+   load average before each run), median of ``--repeats`` runs per tree.
 3. With ``--figures N``: the report's figures one by one, CPU seconds, in one process per tree
    that registers the knee case once and writes its report N + 1 times (the first, with the
    imports and first-use costs, shown apart; then the median of N: a batch worker's steady
@@ -114,12 +114,15 @@ def run_batch(tree: Path, cases: Path, out: Path) -> tuple[float, float, int, st
     return cpu, wall, done, ",".join(sorted(map(str, renderers)))
 
 
-def run_register(tree: Path, case: Path, out: Path) -> tuple[float, float, str]:
-    """(CPU s, wall s, renderer) of one ``register`` with its report."""
+def run_register(tree: Path, case: Path, out: Path) -> tuple[float, float, str, float]:
+    """(CPU s, wall s, renderer, load average before the run) of one ``register`` with its
+    report."""
     shutil.rmtree(out, ignore_errors=True)
     argv = ["-m", "biplanar_reg.cli", "register", str(case), "--out", str(out)]
+    load = os.getloadavg()[0]
     cpu, wall, _ = child(tree, argv, out.parent)
-    return cpu, wall, str(json.loads((out / "result.json").read_text())["report"]["renderer"])
+    renderer = str(json.loads((out / "result.json").read_text())["report"]["renderer"])
+    return cpu, wall, renderer, load
 
 
 def measure(args, trees: dict[str, Path], work: Path) -> dict:
@@ -178,17 +181,55 @@ def _register_lines(trees: dict[str, Path], res: dict) -> list[str]:
         "",
         "## 2. `biplanar-reg register KNEE --out OUT` (with its report)",
         "",
-        "| tree | wall s (median) | wall s (runs) | CPU s (median) | 3D view |",
-        "|---|---|---|---|---|",
+        "| tree | wall s (median) | wall s (runs) | CPU s (median) | load average before "
+        "the runs | 3D view |",
+        "|---|---|---|---|---|---|",
     ]
     for label in trees:
         runs = res["register"][label]
-        walls = [w for _, w, _ in runs]
+        walls = [r[1] for r in runs]
         lines.append(
             f"| {label} | {statistics.median(walls):.2f} | "
             f"{', '.join(f'{w:.2f}' for w in walls)} | "
-            f"{statistics.median(c for c, _, _ in runs):.2f} | "
-            f"{','.join(sorted({r for _, _, r in runs}))} |"
+            f"{statistics.median(r[0] for r in runs):.2f} | "
+            f"{', '.join(f'{r[3]:.1f}' for r in runs)} | "
+            f"{','.join(sorted({r[2] for r in runs}))} |"
+        )
+    return lines
+
+
+#: The targets: batch CPU per case at most this times the reference's; one ``register``
+#: with its report at most this many wall seconds.
+BATCH_RATIO_TARGET = 1.2
+REGISTER_WALL_TARGET_S = 3.0
+
+
+def _target_lines(args, trees: dict[str, Path], res: dict) -> list[str]:
+    """Each target, the measured value and whether it is met."""
+    ref, new = list(trees)
+    lines = ["", "## Against the targets", ""]
+    if args.batch:
+        per_case = {
+            t: statistics.median(c / max(d, 1) for c, _, d, _ in res["batch"][t]) for t in trees
+        }
+        ratio = per_case[new] / per_case[ref]
+        met = "met" if ratio <= BATCH_RATIO_TARGET else "not met"
+        lines.append(
+            f"- `batch` CPU per case at most {BATCH_RATIO_TARGET}x the reference's: "
+            f"{ratio:.2f}x ({per_case[new]:.2f} vs {per_case[ref]:.2f} s), **{met}**."
+        )
+    if args.repeats:
+        runs = res["register"][new]
+        wall = statistics.median(r[1] for r in runs)
+        load = statistics.median(r[3] for r in runs)
+        met = "met" if wall <= REGISTER_WALL_TARGET_S else "not met"
+        ref_wall = statistics.median(r[1] for r in res["register"][ref])
+        cpu = {t: statistics.median(r[0] for r in res["register"][t]) for t in trees}
+        lines.append(
+            f"- one `register` with its report in at most {REGISTER_WALL_TARGET_S:g} s wall: "
+            f"{wall:.2f} s (median; load average {load:.1f} before the runs, on "
+            f"{os.cpu_count()} cores; the reference {ref_wall:.2f} s), **{met}**. CPU "
+            f"{cpu[new]:.2f} vs {cpu[ref]:.2f} s ({cpu[new] / cpu[ref]:.2f}x)."
         )
     return lines
 
@@ -227,8 +268,7 @@ def markdown(args, trees: dict[str, Path], res: dict, seconds: float) -> str:
         f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python "
         f"{platform.python_version()}; shared (load average at the end "
         f"{os.getloadavg()[0]:.1f}): compare the two trees of one run, measured alternately.",
-        f"Trees: **{ref}** = `{trees[ref]}` ({git_rev(trees[ref])}); **{new}** = "
-        f"`{trees[new]}` ({git_rev(trees[new])}).",
+        f"Trees: **{ref}** = {_tree_text(trees[ref])}; **{new}** = {_tree_text(trees[new])}.",
     ]
     if args.batch:
         lines += _batch_lines(args, trees, res)
@@ -236,7 +276,15 @@ def markdown(args, trees: dict[str, Path], res: dict, seconds: float) -> str:
         lines += _register_lines(trees, res)
     if args.figures:
         lines += _figure_lines(args, trees, res)
+    if args.batch or args.repeats:
+        lines += _target_lines(args, trees, res)
     return "\n".join(lines) + "\n"
+
+
+def _tree_text(tree: Path) -> str:
+    """``tree`` and its commit when it is a git checkout (an archive has none)."""
+    rev = git_rev(tree)
+    return f"`{tree}`" + (f" ({rev})" if rev else "")
 
 
 def main() -> None:
