@@ -381,8 +381,13 @@ def _hist_panel(ax: Axes, label: str, values: np.ndarray, unit: str) -> None:
     v = np.asarray(values, float)
     counts, bins = np.histogram(v, bins=min(40, max(5, len(v) // 5)))
     ax.stairs(counts, bins, fill=True, color="steelblue")
-    # the bars' white edges, one collection (not one patch per bar)
-    ax.vlines(bins[1:-1], 0, np.maximum(counts[:-1], counts[1:]), colors="white", lw=0.5)
+    # the bars' white edges, one collection (not one patch per bar; the limits are set below,
+    # so it adds no data limits: ``vlines`` would, at half the histogram's drawing time)
+    tops = np.maximum(counts[:-1], counts[1:])
+    edges = np.stack(
+        [np.column_stack([bins[1:-1], 0 * tops]), np.column_stack([bins[1:-1], tops])], 1
+    )
+    ax.add_collection(LineCollection(edges, colors="white", linewidths=0.5), autolim=False)
     ax.set_xlim(float(bins[0]), float(bins[-1]))
     ax.set_ylim(0.0, 1.05 * max(float(counts.max()), 1.0))
     median = float(np.median(v))
