@@ -10,8 +10,8 @@ leaves a package); no thread-count variable is set (the batch pool sets its work
    (:data:`case_time.KNEE`: 7,322 vertices, 14,640 triangles, two 1024 x 1024 views), with
    reports: CPU per case (user + system of the batch and all its workers and their children,
    divided by the cases done) and wall time; ``--batch-repeats`` runs per tree.
-2. ``biplanar-reg register KNEE --out OUT`` with its report: wall seconds (and CPU), median of
-   ``--repeats`` runs per tree.
+2. ``biplanar-reg register KNEE --out OUT`` with its report: wall seconds (and CPU, and the
+   load average before each run), median of ``--repeats`` runs per tree.
 3. With ``--figures N``: the report's figures one by one, CPU seconds, in one process per tree
    that registers the knee case once and writes its report N + 1 times (the first, with the
    imports and first-use costs, shown apart; then the median of N: a batch worker's steady
@@ -47,11 +47,28 @@ from benchmarks.case_time import KNEE, child, compile_tree, git_rev  # noqa: E40
 FIGURES = """
 import json, statistics, sys, tempfile, time
 from pathlib import Path
-from biplanar_reg.cases import bone_fit, bone_result, pipeline, truth
-from biplanar_reg.cases.case import load_case, to_frame_observations
-case = load_case(sys.argv[1]); frames = to_frame_observations(case)
-fit = bone_fit.BoneFit.of(case, frames, bone_fit.fit_bone(case, frames, lambda msg: None))
-gt = truth.bone_truth(case, fit)
+from biplanar_reg.cases.case import load_case
+case = load_case(sys.argv[1])
+try:  # the one pipeline of a bone over its frames
+    from biplanar_reg.cases import bone_fit, bone_result, pipeline, truth
+    from biplanar_reg.cases.case import to_frame_observations
+    frames = to_frame_observations(case)
+    fit = bone_fit.BoneFit.of(case, frames, bone_fit.fit_bone(case, frames, lambda msg: None))
+    gt = truth.bone_truth(case, fit)
+    def report_args():
+        doc = bone_result.bone_case_result(case, frames, fit, gt, {})
+        views = pipeline.report_views(case, frames, fit, [0])[0]
+        return doc, views, fit.frame_vertices[0], gt.vertex_error, fit.vertex_sd[0]
+except ImportError:  # a tree with the single-case pipeline (cases.single)
+    from biplanar_reg.cases import single
+    from biplanar_reg.cases.case import to_view_observations
+    obs = to_view_observations(case)
+    res = single.register_observations(case, obs)
+    errs, outl, src = single.view_errors(case, obs, res)
+    gm, ve, _ = single.ground_truth_metrics(case, res)
+    def report_args():
+        doc = single.result_document(case, obs, res, errs, src, gm, {})
+        return doc, single.report_views(case, obs, res, outl), res.vertices, ve, res.vertex_sd_mm
 c0 = time.process_time()
 from biplanar_reg.report import case_report
 T = {"imports": time.process_time() - c0}
@@ -70,11 +87,9 @@ for n in NAMES:
 runs = []
 for i in range(int(sys.argv[2]) + 1):
     c = time.process_time()
-    doc = bone_result.bone_case_result(case, frames, fit, gt, {})
-    views = pipeline.report_views(case, frames, fit, [0])[0]
-    case_report.write_case_report(Path(tempfile.mkdtemp()), doc, views,
-        vertices=fit.frame_vertices[0], faces=case.model.faces, vertex_error=gt.vertex_error,
-        vertex_sd=fit.vertex_sd[0])
+    doc, views, vertices, vertex_error, vertex_sd = report_args()
+    case_report.write_case_report(Path(tempfile.mkdtemp()), doc, views, vertices=vertices,
+        faces=case.model.faces, vertex_error=vertex_error, vertex_sd=vertex_sd)
     T["whole report"] = time.process_time() - c
     runs.append(dict(T)); T.clear(); T["imports"] = 0.0
 first, rest = runs[0], runs[1:]
@@ -99,12 +114,15 @@ def run_batch(tree: Path, cases: Path, out: Path) -> tuple[float, float, int, st
     return cpu, wall, done, ",".join(sorted(map(str, renderers)))
 
 
-def run_register(tree: Path, case: Path, out: Path) -> tuple[float, float, str]:
-    """(CPU s, wall s, renderer) of one ``register`` with its report."""
+def run_register(tree: Path, case: Path, out: Path) -> tuple[float, float, str, float]:
+    """(CPU s, wall s, renderer, load average before the run) of one ``register`` with its
+    report."""
     shutil.rmtree(out, ignore_errors=True)
     argv = ["-m", "biplanar_reg.cli", "register", str(case), "--out", str(out)]
+    load = os.getloadavg()[0]
     cpu, wall, _ = child(tree, argv, out.parent)
-    return cpu, wall, str(json.loads((out / "result.json").read_text())["report"]["renderer"])
+    renderer = str(json.loads((out / "result.json").read_text())["report"]["renderer"])
+    return cpu, wall, renderer, load
 
 
 def measure(args, trees: dict[str, Path], work: Path) -> dict:
@@ -163,17 +181,55 @@ def _register_lines(trees: dict[str, Path], res: dict) -> list[str]:
         "",
         "## 2. `biplanar-reg register KNEE --out OUT` (with its report)",
         "",
-        "| tree | wall s (median) | wall s (runs) | CPU s (median) | 3D view |",
-        "|---|---|---|---|---|",
+        "| tree | wall s (median) | wall s (runs) | CPU s (median) | load average before "
+        "the runs | 3D view |",
+        "|---|---|---|---|---|---|",
     ]
     for label in trees:
         runs = res["register"][label]
-        walls = [w for _, w, _ in runs]
+        walls = [r[1] for r in runs]
         lines.append(
             f"| {label} | {statistics.median(walls):.2f} | "
             f"{', '.join(f'{w:.2f}' for w in walls)} | "
-            f"{statistics.median(c for c, _, _ in runs):.2f} | "
-            f"{','.join(sorted({r for _, _, r in runs}))} |"
+            f"{statistics.median(r[0] for r in runs):.2f} | "
+            f"{', '.join(f'{r[3]:.1f}' for r in runs)} | "
+            f"{','.join(sorted({r[2] for r in runs}))} |"
+        )
+    return lines
+
+
+#: The targets: batch CPU per case at most this times the reference's; one ``register``
+#: with its report at most this many wall seconds.
+BATCH_RATIO_TARGET = 1.2
+REGISTER_WALL_TARGET_S = 3.0
+
+
+def _target_lines(args, trees: dict[str, Path], res: dict) -> list[str]:
+    """Each target, the measured value and whether it is met."""
+    ref, new = list(trees)
+    lines = ["", "## Against the targets", ""]
+    if args.batch:
+        per_case = {
+            t: statistics.median(c / max(d, 1) for c, _, d, _ in res["batch"][t]) for t in trees
+        }
+        ratio = per_case[new] / per_case[ref]
+        met = "met" if ratio <= BATCH_RATIO_TARGET else "not met"
+        lines.append(
+            f"- `batch` CPU per case at most {BATCH_RATIO_TARGET}x the reference's: "
+            f"{ratio:.2f}x ({per_case[new]:.2f} vs {per_case[ref]:.2f} s), **{met}**."
+        )
+    if args.repeats:
+        runs = res["register"][new]
+        wall = statistics.median(r[1] for r in runs)
+        load = statistics.median(r[3] for r in runs)
+        met = "met" if wall <= REGISTER_WALL_TARGET_S else "not met"
+        ref_wall = statistics.median(r[1] for r in res["register"][ref])
+        cpu = {t: statistics.median(r[0] for r in res["register"][t]) for t in trees}
+        lines.append(
+            f"- one `register` with its report in at most {REGISTER_WALL_TARGET_S:g} s wall: "
+            f"{wall:.2f} s (median; load average {load:.1f} before the runs, on "
+            f"{os.cpu_count()} cores; the reference {ref_wall:.2f} s), **{met}**. CPU "
+            f"{cpu[new]:.2f} vs {cpu[ref]:.2f} s ({cpu[new] / cpu[ref]:.2f}x)."
         )
     return lines
 
@@ -212,8 +268,7 @@ def markdown(args, trees: dict[str, Path], res: dict, seconds: float) -> str:
         f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python "
         f"{platform.python_version()}; shared (load average at the end "
         f"{os.getloadavg()[0]:.1f}): compare the two trees of one run, measured alternately.",
-        f"Trees: **{ref}** = `{trees[ref]}` ({git_rev(trees[ref])}); **{new}** = "
-        f"`{trees[new]}` ({git_rev(trees[new])}).",
+        f"Trees: **{ref}** = {_tree_text(trees[ref])}; **{new}** = {_tree_text(trees[new])}.",
     ]
     if args.batch:
         lines += _batch_lines(args, trees, res)
@@ -221,7 +276,15 @@ def markdown(args, trees: dict[str, Path], res: dict, seconds: float) -> str:
         lines += _register_lines(trees, res)
     if args.figures:
         lines += _figure_lines(args, trees, res)
+    if args.batch or args.repeats:
+        lines += _target_lines(args, trees, res)
     return "\n".join(lines) + "\n"
+
+
+def _tree_text(tree: Path) -> str:
+    """``tree`` and its commit when it is a git checkout (an archive has none)."""
+    rev = git_rev(tree)
+    return f"`{tree}`" + (f" ({rev})" if rev else "")
 
 
 def main() -> None:

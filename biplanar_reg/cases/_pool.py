@@ -80,10 +80,19 @@ def _watchdog(parent_pid: int) -> None:
             os._exit(1)
 
 
-def _worker_main(conn: Connection, parent_pid: int, task: Callable[..., Any]) -> None:
-    """A worker: run the jobs received on ``conn`` until ``None`` or the pipe closes."""
+#: ``(function, args)`` each worker calls once before its first job; None: nothing.
+Setup = tuple[Callable[..., Any], tuple] | None
+
+
+def _worker_main(
+    conn: Connection, parent_pid: int, task: Callable[..., Any], setup: Setup = None
+) -> None:
+    """A worker: ``setup``, then run the jobs received on ``conn`` until ``None`` or the pipe
+    closes."""
     die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C goes to the batch, which stops us
+    if setup is not None:
+        setup[0](*setup[1])
     conn.send(("ready", os.getpid()))
     while True:
         try:
@@ -111,8 +120,10 @@ class _Worker:
 class _Pool:
     """The state of one :func:`run_pool` call."""
 
-    def __init__(self, args: Sequence[tuple], size: int, task: Callable[..., Any]):
-        self.args, self.size, self.task = args, size, task
+    def __init__(
+        self, args: Sequence[tuple], size: int, task: Callable[..., Any], setup: Setup = None
+    ):
+        self.args, self.size, self.task, self.setup = args, size, task, setup
         self.ctx = multiprocessing.get_context("spawn")
         self.pending: deque[int] = deque(range(len(args)))
         self.deaths: Counter[int] = Counter()
@@ -126,7 +137,9 @@ class _Pool:
         """Start workers up to the work left, and give each idle one the next job."""
         while len(self.workers) < min(self.size, len(self.pending) + self.busy()):
             parent, child = self.ctx.Pipe(duplex=True)
-            p = self.ctx.Process(target=_worker_main, args=(child, os.getpid(), self.task))
+            p = self.ctx.Process(
+                target=_worker_main, args=(child, os.getpid(), self.task, self.setup)
+            )
             with worker_threads(self.size):
                 p.start()
             child.close()
@@ -206,6 +219,7 @@ def run_pool(
     task: Callable[..., Any],
     on_result: ResultCallback,
     on_death: DeathCallback,
+    setup: Setup = None,
 ) -> None:
     """Run ``task(*args[j])`` for every job ``j`` in up to ``size`` worker processes.
 
@@ -225,13 +239,16 @@ def run_pool(
         ``on_death(job, deaths, exitcode) -> bool``, called when the worker running ``job`` died
         (``deaths``: how many workers died running it so far; ``exitcode``: negative for a
         signal); return ``True`` to run the job again in a fresh worker.
+    setup : (callable, tuple) or None
+        ``setup[0](*setup[1])`` is called in each worker before its first job (picklable: a
+        module-level function and its arguments); default nothing.
 
     Raises
     ------
     RuntimeError
         Worker processes keep exiting before they are ready.
     """
-    pool = _Pool(args, size, task)
+    pool = _Pool(args, size, task, setup)
     graceful = False
     try:
         while True:

@@ -409,8 +409,16 @@ def _run_local(
             return True
         return False
 
+    setup = None
+    if len(extra) < 2 and min(workers, len(jobs)) > 1:  # reports, several workers
+        # one off-screen rendering check for all workers (same machine and environment):
+        # a child process of about 0.4 CPU s instead of one per worker
+        from ..report.gl_probe import adopt_outcome, checked_outcome
+
+        setup = (adopt_outcome, checked_outcome())
     # process_case is looked up when the batch runs (tests replace it)
-    run_pool([(c, o, *extra) for c, o in jobs], workers, process_case, on_result, on_death)
+    cases = [(c, o, *extra) for c, o in jobs]
+    run_pool(cases, workers, process_case, on_result, on_death, setup)
 
 
 def _run_dask(

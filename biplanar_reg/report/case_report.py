@@ -206,7 +206,7 @@ def _convergence_figure(folder: Path, result: CaseResult) -> dict[str, str]:
     return {
         "src": "convergence.png",
         "caption": "Convex iterations (cost, certificate) and the final refinement "
-        "(its objective) per iteration.",
+        "(its objective) per iteration; the outline counts are labelled where they change.",
     }
 
 

@@ -10,7 +10,11 @@ library). Nothing in the process can catch that, so before PyVista renders, a ch
 process creates the same window (the same environment, :func:`offscreen_env`), renders an
 8 x 8 image and reads it back. Its outcome is cached per process and per the environment
 variables that choose the OpenGL library (about 0.4 CPU s, once). :func:`start_probe` starts the
-child without waiting for it, so that it runs while the report draws its 2D figures.
+child without waiting for it, so that it runs while the report draws its 2D figures. A batch
+checks once for all its worker processes (:func:`checked_outcome` in the batch,
+:func:`adopt_outcome` in each worker it starts, with the batch's environment): same machine,
+same libraries, same environment. The outcome is never stored in a file: a stale one could
+crash a later run.
 """
 
 from __future__ import annotations
@@ -21,9 +25,15 @@ import signal
 import subprocess
 import sys
 import threading
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
-__all__ = ["offscreen_env", "offscreen_rendering_available", "start_probe"]
+__all__ = [
+    "adopt_outcome",
+    "checked_outcome",
+    "offscreen_env",
+    "offscreen_rendering_available",
+    "start_probe",
+]
 
 #: Seconds the child process may take (it needs about 0.4 CPU s; more wall time on a busy
 #: machine).
@@ -120,7 +130,14 @@ def _finish(proc: subprocess.Popen, timeout: float) -> tuple[bool, str]:
 
 
 def _key(env: Mapping[str, str]) -> tuple[str | None, ...]:
-    return tuple(env.get(k) for k in _ENV_KEYS)
+    """The cache key of ``env``: its values of :data:`_ENV_KEYS`, ``LD_LIBRARY_PATH`` without
+    repeated folders (the loader searches the same folders in the same order; importing OpenCV
+    prepends its folder to the variable again in each process that imports it)."""
+    values = dict.fromkeys(_ENV_KEYS)
+    values.update((k, env[k]) for k in _ENV_KEYS if k in env)
+    if values["LD_LIBRARY_PATH"] is not None:
+        values["LD_LIBRARY_PATH"] = ":".join(dict.fromkeys(values["LD_LIBRARY_PATH"].split(":")))
+    return tuple(values.values())
 
 
 def start_probe() -> None:
@@ -154,3 +171,25 @@ def offscreen_rendering_available(timeout: float = PROBE_TIMEOUT_S) -> tuple[boo
             _cache[key] = outcome
             del _running[key]
         return outcome
+
+
+#: An environment key and the outcome of the check in it, as passed between processes.
+Outcome = tuple[tuple[str | None, ...], tuple[bool, str]]
+
+
+def checked_outcome() -> Outcome:
+    """This process's environment key and the outcome of
+    :func:`offscreen_rendering_available` in it (runs the check, or waits for it), for
+    :func:`adopt_outcome` in processes started with the same environment."""
+    outcome = offscreen_rendering_available()
+    return _key(offscreen_env()), outcome
+
+
+def adopt_outcome(key: Sequence[str | None], outcome: tuple[bool, str]) -> None:
+    """Take ``outcome``, found by the process that started this one for the environment
+    ``key`` (:func:`checked_outcome`), as this process's own. Ignored when this process's
+    environment gives another key (it then checks for itself) or knows its outcome already."""
+    key = tuple(key)
+    if key == _key(offscreen_env()):
+        with _lock:
+            _cache.setdefault(key, (bool(outcome[0]), str(outcome[1])))

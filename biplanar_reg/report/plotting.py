@@ -167,13 +167,16 @@ class _Kept:
         for artist in _drawn(self.fig, self.axes):
             if id(artist) not in self.built:
                 artist.remove()
-        for ax, face in zip(self.axes, self.faces, strict=True):
+        for ax in self.axes:
             for axis, set_scale in ((ax.xaxis, ax.set_xscale), (ax.yaxis, ax.set_yscale)):
                 if not _default_linear(axis):
                     set_scale("linear")  # also the default locators and formatters
             ax.relim()  # forget the removed artists' data limits
             ax.set_xlim(0.0, 1.0)
             ax.set_ylim(0.0, 1.0)
+        # after every set_*lim: setting the limits of a shared axis (a twin) turns autoscaling
+        # off on the axes it is shared with too
+        for ax, face in zip(self.axes, self.faces, strict=True):
             ax.set_autoscale_on(True)
             ax.set_aspect("auto")
             ax.set_facecolor(face)
@@ -233,10 +236,11 @@ def reused_figure(key: Hashable, build: Builder) -> Iterator[Kept]:
 
 
 def warm_figure(key: Hashable, build: Builder) -> None:
-    """Build the figure of layout ``key`` (:func:`reused_figure`) and draw it empty once:
-    its axes, their ticks and the fonts made ready for the first real drawing."""
-    with reused_figure(key, build) as (fig, _, _):
-        fig.canvas.draw()
+    """Build the figure of layout ``key`` (:func:`reused_figure`), its axes ready for the first
+    real drawing. Not drawn: an empty drawing costs about three times what it saves the first
+    real one (measured 0.21 vs 0.07 CPU s for the case report's four figures)."""
+    with reused_figure(key, build):
+        pass
 
 
 def forget_figures() -> None:

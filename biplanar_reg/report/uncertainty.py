@@ -81,7 +81,7 @@ def _panel_image(
     box: tuple[np.ndarray, np.ndarray],
     px: int,
 ) -> tuple[np.ndarray, tuple]:
-    """The panel (h, w, 4) uint8 RGBA: triangles ``tri`` (T, 3, 2) px filled in order with
+    """The panel (h, w, 3) uint8 RGB: triangles ``tri`` (T, 3, 2) px filled in order with
     colours ``rgb`` (T, 3) in [0, 1], ``_ALPHA`` over the radiograph (or white), inside the
     pixel box ``box = (lo, hi)``, at most ``px`` pixels a side; and its extent
     ``(left, right, bottom, top)`` in full-image pixels."""
@@ -97,19 +97,21 @@ def _panel_image(
     # every colour at least 1 in red: a filled pixel is one that is not black
     cols = np.round(np.asarray(rgb) * 255).astype(int)
     cols[:, 0] = np.maximum(cols[:, 0], 1)
+    fill = cv2.fillConvexPoly  # positional arguments: a third faster for ~10,000 calls
     for t, col in zip(pts, cols.tolist(), strict=True):
-        cv2.fillConvexPoly(layer, t, col, lineType=cv2.LINE_8, shift=shift)
+        fill(layer, t, col, cv2.LINE_8, shift)
     cover = (layer[:, :, 0] > 0).view(np.uint8) * np.uint8(255)
-    layer = cv2.resize(layer, (w, h), interpolation=cv2.INTER_AREA).astype(np.float32)
-    alpha = cv2.resize(cover, (w, h), interpolation=cv2.INTER_AREA)[:, :, None]
-    alpha = alpha.astype(np.float32) * (_ALPHA / 255.0)
-    # where the layer is partly covered, its mean colour is darkened by the black around:
-    # undo that (divide by the coverage) before blending
-    cov = np.maximum(alpha / _ALPHA, 1e-6)
-    image = np.empty((h, w, 4), np.uint8)
-    mix = alpha * np.minimum(layer / (255.0 * cov), 1.0) + (1.0 - alpha) * back
-    image[:, :, :3] = np.round(np.clip(mix, 0.0, 1.0) * 255.0)
-    image[:, :, 3] = 255
+    layer = cv2.resize(layer, (w, h), interpolation=cv2.INTER_AREA)
+    cover = cv2.resize(cover, (w, h), interpolation=cv2.INTER_AREA)
+    # per pixel the bone covers a fraction c (cover / 255) and is blended with alpha
+    # _ALPHA c; the reduced layer is its colour darkened by the black around it, colour times
+    # c, so alpha times colour is _ALPHA times the layer: 255 back (1 - _ALPHA c) + _ALPHA layer
+    keep = cover.astype(np.float32)
+    keep *= np.float32(-_ALPHA)
+    keep += np.float32(255.0)
+    mix = back * keep[:, :, None]
+    mix += np.float32(_ALPHA) * layer
+    image = cv2.convertScaleAbs(mix)  # rounded to 8 bits (never negative)
     hi = lo + np.array([w, h]) / f  # the image's own extent (whole raster pixels)
     return image, (lo[0], hi[0], hi[1], lo[1])
 
@@ -191,7 +193,7 @@ def uncertainty_figure(
             # as large as the axes: about pixel for pixel; a small crop is enlarged smoothly
             smooth = max(image.shape[:2]) < px - 1
             ax.imshow(
-                image_rgba(image[:, :, :3]),
+                image_rgba(image),
                 extent=extent,
                 interpolation="bilinear" if smooth else "nearest",
             )
@@ -215,8 +217,7 @@ def uncertainty_figure(
 
 
 def warm_uncertainty(views: int) -> None:
-    """Build the uncertainty figure of ``views`` panels and draw it empty once
-    (:func:`.plotting.warm_figure`)."""
+    """Build the uncertainty figure of ``views`` panels (:func:`.plotting.warm_figure`)."""
     from .plotting import warm_figure
 
     warm_figure(("uncertainty", views), lambda: _layout(views))

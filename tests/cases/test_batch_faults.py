@@ -22,7 +22,7 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-from _batch_helpers import fake_case, make_fake_cases, runs
+from _batch_helpers import fake_case, make_fake_cases, probe_outcome_case, runs
 
 from biplanar_reg.cases import batch
 from biplanar_reg.cases._lock import LockedError, OutputLock
@@ -104,6 +104,33 @@ def test_worker_deaths_are_charged_only_to_the_case_they_ran(tmp_path, monkeypat
     started = Counter(runs(tmp_path / "cases"))
     assert started == {"a": 2, "g": 2, "d": 2, **{n: 1 for n in "bcefh"}}
     assert s.counts == {"total": 8, "done": 6, "failed": 2, "skipped": 0, "missing": 0}
+
+
+def test_workers_take_the_batchs_off_screen_check(tmp_path, monkeypatch):
+    # With reports, the batch checks off-screen rendering once and its workers take the outcome
+    # (same environment) instead of each starting the check's child process; without reports
+    # nobody checks.
+    from biplanar_reg.report import gl_probe
+
+    checks = []
+
+    def checked():
+        checks.append(1)
+        return gl_probe._key(gl_probe.offscreen_env()), (False, "checked by the batch")
+
+    monkeypatch.setattr(gl_probe, "checked_outcome", checked)
+    monkeypatch.setattr(batch, "process_case", probe_outcome_case)
+    cases = make_fake_cases(tmp_path / "cases", {n: {} for n in "abcd"})
+    run_batch(cases, tmp_path / "out", workers=2, progress_stream=io.StringIO())
+    lines = (tmp_path / "cases" / "probe.log").read_text().splitlines()
+    assert len(lines) == 4 and len({ln.split()[0] for ln in lines}) == 2  # two workers
+    assert all(ln.split(maxsplit=1)[1] == "checked by the batch" for ln in lines), lines
+    assert checks == [1]
+    (tmp_path / "cases" / "probe.log").unlink()
+    run_batch(cases, tmp_path / "out2", workers=2, progress_stream=io.StringIO(), report=False)
+    lines = (tmp_path / "cases" / "probe.log").read_text().splitlines()
+    assert len(lines) == 4 and all(ln.endswith(" none") for ln in lines), lines
+    assert checks == [1]
 
 
 def test_workers_that_cannot_start_charge_no_case(tmp_path, monkeypatch):

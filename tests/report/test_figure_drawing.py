@@ -1,5 +1,6 @@
 """The report's figures on matplotlib's object API: PNGs encoded from the Agg canvas (RGB),
-the histogram's median labelled above its axes, log axes labelled in plain numbers, the mesh
+the histogram's median labelled above its axes, log axes labelled in plain numbers, the
+convergence plot's counts labelled where they change and apart, the mesh
 projected once per view for the overlay and the uncertainty map, and no pyplot (global state)
 anywhere in a report."""
 
@@ -75,6 +76,28 @@ def test_log_axes_are_labelled_with_plain_numbers(tmp_path):
     convergence_figure(tmp_path / "c.png", costs, [0.01] * 7, [0, 5, 6, 9, 9, 9, 9], 4, kinds)
     with Image.open(tmp_path / "c.png") as im:
         assert im.size == (900, 340) and im.mode == "RGB"
+
+
+def test_convergence_counts_are_labelled_where_they_change_and_never_overlap():
+    """40 iterations: counts that change at every step, then a converged run of one count.
+    The first count is labelled, the run once, and no two labels overlap."""
+    fig, axes, _ = figures._convergence_layout(False)
+    ax = axes[0]
+    n = 40
+    counts = [0, *range(900, 925), *([925] * 14)]
+    costs = np.geomspace(50.0, 5.0, n)
+    figures._convergence_panel(ax, np.arange(n), costs, counts, n - 1, "tab:blue", "cost")
+    fig.canvas.draw()
+    labels = [t for t in ax.texts if t.get_visible()]
+    texts = [t.get_text() for t in labels]
+    assert texts[0] == "0"
+    assert texts.count("925") == 1  # the converged run: one label
+    assert 5 <= len(texts) < 26  # not one per change: they would overlap
+    assert len(set(texts)) == len(texts)
+    boxes = [t.get_window_extent() for t in labels]
+    for i, a in enumerate(boxes):
+        for b in boxes[i + 1 :]:
+            assert not a.overlaps(b), (a, b)
 
 
 def test_painter_faces_index_the_drawn_triangles():

@@ -188,8 +188,8 @@ def test_3d_views(tmp_path):
 
 
 def test_figures_built_ahead_draw_the_same(tmp_path):
-    """The figures built and drawn empty by :func:`warm_figures` (while a registration runs)
-    give the pixels of new ones."""
+    """The figures built ahead by :func:`warm_figures` (while a registration runs) give the
+    pixels of new ones."""
     from biplanar_reg.report.figures import warm_figures
     from biplanar_reg.report.uncertainty import warm_uncertainty
 
