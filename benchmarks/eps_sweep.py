@@ -47,7 +47,7 @@ def main() -> None:
                     certs, rms_sdp, rms_fin = [], [], []
                     for _ in range(args.repeats):
                         w = rng.normal(size=8)
-                        R, t = random_pose(rng)
+                        R, t = random_pose(rng).rt
                         X = model.instance(w) @ R.T + t
                         n = model.n_vertices
                         ids = [

@@ -23,6 +23,7 @@ import numpy as np
 from biplanar_reg.cases import load_case
 from biplanar_reg.cases.outputs import write_exports
 from biplanar_reg.io import write_mesh
+from biplanar_reg.pose import Pose
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -40,8 +41,8 @@ def main() -> None:
     parser.add_argument("--results", default=str(ROOT / "benchmarks" / "results" / "exports.md"))
     args = parser.parse_args()
     case = load_case(args.case)
-    R, t = case.start if case.start is not None else (np.eye(3), np.zeros(3))
-    res = SimpleNamespace(rotation=R, translation=t, vertices=case.model.mean @ R.T + t)
+    pose = case.start if case.start is not None else Pose.identity()
+    res = SimpleNamespace(rotation=pose.R, translation=pose.t, vertices=pose.apply(case.model.mean))
     work = Path(tempfile.mkdtemp(dir=ROOT / "benchmarks"))  # the repository's file system
     rows: dict[str, list[tuple[float, float]]] = {"registered.ply": [], "exports": []}
     n_files = 0

@@ -55,6 +55,7 @@ def wrist_proposals() -> None:
     import tempfile
 
     from biplanar_reg.outline import outline_polylines
+    from biplanar_reg.pose import Pose
     from biplanar_reg.workbench import Workbench
     from biplanar_reg.workbench.pose_aid import mean_shape
     from biplanar_reg.workbench.posed_outline import (
@@ -67,13 +68,13 @@ def wrist_proposals() -> None:
     tmp = Path(tempfile.mkdtemp())
     case = shutil.copytree(ROOT / "sample_cases" / "wrist_radius", tmp / "wrist")
     rough = json.loads((case / "annotation" / "rough_pose.json").read_text())
-    R, t = np.array(rough["R"]), np.array(rough["t"])
+    rough_pose = Pose(rough["R"], rough["t"])  # model -> world, mm
     print("\n| wrist view | outline pieces | proposed | closest proposed point to the cut px | s |")
     print("|---|---|---|---|---|")
     with Workbench(case) as wb:
         mean, faces = mean_shape(wb.setup)
         cut = cut_vertices(mean, faces)
-        V = mean @ R.T + t
+        V = rough_pose.apply(mean)
         for cv in wb.setup.views:
             v = wb.views[cv.name]
             whole, _ = outline_polylines(V, cv.view, faces)

@@ -77,7 +77,7 @@ def compare_outline_methods(model: ShapeModel) -> list[str]:
     stats = {k: [] for k in names}
     times = {k: [] for k in names}
     for _ in range(5):
-        R, t = random_pose(rng)
+        R, t = random_pose(rng).rt
         X = model.instance(rng.normal(size=model.n_modes)) @ R.T + t
         _, mask = path_lengths(X, model.faces, view)
         v, u = np.nonzero(mask & ~ndimage.binary_erosion(mask))

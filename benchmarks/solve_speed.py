@@ -167,7 +167,7 @@ def scene(K, n_modes, noise_px, seed, model):
     rng = np.random.default_rng(seed)
     views = biplanar_views(75.0)
     w = rng.normal(size=n_modes)
-    R, t = random_pose(rng)
+    R, t = random_pose(rng).rt
     X = model.instance(w) @ R.T + t
     ids = [rng.integers(0, model.n_vertices, K // 2), rng.integers(0, model.n_vertices, K - K // 2)]
     obs = observe(views, X, ids, noise_px=noise_px, rng=rng)

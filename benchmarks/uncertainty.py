@@ -63,7 +63,7 @@ def synthetic_case(model, template, seed, n_landmarks, noise_px, outline_noise_p
     rng = np.random.default_rng(seed)
     truth = synthesise_population(template, 1, seed=100 + seed).shapes[0]
     truth = truth - template.mean(axis=0) + model.mean.mean(axis=0)
-    R, t = random_pose(rng, max_offset=5.0)
+    R, t = random_pose(rng, max_offset=5.0).rt
     c = model.mean.mean(axis=0)
     X = (truth - c) @ R.T + t
     counts = (n_landmarks - n_landmarks // 2, n_landmarks // 2)

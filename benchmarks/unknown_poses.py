@@ -194,7 +194,7 @@ def pca_model(shapes: np.ndarray, n_modes: int) -> ShapeModel:
 def trial(poses, test, counts, n_modes, noise_px, rng):
     """Run both methods on one scene; return {method: (shape_rms, rot_deg, centre_mm, secs)}."""
     model = pca_model(np.delete(poses, test, axis=0), n_modes)
-    R, t = random_pose(rng, max_offset=100.0)
+    R, t = random_pose(rng, max_offset=100.0).rt
     X = poses[test] @ R.T + t
     cams, views, truth = [], [], []
     for k in counts:

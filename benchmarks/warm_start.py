@@ -39,7 +39,7 @@ def _problem(model, obs):
 def _pair(model, K, seed):
     """Two ray sets of one bone: the second keeps 6 rays per view and redraws the rest."""
     rng = np.random.default_rng(seed)
-    R, t = random_pose(rng)
+    R, t = random_pose(rng).rt
     X = model.instance(rng.normal(size=model.n_modes)) @ R.T + t
     views, n = biplanar_views(75.0), model.n_vertices
     ids = [rng.integers(0, n, K // 2), rng.integers(0, n, K - K // 2)]

@@ -23,6 +23,7 @@ from scipy.spatial.transform import Rotation
 from biplanar_reg.calibration import load_calibration
 from biplanar_reg.calibration.views import PerspectiveView
 from biplanar_reg.io import read_volume
+from biplanar_reg.pose import Pose
 from biplanar_reg.simulate import synthetic_landmarks, write_synthetic_case
 from biplanar_reg.ssm import ShapeModel, bone_surface, build_ssm, synthesise_population
 
@@ -45,7 +46,7 @@ CT_VOXEL_MM = (0.39625, 0.39625, 0.625)
 #: A realistic pose of the radius in the wrist calibrations' world frame (template frame ->
 #: world, ``X = R @ x + t``, mm): the rough pose of the real radius in the shipped radiographs
 #: (``sample_cases/wrist_radius/annotation/rough_pose.json``).
-WRIST_RADIUS_POSE: tuple[np.ndarray, np.ndarray] = (
+WRIST_RADIUS_POSE = Pose(
     np.array(
         [
             [-0.970953, 0.239242, -0.003638],
@@ -148,20 +149,18 @@ def write_reference_cases(root: str | os.PathLike, target_vertices: int = 1000) 
         rng = np.random.default_rng(1000 + seed)
         truth = synthesise_population(verts, 1, seed=100 + seed).shapes[0]
         truth = truth - verts.mean(axis=0) + model.mean.mean(axis=0)  # same centre as the model
-        R0, t0 = WRIST_RADIUS_POSE
         dR = Rotation.from_rotvec(np.deg2rad(10.0) * rng.uniform(-1, 1, 3) / np.sqrt(3)).as_matrix()
-        R = dR @ R0
-        c = model.mean.mean(axis=0)
-        t = R0 @ c + t0 - R @ c + rng.uniform(-3.0, 3.0, 3)
-        world = truth @ R.T + t
-        views = [crop_to_points(v, world) for v in wrist_views()]
+        R = dR @ WRIST_RADIUS_POSE.R
+        c = model.mean.mean(axis=0)  # turned about the model's centroid, then shifted
+        pose = Pose(R, WRIST_RADIUS_POSE.apply(c) - R @ c + rng.uniform(-3.0, 3.0, 3))
+        views = [crop_to_points(v, pose.apply(truth)) for v in wrist_views()]
         out.append(
             write_synthetic_case(
                 Path(root) / name,
                 seed,
                 model=model,
                 truth_shape=truth,
-                pose=(R, t),
+                pose=pose,
                 views=views,
                 poses=poses,
                 blunder_px=blunder,

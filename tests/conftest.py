@@ -27,5 +27,5 @@ def posed(model: ShapeModel) -> tuple[np.random.Generator, np.ndarray, np.ndarra
     (world frame, mm), drawn from ``default_rng(0)``; ``rng`` is left for the module's draws."""
     rng = np.random.default_rng(0)
     w = rng.normal(size=8)
-    R, t = random_pose(rng)
+    R, t = random_pose(rng).rt
     return rng, w, model.instance(w) @ R.T + t

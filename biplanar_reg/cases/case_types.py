@@ -15,6 +15,7 @@ import numpy as np
 from ..annotation import Annotations, XrayImage, load_image
 from ..calibration.views import View
 from ..errors import CaseError, one_line
+from ..pose import Pose
 from ..registration import RegistrationOptions
 from ..ssm import ShapeModel
 from ._case_file import (
@@ -135,7 +136,7 @@ class Case:
     ground_truth : GroundTruth or None
     warnings : list of str
         Unknown keys and other non-fatal remarks.
-    start : (R (3, 3), t (3,)) or None
+    start : Pose or None
         ``[registration] start`` (extension): the start pose of the model, model -> world,
         mm (converted from ``units``); with it the landmarks may be missing (outlines only).
     start_path : Path or None
@@ -161,7 +162,7 @@ class Case:
     options: RegistrationOptions
     ground_truth: GroundTruth | None = None
     warnings: list[str] = field(default_factory=list)
-    start: tuple[np.ndarray, np.ndarray] | None = None
+    start: Pose | None = None
     start_path: Path | None = None
     frames: list[CaseFrame] = field(default_factory=list)
     #: ``[outputs]``: extra mesh formats of the registered bone, and the bone's name in the

@@ -18,6 +18,7 @@ from typing import Any
 
 from ..errors import one_line
 from ..io.jsonfile import read_json
+from ..pose import Pose
 from ..registration import RegistrationOptions
 from ._case_file import _Ctx
 
@@ -173,7 +174,8 @@ def registration_mode(ctx: _Ctx, reg: dict) -> tuple[str, bool]:
 
 def load_start(ctx: _Ctx, reg: dict, scale: float):
     """``[registration] start``: a JSON file ``{"R": 3x3 rotation, "t": [3]}`` (model ->
-    world, in the case's units), as ``(R, t in mm)`` and its path; ``(None, None)`` without."""
+    world, in the case's units), as a :class:`~biplanar_reg.pose.Pose` (``t`` in mm) and its
+    path; ``(None, None)`` without."""
     path = ctx.path(reg, "start", "[registration]", required=False)
     if path is None:
         return None, None
@@ -189,4 +191,4 @@ def load_start(ctx: _Ctx, reg: dict, scale: float):
         t = as_array("t", doc["t"], (3,))
     except (TypeError, ValueError) as exc:
         raise ctx.error(where, f"{path.name}: {one_line(exc, max_problems=5)}") from None
-    return (R, t * scale), path
+    return Pose(R, t * scale), path

@@ -197,7 +197,8 @@ def _frame_block(views: Sequence[ViewObservations], weight: float, name: str):
 
 
 def _convex_start(model, frames, posed, names, opts):
-    """G-SfT-P over the frames with landmarks: the shared weights and their world poses."""
+    """G-SfT-P over the frames with landmarks: their world poses ``{frame: Pose}`` (model ->
+    world), the shared weights, and whether the start is the rigid mean shape."""
     blocks, depths = zip(
         *(_frame_block(frames[f], opts.landmark_weight, names[f]) for f in posed), strict=True
     )
@@ -207,22 +208,23 @@ def _convex_start(model, frames, posed, names, opts):
     est = solve_gsft_unknown_poses(
         fit_model, list(blocks), eps=opts.eps, prior_weight=opts.prior_weight, min_depth=depths
     )
-    Rs, ts = {}, {}
+    poses = {}
     for k, f in enumerate(posed):  # object -> camera (finite: checked by the solver) -> world
         cam = frames[f][0].view
         in_camera = Pose(est.object_rotations[k], est.object_translations[k])
-        Rs[f], ts[f] = (Pose(cam.R, cam.t).inverse() @ in_camera).rt
+        poses[f] = Pose(cam.R, cam.t).inverse() @ in_camera
     w = np.zeros(model.n_modes) if rigid else est.weights
-    return Rs, ts, w, rigid
+    return poses, w, rigid
 
 
-def _neighbour_pose(f: int, Rs: dict, ts: dict, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Frame ``f``'s start from the posed frames: interpolated between the nearest before and
-    after, else extrapolated at constant velocity from the two nearest on its side, else the
-    nearest one's. Rotations by their rotation vector, the model centroid ``c`` (model frame,
-    mm) linearly: the model frame's origin may lie far from the bone."""
-    before = sorted(g for g in Rs if g < f)
-    after = sorted(g for g in Rs if g > f)
+def _neighbour_pose(f: int, poses: dict[int, Pose], c: np.ndarray) -> Pose:
+    """Frame ``f``'s start (model -> world) from the posed frames' ``poses``: interpolated
+    between the nearest before and after, else extrapolated at constant velocity from the two
+    nearest on its side, else the nearest one's. Rotations by their rotation vector, the model
+    centroid ``c`` (model frame, mm) linearly: the model frame's origin may lie far from the
+    bone."""
+    before = sorted(g for g in poses if g < f)
+    after = sorted(g for g in poses if g > f)
     if before and after:
         a, b = before[-1], after[0]
     elif len(before) >= 2:
@@ -230,13 +232,12 @@ def _neighbour_pose(f: int, Rs: dict, ts: dict, c: np.ndarray) -> tuple[np.ndarr
     elif len(after) >= 2:
         a, b = after[1], after[0]
     else:
-        g = (before or after)[0]
-        return Rs[g].copy(), ts[g].copy()
+        return poses[(before or after)[0]]
     s = (f - a) / (b - a)  # in (0, 1) between them, > 1 beyond b
-    rel = rotvec_from_rotation(Rs[b] @ Rs[a].T)
-    R = rotation_from_rotvec(s * rel) @ Rs[a]
-    ca, cb = Rs[a] @ c + ts[a], Rs[b] @ c + ts[b]
-    return R, (1 - s) * ca + s * cb - R @ c
+    rel = rotvec_from_rotation(poses[b].R @ poses[a].R.T)
+    R = rotation_from_rotvec(s * rel) @ poses[a].R
+    ca, cb = poses[a].apply(c), poses[b].apply(c)
+    return Pose(R, (1 - s) * ca + s * cb - R @ c)
 
 
 def _frame_terms(problem: Problem, vertices: np.ndarray, offset: int) -> list[OutlineTerm]:
@@ -252,14 +253,15 @@ def _frame_terms(problem: Problem, vertices: np.ndarray, offset: int) -> list[Ou
     return [replace(t, index=t.index + offset) for t in outline_terms(problem, outlines)]
 
 
-def _fit_alone(model, problem: Problem, R, t, w) -> tuple[np.ndarray, np.ndarray]:
-    """One frame's pose fitted on its own landmarks and outlines with the shape ``w`` fixed."""
+def _fit_alone(model, problem: Problem, pose: Pose, w) -> Pose:
+    """One frame's pose (model -> world) fitted from ``pose`` on its own landmarks and outlines
+    with the shape ``w`` fixed."""
     rigid = ShapeModel(model.instance(w), model.modes[:0], faces=model.faces)
     P = replace(problem, model=rigid)
-    V = rigid.mean @ R.T + t
+    V = pose.apply(rigid.mean)
     fit = refine_poses_on_outlines(
         rigid,
-        (R[None], t[None], np.zeros(0)),
+        (pose.R[None], pose.t[None], np.zeros(0)),
         problem.landmark_rays(frozenset()),
         _frame_terms(P, V, 0),
         pose_of_view=np.zeros(len(problem.views), int),
@@ -268,14 +270,14 @@ def _fit_alone(model, problem: Problem, R, t, w) -> tuple[np.ndarray, np.ndarray
         he=problem.topology,
         max_rejected=JOINT_MAX_REJECTED,
     )
-    return fit.rotations[0], fit.translations[0]
+    return Pose(fit.rotations[0], fit.translations[0])
 
 
-def _outline_rms(problem: Problem, Q: np.ndarray, R: np.ndarray, t: np.ndarray) -> float:
+def _outline_rms(problem: Problem, Q: np.ndarray, pose: Pose) -> float:
     """RMS (px) of the frame's annotated outline points' distances to the outline of the shape
-    ``Q`` (model frame, mm) posed by ``(R, t)``, each capped at ``gate_px``: comparable
+    ``Q`` (model frame, mm) posed by ``pose``, each capped at ``gate_px``: comparable
     between poses (unlike the refinement's cost, whose gates adapt to its start)."""
-    V = Q @ R.T + t
+    V = pose.apply(Q)
     opts = problem.options
     d = [
         outline_distances(
@@ -290,31 +292,31 @@ def _outline_rms(problem: Problem, Q: np.ndarray, R: np.ndarray, t: np.ndarray) 
     return float(np.sqrt(np.mean(np.minimum(d, opts.gate_px) ** 2))) if d.size else np.nan
 
 
-def _rotated_starts(R, t, c) -> list[tuple[np.ndarray, np.ndarray]]:
-    """``(R, t)`` turned by +-:data:`RETRY_DEG` about each world axis through the bone's
+def _rotated_starts(pose: Pose, c: np.ndarray) -> list[Pose]:
+    """``pose`` turned by +-:data:`RETRY_DEG` about each world axis through the bone's
     centroid (``c``: model frame, mm)."""
-    centre = R @ c + t
+    centre = pose.apply(c)
     out = []
     for rv in np.vstack([np.eye(3), -np.eye(3)]) * np.deg2rad(RETRY_DEG):
-        Rs = rotation_from_rotvec(rv) @ R
-        out.append((Rs, centre - Rs @ c))
+        R = rotation_from_rotvec(rv) @ pose.R
+        out.append(Pose(R, centre - R @ c))
     return out
 
 
-def _fit_from_neighbours(model, problem, R, t, w, limit_px: float, say, name: str):
+def _fit_from_neighbours(model, problem, pose: Pose, w, limit_px: float, say, name: str) -> Pose:
     """A frame without landmarks fitted on its outlines from its neighbours' pose; when its
     outline RMS stays above ``limit_px`` (a start too far off, e.g. extrapolated from one
     frame: measured 7 mm off after its fit from 15 deg), re-fitted from the
     :func:`_rotated_starts` and the pose with the lowest outline RMS kept."""
     Q = model.instance(w)
-    best = _fit_alone(model, problem, R, t, w)
-    rms = _outline_rms(problem, Q, *best)
+    best = _fit_alone(model, problem, pose, w)
+    rms = _outline_rms(problem, Q, best)
     if not rms > limit_px:
         return best
-    first, starts = rms, _rotated_starts(R, t, Q.mean(axis=0))
-    for Rs, ts in starts:
-        fit = _fit_alone(model, problem, Rs, ts, w)
-        r = _outline_rms(problem, Q, *fit)
+    first, starts = rms, _rotated_starts(pose, Q.mean(axis=0))
+    for start in starts:
+        fit = _fit_alone(model, problem, start, w)
+        r = _outline_rms(problem, Q, fit)
         if r < rms:
             best, rms = fit, r
     say(
@@ -324,46 +326,50 @@ def _fit_from_neighbours(model, problem, R, t, w, limit_px: float, say, name: st
     return best
 
 
-def _neighbour_fits(model, frames, rest, Rs, ts, w, opts, silhouettes, say, names) -> list[str]:
-    """Step 2, in place on ``Rs``/``ts``: the frames ``rest`` (nearest to a posed frame first)
-    from their neighbours' poses, fitted on their own outlines; the flags it raises."""
+def _neighbour_fits(model, frames, rest, poses, w, opts, silhouettes, say, names) -> list[str]:
+    """Step 2, in place on ``poses`` (``{frame: Pose}``, model -> world): the frames ``rest``
+    (nearest to a posed frame first) from their neighbours' poses, fitted on their own
+    outlines; the flags it raises."""
     flags, ref = [], []
     Q = model.instance(w)
-    for f in sorted(Rs):  # the posed frames first on their own outlines: the landmark-only
+    for f in sorted(poses):  # the posed frames first on their own outlines: the landmark-only
         # start is degrees off (3 landmarks per view), and the neighbours start from it
         problem = make_problem(
-            model, list(frames[f]), opts, silhouettes, say, (Q @ Rs[f].T + ts[f]).mean(0)
+            model, list(frames[f]), opts, silhouettes, say, poses[f].apply(Q).mean(0)
         )
         if problem.use_outlines:
-            Rs[f], ts[f] = _fit_alone(model, problem, Rs[f], ts[f], w)
-            ref.append(_outline_rms(problem, Q, Rs[f], ts[f]))
+            poses[f] = _fit_alone(model, problem, poses[f], w)
+            ref.append(_outline_rms(problem, Q, poses[f]))
     limit = np.inf
     if np.isfinite(ref).any():
         limit = max(RETRY_FACTOR * float(np.nanmedian(ref)), RETRY_FLOOR_PX)
     for f in rest:
-        R, t = _neighbour_pose(f, Rs, ts, Q.mean(axis=0))
+        pose = _neighbour_pose(f, poses, Q.mean(axis=0))
         problem = make_problem(
-            model, list(frames[f]), opts, silhouettes, say, (Q @ R.T + t).mean(0)
+            model, list(frames[f]), opts, silhouettes, say, pose.apply(Q).mean(0)
         )
         if problem.use_outlines:
-            R, t = _fit_from_neighbours(model, problem, R, t, w, limit, say, names[f])
+            pose = _fit_from_neighbours(model, problem, pose, w, limit, say, names[f])
         else:
             flags.append(f"{names[f]}: no landmarks and no outlines: pose interpolated")
-        Rs[f], ts[f] = R, t
+        poses[f] = pose
     return flags
 
 
-def _problems(model, frames, Rs, ts, w, opts, silhouettes, say) -> list[Problem]:
+def _problems(model, frames, poses: dict[int, Pose], w, opts, silhouettes, say) -> list[Problem]:
     Q = model.instance(w)
     return [
-        make_problem(model, list(views), opts, silhouettes, say, (Q @ Rs[f].T + ts[f]).mean(0))
+        make_problem(model, list(views), opts, silhouettes, say, poses[f].apply(Q).mean(0))
         for f, views in enumerate(frames)
     ]
 
 
-def _joint(model, problems: list[Problem], Rs, ts, w, opts):
-    """Step 3: ``w`` and every frame's pose on all frames' landmarks and outlines."""
+def _joint(model, problems: list[Problem], poses: list[Pose], w, opts):
+    """Step 3: ``w`` and every frame's pose (``poses``: the starts, model -> world) on all
+    frames' landmarks and outlines; the poses as the solver's arrays ``(F, 3, 3)``, ``(F,
+    3)``."""
     F = len(problems)
+    Rs, ts = [p.R for p in poses], [p.t for p in poses]
     cost0, fit = None, None
     for _ in range(JOINT_ROUNDS):
         Q = model.instance(w)
@@ -566,21 +572,19 @@ def _register(
             f"frames: no frame has {MIN_FRAME_LANDMARKS} landmark observations of 3 distinct "
             f"model points; at least one of the {len(frames)} frames needs them for the start"
         )
-    Rs, ts, w, rigid = _convex_start(model, frames, posed, names, opts)
+    poses, w, rigid = _convex_start(model, frames, posed, names, opts)
     w_start = w.copy()
     say(f"convex start: {len(posed)} of {len(frames)} frames" + (" (rigid mean)" if rigid else ""))
     t1 = time.perf_counter()
     rest = sorted(
         set(range(len(frames))) - set(posed), key=lambda f: min(abs(f - g) for g in posed)
     )
-    flags = _neighbour_fits(model, frames, rest, Rs, ts, w, opts, silhouettes, say, names)
+    flags = _neighbour_fits(model, frames, rest, poses, w, opts, silhouettes, say, names)
     say(f"neighbour starts: {len(rest)} frame(s)")
     t2 = time.perf_counter()
     order = range(len(frames))
-    problems = _problems(model, frames, Rs, ts, w, opts, silhouettes, say)
-    R_all, t_all, w, cost0, fit = _joint(
-        model, problems, [Rs[f] for f in order], [ts[f] for f in order], w, opts
-    )
+    problems = _problems(model, frames, poses, w, opts, silhouettes, say)
+    R_all, t_all, w, cost0, fit = _joint(model, problems, [poses[f] for f in order], w, opts)
     say(f"joint refinement: objective {cost0:.4g} -> {fit.cost_after:.4g}")
     if not fit.converged:
         flags.append("joint refinement did not converge")

@@ -29,6 +29,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..pose import Pose
 from ..ssm.model import ShapeModel
 from .observations import ViewObservations
 from .outline_match import (
@@ -206,11 +207,11 @@ def _distinct(R, t, order, size: float, keep: int) -> list[int]:
 
 def two_landmark_search(
     model: ShapeModel, obs: ViewObservations, keep: int = KEEP
-) -> list[tuple[np.ndarray, np.ndarray, float]]:
+) -> list[tuple[Pose, float]]:
     """The best distinct poses (object -> camera, mm) of the mean shape in the view of
     ``obs`` that reproject its (first) two landmarks, by their outline score (pixels, best first).
 
-    Returns a list of ``(R (3, 3), t (3,), score)``.
+    Returns a list of ``(pose, score)``.
     """
     ids = np.asarray(obs.landmark_ids)
     cam = camera_view(obs).view
@@ -225,7 +226,7 @@ def two_landmark_search(
     order = np.argsort(scores, kind="stable")
     order = order[np.isfinite(scores[order])]
     kept = _distinct(R, t, order, model.size, keep)
-    return [(R[k], t[k], float(scores[k])) for k in kept]
+    return [(Pose(R[k], t[k]), float(scores[k])) for k in kept]
 
 
 #: One landmark: viewing directions of the bone searched (a Fibonacci sphere), the image
@@ -276,7 +277,7 @@ def _mapped_back(q: np.ndarray, centre: np.ndarray, rho: np.ndarray, s: np.ndarr
 
 def one_landmark_search(
     model: ShapeModel, obs: ViewObservations, keep: int = KEEP
-) -> list[tuple[np.ndarray, np.ndarray, float]]:
+) -> list[tuple[Pose, float]]:
     """The best distinct poses (object -> camera, mm) of the mean shape in the view of
     ``obs`` that reproject its (first) landmark, by their outline score (pixels, best first).
 
@@ -286,7 +287,7 @@ def one_landmark_search(
     turn and scale its image about the landmark (in normalised image coordinates, exact for a
     distant bone), so each turn (:data:`ONE_ROLLS_DEG`) and magnification (:data:`SCALES`) is
     scored by the annotated samples mapped back onto that one outline; each direction keeps
-    its best.
+    its best. Returns a list of ``(pose, score)``, best first.
     """
     cam = camera_view(obs).view
     target = searched_outline(obs)
@@ -323,7 +324,7 @@ def one_landmark_search(
         scores.append(float(score[i, j]))
     R, t, scores = np.array(Rs), np.array(ts), np.array(scores)
     kept = _distinct(R, t, np.argsort(scores, kind="stable"), model.size, keep)
-    return [(R[k], t[k], float(scores[k])) for k in kept]
+    return [(Pose(R[k], t[k]), float(scores[k])) for k in kept]
 
 
 #: Two landmarks whose rays are closer than this (rad) are searched as one.
@@ -338,9 +339,9 @@ def _same_ray(obs: ViewObservations) -> bool:
 
 def search_view_pose(
     model: ShapeModel, obs: ViewObservations, keep: int = KEEP
-) -> list[tuple[np.ndarray, np.ndarray, float]]:
+) -> list[tuple[Pose, float]]:
     """:func:`two_landmark_search` or :func:`one_landmark_search` by the view's number of
-    distinct landmarks (1 or 2): its best distinct poses ``(R, t, score)`` of the mean shape
+    distinct landmarks (1 or 2): its best distinct poses ``(pose, score)`` of the mean shape
     (object -> camera, mm; score in pixels), best first."""
     ids, first = np.unique(np.asarray(obs.landmark_ids), return_index=True)
     order = np.sort(first)

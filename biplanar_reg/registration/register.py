@@ -18,7 +18,7 @@ import numpy as np
 
 from .._validate import as_array, check_rotation
 from ..outline import chain_edges
-from ..pose import nearest_rotation
+from ..pose import Pose, nearest_rotation
 from ..ssm.gaussian_process import split_modes
 from ..ssm.model import ShapeModel
 from .blunders import rejected_landmarks, robust_cost
@@ -170,14 +170,19 @@ class RegistrationResult:
     disagreeing_px: dict = field(default_factory=dict)
 
 
-def _check_start(start: object) -> tuple[np.ndarray, np.ndarray] | None:
-    """The ``start`` argument as ``(R, t)``, checked (a rotation and a 3-vector)."""
+def _check_start(start: object) -> Pose | None:
+    """The ``start`` argument (a :class:`~biplanar_reg.pose.Pose` or ``(R, t)``) as a pose,
+    checked (a rotation within 1e-4, made exact, and a finite 3-vector)."""
     if start is None:
         return None
+    if isinstance(start, Pose):
+        start = start.rt
     if isinstance(start, (str, bytes)) or not hasattr(start, "__len__") or len(start) != 2:
-        raise ValueError("start: expected (R, t): a 3x3 rotation and a translation [3] (mm)")
+        raise ValueError(
+            "start: expected a Pose or (R, t): a 3x3 rotation and a translation [3] (mm)"
+        )
     R = check_rotation("start: R", start[0], tol=1e-4)
-    return nearest_rotation(R), as_array("start: t", start[1], (3,))
+    return Pose(nearest_rotation(R), as_array("start: t", start[1], (3,)))
 
 
 def _check_views(
@@ -185,7 +190,7 @@ def _check_views(
     views: list[ViewObservations],
     poses: str = "known",
     outlines: bool = False,
-    start: tuple | None = None,
+    start: Pose | None = None,
 ) -> None:
     """Refuse input that cannot register: bad views, or too little information in total.
 
@@ -261,7 +266,7 @@ def register_views(
     poses: str = "known",
     options: RegistrationOptions | None = None,
     progress: Callable[[str], None] | None = None,
-    start: tuple | None = None,
+    start: Pose | tuple | None = None,
     start_from: PreviousFit | None = None,
 ) -> RegistrationResult:
     """Register ``model`` to the annotated ``views``.
@@ -285,7 +290,7 @@ def register_views(
     options : RegistrationOptions, optional
     progress : callable, optional
         Called with a one-line message at each stage (for logs and progress bars).
-    start : (R (3, 3), t (3,)), optional
+    start : Pose or (R (3, 3), t (3,)), optional
         A start pose of the model (model -> world, mm; e.g. the workbench's pose aid): the
         registration starts from the mean shape there instead of from the landmarks, so that
         it runs on outlines alone (outlines in 2 views, no landmarks). Not with ``"unknown"``.
@@ -422,7 +427,7 @@ def _register_posed(model, posed, poses, opts, silhouettes, say, start_pose):
     """The pipeline of :mod:`.stages` with ``posed.views``; for ``"refine"``/``"unknown"``
     with outlines, followed by the joint refinement of the views on the outlines and a final
     refinement with the corrected views."""
-    c = None if start_pose is None else model.mean.mean(axis=0) @ start_pose[0].T + start_pose[1]
+    c = None if start_pose is None else start_pose.apply(model.mean.mean(axis=0))
     few = start_pose is None and poses != "unknown" and not _enough_landmark_points(posed.views)
     if few:  # the landmark-only solve cannot place the bone: near the landmark rays
         c = few_landmarks_centre(posed.views)
@@ -450,14 +455,14 @@ def _register_posed(model, posed, poses, opts, silhouettes, say, start_pose):
     return final.problem or problem, final
 
 
-def _fit(problem: Problem, start_pose: tuple | None) -> Refined:
+def _fit(problem: Problem, start_pose: Pose | None) -> Refined:
     """The fit from the landmarks (:func:`.stages.robust_start`) or from ``start_pose`` (the
     mean shape there): outline boosting with the landmarks' robust reweighting, then the
     final refinement."""
     opts = problem.options
     memo = FitMemo()  # the start's boosted fits, retraced by the boosting (stages.FitMemo)
     if start_pose is not None:
-        start = pose_start(problem, *start_pose)
+        start = pose_start(problem, *start_pose.rt)
         unweighted = None
     else:
         unweighted = landmark_start(problem)

@@ -115,7 +115,7 @@ def _gsft_p(model, views, opts):
 MAX_PNP_STARTS = 16
 
 
-def _single_view_poses(model: ShapeModel, rays: RayObservations) -> list:
+def _single_view_poses(model: ShapeModel, rays: RayObservations) -> list[Pose]:
     """The mean shape's poses in one view's camera frame that reproject its landmarks (object
     -> camera, mm): every P3P solution with exactly 3 landmarks (the pose is fixed up to that
     ambiguity), the SQPnP solution with more. Empty for a view that is not central (its rays do
@@ -140,7 +140,7 @@ def _single_view_poses(model: ShapeModel, rays: RayObservations) -> list:
     for r, t in zip(rvecs, tvecs, strict=True):
         R, t = cv2.Rodrigues(r)[0], np.ravel(t)
         if np.all((X @ R.T + t)[:, 2] > 0):  # in front of the source
-            out.append((R, t))
+            out.append(Pose(R, t))
     return out
 
 
@@ -153,7 +153,7 @@ def _pnp_starts(model: ShapeModel, views: list[ViewObservations]) -> list:
         return []
     w = np.zeros(model.n_modes)
     combos = itertools.islice(itertools.product(*per_view), MAX_PNP_STARTS)
-    return [(np.array([R for R, _ in c]), np.array([t for _, t in c]), w) for c in combos]
+    return [(np.array([p.R for p in c]), np.array([p.t for p in c]), w) for c in combos]
 
 
 def _in_world(views, state):
@@ -299,10 +299,12 @@ def estimate_view_poses(
     return PosedViews(posed, info, [_in_world(posed, s) for s in starts])
 
 
-def _view_candidates(model: ShapeModel, v: ViewObservations, rays: RayObservations) -> list:
+def _view_candidates(
+    model: ShapeModel, v: ViewObservations, rays: RayObservations
+) -> list[tuple[Pose, float]]:
     """The mean shape's poses in view ``v``'s camera frame (object -> camera) with their
-    outline scores (pixels; 0 without an outline), best first: P3P/SQPnP with 3 or more
-    landmarks, the outline search (:mod:`.pose_search`) with fewer."""
+    outline scores (pixels; 0 without an outline), ``(pose, score)`` best first: P3P/SQPnP
+    with 3 or more landmarks, the outline search (:mod:`.pose_search`) with fewer."""
     if free_pose_parameters(v) > 0:
         return search_view_pose(model, v)
     cands = _single_view_poses(model, rays)
@@ -312,10 +314,10 @@ def _view_candidates(model: ShapeModel, v: ViewObservations, rays: RayObservatio
             "shape in front of its source (are they on the right model points?)"
         )
     if outline_target(v) is None:  # nothing to rank them by
-        return [(R, t, 0.0) for R, t in cands]
-    R, t = np.array([c[0] for c in cands]), np.array([c[1] for c in cands])
+        return [(p, 0.0) for p in cands]
+    R, t = np.array([p.R for p in cands]), np.array([p.t for p in cands])
     scores = outline_scores(model, v, R, t)
-    return sorted([(R[k], t[k], float(scores[k])) for k in range(len(cands))], key=lambda c: c[2])
+    return sorted([(p, float(x)) for p, x in zip(cands, scores, strict=True)], key=lambda c: c[1])
 
 
 def _searched_view_poses(model: ShapeModel, views: list[ViewObservations]) -> PosedViews:
@@ -331,10 +333,10 @@ def _searched_view_poses(model: ShapeModel, views: list[ViewObservations]) -> Po
                 f"{v.name}: poses = 'unknown': the outline search found no pose of the mean "
                 "shape in front of the source that fits this view (annotate 3 landmarks)"
             )
-    combos = sorted(itertools.product(*per_view), key=lambda c: sum(x[2] for x in c))
+    combos = sorted(itertools.product(*per_view), key=lambda c: sum(x[1] for x in c))
     combos = combos[:MAX_PNP_STARTS]
     w = np.zeros(model.n_modes)
-    states = [(np.array([c[0] for c in x]), np.array([c[1] for c in x]), w) for x in combos]
+    states = [(np.array([c[0].R for c in x]), np.array([c[0].t for c in x]), w) for x in combos]
     # view x sees the object at P_x; in the first view's camera frame (the world) it is at
     # P_0, so view x's extrinsics are P_x o P_0^-1
     extrinsics = relative_view_poses(*states[0][:2])

@@ -55,6 +55,7 @@ from ..calibration import save_calibration
 from ..calibration.views import View
 from ..io import write_mesh
 from ..io.atomic import atomic_write_bytes, atomic_write_json
+from ..pose import Pose
 from ..ssm import ShapeModel
 from .scenes import look_at_view, outline_stretch, random_pose, synthetic_bone_model
 
@@ -150,7 +151,7 @@ def write_synthetic_case(
     silhouettes: bool = True,
     model: ShapeModel | None = None,
     truth_shape: np.ndarray | None = None,
-    pose: tuple[np.ndarray, np.ndarray] | None = None,
+    pose: Pose | None = None,
     views: Sequence[View] | None = None,
     poses: str = "known",
     blunder_px: float = 0.0,
@@ -179,9 +180,9 @@ def write_synthetic_case(
     truth_shape : (N, 3) array, optional
         The true shape in the model's frame, mm, with the model's vertex order (it need not lie
         in the model's span). Default: ``model.instance(w)``, ``w ~ N(0, 1)``.
-    pose : (R, t), optional
-        World pose of the truth, ``X = R @ x + t`` (mm). Default: a uniformly random rotation
-        and a translation within 5 mm of the origin.
+    pose : Pose, optional
+        World pose of the truth (model frame -> world, ``X = R @ x + t``, mm). Default: a
+        uniformly random rotation and a translation within 5 mm of the origin.
     views : sequence of View, optional
         The views (names, image sizes and calibrations). Default: two perspective views
         75 degrees apart around the origin.
@@ -205,13 +206,12 @@ def write_synthetic_case(
 
     # the draws keep their order whatever the options, so the default case never changes
     w = rng.normal(size=model.n_modes)
-    R, t = random_pose(rng, max_offset=5.0)
-    if pose is not None:
-        R, t = np.asarray(pose[0], float), np.asarray(pose[1], float)
+    drawn = random_pose(rng, max_offset=5.0)
+    pose = drawn if pose is None else pose
     shape = model.instance(w) if truth_shape is None else np.asarray(truth_shape, float)
     if shape.shape != model.mean.shape:
         raise ValueError(f"truth_shape: expected shape {model.mean.shape}, got {shape.shape}")
-    truth = shape @ R.T + t
+    truth = pose.apply(shape)
     write_mesh(root / "gt" / "bone.ply", truth, model.faces)
 
     views = _default_views(image_size) if views is None else list(views)
@@ -228,8 +228,8 @@ def write_synthetic_case(
         root / "gt" / "truth.json",
         {
             "frame": "world frame of the calibrations, mm; truth = shape @ R.T + t",
-            "R": R.tolist(),
-            "t": t.tolist(),
+            "R": pose.R.tolist(),
+            "t": pose.t.tolist(),
             "shape": "model instance" if truth_shape is None else "given truth_shape",
             "weights": w.tolist() if truth_shape is None else None,
             "landmark_noise_px": landmark_noise_px,

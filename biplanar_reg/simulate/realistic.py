@@ -98,8 +98,8 @@ class RealisticScene:
         A soft-tissue cylinder along the template's z axis around both bones, mm.
     views : list of PerspectiveView
         The full calibrations (world frame, mm).
-    pose : (R, t)
-        Nominal pose of the template in the world (``X = R @ x + t``), mm.
+    pose : Pose
+        Nominal pose of the template in the world (template -> world, ``X = R @ x + t``), mm.
     cut : (N,) bool array
         Vertices of the bone that are no anatomy (the CT crop's cut across the shaft): an
         annotator never traces their outline (there is none in a radiograph).
@@ -113,7 +113,7 @@ class RealisticScene:
     second: tuple[np.ndarray, np.ndarray]
     tissue: tuple[np.ndarray, float]
     views: list[PerspectiveView]
-    pose: tuple[np.ndarray, np.ndarray]
+    pose: Pose
     cut: np.ndarray
 
     @property
@@ -140,8 +140,8 @@ class RealisticCase:
         Model floor: vertex RMS of the best rigid + model fit of the truth (prior-free), mm.
     true_views : list of PerspectiveView
         The calibrations the radiographs were made with (cropped windows).
-    truth_pose : (R, t)
-        Template frame -> world of the truth.
+    truth_pose : Pose
+        Template frame -> world of the truth, mm.
     member : int
         Population member of the truth (>= ``scene.n_train``).
     blunder : dict or None
@@ -164,7 +164,7 @@ class RealisticCase:
     truth_vertices: np.ndarray
     floor_mm: float
     true_views: list[PerspectiveView]
-    truth_pose: tuple[np.ndarray, np.ndarray]
+    truth_pose: Pose
     member: int
     blunder: dict | None = None
     calibration_error: dict | None = None
@@ -219,19 +219,16 @@ def _wrist_data(data_dir: str | Path) -> Path:
     return data
 
 
-def _overlap_direction(
-    views: list[PerspectiveView], pose: tuple[np.ndarray, np.ndarray], centre: np.ndarray
-) -> np.ndarray:
+def _overlap_direction(views: list[PerspectiveView], pose: Pose, centre: np.ndarray) -> np.ndarray:
     """The direction across the long (z) axis of the template frame in which a neighbour of a
     bone at ``centre`` hides behind it most in every view: the unit ``u = (cos a, sin a, 0)``
     whose largest image-plane component over the views is smallest (then the second bone
     overlaps the bone's outline in all views, as the ulna overlaps the radius)."""
-    R0, t0 = pose
-    world = R0 @ centre + t0
+    world = pose.apply(centre)
     best, best_u = np.inf, np.array([0.0, 1.0, 0.0])
     for a in np.deg2rad(np.arange(0.0, 180.0, 2.0)):
         u = np.array([np.cos(a), np.sin(a), 0.0])
-        o = R0 @ u
+        o = pose.R @ u
         side = 0.0
         for v in views:
             d = world - v.centre
@@ -344,7 +341,7 @@ def wrist_scene(
     pop = synthesise_population(rad.vertices, n_population, seed=seed, resolution=resolution)
     model, cut = model_off_the_cut(rad.vertices, pop.shapes[:n_train], rad.faces, n_modes)
     rough = read_json(data.parent / "annotation" / "rough_pose.json")
-    pose = (np.asarray(rough["R"], float), np.asarray(rough["t"], float))
+    pose = Pose(rough["R"], rough["t"])
     views = [
         load_calibration(data / f"{n}_calibration_mayacam2.txt", name=n) for n in ("cam01", "cam02")
     ]
@@ -402,7 +399,7 @@ class _SeedScene:
     """Everything of a seed that no option changes."""
 
     member: int
-    pose: tuple[np.ndarray, np.ndarray]
+    pose: Pose
     truth: np.ndarray
     views: list[PerspectiveView]
     images: list[np.ndarray]
@@ -496,17 +493,17 @@ def _seed_scene(
 ) -> _SeedScene:
     rng = np.random.default_rng([int(seed), 16])
     member = scene.n_train + int(seed) % scene.n_held_out
-    R0, t0 = scene.pose
     shape = scene.population[member]
     c = shape.mean(axis=0)
-    R = _small_rotation(rng, 10.0) @ R0
-    t = R0 @ c + t0 - R @ c + rng.uniform(-3.0, 3.0, 3)
-    truth = shape @ R.T + t
+    # turned about the shape's centroid, then shifted
+    R = _small_rotation(rng, 10.0) @ scene.pose.R
+    pose = Pose(R, scene.pose.apply(c) - R @ c + rng.uniform(-3.0, 3.0, 3))
+    truth = pose.apply(shape)
     # the second bone moves with the bone, plus a little of its own (about its own centre)
     s_loc = scene.second[0]
     sc = s_loc.mean(axis=0)
-    second = ((s_loc - sc) @ _small_rotation(rng, 3.0).T + sc + rng.uniform(-2, 2, 3)) @ R.T + t
-    tissue = (R @ scene.tissue[0] + t, R[:, 2])  # a point on the axis and its direction
+    second = pose.apply((s_loc - sc) @ _small_rotation(rng, 3.0).T + sc + rng.uniform(-2, 2, 3))
+    tissue = (pose.apply(scene.tissue[0]), R[:, 2])  # a point on the axis and its direction
     views = [_crop(v, np.vstack([truth, second])) for v in scene.views]
     out: dict[str, list] = {k: [] for k in ("images", "outlines", "frac", "overlap", "contours")}
     for view in views:
@@ -521,7 +518,7 @@ def _seed_scene(
         out["contours"].append(_trace(img, part, keep, spacing_px, anchor_noise_px, rng))
     return _SeedScene(
         member,
-        (R, t),
+        pose,
         truth,
         views,
         out["images"],

@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 from ..annotation import Contour
 from ..calibration.views import PerspectiveView, View
 from ..outline import outline_polylines
+from ..pose import Pose
 from ..registration import ViewObservations
 from ..registration.rays import RayObservations
 from ..ssm import ShapeModel
@@ -205,23 +206,19 @@ def biplanar_views(
     ]
 
 
-def random_pose(
-    rng: np.random.Generator, max_offset: float = 10.0
-) -> tuple[np.ndarray, np.ndarray]:
+def random_pose(rng: np.random.Generator, max_offset: float = 10.0) -> Pose:
     """A uniformly random rotation and a translation within ``max_offset`` mm of the origin.
 
     Draws the rotation, then the translation (uniform in each coordinate), from ``rng``.
 
     Returns
     -------
-    R : (3, 3) array
-        Rotation (object frame -> world).
-    t : (3,) array
-        Translation, mm.
+    Pose
+        Object frame -> world; ``t`` in mm.
     """
     R = Rotation.random(random_state=rng).as_matrix()
     t = rng.uniform(-max_offset, max_offset, size=3)
-    return R, t
+    return Pose(R, t)
 
 
 def noisy_pixels(
@@ -383,8 +380,9 @@ def boosting_case(
     """
     rng = np.random.default_rng(seed)
     w = rng.normal(size=model.n_modes)
-    R, t = random_pose(rng)
-    X = model.instance(w) @ R.T + t
+    pose = random_pose(rng)
+    R, t = pose.rt
+    X = pose.apply(model.instance(w))
     counts = np.broadcast_to(np.asarray(landmarks_per_view, dtype=int), (2,))
     sigma_outline = noise_px if outline_noise_px is None else outline_noise_px
     views = []

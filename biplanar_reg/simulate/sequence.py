@@ -95,7 +95,6 @@ def _unit(rng: np.random.Generator) -> np.ndarray:
 
 def _path(scene: RealisticScene, shape: np.ndarray, n: int, sweep_deg, sweep_mm, rng):
     """Per frame the bone's pose (R, t), the second bone's relative motion and the tissue."""
-    R0, t0 = scene.pose
     c = shape.mean(axis=0)
     a1, a2, d, b1 = _unit(rng), _unit(rng), _unit(rng), _unit(rng)
     db = rng.uniform(-1.5, 1.5, 3)
@@ -104,8 +103,8 @@ def _path(scene: RealisticScene, shape: np.ndarray, n: int, sweep_deg, sweep_mm,
         s = f / max(n - 1, 1)
         rot = Rotation.from_rotvec(np.deg2rad(sweep_deg * (s - 0.5)) * a1)
         rot = Rotation.from_rotvec(np.deg2rad(2.0 * np.sin(2 * np.pi * s)) * a2) * rot
-        R = rot.as_matrix() @ R0
-        t = R0 @ c + t0 - R @ c + sweep_mm * (s - 0.5) * d
+        R = rot.as_matrix() @ scene.pose.R
+        t = scene.pose.apply(c) - R @ c + sweep_mm * (s - 0.5) * d
         rel = Rotation.from_rotvec(np.deg2rad(2.0 * np.sin(np.pi * s)) * b1).as_matrix()
         out.append((R, t, rel, db * np.sin(np.pi * s)))
     return out

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..pose import nearest_rotation
+from ..pose import Pose, nearest_rotation
 from .model import ShapeModel
 
 __all__ = ["ModelFit", "fit_model"]
@@ -74,19 +74,19 @@ def fit_model(
     steps = _Steps(model, pts, shape)
     w = np.zeros(model.n_modes)
     inst = model.mean
-    rot, t = steps.rigid(w[: len(steps.modes)])  # the weights not fitted stay 0
-    rms = _rms(inst @ rot.T + t, pts)
+    pose = steps.rigid(w[: len(steps.modes)])  # the weights not fitted stay 0
+    rms = _rms(pose.apply(inst), pts)
     for _ in range(iterations if steps.modes.size else 0):
-        w = steps.weights(rot, t)
+        w = steps.weights(pose)
         inst = model.mean + np.tensordot(w, steps.modes, axes=1)
-        rot, t = steps.rigid(w)
-        new = _rms(inst @ rot.T + t, pts)
+        pose = steps.rigid(w)
+        new = _rms(pose.apply(inst), pts)
         done = rms - new < tol_mm
         rms = new
         if done:
             break
-    verts = inst @ rot.T + t
-    return ModelFit(rot, t, w, verts, _rms(verts, pts))
+    verts = pose.apply(inst)
+    return ModelFit(pose.R, pose.t, w, verts, _rms(verts, pts))
 
 
 class _Steps:
@@ -126,14 +126,15 @@ class _Steps:
         self.s = np.tensordot(per_vertex, np.ones(model.n_vertices), (1, 0))  # (M, 3)
         self.w0 = solve @ model.mean.ravel()
 
-    def rigid(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Rotation and translation (mm) of the Kabsch fit of ``mean + w modes`` to the points
-        (as :meth:`biplanar_reg.pose.Pose.fit_rigid`, from the cross-covariance)."""
+    def rigid(self, w: np.ndarray) -> Pose:
+        """The Kabsch fit (model -> points' frame, mm) of ``mean + w modes`` to the points (as
+        :meth:`biplanar_reg.pose.Pose.fit_rigid`, from the cross-covariance)."""
         rot = nearest_rotation(self.H0 + np.tensordot(w, self.Hw, axes=1))
-        return rot, self.centre - (self.mean_c + w @ self.modes_c) @ rot.T
+        return Pose(rot, self.centre - (self.mean_c + w @ self.modes_c) @ rot.T)
 
-    def weights(self, rot: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """Least-squares weights of the points in the model frame of pose ``(rot, t)``."""
+    def weights(self, pose: Pose) -> np.ndarray:
+        """Least-squares weights of the points in the model frame of ``pose``."""
+        rot, t = pose.rt
         return np.einsum("mcd,dc->m", self.K, rot) + self.s @ ((self.centre - t) @ rot) - self.w0
 
 

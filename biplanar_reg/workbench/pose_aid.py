@@ -10,8 +10,8 @@ fields (:mod:`.pose_nudge`), their undo steps, and "propose outline"
 (:mod:`.posed_outline`).
 
 Frames: model coordinates in mm (the case's units scaled to mm), world = the calibration's
-frame, mm; a pose ``(R, t)`` maps model to world, ``X = R @ x + t``. Pixels ``(u, v)`` as in
-the annotation format.
+frame, mm; a pose (:class:`~biplanar_reg.pose.Pose`) maps model to world, ``X = R @ x + t``.
+Pixels ``(u, v)`` as in the annotation format.
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ from ..cases import CaseSetup
 from ..cases.case import UNIT_SCALE, CaseView
 from ..io import atomic_write_json, atomic_write_text, read_json, read_mesh
 from ..outline import cut_vertices
+from ..pose import Pose
 from ..registration import RayObservations, solve_gsft
 from ..ssm import ShapeModel
 from .pose_nudge import (
@@ -130,25 +131,24 @@ def landmark_pose(
     ids: np.ndarray,
     origins: np.ndarray,
     directions: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
-    """The rigid pose ``(R (3, 3), t (3,) mm)`` of the mean shape that the landmark rays fix:
+) -> Pose:
+    """The rigid pose (model -> world, mm) of the mean shape that the landmark rays fix:
     G-SfT with no modes (the registration's rigid mean-shape start, equal weights)."""
     rigid = ShapeModel(mean, np.zeros((0, mean.shape[0], 3)), faces=faces)
     res = solve_gsft(rigid, RayObservations(ids, origins, directions))
-    return np.asarray(res.rotation, float), np.asarray(res.translation, float)
+    return Pose(res.rotation, res.translation)
 
 
 def posed_overlay(
     mean: np.ndarray,
     faces: np.ndarray | None,
-    R: np.ndarray,
-    t: np.ndarray,
+    pose: Pose,
     views: Sequence[CaseView],
     landmarks: Mapping[str, int],
     cut: np.ndarray | None = None,
 ) -> dict[str, dict[str, Any]]:
     """What the page draws per view: ``{view: {"outline_px", "outline_closed",
-    "landmarks_px", "centre_px", "axes", "camera"}}`` of the mean shape posed by ``(R, t)``
+    "landmarks_px", "centre_px", "axes", "camera"}}`` of the mean shape posed by ``pose``
     (pixels; ``camera``: the view's ``"forward"`` and ``"up"`` unit vectors at the bone, world
     frame, for a 3D view oriented like the radiograph).
 
@@ -157,7 +157,7 @@ def posed_overlay(
     turn; ``axes`` the nudge axes of every view drawn in this one (:func:`axes_overlay`, a
     quarter of the bone's largest extent long).
     """
-    V = mean @ R.T + t
+    V = pose.apply(mean)
     names = [n for n, i in landmarks.items() if 0 <= i < len(V)]
     ids = np.array([landmarks[n] for n in names], np.int64)
     out = {}
@@ -201,10 +201,8 @@ def _with_start_key(toml_text: str, name: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_start(
-    case_dir: str | os.PathLike, R: np.ndarray, t: np.ndarray, units: str = "mm"
-) -> Path:
-    """Save ``(R, t)`` (model -> world, mm) as the case's start pose: ``CASE_DIR/start.json``
+def write_start(case_dir: str | os.PathLike, pose: Pose, units: str = "mm") -> Path:
+    """Save ``pose`` (model -> world, mm) as the case's start pose: ``CASE_DIR/start.json``
     ``{"R": [[3x3]], "t": [3]}`` in the case's units, and ``[registration] start =
     "start.json"`` in ``case.toml`` (both atomic; the rest of ``case.toml`` is kept as it is).
     Returns the start file's path."""
@@ -215,16 +213,15 @@ def write_start(
     tomllib.loads(new_text)  # never write a case.toml the loader cannot parse
     path = case_dir / START_NAME
     scale = UNIT_SCALE[units]
-    atomic_write_json(
-        path, {"R": np.asarray(R, float).tolist(), "t": (np.asarray(t, float) / scale).tolist()}
-    )
+    atomic_write_json(path, {"R": pose.R.tolist(), "t": (pose.t / scale).tolist()})
     if new_text != text:
         atomic_write_text(toml_path, new_text)
     return path
 
 
-def read_start(case_dir: str | os.PathLike, units: str = "mm") -> tuple[np.ndarray, np.ndarray]:
-    """The case's saved start pose ``(R, t mm)`` (``[registration] start`` of ``case.toml``).
+def read_start(case_dir: str | os.PathLike, units: str = "mm") -> Pose:
+    """The case's saved start pose (model -> world, ``t`` in mm; ``[registration] start`` of
+    ``case.toml``).
 
     Raises ``FileNotFoundError`` when the case has none, ``ValueError`` (naming the key) when
     it cannot be read: the loader refuses that case as well (``docs/cases.md``)."""
@@ -242,7 +239,7 @@ def read_start(case_dir: str | os.PathLike, units: str = "mm") -> tuple[np.ndarr
         raise ValueError(f'[registration] start: {name}: expected {{"R": [[3x3]], "t": [3]}}')
     R = check_rotation("R", np.asarray(start.get("R"), float), tol=1e-4)
     t = np.asarray(start.get("t"), float).reshape(3) * UNIT_SCALE[units]
-    return R, t
+    return Pose(R, t)
 
 
 def _clicks(doc: Mapping[str, Any]) -> dict[str, dict[str, list[float]]]:
@@ -294,16 +291,16 @@ class PoseAid:
         self.wb = wb
         self._lock = threading.Lock()
         self._mean: tuple[np.ndarray, np.ndarray | None, np.ndarray | None] | None = None
-        self._pose: tuple[tuple, np.ndarray, np.ndarray] | None = None  # key, R, t (landmarks)
-        # the user's pose: {"R", "t", "source": nudged|typed|start, "key": the clicks then}
+        self._pose: tuple[tuple, Pose] | None = None  # key, the landmark pose
+        # the user's pose: {"pose", "source": nudged|typed|start, "key": the clicks then}
         self._user: dict[str, Any] | None = None
         self._undo: list[dict[str, Any] | None] = []
-        self._saved: tuple[np.ndarray, np.ndarray] | None = None
+        self._saved: Pose | None = None
         self._start_note = ""
         try:
-            R, t = read_start(wb.case_dir, wb.setup.units)
-            self._user = {"R": R, "t": t, "source": "start", "key": None}
-            self._saved = (R, t)
+            pose = read_start(wb.case_dir, wb.setup.units)
+            self._user = {"pose": pose, "source": "start", "key": None}
+            self._saved = pose
         except FileNotFoundError:
             pass
         except (ValueError, OSError, tomllib.TOMLDecodeError) as exc:
@@ -321,8 +318,8 @@ class PoseAid:
             self._mean = (mean, faces, cut)
         return self._mean
 
-    def _landmark_pose(self) -> tuple[tuple, np.ndarray, np.ndarray] | str:
-        """``(key, R, t)`` from the current clicks, or the reason there is none."""
+    def _landmark_pose(self) -> tuple[tuple, Pose] | str:
+        """``(key, pose)`` from the current clicks, or the reason there is none."""
         landmarks = dict(self.wb.landmarks)
         clicks = _clicks(self.wb.annotations_document())
         key = _key(clicks, landmarks)
@@ -334,22 +331,22 @@ class PoseAid:
             return why
         mean, faces = self.mean()
         try:
-            R, t = landmark_pose(mean, faces, ids, origins, dirs)
+            pose = landmark_pose(mean, faces, ids, origins, dirs)
         except ValueError as exc:  # e.g. every ray parallel: the solver's own reason
             return f"the landmark clicks fix no pose: {exc}"
-        self._pose = (key, R, t)
+        self._pose = (key, pose)
         return self._pose
 
-    def _current(self) -> tuple[np.ndarray, np.ndarray, str, bool] | str:
-        """``(R, t, source, landmarks changed since)`` or the reason there is no pose."""
+    def _current(self) -> tuple[Pose, str, bool] | str:
+        """``(pose, source, landmarks changed since)`` or the reason there is no pose."""
         base = self._landmark_pose()
         if self._user is not None:
             u = self._user
             changed = u["key"] is not None and not isinstance(base, str) and base[0] != u["key"]
-            return u["R"], u["t"], u["source"], changed
+            return u["pose"], u["source"], changed
         if isinstance(base, str):
             return base + (f" ({self._start_note})" if self._start_note else "")
-        return base[1], base[2], "landmarks", False
+        return base[1], "landmarks", False
 
     def document(self) -> dict[str, Any]:
         """``GET /api/pose-aid``: ``{"ready": false, "reason"}`` or ``{"ready": true, "source":
@@ -364,14 +361,12 @@ class PoseAid:
                         "seconds": time.perf_counter() - t0}  # fmt: skip
             return self._posed_document(*cur, t0)
 
-    def _posed_document(
-        self, R: np.ndarray, t: np.ndarray, source: str, changed: bool, t0: float
-    ) -> dict[str, Any]:
-        """The document of the pose ``(R, t)`` (the lock held)."""
+    def _posed_document(self, pose: Pose, source: str, changed: bool, t0: float) -> dict[str, Any]:
+        """The document of ``pose`` (the lock held)."""
         mean, faces, cut = self._model()
-        views = posed_overlay(mean, faces, R, t, self.wb.setup.views, self.wb.landmarks, cut)
+        views = posed_overlay(mean, faces, pose, self.wb.setup.views, self.wb.landmarks, cut)
         saved = self._saved is not None and all(
-            np.allclose(a, b, atol=1e-9) for a, b in zip(self._saved, (R, t), strict=True)
+            np.allclose(a, b, atol=1e-9) for a, b in zip(self._saved.rt, pose.rt, strict=True)
         )
         return {
             "ready": True,
@@ -379,25 +374,26 @@ class PoseAid:
             "landmarks_changed": changed,
             "saved": saved,
             "undo": len(self._undo),
-            "R": np.round(R, 9).tolist(),
-            "t": np.round(t, 6).tolist(),
-            "centre_mm": np.round(mean.mean(axis=0) @ R.T + t, 3).tolist(),
-            "angles_deg": np.round(euler_xyz(R), 3).tolist(),
+            "R": np.round(pose.R, 9).tolist(),
+            "t": np.round(pose.t, 6).tolist(),
+            "centre_mm": np.round(pose.apply(mean.mean(axis=0)), 3).tolist(),
+            "angles_deg": np.round(euler_xyz(pose.R), 3).tolist(),
             "views": views,
             "seconds": time.perf_counter() - t0,
         }
 
-    def _need(self) -> tuple[np.ndarray, np.ndarray]:
+    def _need(self) -> Pose:
+        """The current pose; ``Conflict`` when there is none."""
         cur = self._current()
         if isinstance(cur, str):
             raise Conflict(f"pose aid: no pose yet ({cur})")
-        return cur[0], cur[1]
+        return cur[0]
 
-    def _set_user(self, R: np.ndarray, t: np.ndarray, source: str) -> None:
-        """Make ``(R, t)`` the user's pose, the previous one kept as an undo step."""
+    def _set_user(self, pose: Pose, source: str) -> None:
+        """Make ``pose`` the user's pose, the previous one kept as an undo step."""
         base = self._pose[0] if self._pose is not None else None
         self._undo = [*self._undo, self._user][-UNDO_STEPS:]
-        self._user = {"R": R, "t": t, "source": source, "key": base}
+        self._user = {"pose": pose, "source": source, "key": base}
 
     def nudge(
         self, view: object, translate_px: object, rotate_deg: object, preview: object = False
@@ -416,15 +412,15 @@ class PoseAid:
         if d_uv is None and angle is None:
             raise ValueError("translate_px: missing (give translate_px [du, dv] or rotate_deg)")
         with self._lock:
-            R, t = self._need()
+            pose = self._need()
             mean = self.mean()[0]
             if d_uv is not None:
-                R, t = nudge_translate(mean, R, t, cv.view, d_uv)
+                pose = nudge_translate(mean, pose, cv.view, d_uv)
             if angle is not None:
-                R, t = nudge_rotate(mean, R, t, cv.view, angle)
+                pose = nudge_rotate(mean, pose, cv.view, angle)
             if preview is True:
-                return self._posed_document(R, t, "preview", False, time.perf_counter())
-            self._set_user(R, t, "nudged")
+                return self._posed_document(pose, "preview", False, time.perf_counter())
+            self._set_user(pose, "nudged")
         return self.document()
 
     def set_fields(self, centre_mm: object, angles_deg: object) -> dict[str, Any]:
@@ -435,8 +431,7 @@ class PoseAid:
         a = _vector3(angles_deg, "angles_deg", 360.0)
         with self._lock:
             self._need()
-            R, t = pose_from_fields(self.mean()[0], c, a)
-            self._set_user(R, t, "typed")
+            self._set_user(pose_from_fields(self.mean()[0], c, a), "typed")
         return self.document()
 
     def reset(self) -> dict[str, Any]:
@@ -458,10 +453,10 @@ class PoseAid:
     def save_start(self) -> dict[str, Any]:
         """Write the current pose as the case's start pose (:func:`write_start`)."""
         with self._lock:
-            R, t = self._need()
-            path = write_start(self.wb.case_dir, R, t, self.wb.setup.units)
-            self._saved = (R, t)
-        return {"file": path.name, "R": R.tolist(), "t": t.tolist()}
+            pose = self._need()
+            path = write_start(self.wb.case_dir, pose, self.wb.setup.units)
+            self._saved = pose
+        return {"file": path.name, "R": pose.R.tolist(), "t": pose.t.tolist()}
 
     def _case_view(self, view: object) -> CaseView:
         for cv in self.wb.setup.views:
@@ -483,9 +478,9 @@ class PoseAid:
         if not 5.0 <= spacing <= 500.0:
             raise ValueError(f"spacing_px: expected 5 to 500 pixels, got {spacing:g}")
         with self._lock:
-            R, t = self._need()
+            pose = self._need()
             mean, faces, cut = self._model()
-        lines, closed = outline_pieces(mean @ R.T + t, faces, cv.view, cut, v.size)
+        lines, closed = outline_pieces(pose.apply(mean), faces, cv.view, cut, v.size)
         if not lines:
             raise Conflict(f"view {view!r}: the posed model has no outline inside the image")
         pieces = propose_pieces(v.image, lines, closed, spacing_px=spacing, cost=v.cost())

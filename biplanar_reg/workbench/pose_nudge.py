@@ -14,9 +14,10 @@ Both are rigid motions in the world, so every other view shows the bone where it
 projection moves along ``+u``, ``+v``; ``k``: the viewing axis, away from the source) and
 :func:`axes_overlay` their projections into every view, which the page draws.
 
-Frames: world = the calibration's frame, mm; a pose ``(R, t)`` maps model to world, ``X = R @
-x + t``; the bone's centre is the mean of its posed vertices. Euler angles (:func:`euler_xyz`)
-are in degrees about the world's fixed x, then y, then z axes: ``R = Rz @ Ry @ Rx``.
+Frames: world = the calibration's frame, mm; a pose (:class:`~biplanar_reg.pose.Pose`) maps
+model to world, ``X = R @ x + t``; the bone's centre is the mean of its posed vertices. Euler
+angles (:func:`euler_xyz`) are in degrees about the world's fixed x, then y, then z axes:
+``R = Rz @ Ry @ Rx``.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ import numpy as np
 
 from ..calibration import View
 from ..cases.case import CaseView
+from ..pose import Pose
 
 __all__ = [
     "nudge_frame",
@@ -40,8 +42,9 @@ __all__ = [
 ]
 
 
-def _centre(mean: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    return np.asarray(mean, float).mean(axis=0) @ np.asarray(R).T + np.asarray(t)
+def _centre(mean: np.ndarray, pose: Pose) -> np.ndarray:
+    """The posed bone's centre (world, mm): its posed vertices' mean."""
+    return pose.apply(np.asarray(mean, float).mean(axis=0))
 
 
 def _plane_point(view: View, uv: np.ndarray, c: np.ndarray, k: np.ndarray) -> np.ndarray:
@@ -69,24 +72,22 @@ def nudge_frame(view: View, c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
     return eu, ev / np.linalg.norm(ev), k
 
 
-def nudge_translate(
-    mean: np.ndarray, R: np.ndarray, t: np.ndarray, view: View, d_uv: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Move the posed bone in ``view``'s plane through its centre (normal to the view's ray
-    through it) so that the centre's projection moves by ``d_uv`` pixels. Returns ``(R, t)``."""
-    c = _centre(mean, R, t)
+def nudge_translate(mean: np.ndarray, pose: Pose, view: View, d_uv: np.ndarray) -> Pose:
+    """Move the bone (``mean`` posed by ``pose``, model -> world) in ``view``'s plane through
+    its centre (normal to the view's ray through it) so that the centre's projection moves by
+    ``d_uv`` pixels. Returns the moved pose."""
+    c = _centre(mean, pose)
     uv = view.project(c[None])[0]
     _, _, k = nudge_frame(view, c)
     target = _plane_point(view, uv + np.asarray(d_uv, float), c, k)
-    return np.asarray(R, float), np.asarray(t, float) + (target - c)
+    return Pose(pose.R, pose.t + (target - c))
 
 
-def nudge_rotate(
-    mean: np.ndarray, R: np.ndarray, t: np.ndarray, view: View, degrees: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Turn the posed bone about ``view``'s ray through its centre by ``degrees``, clockwise on
-    the screen when positive (``e_u`` turns toward ``e_v``). Returns ``(R, t)``."""
-    c = _centre(mean, R, t)
+def nudge_rotate(mean: np.ndarray, pose: Pose, view: View, degrees: float) -> Pose:
+    """Turn the bone (``mean`` posed by ``pose``, model -> world) about ``view``'s ray through
+    its centre by ``degrees``, clockwise on the screen when positive (``e_u`` turns toward
+    ``e_v``). Returns the turned pose."""
+    c = _centre(mean, pose)
     eu, ev, _ = nudge_frame(view, c)
     a = math.radians(float(degrees))
     # the turn in the (e_u, e_v) plane, the axis normal to it fixed: a rotation of either
@@ -96,7 +97,7 @@ def nudge_rotate(
         + (math.cos(a) - 1.0) * (np.outer(eu, eu) + np.outer(ev, ev))
         + math.sin(a) * (np.outer(ev, eu) - np.outer(eu, ev))
     )
-    return dR @ np.asarray(R, float), dR @ (np.asarray(t, float) - c) + c
+    return Pose(dR @ pose.R, dR @ (pose.t - c) + c)
 
 
 def axes_overlay(
@@ -152,8 +153,8 @@ def euler_xyz(R: np.ndarray) -> np.ndarray:
 
 def pose_from_fields(
     mean: np.ndarray, centre_mm: Sequence[float], angles_deg: Sequence[float]
-) -> tuple[np.ndarray, np.ndarray]:
-    """The pose ``(R, t)`` whose bone centre is ``centre_mm`` (world, mm) and whose rotation
-    is :func:`rotation_xyz` of ``angles_deg``."""
+) -> Pose:
+    """The pose (model -> world) whose bone centre is ``centre_mm`` (world, mm) and whose
+    rotation is :func:`rotation_xyz` of ``angles_deg``."""
     R = rotation_xyz(angles_deg)
-    return R, np.asarray(centre_mm, float) - np.asarray(mean, float).mean(axis=0) @ R.T
+    return Pose(R, np.asarray(centre_mm, float) - np.asarray(mean, float).mean(axis=0) @ R.T)

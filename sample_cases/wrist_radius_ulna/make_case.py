@@ -134,12 +134,11 @@ def make(out: Path, seed: int = 0) -> Path:
     rng = np.random.default_rng([seed, 30])
     member = N_TRAIN + seed % (N_POP - N_TRAIN)
     radius_shape, ulna_shape = scene.population[member], ulna_pop[member]
-    R0, t0 = scene.pose
     c = radius_shape.mean(axis=0)
     axis = rng.normal(size=3)
     R = Rotation.from_rotvec(np.deg2rad(10) * rng.uniform() * axis / np.linalg.norm(axis))
-    R = R.as_matrix() @ R0
-    t = R0 @ c + t0 - R @ c + rng.uniform(-3.0, 3.0, 3)
+    R = R.as_matrix() @ scene.pose.R
+    t = scene.pose.apply(c) - R @ c + rng.uniform(-3.0, 3.0, 3)
     radius = radius_shape @ R.T + t
     uc = ulna_shape.mean(axis=0)
     own = Rotation.from_rotvec(np.deg2rad(1.0) * rng.uniform(-1, 1, 3) / np.sqrt(3)).as_matrix()

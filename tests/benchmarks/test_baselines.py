@@ -47,7 +47,7 @@ def test_spectral_norm_prox_zero_when_threshold_exceeds_nuclear_norm():
 def _weak_perspective_scene(model, K, seed):
     rng = np.random.default_rng(seed)
     w = rng.uniform(0, 1, model.n_modes)
-    R, _ = random_pose(rng)
+    R, _ = random_pose(rng).rt
     ids = rng.choice(model.n_vertices, K, replace=False)
     X = model.instance(w) @ R.T
     uv = 2.5 * X[ids, :2] + np.array([40.0, -7.0])  # scale 2.5 image units per mm, shifted
@@ -96,7 +96,7 @@ def test_prox_admm_rejects_bad_input(model):
 def two_views(model):
     rng = np.random.default_rng(5)
     w = rng.normal(size=model.n_modes)
-    R, t = random_pose(rng)
+    R, t = random_pose(rng).rt
     X = model.instance(w) @ R.T + t
     views = biplanar_views(75.0)
     ids = [rng.choice(model.n_vertices, 12, replace=False) for _ in views]

@@ -43,8 +43,8 @@ def test_start_pose_is_read_in_mm(case_dir, tmp_path):
     folder = _copy(case_dir, tmp_path)
     _with_start(folder, {"R": np.eye(3).tolist(), "t": [1.0, 2.0, 3.0]})
     case = load_case(folder)
-    np.testing.assert_allclose(case.start[0], np.eye(3))
-    np.testing.assert_allclose(case.start[1], [1.0, 2.0, 3.0])
+    np.testing.assert_allclose(case.start.R, np.eye(3))
+    np.testing.assert_allclose(case.start.t, [1.0, 2.0, 3.0])
     assert case.start_path.name == "start.json"
 
 

@@ -99,10 +99,10 @@ def test_the_one_landmark_search_finds_the_view_pose(small):
     obs = views[1]
     found = pose_search.one_landmark_search(small, obs)
     _, d = pose_search.camera_view(obs).view.rays(obs.landmark_uv)
-    for Rk, tk, _ in found:
-        p = Rk @ small.mean[obs.landmark_ids[0]] + tk
+    for pose, _ in found:
+        p = pose.apply(small.mean[obs.landmark_ids[0]])
         np.testing.assert_allclose(np.cross(p, d[0] / np.linalg.norm(d[0])), 0.0, atol=1e-9)
-    errors = [np.degrees(rotation_angle(Rk, obs.view.R @ R)) for Rk, _, _ in found]
+    errors = [np.degrees(rotation_angle(pose.R, obs.view.R @ R)) for pose, _ in found]
     assert min(errors) < 20.0
 
 

@@ -135,7 +135,7 @@ def test_the_kkt_factor_buffers_carry_nothing_between_iterations():
 def _rays(model, n_obs, seed):
     rng = np.random.default_rng(seed)
     w = rng.normal(size=model.n_modes)
-    R, t = random_pose(rng)
+    R, t = random_pose(rng).rt
     X = model.instance(w) @ R.T + t
     n = model.n_vertices
     ids = [rng.integers(0, n, n_obs // 2), rng.integers(0, n, n_obs - n_obs // 2)]

@@ -29,7 +29,7 @@ def model():
 def _truth(model, seed):
     rng = np.random.default_rng(seed)
     w = rng.normal(size=model.n_modes)
-    R, t = random_pose(rng)
+    R, t = random_pose(rng).rt
     return rng, w, R, t, model.instance(w) @ R.T + t
 
 

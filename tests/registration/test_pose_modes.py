@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from biplanar_reg.pose import Pose
 from biplanar_reg.registration import RegistrationOptions, register_views
 from biplanar_reg.registration.rotations import rotation_angle, so3_exp
 from biplanar_reg.registration.unknown_poses import solve_gsft_unknown_poses
@@ -51,9 +52,9 @@ def test_outline_only_registration_from_a_start_pose(model):
     views, (w, R, t, X) = boosting_case(model, 0, fraction=0.8, noise_px=0.5, landmarks_per_view=0)
     c = model.mean.mean(axis=0)
     R0 = so3_exp(np.deg2rad(10.0) * np.array([0.6, 0.0, 0.8])) @ R
-    t0 = R @ c + t - R0 @ c + np.array([3.0, -3.0, 2.0])
-    res = register_views(model, views, start=(R0, t0))
-    assert _rms(model.mean @ R0.T + t0, X) > 5.0
+    start = Pose(R0, R @ c + t - R0 @ c + np.array([3.0, -3.0, 2.0]))
+    res = register_views(model, views, start=start)
+    assert _rms(start.apply(model.mean), X) > 5.0
     assert _rms(res.vertices, X) < 1.0  # mm; the start is > 5 mm off
 
 
@@ -74,7 +75,7 @@ def test_a_start_that_is_not_a_rotation_is_a_clear_error(model):
     views, (w, R, t, X) = boosting_case(model, 0, landmarks_per_view=0)
     with pytest.raises(ValueError, match=r"start: R: not orthonormal"):
         register_views(model, views, start=(2.0 * R, t))
-    with pytest.raises(ValueError, match=r"start: expected \(R, t\)"):
+    with pytest.raises(ValueError, match=r"start: expected a Pose or \(R, t\)"):
         register_views(model, views, start=R)
     with pytest.raises(ValueError, match="start: not used with poses = 'unknown'"):
         register_views(model, views, start=(R, t), poses="unknown")

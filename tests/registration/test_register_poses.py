@@ -24,7 +24,7 @@ def scene():
     model = synthetic_bone_model(8, seed=0, resolution=(40, 32))
     rng = np.random.default_rng(4)
     w = rng.normal(size=8)
-    R, t = random_pose(rng)
+    R, t = random_pose(rng).rt
     X = model.instance(w) @ R.T + t
     views = []
     for name, view in zip(("cam1", "cam2"), biplanar_views(75.0), strict=True):

@@ -30,7 +30,7 @@ def model() -> ShapeModel:
 def _truth(model, seed):
     rng = np.random.default_rng(seed)
     w = rng.normal(size=M)
-    R, t = random_pose(rng)
+    R, t = random_pose(rng).rt
     return rng, w, R, t, model.instance(w) @ R.T + t
 
 

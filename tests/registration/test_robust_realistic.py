@@ -105,7 +105,7 @@ def _out_of_population_case(seed: int):
     rng = np.random.default_rng(seed)
     truth = synthesise_population(template, 1, seed=100 + seed).shapes[0]
     truth = truth - template.mean(axis=0) + model.mean.mean(axis=0)
-    R, t = random_pose(rng, max_offset=5.0)
+    R, t = random_pose(rng, max_offset=5.0).rt
     X = (truth - model.mean.mean(axis=0)) @ R.T + t
     views = []
     for name, view in zip(("cam1", "cam2"), biplanar_views(75.0), strict=True):

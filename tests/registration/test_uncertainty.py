@@ -22,7 +22,7 @@ from biplanar_reg.ssm import ShapeModel
 def scene():
     model = synthetic_bone_model(4, resolution=(12, 10), seed=1)
     rng = np.random.default_rng(3)
-    R, t = random_pose(rng, 5.0)
+    R, t = random_pose(rng, 5.0).rt
     w = rng.normal(size=4)
     X = model.instance(w) @ R.T + t
     ids = [rng.choice(model.n_vertices, 5, replace=False) for _ in range(2)]

@@ -24,7 +24,7 @@ def _scene(n_views: int, k_per_view: int, seed: int, sod: float = 900.0):
     rng = np.random.default_rng(seed)
     model = synthetic_bone_model(8, seed=seed)
     w = rng.normal(size=8)
-    R, t = random_pose(rng)
+    R, t = random_pose(rng).rt
     X = model.instance(w) @ R.T + t
     ids = rng.permutation(model.n_vertices)[: n_views * k_per_view].reshape(n_views, -1)
     views, cams = [], []
@@ -122,7 +122,7 @@ def test_call_forms_agree_and_old_spellings_are_refused():
 def test_refine_mode_recovers_perturbed_relative_pose():
     rng = np.random.default_rng(7)
     model = synthetic_bone_model(8, seed=7)
-    R, t = random_pose(rng)
+    R, t = random_pose(rng).rt
     X = model.instance(rng.normal(size=8)) @ R.T + t
     cams = biplanar_views()
     ids = rng.permutation(model.n_vertices)[:60].reshape(2, 30)

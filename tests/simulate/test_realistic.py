@@ -29,8 +29,7 @@ def test_truth_is_out_of_span_and_floor_is_the_best_fit(scene, clean):
     assert clean.member >= scene.n_train
     assert clean.floor_mm > 0.05  # a held-out member: the model cannot reach it
     # a training member is in the span (up to pose): its floor is ~0
-    R, t = clean.truth_pose
-    inside, _ = model_floor(scene.model, scene.population[0] @ R.T + t)
+    inside, _ = model_floor(scene.model, clean.truth_pose.apply(scene.population[0]))
     assert inside < 1e-3 < clean.floor_mm
     # the floor is a least-squares optimum: the mean shape's rigid fit is no better
     mean_fit, _ = model_floor(

@@ -39,7 +39,7 @@ def model() -> ShapeModel:
 @pytest.fixture(scope="module")
 def scene(model):
     rng = np.random.default_rng(1)
-    R, t = random_pose(rng)
+    R, t = random_pose(rng).rt
     X = model.instance(rng.normal(size=model.n_modes)) @ R.T + t
     ids = [rng.choice(model.n_vertices, 6, replace=False) for _ in range(2)]
     return biplanar_views(75.0), X, ids
@@ -95,7 +95,7 @@ def test_look_at_view_centres_its_target_and_biplanar_views_are_75_degrees_apart
 
 
 def test_random_pose_is_a_rotation_within_the_offset():
-    R, t = random_pose(np.random.default_rng(0), max_offset=2.0)
+    R, t = random_pose(np.random.default_rng(0), max_offset=2.0).rt
     np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
     assert np.linalg.det(R) == pytest.approx(1.0)
     assert np.all(np.abs(t) <= 2.0)

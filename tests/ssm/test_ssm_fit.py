@@ -17,7 +17,7 @@ def bone():
 def test_a_posed_instance_in_span_is_fitted_exactly(bone):
     rng = np.random.default_rng(1)
     w = rng.normal(size=6)
-    R, t = random_pose(rng)
+    R, t = random_pose(rng).rt
     fit = fit_model(bone, bone.instance(w) @ R.T + t)
     assert fit.rms_mm < 1e-6
     np.testing.assert_allclose(fit.weights, w, atol=1e-6)
@@ -27,7 +27,7 @@ def test_a_posed_instance_in_span_is_fitted_exactly(bone):
 def test_floor_out_of_span_is_positive_and_below_the_mean_shape_baseline(bone):
     rng = np.random.default_rng(2)
     outside = synthetic_bone_model(8, seed=0).instance(np.r_[rng.normal(size=6), 1.0, -1.0])
-    R, t = random_pose(rng)
+    R, t = random_pose(rng).rt
     pts = outside @ R.T + t
     floor, mean = fit_model(bone, pts), fit_model(bone, pts, shape=False)
     assert 0.05 < floor.rms_mm < mean.rms_mm
@@ -75,7 +75,7 @@ def test_the_floor_is_the_plain_alternation(bone, seed):
     rounding), far from the origin too."""
     rng = np.random.default_rng(seed)
     outside = synthetic_bone_model(8, seed=seed).instance(rng.normal(size=8))
-    R, t = random_pose(rng)
+    R, t = random_pose(rng).rt
     pts = outside @ R.T + t + np.array([150.0, -80.0, 400.0])
     fit = fit_model(bone, pts)
     rot, tr, w, err = _plain_alternation(bone, pts)

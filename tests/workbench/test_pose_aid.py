@@ -18,6 +18,7 @@ from starlette.testclient import TestClient
 from biplanar_reg.annotation.clean import distance_to_polyline
 from biplanar_reg.cases import read_case_setup
 from biplanar_reg.io import read_mesh, write_mesh
+from biplanar_reg.pose import Pose
 from biplanar_reg.workbench import Workbench, create_app
 from biplanar_reg.workbench.pose_aid import _with_start_key, mean_shape, write_start
 from biplanar_reg.workbench.posed_outline import MIN_PIECE_PX, piece_length
@@ -229,7 +230,7 @@ def test_the_start_key_is_added_replaced_or_given_its_table(tmp_path):
     assert tomllib.loads(out)["ground_truth"] == {"mesh": "x"}
     # a case in metres stores t in metres
     (tmp_path / "case.toml").write_text('units = "m"\n')
-    write_start(tmp_path, np.eye(3), np.array([1000.0, 0, 0]), units="m")
+    write_start(tmp_path, Pose(np.eye(3), np.array([1000.0, 0, 0])), units="m")
     assert json.loads((tmp_path / "start.json").read_text())["t"] == [1.0, 0.0, 0.0]
 
 

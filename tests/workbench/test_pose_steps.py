@@ -149,8 +149,8 @@ def test_the_saved_start_pose_is_the_pose_when_the_case_is_opened_again(posed):
     assert client.get("/api/pose-aid").json()["saved"] is True
     # the registration reads it as its start ...
     loaded = load_case(case)
-    assert np.allclose(loaded.start[0], nudged["R"], atol=1e-8)
-    assert np.allclose(loaded.start[1], nudged["t"], atol=1e-5)
+    assert np.allclose(loaded.start.R, nudged["R"], atol=1e-8)
+    assert np.allclose(loaded.start.t, nudged["t"], atol=1e-5)
     # ... and the workbench opened again (on a copy, the clicks removed) starts from it
     copy = Path(shutil.copytree(case, case.parent / "again", ignore=_LOCK))
     doc = json.loads((copy / "annotations.json").read_text())
