@@ -228,12 +228,19 @@ def _check_views(
     check_pose_information(model, views, poses, outlines)
 
 
+def _outlines_can_start(views: list[ViewObservations], n_lm: int, n_out: int) -> bool:
+    """Whether the outline search (:mod:`.start_search`) can start the registration: at least
+    2 landmark observations (``n_lm``), and outlines in 2 views (or in 1 when the landmarks are
+    seen in 2; ``n_out``: views whose outlines are used)."""
+    seen = sum(1 for v in views if len(v.landmark_ids))
+    return n_lm >= 2 and (n_out >= 2 or (n_out == 1 and seen >= 2))
+
+
 def _check_few_landmarks(views: list[ViewObservations], n_lm: int, n_out: int) -> None:
     """Landmarks that cannot start the registration alone (fewer than 4 observations or 3
-    different points) start it with the outlines (:mod:`.start_search`): at least 2
-    observations, and outlines in 2 views (or in 1 when the landmarks are seen in 2)."""
-    seen = sum(1 for v in views if len(v.landmark_ids))
-    if n_lm >= 2 and (n_out >= 2 or (n_out == 1 and seen >= 2)):
+    different points) start it with the outlines (:func:`_outlines_can_start`), or it is
+    refused."""
+    if _outlines_can_start(views, n_lm, n_out):
         return
     points = len({int(i) for v in views for i in v.landmark_ids})
     raise ValueError(
@@ -428,8 +435,8 @@ def _register_posed(model, posed, poses, opts, silhouettes, say, start_pose):
     with outlines, followed by the joint refinement of the views on the outlines and a final
     refinement with the corrected views."""
     c = None if start_pose is None else start_pose.apply(model.mean.mean(axis=0))
-    few = start_pose is None and poses != "unknown" and not _enough_landmark_points(posed.views)
-    if few:  # the landmark-only solve cannot place the bone: near the landmark rays
+    few = start_pose is None and poses != "unknown" and _search_the_start(posed.views, silhouettes)
+    if few:  # the landmarks alone cannot place the bone (or not in one way): near their rays
         c = few_landmarks_centre(posed.views)
     problem = make_problem(model, posed.views, opts, silhouettes, say, c)
     if few:  # every searched start fitted, the objective's choice kept (multi_start)
@@ -485,6 +492,55 @@ def _enough_landmark_points(views: list[ViewObservations]) -> bool:
     distinct model points (else :func:`.pose_search.search_start` finds the start)."""
     ids = np.concatenate([v.landmark_ids for v in views]) if views else np.zeros(0, int)
     return len(ids) >= 4 and len(np.unique(ids)) >= 3
+
+
+def triangulated_points(views: list[ViewObservations]) -> int:
+    """The number of distinct model points with a landmark in at least 2 views (each such
+    point is fixed in 3D by its rays, whatever the model)."""
+    seen: dict[int, int] = {}
+    for v in views:
+        for i in {int(i) for i in v.landmark_ids}:
+            seen[i] = seen.get(i, 0) + 1
+    return sum(1 for n in seen.values() if n >= 2)
+
+
+def landmarks_fix_the_pose(views: list[ViewObservations]) -> bool:
+    """Whether the landmarks fix the bone's pose in one way: 4 observations of 3 distinct
+    points (:func:`_enough_landmark_points`), and either 2 points seen in 2 views or more than
+    the minimal 4 observations.
+
+    A point seen in one view only is a ray; its depth along it comes from the model's
+    distances to the other points. With 2 points fixed in 3D (:func:`triangulated_points`) it
+    lies on a circle about the line through them, which its ray crosses once: one pose. With
+    1, on a sphere about it, which its ray crosses twice, and with none the rays' depths are
+    as open (3 rays of one view fit up to 4 poses). With the minimal 4 observations (2
+    coordinates beyond the rigid pose's 6) the shape modes absorb what the model's distances
+    misfit in the other poses, which then fit the landmarks alike, and the landmark-only solve
+    returns one of them, its relaxation tight or not; more observations leave them a misfit.
+    Measured on the small synthetic bone of the tests (``benchmarks/ambiguous_landmarks.py``,
+    ``docs/registration.md``): 3 landmarks in one view and 1 of them in the other ended 4-48 mm
+    off in 11 of 20 seeds from the landmark-only start, and in none from the outline search;
+    with 5 or 6 observations and fewer than 2 points in 2 views, 0-1 of 20 from the
+    landmark-only start.
+    """
+    if not _enough_landmark_points(views):
+        return False
+    n_obs = sum(len(v.landmark_ids) for v in views)
+    return triangulated_points(views) >= 2 or n_obs > 4
+
+
+def _search_the_start(views: list[ViewObservations], outlines: bool) -> bool:
+    """Whether the start is searched on the outlines (:mod:`.start_search`, every searched
+    start fitted: :mod:`.multi_start`) instead of taken from the landmarks: when the landmarks
+    cannot start alone, and when they do not fix the pose in one way
+    (:func:`landmarks_fix_the_pose`) and the outlines can search."""
+    if not _enough_landmark_points(views):
+        return True
+    if landmarks_fix_the_pose(views):
+        return False
+    n_lm = sum(len(v.landmark_ids) for v in views)
+    n_out = sum(1 for v in views if v.contours) if outlines else 0
+    return _outlines_can_start(views, n_lm, n_out)
 
 
 def relaxation_gap_px(problem: Problem, res: GsftResult) -> float:
