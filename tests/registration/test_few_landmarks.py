@@ -285,7 +285,11 @@ def test_three_and_one_shared_landmark_start_from_the_outlines(small):
     searched on the outlines (measured 0.14 mm); without outlines the landmarks still start
     the fit alone (no refusal)."""
     views, X = _three_and_shared(small, 7)
-    res = register_views(small, views)
+    said: list[str] = []
+    res = register_views(small, views, progress=said.append)
+    assert any(s.startswith("start search") for s in said)
     assert np.sqrt(np.mean(np.sum((res.vertices - X) ** 2, axis=1))) < 0.5
-    bare = register_views(small, views, silhouettes=False)
-    assert bare.vertices.shape == X.shape
+    said.clear()
+    register_views(small, views, silhouettes=False, progress=said.append)
+    assert said[0] == "landmarks: 4 observations, certificate " + said[0].split()[-1]
+    assert not any(s.startswith("start search") for s in said)
