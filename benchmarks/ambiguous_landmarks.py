@@ -86,6 +86,10 @@ def main() -> None:
         "",
         f"Command: `python benchmarks/ambiguous_landmarks.py {args.n_seeds}`",
         "",
+        "Configurations (the landmarks clicked in each view) and scene: the docstring of "
+        "`benchmarks/ambiguous_landmarks.py`. `register_views` with known poses and default "
+        "options.",
+        "",
         f"| configuration | seeds > {FAR_MM:g} mm | world RMS mm (med / max) | CPU s (med) |",
         "|---|---|---|---|",
     ]
