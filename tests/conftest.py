@@ -29,3 +29,10 @@ def posed(model: ShapeModel) -> tuple[np.random.Generator, np.ndarray, np.ndarra
     w = rng.normal(size=8)
     R, t = random_pose(rng).rt
     return rng, w, model.instance(w) @ R.T + t
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The browser test modules (``test_e2e*.py``, the longest of the suite) first: the two
+    workers take whole modules from the front of the list (``--dist loadfile``), so the long
+    ones start early and the short ones fill in at the end. Each module keeps its order."""
+    items.sort(key=lambda item: not item.path.name.startswith("test_e2e"))

@@ -19,8 +19,8 @@ landmarks for every fit in a column) and the fit kept is the one whose cost is t
 relative to the best of each column, on the geometric mean over the columns
 (:func:`preferred_fit`): no one fit's noise estimate decides. Starts whose boosted fits coincide
 (:func:`same_fit`) are refined once (:func:`distinct_runs`). Registrations whose landmarks
-start the fit alone (4 observations of 3 different points), or that are given a start pose,
-never come here.
+fix the pose in one way and start the fit alone (:func:`.register.landmarks_fix_the_pose`),
+or that are given a start pose, never come here.
 
 World frame, mm; image quantities in pixels.
 """

@@ -3,8 +3,10 @@
 People can identify few landmarks on real radiographs: a styloid's tip in both views and a
 corner in one, say. Observations of fewer than 3 distinct model points leave the pose of even
 the rigid mean shape undetermined (e.g. two points fix all but the rotation about the line
-through them), so the landmark-only G-SfT cannot start the registration; the outlines can
-decide what the landmarks leave open. The search (:func:`search_start`):
+through them), so the landmark-only G-SfT cannot start the registration; 3 points whose
+depths along their rays the landmarks leave ambiguous (4 observations, fewer than 2 points
+seen in 2 views: :func:`.register.landmarks_fix_the_pose`) fit several poses alike. The
+outlines can decide what the landmarks leave open. The search (:func:`search_start`):
 
 1. every rotation of a near-uniform grid on SO(3) (:func:`rotation_grid`, super-Fibonacci
    spirals, Alexa 2022), the mean shape's translation for it by least squares on the landmark
