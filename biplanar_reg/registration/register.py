@@ -211,8 +211,7 @@ def _check_views(
         raise ValueError(f"views: duplicate view names {names}")
     for v in views:
         model.check_vertex_ids(v.landmark_ids, name=f"{v.name}: landmark_ids")
-    n_lm = sum(len(v.landmark_ids) for v in views)
-    n_out = sum(1 for v in views if v.contours) if outlines else 0
+    n_lm, n_out = _observation_counts(views, outlines)
     if start is not None and poses == "unknown":
         raise ValueError(
             "start: not used with poses = 'unknown' (the result's world frame is the first "
@@ -226,6 +225,13 @@ def _check_views(
             f"are needed, got outlines in {n_out} and {n_lm} landmark observation(s)"
         )
     check_pose_information(model, views, poses, outlines)
+
+
+def _observation_counts(views: list[ViewObservations], outlines: bool) -> tuple[int, int]:
+    """The landmark observations over all views, and the views whose outlines are used (none
+    when ``outlines`` is off)."""
+    n_lm = sum(len(v.landmark_ids) for v in views)
+    return n_lm, (sum(1 for v in views if v.contours) if outlines else 0)
 
 
 def _outlines_can_start(views: list[ViewObservations], n_lm: int, n_out: int) -> bool:
@@ -538,9 +544,7 @@ def _search_the_start(views: list[ViewObservations], outlines: bool) -> bool:
         return True
     if landmarks_fix_the_pose(views):
         return False
-    n_lm = sum(len(v.landmark_ids) for v in views)
-    n_out = sum(1 for v in views if v.contours) if outlines else 0
-    return _outlines_can_start(views, n_lm, n_out)
+    return _outlines_can_start(views, *_observation_counts(views, outlines))
 
 
 def relaxation_gap_px(problem: Problem, res: GsftResult) -> float:
