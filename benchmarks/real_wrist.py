@@ -1,6 +1,7 @@
 """Registration on real wrist radiographs annotated through the workbench.
 
     python benchmarks/real_wrist.py [--out benchmarks/results/real_wrist.md] [--only radius_a]
+        [--conditions outlines,cam01-side0] [--from-json RUN.json ...]
 
 The cases (``benchmarks/real_wrist/``; ``build.py`` for the models, ``annotate.py`` and
 ``sessions/`` for the annotations): the distal radius and ulna of one subject in two real
@@ -75,14 +76,14 @@ def run_one(folder: Path) -> dict:
     m = r["metrics"]
     keys = ("vertex_rms_mm", "roi_surface_mean_mm", "roi_surface_rms_mm", "roi_surface_p95_mm",
             "mean_shape_vertex_rms_mm", "model_floor_vertex_rms_mm", "landmark_rms_px",
-            "contour_rms_px")  # fmt: skip
+            "contour_rms_px", "certificate", "relaxation_gap_px")  # fmt: skip
     out = {k: m.get(k) for k in keys}
     out["flags"] = r["flags"]
     out["cpu_s"] = time.process_time() - t0
     return out
 
 
-def run_all(only: list[str] | None) -> dict:
+def run_all(only: list[str] | None, conditions: list[str] = CONDITIONS) -> dict:
     results: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for ann_path in sorted(build.ANNOTATIONS.glob("*.json")):
@@ -91,7 +92,7 @@ def run_all(only: list[str] | None) -> dict:
                 continue
             ann = json.loads(ann_path.read_text())
             for template in build.TEMPLATES:
-                for cond in CONDITIONS:
+                for cond in conditions:
                     folder = Path(tmp) / f"{bone}_{template}_{annotator}_{cond}"
                     build.write_case(folder, bone, template, ann_path)
                     (folder / "annotations.json").write_text(json.dumps(variant(ann, cond)))
@@ -228,15 +229,25 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=HERE / "results" / "real_wrist.md")
     ap.add_argument("--only", help="comma-separated annotation names, e.g. radius_a")
-    ap.add_argument("--from-json", type=Path)
+    ap.add_argument("--conditions", help="comma-separated conditions (default: all), e.g. "
+                    "outlines,cam01-side0")  # fmt: skip
+    ap.add_argument("--from-json", type=Path, action="append",
+                    help="render saved results (repeat to merge runs)")  # fmt: skip
     args = ap.parse_args()
-    command = "python benchmarks/real_wrist.py" + (f" --only {args.only}" if args.only else "")
+    command = "python benchmarks/real_wrist.py" + "".join(
+        f" --{k} {v}" for k, v in (("only", args.only), ("conditions", args.conditions)) if v
+    )
     t0 = time.perf_counter()
     if args.from_json:
-        doc = json.loads(args.from_json.read_text())
-        results, seconds = doc["results"], doc["seconds"]
+        docs = [json.loads(p.read_text()) for p in args.from_json]
+        results = {k: v for d in docs for k, v in d["results"].items()}
+        seconds = sum(d["seconds"] for d in docs)
     else:
-        results = run_all(args.only.split(",") if args.only else None)
+        conditions = args.conditions.split(",") if args.conditions else CONDITIONS
+        unknown = sorted(set(conditions) - set(CONDITIONS))
+        if unknown:
+            ap.error(f"--conditions: unknown {', '.join(unknown)} (known: {', '.join(CONDITIONS)})")
+        results = run_all(args.only.split(",") if args.only else None, conditions)
         seconds = time.perf_counter() - t0
         args.out.with_suffix(".json").write_text(
             json.dumps({"results": results, "seconds": seconds}, indent=1)

@@ -281,6 +281,9 @@ def _metrics(job: dict, res) -> dict:
         "good_rejected": [list(r) for r in rejected if r != bad],
         "blunder_caught": None if bad is None else bad in rejected,
         "flags": list(res.flags),
+        "certificate": float(res.certificate),
+        # the gap between the fit and its rounded relaxation (None from trees before it)
+        "relaxation_gap_px": getattr(res, "relaxation_gap_px", None),
     }
 
 

@@ -208,6 +208,7 @@ def _single_fit(case: Case, obs: list[ViewObservations], res: RegistrationResult
         metric_fields={
             "contour_errors_source": "; ".join(sorted(sources)) if measured else None,
             "certificate": res.certificate,
+            "relaxation_gap_px": res.relaxation_gap_px,
         },
         rejected=[(v, n) for v, n in res.rejected],
         result=res,

@@ -95,6 +95,10 @@ def write_bone(
     """
     say = stage_reporter(case, progress)
     frames = to_frame_observations(case)
+    if report and len(frames) == 1:  # the one-frame report's set-up overlaps the registration
+        from ..report.prepare import prepare_report
+
+        prepare_report(len(case.views), case.ground_truth is not None)
     t0 = time.perf_counter()
     res = fit_bone(case, frames, say, warm_from)
     t_reg = time.perf_counter() - t0

@@ -105,10 +105,6 @@ def _register_locked(
 ) -> RunOutcome:
     """:func:`register_case` into ``out_dir`` while holding its :func:`.outputs.output_lock`."""
     clean_stale(out_dir)
-    if report and not (case.bones or case.frames):  # its set-up overlaps the registration
-        from ..report.prepare import prepare_report
-
-        prepare_report(len(case.views), case.ground_truth is not None)
     return write_case(
         case,
         out_dir,

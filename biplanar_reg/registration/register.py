@@ -141,6 +141,10 @@ class RegistrationResult:
     disagreeing_px : dict
         ``{view: {landmark: px}}``: the landmarks of the flag "landmark disagrees with the
         outlines" with their reprojection errors (every view; empty when none).
+    relaxation_gap_px : float or None
+        How far the fit is from the rounded convex relaxation it was refined from, pixels
+        (:func:`relaxation_gap_px`); None when the view poses were estimated (``"refine"``,
+        ``"unknown"``: the relaxation was solved in views that the joint refinement moved since).
     """
 
     rotation: np.ndarray
@@ -168,6 +172,7 @@ class RegistrationResult:
     shape_displacement_mm: np.ndarray | None = field(default=None, repr=False)
     restart: dict = field(default_factory=dict)
     disagreeing_px: dict = field(default_factory=dict)
+    relaxation_gap_px: float | None = None
 
 
 def _check_start(start: object) -> Pose | None:
@@ -573,15 +578,16 @@ def _flags(
     rejected: frozenset[int],
     outlines: dict | None = None,
     gap: float | None = None,
+    poses: str = "known",
 ) -> list[str]:
-    """Quality flags (not failures) of a result (``gap``: its :func:`relaxation_gap_px`,
-    computed when not given; ``outlines``: the model's outlines at the fit, per view index).
-    Each says what is wrong and where; :data:`biplanar_reg.report.advice.FLAG_ADVICE` says
-    what to do."""
+    """Quality flags (not failures) of a result (``gap``: its :func:`relaxation_gap_px`, None
+    when not computed; ``outlines``: the model's outlines at the fit, per view index;
+    ``poses``: the view-pose mode). Each says what is wrong and where;
+    :data:`biplanar_reg.report.advice.FLAG_ADVICE` says what to do."""
     opts, lm = problem.options, problem.landmarks
     flags: list[str] = []
-    gap = relaxation_gap_px(problem, res) if gap is None else gap
-    if gap > opts.relaxation_flag_px:
+    known = poses == "known"
+    if known and gap is not None and gap > opts.relaxation_flag_px:
         flags.append(
             f"relaxation not tight (rounded relaxation {gap:.2g} px from the fit, certificate "
             f"{res.certificate:.2g})"
@@ -590,7 +596,10 @@ def _flags(
         flags.append("local refinement did not converge")
     err = problem.landmark_px_errors(res.vertices)
     acc = [e for i, e in enumerate(err) if i not in rejected]
-    stated = opts.noise == "stated"
+    # the user's stated noise only: "refine" and "unknown" always weigh by the stated noise
+    # (their joint view fit's fixed factors) and their landmark errors then hold the
+    # calibration and truncation error that fit absorbs (7 of 8 realistic "refine" cases)
+    stated = known and opts.noise == "stated"
     if stated and acc and float(np.sqrt(np.mean(np.square(acc)))) > opts.reprojection_flag_px:
         flags.append("large landmark reprojection error")
     for i in _disagreeing(problem, err, rejected):
@@ -669,6 +678,10 @@ def _result(problem: Problem, final, outlines: dict, pose_info: dict, seconds: f
     views, res = problem.views, final.result
     weights = np.ones(len(problem.landmarks)) if final.weights is None else final.weights
     rejected = rejected_landmarks(problem, weights)
+    # with estimated view poses the relaxation was solved in other views (the joint
+    # refinement moved them since), so the gap would measure that move, not the relaxation
+    poses = pose_info.get("mode", "known")
+    gap = relaxation_gap_px(problem, res) if poses == "known" else None
     contour_err = {v.name: np.zeros(0) for v in views}
     outline_px: dict[str, list[np.ndarray]] = {v.name: [] for v in views}
     for i, o in outlines.items():
@@ -691,7 +704,7 @@ def _result(problem: Problem, final, outlines: dict, pose_info: dict, seconds: f
         silhouettes_px=outline_px,
         rejected=[problem.landmarks.names[i] for i in sorted(rejected)],
         view_poses=view_poses,
-        flags=_flags(problem, res, rejected, outlines),
+        flags=_flags(problem, res, rejected, outlines, gap, poses),
         disagreeing_px=_disagreeing_by_view(problem, res, rejected),
         timings={
             "total": seconds,
@@ -706,6 +719,7 @@ def _result(problem: Problem, final, outlines: dict, pose_info: dict, seconds: f
             views[i].name: _coverage_entry(outline_coverage(o, problem.targets[i]))
             for i, o in outlines.items()
         },
+        relaxation_gap_px=gap,
     )
 
 

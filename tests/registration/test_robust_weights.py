@@ -85,6 +85,7 @@ def test_the_relaxation_flag_is_the_gap_between_rounding_and_fit(model, out_of_s
     p = make_problem(small, views, RegistrationOptions(), False, lambda m: None)
     gap = relaxation_gap_px(p, clean_fit.gsft)
     assert 0.0 < gap < RegistrationOptions().relaxation_flag_px
+    assert clean_fit.relaxation_gap_px == gap  # reported (result.json metrics)
     strict = register_views(
         small, views, silhouettes=False, options=RegistrationOptions(relaxation_flag_px=1e-3)
     )

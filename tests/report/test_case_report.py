@@ -213,6 +213,10 @@ def test_advice_covers_every_flag_the_registration_raises():
     )
     flags = register._flags(problem, res, frozenset({0}), gap=1.0)
     assert len(flags) == 6
+    # with estimated view poses neither the relaxation's flag nor the stated-noise one (the
+    # mode's noise, not the user's)
+    posed = register._flags(problem, res, frozenset({0}), gap=1.0, poses="unknown")
+    assert set(flags) - set(posed) == {flags[0], "large landmark reprojection error"}
     advice = [flag_advice(f) for f in flags]
     assert len(set(advice)) == 6 and all(a in FLAG_ADVICE.values() for a in advice)
     assert flag_advice("rejected observations: [('cam1', 'tip')]") in advice
