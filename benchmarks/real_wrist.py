@@ -110,6 +110,63 @@ def run_all(only: list[str] | None, conditions: list[str] = CONDITIONS) -> dict:
     return results
 
 
+def baselines() -> dict[str, dict[str, dict[str, float]]]:
+    """Per ``bone/template``, the mean shape's and the model floor's errors measured as the
+    registrations' are (mm): vertex RMS after the best rigid alignment of the corresponding
+    vertices, and the point-to-surface distance in the region of interest after the CT is
+    aligned onto them as the case pipeline aligns it onto a result."""
+    from biplanar_reg.cases.alignment import align_rigid
+    from biplanar_reg.cases.metrics import surface_metrics
+    from biplanar_reg.cases.region import region_mask
+    from biplanar_reg.io import read_mesh
+    from biplanar_reg.ssm import ShapeModel, fit_model
+
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for bone in ("radius", "ulna"):
+        truth, truth_faces = read_mesh(build.MODELS / f"{bone}_template.ply")
+        for template in build.TEMPLATES:
+            model = ShapeModel.load(build.MODELS / f"{bone}_{template}_ssm.npz")
+            fits = {"mean": fit_model(model, truth, shape=False), "floor": fit_model(model, truth)}
+            for name, fit in fits.items():
+                V = fit.vertices
+                gt = align_rigid(truth, truth_faces, V, model.faces).apply(truth)
+                region = region_mask(None, model.mean.reshape(-1, 3), model.faces, V)[0]
+                m, _ = surface_metrics(V, model.faces, gt, truth_faces, region=region)
+                keys = ("roi_surface_mean_mm", "roi_surface_rms_mm", "roi_surface_p95_mm")
+                entry = {k: m[k] for k in keys} | {"vertex_rms_mm": fit.rms_mm}  # Kabsch
+                out.setdefault(f"{bone}/{template}", {})[name] = entry
+    return out
+
+
+def baseline_lines(base: dict, results: dict) -> list[str]:
+    """The baselines' table and the registrations' ROI surface RMS against them."""
+    lines = [
+        "## Baselines in the field's metric",
+        "",
+        "The mean shape and the model floor (the model's best fit of the CT in vertex "
+        "correspondence), measured as the registrations are: the CT aligned onto each, the "
+        "point-to-surface distance in the region of interest (mm).",
+        "",
+        "| bone | template | mean shape: vertex RMS | mean shape: ROI surface mean / RMS / p95 "
+        "| floor: vertex RMS | floor: ROI surface mean / RMS / p95 | registrations as annotated: "
+        "ROI surface RMS |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for key, b in base.items():
+        bone, tpl = key.split("/")
+        roi = {n: " / ".join(_f(b[n][k]) for k in ("roi_surface_mean_mm", "roi_surface_rms_mm",
+                                                     "roi_surface_p95_mm")) for n in b}  # fmt: skip
+        regs = [r.get("roi_surface_rms_mm") for k, r in results.items()
+                if k.startswith(f"{bone}/") and k.endswith(f"/{tpl}/outlines")]  # fmt: skip
+        lines.append(
+            f"| {bone} | {tpl} | {_f(b['mean']['vertex_rms_mm'])} | {roi['mean']} | "
+            f"{_f(b['floor']['vertex_rms_mm'])} | {roi['floor']} | "
+            + ", ".join(_f(x) for x in regs if x is not None)
+            + " |"
+        )
+    return [*lines, ""]
+
+
 def _f(x, nd=2) -> str:
     return "-" if x is None else f"{x:.{nd}f}"
 
@@ -153,7 +210,7 @@ def render(results: dict, command: str, seconds: float) -> str:
                 f"{_f(r['landmark_rms_px'], 1)} | {_f(r['contour_rms_px'], 1)} | {flags} | "
                 f"{r['cpu_s']:.1f} |"
             )
-    lines += ["", *targets(results)]
+    lines += ["", *baseline_lines(baselines(), results), *targets(results)]
     return "\n".join(lines) + "\n"
 
 

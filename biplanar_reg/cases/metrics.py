@@ -566,19 +566,28 @@ def surface_metrics(
     mask = _region(region, len(V))
     out: dict[str, Any] = {}
     per_vertex = None
-    same = len(V) == len(G)
-    if same:
-        d = np.linalg.norm(V - G, axis=1)
-        out["vertex_rms_mm"] = float(np.sqrt(np.mean(d**2)))
-        out["vertex_max_mm"] = float(d.max())
-        if mask is not None and mask.any():
-            out["roi_vertex_rms_mm"] = float(np.sqrt(np.mean(d[mask] ** 2)))
-            out["roi_vertex_max_mm"] = float(d[mask].max())
-        per_vertex = d
+    if len(V) == len(G):
+        out.update(vertex_metrics(V, G, mask))
+        per_vertex = np.linalg.norm(V - G, axis=1)
     if faces is not None and gt_faces is not None:
         out.update(_surface_distances(V, faces, G, gt_faces, samples, seed, mask))
         per_vertex = _Surface(G, gt_faces).distance(V)
     return out, per_vertex
+
+
+def vertex_metrics(
+    vertices: np.ndarray, gt_vertices: np.ndarray, region: np.ndarray | None = None
+) -> dict[str, float]:
+    """``vertex_rms_mm`` and ``vertex_max_mm`` of vertex i against vertex i (mm), and with a
+    non-empty ``region`` (:func:`surface_metrics`) ``roi_vertex_rms_mm``, ``roi_vertex_max_mm``.
+    """
+    d = np.linalg.norm(np.asarray(vertices, float) - np.asarray(gt_vertices, float), axis=1)
+    out = {"vertex_rms_mm": float(np.sqrt(np.mean(d**2))), "vertex_max_mm": float(d.max())}
+    mask = _region(region, len(d))
+    if mask is not None and mask.any():
+        out["roi_vertex_rms_mm"] = float(np.sqrt(np.mean(d[mask] ** 2)))
+        out["roi_vertex_max_mm"] = float(d[mask].max())
+    return out
 
 
 def _region(region: np.ndarray | None, n: int) -> np.ndarray | None:
