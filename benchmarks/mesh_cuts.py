@@ -1,10 +1,11 @@
-"""How flat each shipped model's flattest end is, what ``cut_vertices`` finds there, and what
-"propose outline" proposes on the shipped wrist case.
+"""What ``cut_vertices`` finds on each shipped model, and what "propose outline" proposes on
+the shipped wrist case.
 
 Run ``python benchmarks/mesh_cuts.py``. For each bundled model (the sample cases' and the real
-wrist benchmark's meshes), the largest share of a cross-section that the faces within
-``CUT_BAND_MM`` of a plane touching the mesh cover (``biplanar_reg.outline.cut_vertices``'s
-test, ``CUT_MIN_COVER`` = 0.8), its area, and the number of vertices ``cut_vertices`` marks.
+wrist benchmark's meshes), the flat caps :func:`biplanar_reg.mesh_cuts.detect_cuts` finds
+(their number, area and prism ratio: the cross-section 1 mm inside the cap over the one 4 mm
+inside), the open-boundary edges, and the number of vertices ``cut_vertices`` marks (the caps'
+vertices and those within ``CUT_BAND_MM`` of a cap's plane, the border's).
 Then, on ``sample_cases/wrist_radius`` at its rough pose (``annotation/rough_pose.json``), per
 view: the pieces of the whole outline, the pieces proposed, and the proposed points' smallest
 distance to the projected cut, pixels.
@@ -15,36 +16,14 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from biplanar_reg.io import read_mesh
-from biplanar_reg.outline import CUT_BAND_MM, cut_vertices
+from biplanar_reg.mesh_cuts import detect_cuts
+from biplanar_reg.outline import cut_vertices
 from biplanar_reg.ssm import ShapeModel
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def flattest_end(V: np.ndarray, F: np.ndarray, band: float = CUT_BAND_MM) -> tuple[float, float]:
-    """``(cover, area mm^2)`` of the flattest end: the largest cover over the touching planes."""
-    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    u = n / np.maximum(np.linalg.norm(n, axis=1), 1e-12)[:, None]
-    best = (0.0, 0.0)
-    for sgn in (1.0, -1.0):
-        d_all = sgn * u
-        c = V[F].mean(axis=1)
-        touching = (V @ d_all.T).max(axis=0) - np.einsum("ij,ij->i", d_all, c) <= band
-        for d in d_all[touching]:
-            depth = (V @ d).max() - V @ d
-            basis = np.linalg.svd(np.eye(3) - np.outer(d, d))[0][:, :2]
-            near = (V[depth <= 3 * band] @ basis).astype(np.float32)
-            if len(near) < 3:
-                continue
-            area = float(cv2.contourArea(cv2.convexHull(near)))
-            cover = np.abs(n[(depth <= band)[F].all(axis=1)] @ d).sum() / 2.0
-            if area > 0 and cover / area > best[0]:
-                best = (cover / area, area)
-    return best
 
 
 def wrist_proposals() -> None:
@@ -91,8 +70,10 @@ def wrist_proposals() -> None:
 def main() -> None:
     files = sorted(ROOT.glob("sample_cases/*/model/*.npz"))
     files += sorted(ROOT.glob("benchmarks/real_wrist/models/*.ply"))
-    print("| model | vertices | flattest end: cover | its area mm^2 | cut vertices | s |")
-    print("|---|---|---|---|---|---|")
+    print(
+        "| model | vertices | caps | cap area mm^2 | prism ratio | open edges | cut vertices | s |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
     for f in files:
         if f.suffix == ".npz":
             m = ShapeModel.load(f)
@@ -102,9 +83,14 @@ def main() -> None:
         t0 = time.perf_counter()
         cut = cut_vertices(V, F)
         dt = time.perf_counter() - t0
-        cover, area = flattest_end(V, F)
+        cuts = detect_cuts(V, F)
+        area = ", ".join(f"{c.area_mm2:.0f}" for c in cuts.caps) or "-"
+        prism = ", ".join(f"{c.near_section_mm2 / c.section_mm2:.2f}" for c in cuts.caps) or "-"
         name = f.relative_to(ROOT)
-        print(f"| {name} | {len(V)} | {cover:.2f} | {area:.0f} | {int(cut.sum())} | {dt:.2f} |")
+        print(
+            f"| {name} | {len(V)} | {len(cuts.caps)} | {area} | {prism} | "
+            f"{len(cuts.boundary_edges)} | {int(cut.sum())} | {dt:.2f} |"
+        )
     wrist_proposals()
 
 

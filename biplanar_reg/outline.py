@@ -36,6 +36,7 @@ import numpy as np
 
 from ._validate import as_array
 from .calibration.views import OrthographicView, PerspectiveView, View
+from .mesh_cuts import detect_cuts
 
 __all__ = [
     "outline_polylines",
@@ -59,16 +60,11 @@ ALPHA_FACTOR = 3.0
 #: Distance (px) from an edge's midpoint at which :func:`_outer_edges` looks for uncovered pixels.
 OUTER_PROBE_PX = 1.5
 
-#: :func:`cut_vertices`: depth (mm) of a flat cut, below a plane that touches the mesh from
-#: outside (the shipped CT templates' caps are flat within it)...
-CUT_BAND_MM = 1.0
-#: ... the share of the mesh's cross-section near that plane (the convex hull, on the plane, of
-#: the vertices within 3 bands of it) that the faces within the band must cover (measured with
-#: benchmarks/mesh_cuts.py: 0.96-0.99 at the cut end of every shipped CT-derived model, 0.45 at
-#: the flattest end of the synthetic capsule)...
-CUT_MIN_COVER = 0.8
-#: ... and the smallest such cross-section, mm^2 (a flat facet on a tip is no cut).
-CUT_MIN_AREA_MM2 = 20.0
+#: :func:`cut_vertices`: depth (mm) of a flat cut: the vertices within it of a cap's plane.
+#: The shipped CT templates' caps are flat to about 1 mm; 1.0 mm left two rim vertices of the
+#: wrist radius's cap out, and the registration then matched the outline edges between them
+#: (the radius traced past its cut ended 1.10 mm off instead of 0.59 mm).
+CUT_BAND_MM = 1.5
 
 
 @dataclass(frozen=True)
@@ -86,11 +82,15 @@ class HalfEdges:
         Face holding each edge.
     twin_face : (3F,) int array
         Face holding the reverse edge ``(b, a)``, or -1 on an open border.
+    cut : (N,) bool array or None
+        Vertices of the mesh's cut (:func:`cut_vertices`): :func:`mesh_outline` leaves out the
+        outline edges between two of them. None: the whole outline.
     """
 
     edges: np.ndarray
     face: np.ndarray
     twin_face: np.ndarray
+    cut: np.ndarray | None = None
 
 
 def half_edges(faces: np.ndarray, n_vertices: int) -> HalfEdges:
@@ -337,7 +337,9 @@ def mesh_outline(
         Triangles (either orientation).
     view : View
     topology : HalfEdges, optional
-        :func:`half_edges` of ``faces``; computed here when not given.
+        :func:`half_edges` of ``faces``; computed here when not given. With its ``cut`` set,
+        the outline edges of the cut (both ends on it) are left out: the end of a bone cropped
+        by the CT's field of view is no edge a radiograph shows.
     mask : (H, W) bool array, optional
         Coverage in the image frame (pixel ``(u, v)`` is ``mask[v, u]``; pixels outside the
         array are uncovered), e.g. a rendered radiograph's pixel-exact coverage. Default: the
@@ -350,8 +352,9 @@ def mesh_outline(
     uv : (N, 2) array
         Projections of all vertices, pixels.
     """
+    cut = None if topology is None else topology.cut
     if mask is None:
-        hit = _CACHE.get(vertices, faces, view)
+        hit = _CACHE.get(vertices, faces, view, cut)
         if hit is not None:
             return hit
     he = topology or half_edges(faces, len(vertices))
@@ -359,27 +362,38 @@ def mesh_outline(
     front = _facing(vertices, faces, view)
     edges = _contour_generator_edges(vertices, he, faces, view, front)
     if mask is not None:
-        return _outer_edges(uv, edges, mask, np.zeros(2)), uv
+        return _without_cut(_outer_edges(uv, edges, mask, np.zeros(2)), cut), uv
     # the front faces alone cover the projection of a closed mesh (every ray into it enters
     # through a front face): a third of the raster work of all faces
     # only the probe pixels' coverage is read: the triangles near them give it
     near = np.vstack(_probe_pixels(uv, edges, np.zeros(2, int))[1]) if len(edges) else None
     cover, offset = coverage_mask(uv, faces[front], near=near)
-    out = (_outer_edges(uv, edges, cover, offset), uv)
-    _CACHE.put(vertices, faces, view, out)
+    out = (_without_cut(_outer_edges(uv, edges, cover, offset), cut), uv)
+    _CACHE.put(vertices, faces, view, out, cut)
     return out
+
+
+def _without_cut(edges: np.ndarray, cut: np.ndarray | None) -> np.ndarray:
+    """``edges`` (C, 2) without those of the ``cut`` (both ends on it; all edges when None).
+
+    An edge from the bone's side to the cut's rim stays: it is the side's outline up to the
+    cut (dropping it would leave a gap of one edge length, 10-15 px on a coarse mesh)."""
+    if cut is None or len(edges) == 0:
+        return edges
+    return edges[~(cut[edges[:, 0]] & cut[edges[:, 1]])]
 
 
 class _OutlineCache:
     """The last few :func:`mesh_outline` results (default coverage), keyed by the exact
-    vertices, the faces array and the view.
+    vertices, the faces array, the view and the cut mask.
 
     The registration asks for the outline of the same posed shape several times (the boosting
     iterate's cost and matches, the local refinement's start and end, the final result); a hit
     returns the very arrays computed before (read-only), so the results are unchanged. An entry
     holds references to its faces and view, so their identities stay valid while it lives; the
-    vertices are compared by value, the faces and views (frozen) by identity, so faces or a
-    view's arrays changed in place would not be noticed (nothing in the package does that).
+    vertices are compared by value, the faces, views (frozen) and cut masks by identity, so
+    faces or a view's arrays changed in place would not be noticed (nothing in the package does
+    that).
     """
 
     def __init__(self, size: int = 8) -> None:
@@ -389,12 +403,12 @@ class _OutlineCache:
         self._lock = threading.Lock()
 
     def get(
-        self, vertices: np.ndarray, faces: np.ndarray, view: View
+        self, vertices: np.ndarray, faces: np.ndarray, view: View, cut: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray] | None:
-        """The stored ``(edges, uv)`` for exactly these vertices, faces and view, or None."""
+        """The stored ``(edges, uv)`` for exactly these vertices, faces, view and cut, or None."""
         with self._lock:
-            for key, (V, F, vw, out) in reversed(self._items.items()):
-                same = F is faces and vw is view and V.shape == np.shape(vertices)
+            for key, (V, F, vw, c, out) in reversed(self._items.items()):
+                same = F is faces and vw is view and c is cut and V.shape == np.shape(vertices)
                 # the first vertex first: another pose or shape moves it (a cheap miss)
                 if same and np.array_equal(V[:1], vertices[:1]) and np.array_equal(V, vertices):
                     self._items.move_to_end(key)
@@ -402,14 +416,19 @@ class _OutlineCache:
         return None
 
     def put(
-        self, vertices: np.ndarray, faces: np.ndarray, view: View, out: tuple[np.ndarray, ...]
+        self,
+        vertices: np.ndarray,
+        faces: np.ndarray,
+        view: View,
+        out: tuple[np.ndarray, ...],
+        cut: np.ndarray | None = None,
     ) -> None:
-        """Store ``out`` (made read-only) for these vertices (copied), faces and view."""
+        """Store ``out`` (made read-only) for these vertices (copied), faces, view and cut."""
         for a in out:
             a.setflags(write=False)
         with self._lock:
             self._count += 1
-            self._items[self._count] = (np.array(vertices, dtype=float), faces, view, out)
+            self._items[self._count] = (np.array(vertices, dtype=float), faces, view, cut, out)
             while len(self._items) > self.size:
                 self._items.popitem(last=False)
 
@@ -728,11 +747,7 @@ def cut_vertices(
     A template from a CT that did not hold the whole bone ends where the field of view cut it:
     either open there (border edges, one face only) or capped flat (``biplanar-reg ssm`` caps
     it). Neither is an edge a radiograph shows, so the outline tools leave these vertices out.
-
-    A flat cut end: a plane that touches the mesh from outside (one through a face, with every
-    vertex on its inner side within ``band_mm``) such that the faces within ``band_mm`` of it
-    cover, projected on it, at least ``CUT_MIN_COVER`` of the convex hull of the vertices
-    within ``3 band_mm`` of it, a hull of at least ``CUT_MIN_AREA_MM2``.
+    The cut is :func:`biplanar_reg.mesh_cuts.detect_cuts`' (its flat caps and open boundary).
 
     Parameters
     ----------
@@ -741,7 +756,7 @@ def cut_vertices(
     faces : (F, 3) int array
         Triangles.
     band_mm : float
-        Depth of a flat cut, mm.
+        Depth of a flat cut, mm: the vertices within it of a cap's plane belong to the cut.
 
     Returns
     -------
@@ -753,24 +768,9 @@ def cut_vertices(
     out = np.zeros(len(V), bool)
     if len(F) == 0 or len(V) < 4:
         return out
-    he = half_edges(F, len(V))
-    out[he.edges[he.twin_face < 0].ravel()] = True
-    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    unit = n / np.maximum(np.linalg.norm(n, axis=1), 1e-12)[:, None]
-    centroid = V[F].mean(axis=1)
-    # the planes through a face that touch the mesh from outside (orientation-free: either side)
-    for sgn in (1.0, -1.0):
-        u = sgn * unit
-        touching = (V @ u.T).max(axis=0) - np.einsum("ij,ij->i", u, centroid) <= band_mm
-        for d in u[touching]:
-            depth = (V @ d).max() - V @ d
-            band = depth <= band_mm
-            if band.all() or out[band].all():
-                continue
-            basis = np.linalg.svd(np.eye(3) - np.outer(d, d))[0][:, :2]
-            near = (V[depth <= 3.0 * band_mm] @ basis).astype(np.float32)
-            area = float(cv2.contourArea(cv2.convexHull(near))) if len(near) >= 3 else 0.0
-            cover = np.abs(n[band[F].all(axis=1)] @ d).sum() / 2.0
-            if area >= CUT_MIN_AREA_MM2 and cover >= CUT_MIN_COVER * area:
-                out |= band
+    cuts = detect_cuts(V, F)
+    out[cuts.boundary_edges.ravel()] = True
+    for cap in cuts.caps:
+        out[F[cap.faces].ravel()] = True
+        out |= cap.offset_mm - V @ cap.normal <= band_mm
     return out

@@ -35,6 +35,7 @@ LAYERS: dict[str, int] = {
     "pose": 0,  # Pose: the one rigid-transform type every layer passes (numpy only)
     "calibration": 1,
     "outline": 2,
+    "mesh_cuts": 2,  # where a CT template was cropped (numpy only)
     "annotation": 3,
     "ssm": 4,
     "registration": 5,

@@ -21,7 +21,7 @@ from .image import XrayImage, as_display
 # the functions that use it: the package imports this module, and a case's registration
 # calls none of them (tests/test_lazy_imports.py).
 
-__all__ = ["livewire", "refine_to_outline"]
+__all__ = ["continue_outline", "livewire", "refine_to_outline"]
 
 BONE_POLARITIES = ("dark", "bright")
 
@@ -333,3 +333,50 @@ def livewire(
             smooth_path[[0, -1]] = path[[0, -1]]
         path = refine_to_outline(disp, smooth_path, sigma_px, bone, closed=closed)
     return path
+
+
+def continue_outline(
+    image: XrayImage | np.ndarray,
+    uv: object,
+    length_px: float,
+    *,
+    direction_px: float = 80.0,
+    anchor_snap_px: float = 4.0,
+    bone: str = "dark",
+) -> np.ndarray:
+    """An open traced outline continued past its last point with the :func:`livewire`.
+
+    The new anchor lies ``length_px`` on from the last point along the outline's direction over
+    its last ``direction_px`` (clipped to the image), snapped to the strongest edge within
+    ``anchor_snap_px``; the livewire traces from the last point to it.
+
+    Parameters
+    ----------
+    image : XrayImage or (H, W) array
+    uv : (K, 2) array
+        The outline, pixels (u, v), in order; its last point is continued.
+    length_px : float
+        How far on to trace, pixels (> 0).
+    direction_px, anchor_snap_px, bone
+        The outline's length that gives the direction; the anchor's snap radius; the bone's
+        polarity (:func:`livewire`).
+
+    Returns
+    -------
+    (L, 2) array
+        ``uv`` followed by the traced continuation, pixels.
+    """
+    pts = np.asarray(uv, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2 or not np.isfinite(pts).all():
+        raise ValueError(f"uv: expected a finite (K, 2) array with K >= 2, got {pts.shape}")
+    if not length_px > 0:
+        raise ValueError(f"length_px: must be > 0, got {length_px!r}")
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    back = pts[np.searchsorted(arc, max(arc[-1] - direction_px, 0.0))]
+    step = pts[-1] - back
+    if not np.linalg.norm(step) > 0:
+        raise ValueError("uv: the outline's last points coincide; no direction to continue in")
+    h, w = as_display(image).shape
+    target = np.clip(pts[-1] + length_px * step / np.linalg.norm(step), 0, [w - 1, h - 1])
+    more = livewire(image, np.array([pts[-1], target]), anchor_snap_px=anchor_snap_px, bone=bone)
+    return np.vstack([pts, more[1:]])

@@ -20,9 +20,9 @@ __all__ = ["RegistrationOptions", "IterationRecord"]
 #: mean-shape start is then tried too).
 START_CERTIFICATE = 1e-2
 #: Default gap (px) between the rounded relaxation and the returned fit above which a result is
-#: flagged "relaxation not tight". Measured with known view poses, the gap (7-60 px) does not
-#: predict the error (docs/registration.md, quality flags): the default sits above every fit
-#: measured, so the flag marks only a relaxation far off its result.
+#: flagged "relaxation not tight". Measured with known view poses, the gap (5-60 px) does not
+#: predict the error (docs/registration.md, quality flags): the default sits above all those
+#: fits, so the flag marks only a relaxation far off its result.
 RELAXATION_FLAG_PX = 100.0
 #: Default landmark reprojection error (px RMS) above which a result is flagged.
 REPROJECTION_FLAG_PX = 5.0
@@ -126,8 +126,8 @@ class RegistrationOptions:
         relaxation and the returned fit differ by more than this in some view (RMS over the
         vertices of their projections, px; :func:`.register.relaxation_gap_px`; known view
         poses only; ``result.json`` ``metrics.relaxation_gap_px``). The gap was measured not
-        to predict the error (7-60 px on realistic cases, good and bad fits alike): the
-        default sits above every fit measured.
+        to predict the error (5-60 px on realistic and real cases, good and bad fits alike):
+        the default sits above all those fits.
     end_margin_px : float
         Outline matches (and, in the boosting cost, annotated points) within this many pixels
         of an open contour's ends are not used: the annotation says nothing beyond its ends,

@@ -36,7 +36,7 @@ import numpy as np
 from ..calibration.views import View
 from ..outline import outline_edges
 from ..ssm.model import ShapeModel
-from .outline_match import OutlineTarget, nearest_on_outline
+from .outline_match import OutlineTarget, beyond_cut, nearest_on_outline
 from .rays import RayObservations
 from .refine import (
     PoseShape,
@@ -131,7 +131,7 @@ def _outline_terms(
         return _Linearised(
             res, zeros, np.zeros((M, len(q), 3)), np.zeros((len(q), 3, 2)), np.zeros(len(q)), 0
         )
-    _, _, s, u = nearest_on_outline(e, uv, q)
+    _, dist, s, u = nearest_on_outline(e, uv, q)
     i, j = e[s, 0], e[s, 1]
     Qc = (1.0 - u)[:, None] * Qall[i] + u[:, None] * Qall[j]
     Pc = (1.0 - u)[None, :, None] * model.modes[:, i] + u[None, :, None] * model.modes[:, j]
@@ -153,6 +153,10 @@ def _outline_terms(
         outward = side[:, None] * term.target.left[term.target.usable]
         facing = np.einsum("kc,kc->k", outward, np.column_stack([-tan[:, 1], tan[:, 0]]))
         active &= (side == 0) | (facing > 0)
+    # a sample beyond the template's cut: the bone goes on there, the model says nothing
+    beyond = beyond_cut(uv, getattr(he, "cut", None), q, dist)
+    off[beyond] = 0.0
+    active &= ~beyond
     res = np.column_stack([np.clip(off, -cap, cap), np.zeros(len(q))]) / term.sigma_mm
     basis = np.zeros((len(q), 3, 2))
     basis[:, :, 0] = n

@@ -31,7 +31,14 @@ import numpy as np
 
 from ..annotation.clean import resample_polyline
 from ..calibration.views import View
-from ..outline import HalfEdges, half_edges, outline_edges, outline_tangents, subsample_evenly
+from ..outline import (
+    HalfEdges,
+    cut_vertices,
+    half_edges,
+    outline_edges,
+    outline_tangents,
+    subsample_evenly,
+)
 from ..ssm.model import ShapeModel
 
 __all__ = ["model_outline"]
@@ -289,6 +296,8 @@ class ModelOutline:
     normal : (N, 2) array or None
         Unit outward normal at outline vertices (0 elsewhere); None for a point model, whose
         outline edges have no orientation.
+    cut : (N,) bool array or None
+        The template's cut vertices (:func:`mesh_topology`), left out of ``edges``.
     """
 
     ids: np.ndarray
@@ -296,6 +305,7 @@ class ModelOutline:
     edges: np.ndarray
     tangent: np.ndarray
     normal: np.ndarray | None = None
+    cut: np.ndarray | None = None
 
 
 def model_outline(
@@ -328,7 +338,7 @@ def model_outline(
     tangent = outline_tangents(edges, uv)
     ids = subsample_evenly(np.unique(edges), uv, n_points) if len(edges) else np.zeros(0, int)
     normal = None if model.faces is None else outward_normals(edges, uv)
-    return ModelOutline(ids, uv, edges, tangent, normal)
+    return ModelOutline(ids, uv, edges, tangent, normal, None if he is None else he.cut)
 
 
 def edge_normals(edges: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -388,6 +398,7 @@ def contour_sides(outline: ModelOutline, target: OutlineTarget, gate_px: float) 
     n_model = edge_normals(outline.edges, outline.uv_all)[seg]
     vote = np.sign(np.einsum("pc,pc->p", target.left[target.usable], n_model))
     w = np.clip(1.0 - (dist / gate_px) ** 2, 0.0, None)
+    w[beyond_cut(outline.uv_all, outline.cut, q, dist)] = 0.0
     owner = target.contour[target.usable]
     for c in range(n_contours):
         sel = owner == c
@@ -469,11 +480,55 @@ def adaptive_gate(dist: np.ndarray, floor_px: float) -> float:
 
 
 def outline_distances(outline: ModelOutline, target: OutlineTarget) -> np.ndarray:
-    """Distance (px) from every usable annotated outline point to the projected model outline."""
+    """Distance (px) from every usable annotated outline point to the projected model outline.
+
+    A point beyond the template's cut (:func:`beyond_cut`) counts 0: the bone goes on past the
+    cut in the radiograph, so the model says nothing there.
+    """
     q = target.points[target.usable]
     if len(outline.edges) == 0:
         return np.full(len(q), np.inf)
-    return nearest_on_outline(outline.edges, outline.uv_all, q)[1].copy()
+    dist = nearest_on_outline(outline.edges, outline.uv_all, q)[1]
+    beyond = beyond_cut(outline.uv_all, outline.cut, q, dist)
+    return np.where(beyond, 0.0, dist)
+
+
+def beyond_cut(
+    uv: np.ndarray, cut: np.ndarray | None, q: np.ndarray, dist: np.ndarray
+) -> np.ndarray:
+    """Which annotated points lie beyond the template's cut: nearer to a projected cut vertex
+    than to the model's outline (the cut's edges left out of it, :func:`mesh_topology`).
+
+    Parameters
+    ----------
+    uv : (N, 2) array
+        Projected model vertices, pixels.
+    cut : (N,) bool array or None
+        The template's cut vertices (None: no cut, nothing is beyond it).
+    q : (P, 2) array
+        Annotated points, pixels.
+    dist : (P,) array
+        Their distances to the model's outline, pixels.
+
+    Returns
+    -------
+    (P,) bool array
+    """
+    out = np.zeros(len(q), bool)
+    if cut is None or len(q) == 0:
+        return out
+    c = uv[cut]
+    # only points nearer to the cut's bounding box than to the outline can be nearer to a cut
+    # vertex: usually a few near the cut's end, compared with every cut vertex
+    lo, hi = c.min(axis=0), c.max(axis=0)
+    gap = np.maximum(np.maximum(lo - q, q - hi), 0.0)
+    near = np.flatnonzero(np.hypot(gap[:, 0], gap[:, 1]) < dist)
+    for k in range(0, len(near), 256):  # (256, K) blocks: memory stays small on dense caps
+        idx = near[k : k + 256]
+        du = q[idx, :1] - c[:, 0]
+        dv = q[idx, 1:] - c[:, 1]
+        out[idx] = np.sqrt((du * du + dv * dv).min(axis=1)) < dist[idx]
+    return out
 
 
 def nearest_on_outline(
@@ -550,5 +605,28 @@ _NEAREST = _NearestCache()
 
 
 def mesh_topology(model: ShapeModel) -> HalfEdges | None:
-    """Half-edge table of the model's mesh (None for point models); computed once per run."""
-    return None if model.faces is None else half_edges(model.faces, model.n_vertices)
+    """Half-edge table of the model's mesh with its cut (None for point models).
+
+    The cut (:func:`biplanar_reg.outline.cut_vertices` of the mean shape: an open border or a
+    flat cap where the CT's field of view cropped the bone) is left out of every model outline
+    the registration matches: the bone goes on beyond it in the radiograph, so an annotated
+    stretch traced past the template's end would otherwise pull the cap along the bone and
+    stretch the shape. Computed once per model (the last few are kept).
+    """
+    if model.faces is None:
+        return None
+    with _TOPOLOGY_LOCK:
+        for mean, faces, he in _TOPOLOGIES:
+            if mean is model.mean and faces is model.faces:
+                return he
+    he = half_edges(model.faces, model.n_vertices)
+    cut = cut_vertices(model.mean, model.faces)
+    he = HalfEdges(he.edges, he.face, he.twin_face, cut if cut.any() else None)
+    with _TOPOLOGY_LOCK:
+        _TOPOLOGIES.append((model.mean, model.faces, he))
+        del _TOPOLOGIES[:-4]
+    return he
+
+
+_TOPOLOGIES: list[tuple[np.ndarray, np.ndarray, HalfEdges]] = []
+_TOPOLOGY_LOCK = threading.Lock()

@@ -97,7 +97,10 @@ def outline_coverage(outline: ModelOutline, target: OutlineTarget) -> Coverage:
     _, vec = np.linalg.eigh(np.cov((allp - c).T))
     axis, across = vec[:, 1], vec[:, 0]
     a = (uv - c) @ axis
-    lo, hi = np.quantile(a, MIDDLE)
+    # the middle of the bone's projected length (not of its outline points, which crowd
+    # where the outline is intricate: a bone's head)
+    extent = (allp - c) @ axis
+    lo, hi = extent.min() + np.array(MIDDLE) * (extent.max() - extent.min())
     middle = (a >= lo) & (a <= hi)
     s = (uv - c) @ across
     frac = []

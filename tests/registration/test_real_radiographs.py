@@ -10,9 +10,15 @@ import numpy as np
 import pytest
 
 from biplanar_reg.annotation import Contour
-from biplanar_reg.outline import outline_polylines
+from biplanar_reg.outline import outline_polylines, outline_tangents
 from biplanar_reg.registration import RegistrationOptions, register_views
-from biplanar_reg.registration.outline_match import contour_sides, model_outline, prepare_outline
+from biplanar_reg.registration.outline_match import (
+    ModelOutline,
+    contour_sides,
+    model_outline,
+    outward_normals,
+    prepare_outline,
+)
 from biplanar_reg.registration.quality import (
     disagreeing_landmarks,
     outline_coverage,
@@ -155,3 +161,22 @@ def test_outline_coverage_counts_the_sides(model, scene):
     one = outline_coverage(o, prepare_outline(v.contours[:1]))
     assert min(full.sides) > 0.5 and not full.one_sided
     assert one.one_sided and one.untraced_direction in ("left", "right", "top", "bottom")
+
+
+def test_the_sides_are_compared_along_the_middle_of_the_length_not_of_the_points():
+    """A long bone whose head's outline has many more points than its shaft (the outline of an
+    intricate head is): traced along its left border only, it is one-sided. Compared along
+    the middle of its outline's points instead, the sides were the head's, untraced on both
+    sides, and the flag did not fire."""
+    head = np.column_stack([np.linspace(20.0, 0.0, 201), 5.0 + 3.0 * np.sin(np.arange(201))])
+    left = np.column_stack([np.zeros(19), np.linspace(10.0, 100.0, 19)])
+    right = np.column_stack([np.full(19, 20.0), np.linspace(100.0, 10.0, 19)])
+    uv = np.vstack([head, left, right])  # a loop: the bone to the right of its direction
+    loop = np.arange(len(uv))
+    edges = np.column_stack([loop, np.roll(loop, -1)])
+    outline = ModelOutline(loop, uv, edges, outline_tangents(edges, uv), outward_normals(edges, uv))
+    traced = prepare_outline([Contour(uv=np.column_stack([np.zeros(61), np.linspace(
+        20.0, 90.0, 61)]), closed=False)])  # fmt: skip
+    cov = outline_coverage(outline, traced)
+    assert cov.one_sided and cov.untraced_direction == "right"
+    assert cov.sides[0] == 0.0 or cov.sides[1] == 0.0

@@ -419,7 +419,11 @@ def _check_same_result_as_cli(case_dir: Path, tmp_path: Path, page) -> None:
     workbench_doc = json.loads((case_dir / "out" / "result.json").read_text())
     shown = page.evaluate("() => window.workbench.state.result.metrics")
     rerun = tmp_path / "rerun"
-    shutil.copytree(case_dir, rerun, ignore=shutil.ignore_patterns("out", ".workbench.lock"))
+    # the case's inputs only: not its outputs, nor the folder the server may still be writing
+    # the report into (``.out.tmp-*``), nor the locks
+    shutil.copytree(
+        case_dir, rerun, ignore=shutil.ignore_patterns("out", ".out*", ".workbench.lock")
+    )
     run_case_dir(rerun, rerun / "out")
     cli_doc = json.loads((rerun / "out" / "result.json").read_text())
     assert workbench_doc["flags"] == cli_doc["flags"]

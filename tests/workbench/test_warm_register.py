@@ -57,11 +57,10 @@ def test_register_again_after_an_edit_starts_warm(wrist):
     assert "start: the previous result (warm)" in second["messages"]
     result = client.get("/api/result").json()
     assert result["start"]["start"] == "warm"
-    # the warm fit agrees with the case's ground truth as the cold one did (expected.json's
-    # tolerance for vertex_rms_mm: 0.05 mm)
-    assert (
-        abs(result["metrics"]["vertex_rms_mm"] - first["result"]["metrics"]["vertex_rms_mm"]) < 0.05
-    )
+    # the warm fit agrees with the case's ground truth at least as well as the cold one did
+    # (expected.json's tolerance for vertex_rms_mm: 0.05 mm); better is no failure (measured:
+    # 0.514 mm warm after the edit, 0.587 mm cold before it)
+    assert result["metrics"]["vertex_rms_mm"] < first["result"]["metrics"]["vertex_rms_mm"] + 0.05
     # a landmark moved far: cold again, and the page is told why
     uv = [lm["uv"][0] + 80, lm["uv"][1]]
     assert client.put("/api/views/cam01/landmarks/radial_styloid_tip", json={"uv": uv}).is_success
