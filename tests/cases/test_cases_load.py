@@ -245,7 +245,7 @@ def test_solver_failure_exit_1_no_output(case, capsys, monkeypatch):
 def test_unknown_poses_is_a_case_error(case, capsys):
     # "unknown" is a valid case value; a registration version without it rejects it cleanly
     _edit_toml(case, 'poses = "known"', 'poses = "unknown"')
-    rc = main(["register", str(case)])
+    rc = main(["register", str(case), "--no-report"])
     err = capsys.readouterr().err
     if rc == 2:
         assert "[registration]" in err and len(err.strip().splitlines()) == 1

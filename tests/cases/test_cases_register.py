@@ -185,7 +185,7 @@ def test_result_reports_the_mean_shape_baseline_and_the_model_floor(tmp_path):
     case = write_synthetic_case(
         tmp_path / "c", 1, model=model, truth_shape=truth, image_size=(256, 256)
     )
-    assert main(["register", str(case), "--out", str(tmp_path / "out")]) == 0
+    assert main(["register", str(case), "--out", str(tmp_path / "out"), "--no-report"]) == 0
     doc = json.loads((tmp_path / "out" / "result.json").read_text())
     m = doc["metrics"]
     assert 0 < m["model_floor_vertex_rms_mm"] < m["mean_shape_vertex_rms_mm"]
