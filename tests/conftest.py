@@ -31,8 +31,9 @@ def posed(model: ShapeModel) -> tuple[np.random.Generator, np.ndarray, np.ndarra
     return rng, w, model.instance(w) @ R.T + t
 
 
-#: The longest test modules, longest first (seconds of test time on the two-core machine,
-#: ``python -m pytest -q -n 2 --durations=0`` summed per module): they are handed out first.
+#: The test modules of 2 s or more, longest first (seconds of test time on the two-core
+#: machine, ``python -m pytest -q -n 2 --durations=0`` summed per module): handed out first,
+#: so that the modules left for the end are short and the two workers finish together.
 LONGEST_MODULES = (
     "test_e2e.py",  # 34.5
     "test_e2e_security.py",  # 27.3
@@ -55,6 +56,42 @@ LONGEST_MODULES = (
     "test_batch_run.py",  # 10.7
     "test_gp_stage.py",  # 10.7
     "test_report_pages_browser.py",  # 10.1
+    "test_few_landmarks.py",  # 9.1
+    "test_correspond.py",  # 8.9
+    "test_api.py",  # 8.5
+    "test_security.py",  # 7.4
+    "test_own_data_walkthrough.py",  # 7.2
+    "test_cases_register.py",  # 7.2
+    "test_e2e_model.py",  # 6.6
+    "test_reused_figures.py",  # 6.1
+    "test_figure_drawing.py",  # 5.9
+    "test_unknown_realistic.py",  # 5.6
+    "test_outline_fit.py",  # 5.5
+    "test_registration_options.py",  # 5.4
+    "test_multi_start.py",  # 5.4
+    "test_cases_load.py",  # 5.2
+    "test_pipeline.py",  # 4.7
+    "test_robust_weights.py",  # 4.3
+    "test_frames_case.py",  # 4.0
+    "test_template_checks.py",  # 4.0
+    "test_unknown_poses.py",  # 3.8
+    "test_batch_safety.py",  # 3.7
+    "test_pose_modes.py",  # 3.6
+    "test_batch_shards.py",  # 3.6
+    "test_case_report.py",  # 3.5
+    "test_extras.py",  # 3.5
+    "test_traced_past_the_cut.py",  # 3.2
+    "test_bones.py",  # 3.1
+    "test_registration_gsft.py",  # 2.8
+    "test_ipm.py",  # 2.6
+    "test_layering.py",  # 2.4
+    "test_annotation_contours.py",  # 2.4
+    "test_pose_aid.py",  # 2.3
+    "test_render3d_probe.py",  # 2.3
+    "test_lazy_imports.py",  # 2.2
+    "test_view_aids.py",  # 2.1
+    "test_register_poses.py",  # 2.1
+    "test_realistic.py",  # 2.0
 )
 
 
