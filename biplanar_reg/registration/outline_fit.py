@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..calibration.views import View
-from ..outline import outline_edges
+from ..outline import HalfEdges, outline_edges
 from ..ssm.model import ShapeModel
 from .outline_match import OutlineTarget, beyond_cut, nearest_on_outline
 from .rays import RayObservations
@@ -117,7 +117,7 @@ def _outline_terms(
     Qall: np.ndarray,
     R: np.ndarray,
     t: np.ndarray,
-    he: object,
+    he: HalfEdges | None,
 ) -> _Linearised:
     """The terms of one view's annotated outline samples against the model outline at ``V``."""
     q, o, d = samples
@@ -154,7 +154,7 @@ def _outline_terms(
         facing = np.einsum("kc,kc->k", outward, np.column_stack([-tan[:, 1], tan[:, 0]]))
         active &= (side == 0) | (facing > 0)
     # a sample beyond the template's cut: the bone goes on there, the model says nothing
-    beyond = beyond_cut(uv, getattr(he, "cut", None), q, dist)
+    beyond = beyond_cut(uv, None if he is None else he.cut, q, dist)
     off[beyond] = 0.0
     active &= ~beyond
     res = np.column_stack([np.clip(off, -cap, cap), np.zeros(len(q))]) / term.sigma_mm
