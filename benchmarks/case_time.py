@@ -47,6 +47,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+from benchmarks._common import write_text  # noqa: E402
 from biplanar_reg import _threads  # noqa: E402 - this checkout's list
 
 SAMPLES = ["synthetic_demo", "synthetic_radius_known", "synthetic_radius_unknown", "wrist_radius"]
@@ -347,10 +348,7 @@ def main() -> None:
         which = trees if args.batch_trees == "both" else {"this tree": trees["this tree"]}
         batch = time_batch(which, knee, args.batch, work)
     text = report(args, trees, reg, stages, batch, knee_size, time.perf_counter() - t0)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".tmp")
-    tmp.write_text(text)
-    tmp.replace(args.out)
+    write_text(args.out, text)  # atomic, parents made
     print(text)
 
 

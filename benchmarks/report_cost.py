@@ -41,6 +41,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+from benchmarks._common import write_text  # noqa: E402
 from benchmarks.case_time import KNEE, child, compile_tree, git_rev  # noqa: E402
 
 #: Part 3's driver: registers the case once, then times the report's figure functions.
@@ -308,10 +309,7 @@ def main() -> None:
     work = args.work or Path(tempfile.mkdtemp(prefix="report_cost-"))
     work.mkdir(parents=True, exist_ok=True)
     text = markdown(args, trees, measure(args, trees, work), time.perf_counter() - t0)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".tmp")
-    tmp.write_text(text)
-    tmp.replace(args.out)
+    write_text(args.out, text)  # atomic, parents made
     print(text)
 
 

@@ -126,7 +126,7 @@ def bone_case_result(
     rejected = sorted(set(fit.rejected))
     flags = list(fit.result.flags)
     if rejected and not any("reject" in f for f in flags):
-        flags.append(f"rejected observations: {rejected}")
+        flags.append("rejected observations: " + ", ".join("/".join(r) for r in rejected))
     frame = CAMERA_FRAME if case.poses == "unknown" else WORLD_FRAME
     head = case_header(case, fit.layout, fit.names, frame)
     result = CaseResult(

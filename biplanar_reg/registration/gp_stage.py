@@ -245,6 +245,7 @@ def gp_stage(
     w = np.concatenate([w0, res.weights])
     res = with_pose(res, res.rotation, res.translation, w, res.vertices)
     refined = Refined(
-        res, prob.outlines(res), records, iterates, records[-1].index, weights, prob, groups
-    )
+        res, prob.outlines(res), records, iterates, records[-1].index, weights, prob, groups,
+        final.left_out,
+    )  # fmt: skip
     return prob, refined, outcome

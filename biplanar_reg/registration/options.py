@@ -85,6 +85,8 @@ class RegistrationOptions:
         combined with the model's truncation error at its vertex; with a model without
         truncation modes, in robust scales of the errors: their median scale, at least the
         annotated sigma). See docs/registration.md for the measurements behind the default.
+        Also the number of robust sigmas of the landmark errors above which a landmark
+        disagrees with the outlines (:mod:`.disagreement`; left out with known view poses).
     rejection_weight : float
         A landmark whose Geman-McClure weight at the fit is below this level (in (0, 1])
         counts as rejected and weighs 0; the others weigh 1. 0.1 is an error above 1.47 ``c``.

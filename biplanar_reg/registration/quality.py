@@ -187,18 +187,19 @@ DISAGREE_MIN_PX = 10.0
 _RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))
 
 
-def disagreeing_landmarks(errors_px: np.ndarray, ratios: np.ndarray) -> np.ndarray:
-    """Indices of the landmarks whose error stands out: above :data:`DISAGREE_SIGMAS` times
-    the landmarks' robust per-axis sigma (median error over the Rayleigh median, each
-    landmark's scaled by its stated ratio ``ratios``) and above :data:`DISAGREE_MIN_PX`.
-    Clicks that are all 10-30 px off (as on real radiographs) raise nothing; one far off the
-    others does."""
+def disagreeing_landmarks(
+    errors_px: np.ndarray, ratios: np.ndarray, sigmas: float = DISAGREE_SIGMAS
+) -> np.ndarray:
+    """Indices of the landmarks whose error stands out: above ``sigmas`` times the landmarks'
+    robust per-axis sigma (median error over the Rayleigh median, each landmark's scaled by
+    its stated ratio ``ratios``) and above :data:`DISAGREE_MIN_PX`. Clicks that are all 10-30
+    px off (as on real radiographs) raise nothing; one far off the others does."""
     e = np.asarray(errors_px, float)
     if len(e) < 3:
         return np.zeros(0, int)
     scaled = e / np.asarray(ratios, float)
     sigma = float(np.median(scaled)) / _RAYLEIGH_MEDIAN
-    limit = np.maximum(DISAGREE_SIGMAS * sigma * np.asarray(ratios, float), DISAGREE_MIN_PX)
+    limit = np.maximum(sigmas * sigma * np.asarray(ratios, float), DISAGREE_MIN_PX)
     return np.flatnonzero(e > limit)
 
 

@@ -22,6 +22,7 @@ from ..pose import Pose, nearest_rotation
 from ..ssm.gaussian_process import split_modes
 from ..ssm.model import ShapeModel
 from .blunders import rejected_landmarks, robust_cost
+from .disagreement import checked_stage, disagreeing
 from .gp_stage import GpOutcome, gp_stage, kernel_basis, registration_model
 from .gsft import GsftResult
 from .multi_start import STARTS, best_of_starts
@@ -43,7 +44,6 @@ from .previous import (
 from .problem import Problem, make_problem
 from .quality import (
     NEARLY_PARALLEL_DEG,
-    disagreeing_landmarks,
     outline_coverage,
     shape_plausibility,
     view_separation,
@@ -358,9 +358,8 @@ def register_views(
     base = registration_model(model)
     problem, final = _register_posed(base, posed, poses, opts, silhouettes, say, start_pose)
     outcome = None
-    if poses == "known" and opts.gp == "auto" and problem.use_outlines:
-        basis = kernel_basis(model, opts.gp_kernel, opts.gp_width_mm, opts.gp_amplitude_mm)
-        problem, final, outcome = gp_stage(problem, final, basis)
+    if poses == "known":  # (free views: calibration errors make good landmarks stand out)
+        problem, final, outcome = checked_stage(_gp_stage(model, opts), problem, final)
     if poses == "refine":
         pose_info.update(corrections(views, problem.views))
     result = _finish(model, problem, final, outcome, pose_info, t0)
@@ -380,16 +379,28 @@ def _register_warm(model, views, opts, silhouettes, say, previous: PreviousFit, 
     run = boost(problem, start, weights, opts.max_iterations, detect=detect, memo=FitMemo())
     final = refine_final(problem, run)
     problem = final.problem or problem
-    outcome = None
-    if opts.gp == "auto" and problem.use_outlines:
-        basis = kernel_basis(model, opts.gp_kernel, opts.gp_width_mm, opts.gp_amplitude_mm)
-        rounds, u0 = None, None
-        if previous.gp_amplitude_mm is not None and previous.gp_amplitude_mm > 0:
-            basis = replace(basis, start_amplitude_mm=float(previous.gp_amplitude_mm))
-            rounds, u0 = 1, kernel_start(base, basis, previous)
-        problem, final, outcome = gp_stage(problem, final, basis, rounds=rounds, start=u0)
+    stage = _gp_stage(model, opts, previous, base)
+    problem, final, outcome = checked_stage(stage, problem, final)
     result = _finish(model, problem, final, outcome, {"mode": "known"}, t0)
     return replace(result, restart={**result.restart, "start": "warm", "reason": ""})
+
+
+def _gp_stage(model: ShapeModel, opts, previous: PreviousFit | None = None, base=None):
+    """The Gaussian-process stage as a function ``(problem, final) -> (problem, final,
+    outcome)`` (:func:`.gp_stage.gp_stage`; from ``previous``'s kernel weights for a warm
+    start); with ``gp = "off"`` or without outlines the identity (outcome None)."""
+
+    def stage(problem: Problem, final: Refined):
+        if opts.gp != "auto" or not problem.use_outlines:
+            return problem, final, None
+        basis = kernel_basis(model, opts.gp_kernel, opts.gp_width_mm, opts.gp_amplitude_mm)
+        rounds, u0 = None, None
+        if previous is not None and (previous.gp_amplitude_mm or 0.0) > 0:
+            basis = replace(basis, start_amplitude_mm=float(previous.gp_amplitude_mm))
+            rounds, u0 = 1, kernel_start(base, basis, previous)
+        return gp_stage(problem, final, basis, rounds=rounds, start=u0)
+
+    return stage
 
 
 def _finish(model, problem: Problem, final: Refined, outcome, pose_info: dict, t0: float):
@@ -579,10 +590,12 @@ def _flags(
     outlines: dict | None = None,
     gap: float | None = None,
     poses: str = "known",
+    left_out: frozenset[int] = frozenset(),
 ) -> list[str]:
     """Quality flags (not failures) of a result (``gap``: its :func:`relaxation_gap_px`, None
     when not computed; ``outlines``: the model's outlines at the fit, per view index;
-    ``poses``: the view-pose mode). Each says what is wrong and where;
+    ``poses``: the view-pose mode; ``left_out``: the rejected landmarks that were left out as
+    disagreeing with the outlines). Each says what is wrong and where;
     :data:`biplanar_reg.report.advice.FLAG_ADVICE` says what to do."""
     opts, lm = problem.options, problem.landmarks
     flags: list[str] = []
@@ -602,9 +615,10 @@ def _flags(
     stated = known and opts.noise == "stated"
     if stated and acc and float(np.sqrt(np.mean(np.square(acc)))) > opts.reprojection_flag_px:
         flags.append("large landmark reprojection error")
-    for i in _disagreeing(problem, err, rejected):
+    for i in disagreeing(problem, err, rejected - left_out):
         v, n = lm.names[i]
-        flags.append(f"landmark disagrees with the outlines: {v}/{n} by {err[i]:.0f} px")
+        out = " (left out of the fit)" if i in left_out else ""
+        flags.append(f"landmark disagrees with the outlines: {v}/{n} by {err[i]:.0f} px{out}")
     rej = [lm.names[i] for i in sorted(rejected)]
     if rej:
         flags.append("rejected observations: " + ", ".join(f"{v}/{n}" for v, n in rej))
@@ -632,22 +646,12 @@ def _flags(
     return flags
 
 
-def _disagreeing(problem: Problem, err: np.ndarray, rejected: frozenset[int]) -> list[int]:
-    """The landmarks (indices, not rejected) that disagree with the outlines
-    (:func:`.quality.disagreeing_landmarks`; ``err``: each landmark's error, px)."""
-    lm = problem.landmarks
-    # without outlines nothing can disagree with them (a lone far landmark is a blunder)
-    if not (len(lm) and problem.use_outlines and problem.targets):
-        return []
-    return [int(i) for i in disagreeing_landmarks(err, lm.ratios()) if int(i) not in rejected]
-
-
 def _disagreeing_by_view(problem: Problem, res, rejected: frozenset[int]) -> dict:
     """``{view: {landmark: px}}``: the landmarks that disagree with the outlines and their
     errors (every view, possibly empty): the structured form of the flag."""
     out: dict[str, dict[str, float]] = {v.name: {} for v in problem.views}
     err = problem.landmark_px_errors(res.vertices)
-    for i in _disagreeing(problem, err, rejected):
+    for i in disagreeing(problem, err, rejected):
         v, n = problem.landmarks.names[i]
         out[v][n] = float(err[i])
     return out
@@ -678,6 +682,7 @@ def _result(problem: Problem, final, outlines: dict, pose_info: dict, seconds: f
     views, res = problem.views, final.result
     weights = np.ones(len(problem.landmarks)) if final.weights is None else final.weights
     rejected = rejected_landmarks(problem, weights)
+    left_out = getattr(final, "left_out", frozenset())
     # with estimated view poses the relaxation was solved in other views (the joint
     # refinement moved them since), so the gap would measure that move, not the relaxation
     poses = pose_info.get("mode", "known")
@@ -704,8 +709,8 @@ def _result(problem: Problem, final, outlines: dict, pose_info: dict, seconds: f
         silhouettes_px=outline_px,
         rejected=[problem.landmarks.names[i] for i in sorted(rejected)],
         view_poses=view_poses,
-        flags=_flags(problem, res, rejected, outlines, gap, poses),
-        disagreeing_px=_disagreeing_by_view(problem, res, rejected),
+        flags=_flags(problem, res, rejected, outlines, gap, poses, left_out),
+        disagreeing_px=_disagreeing_by_view(problem, res, rejected - left_out),
         timings={
             "total": seconds,
             "iterations": float(sum(r.seconds for r in final.records)),

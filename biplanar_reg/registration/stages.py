@@ -110,6 +110,7 @@ class Refined:
     weights: np.ndarray | None
     problem: Problem | None = None  # with the estimated sigmas (noise = "estimated")
     noise: list[GroupNoise] = field(default_factory=list)
+    left_out: frozenset[int] = frozenset()  # landmarks left out as disagreeing (weight 0)
 
 
 # -- 1. landmarks only ---------------------------------------------------------------------
@@ -765,14 +766,13 @@ def refine_final(problem: Problem, run: BoostRun) -> Refined:
     return Refined(res, outlines, records, iterates, best_index, weights, problem, noise)
 
 
-def estimate_noise(problem: Problem, result: GsftResult, weights: np.ndarray | None, record=None):
+def estimate_noise(problem: Problem, result: GsftResult, weights, record=None, left_out=()):
     """Each annotation group's noise from the residuals, iterated with the refinement
     (:mod:`.noise`): estimate the groups' sigmas and outline correlation lengths at the fit,
-    refine again from the fit with them and reweight the landmarks, until every one changes
-    by less than ``NOISE_TOL`` (at most ``noise_rounds`` refinements).
-
-    Returns the problem with the estimated sigmas, the result, the landmark weights and the
-    last estimate's groups.
+    refine again from the fit with them and reweight the landmarks (those of ``left_out`` stay
+    at 0), until every one changes by less than ``NOISE_TOL`` (at most ``noise_rounds``
+    refinements). Returns the problem with the estimated sigmas, the result, the landmark
+    weights and the last estimate's groups.
     """
     opts = problem.options
     groups: list[GroupNoise] = []
@@ -784,6 +784,7 @@ def estimate_noise(problem: Problem, result: GsftResult, weights: np.ndarray | N
         result, _ = refine_once(problem, result, problem.outlines(result), weights, record)
         if opts.robust and len(problem.landmarks) > 0:
             weights = reweight(problem, result.vertices)
+            weights[list(left_out)] = 0.0
     problem.say(
         "noise estimated: "
         + ", ".join(

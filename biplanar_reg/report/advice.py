@@ -33,10 +33,11 @@ FLAG_ADVICE: dict[str, str] = {
         "each one's position and name in its view, then fix or delete it and register again."
     ),
     "landmark disagrees with the outlines": (
-        "This landmark's error stands far out from the others' (4 of their robust sigmas): "
-        "check that the click is on the landmark's anatomical point in that view and that the "
-        "name is right (a point hidden by another bone is better left out), then register "
-        "again."
+        "This landmark's error stands far out from the others' (4 of their robust sigmas). "
+        'With known view poses it was left out of the fit (weight 0; "left out of the fit"), '
+        "with estimated view poses it is still in it. Check that the click is on the "
+        "landmark's anatomical point in that view and that the name is right (a point hidden "
+        "by another bone is better deleted), then register again."
     ),
     "one-sided outline": (
         "Only one side of the bone is traced in this view, so the other side rests on the "
