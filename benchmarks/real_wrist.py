@@ -321,6 +321,12 @@ def targets(results: dict) -> list[str]:
     return out
 
 
+def merged_runs(paths: list[Path]) -> tuple[dict, float]:
+    """The results of several saved runs (``--from-json``) merged, and their total seconds."""
+    docs = [json.loads(p.read_text()) for p in paths]
+    return {k: v for d in docs for k, v in d["results"].items()}, sum(d["seconds"] for d in docs)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=HERE / "results" / "real_wrist.md")
@@ -335,9 +341,7 @@ def main() -> None:
     )
     t0 = time.perf_counter()
     if args.from_json:
-        docs = [json.loads(p.read_text()) for p in args.from_json]
-        results = {k: v for d in docs for k, v in d["results"].items()}
-        seconds = sum(d["seconds"] for d in docs)
+        results, seconds = merged_runs(args.from_json)
     else:
         conditions = args.conditions.split(",") if args.conditions else CONDITIONS
         unknown = sorted(set(conditions) - set(CONDITIONS))

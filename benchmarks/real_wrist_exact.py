@@ -158,9 +158,7 @@ def main() -> None:
     )
     t0 = time.perf_counter()
     if args.from_json:
-        docs = [json.loads(p.read_text()) for p in args.from_json]
-        results = {k: v for d in docs for k, v in d["results"].items()}
-        seconds = sum(d["seconds"] for d in docs)
+        results, seconds = rw.merged_runs(args.from_json)
     else:
         results = run_all(args.only.split(",") if args.only else None)
         seconds = time.perf_counter() - t0
