@@ -81,7 +81,7 @@ def case_dir(tmp_path: Path) -> Path:
 
 
 @pytest.fixture(scope="session")
-def _shared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, str]]:
+def shared_workbench(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, str]]:
     """One server (per test process), on a copy of the case as ``case_dir`` makes it, for the
     browser tests that save no edit: ``(case folder, URL)``. The URL signs each test's browser
     in with the token (``/?token=``), read from the cookie the printed one-time URL sets."""
@@ -93,12 +93,12 @@ def _shared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, st
 
 
 @pytest.fixture
-def shared_server(_shared: tuple[Path, str]) -> Iterator[str]:
+def shared_server(shared_workbench: tuple[Path, str]) -> Iterator[str]:
     """The URL of the shared server (``biplanar-reg workbench`` on a copy of the case as
     ``case_dir`` makes it) for a test that saves no edit: the case's files are compared after
     the test, which must leave them as it found them, so that each test sees the case as on a
     server of its own."""
-    case, url = _shared
+    case, url = shared_workbench
     before = {p.name: p.read_bytes() for p in case.iterdir() if p.is_file()}
     yield url
     after = {p.name: p.read_bytes() for p in case.iterdir() if p.is_file()}
