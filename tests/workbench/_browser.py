@@ -1,6 +1,7 @@
 """What the workbench's browser tests share: where the shipped case and Debian's chromium are,
-how chromium is started and how long a page may wait. Their fixtures (``browser``, ``page``,
-``shipped``, ``case_dir``) are in this folder's ``conftest.py``."""
+how chromium is started, how long a page may wait, the case copy without landmarks and the
+server (``running_workbench``). Their fixtures (``browser``, ``page``, ``shipped``,
+``case_dir``, ``shared_server``) are in this folder's ``conftest.py``."""
 
 from __future__ import annotations
 

@@ -1,5 +1,6 @@
 """Case folders for the workbench tests, always copies in ``tmp_path`` (the shipped
-``sample_cases/`` are never written to)."""
+``sample_cases/`` are never written to), and the browser tests' fixtures: the browser, a page,
+and one shared server for the tests that save no edit (``shared_server``)."""
 
 from __future__ import annotations
 
