@@ -32,66 +32,64 @@ def posed(model: ShapeModel) -> tuple[np.random.Generator, np.ndarray, np.ndarra
 
 
 #: The test modules of 2 s or more, longest first (seconds of test time on the two-core
-#: machine, ``python -m pytest -q -n 2 --durations=0`` summed per module): handed out first,
-#: so that the modules left for the end are short and the two workers finish together.
+#: machine, ``python -m pytest -q -n 2 --durations=0 -p no:randomly`` summed per module): handed
+#: out first, so that the modules left for the end are short and the two workers finish
+#: together.
 LONGEST_MODULES = (
-    "test_e2e.py",  # 34.5
-    "test_e2e_security.py",  # 27.3
-    "test_e2e_view_aids.py",  # 20.1
-    "test_sample_cases.py",  # 19.5
-    "test_boosting.py",  # 18.5
-    "test_warm_register.py",  # 18.4
-    "test_e2e_undo.py",  # 17.3
-    "test_e2e_keys.py",  # 17.1
-    "test_real_radiographs.py",  # 16.5
-    "test_robust_realistic.py",  # 15.1
-    "test_view_starts.py",  # 14.7
-    "test_e2e_sample_cases.py",  # 14.3
-    "test_warm_start.py",  # 14.2
-    "test_registration_stages.py",  # 13.2
-    "test_fuzz_parsers.py",  # 13.1
-    "test_e2e_pose.py",  # 12.9
-    "test_e2e_warm.py",  # 12.2
-    "test_batch_faults.py",  # 12.1
-    "test_batch_run.py",  # 10.7
-    "test_gp_stage.py",  # 10.7
-    "test_report_pages_browser.py",  # 10.1
-    "test_few_landmarks.py",  # 9.1
-    "test_correspond.py",  # 8.9
-    "test_api.py",  # 8.5
-    "test_security.py",  # 7.4
-    "test_own_data_walkthrough.py",  # 7.2
-    "test_cases_register.py",  # 7.2
-    "test_e2e_model.py",  # 6.6
-    "test_reused_figures.py",  # 6.1
-    "test_figure_drawing.py",  # 5.9
+    "test_e2e.py",  # 26.9
+    "test_sample_cases.py",  # 22.7
+    "test_e2e_security.py",  # 21.3
+    "test_boosting.py",  # 19.9
+    "test_e2e_view_aids.py",  # 18.9
+    "test_registration_stages.py",  # 17.5
+    "test_e2e_warm.py",  # 16.7
+    "test_fuzz_parsers.py",  # 16.7
+    "test_e2e_sample_cases.py",  # 16.5
+    "test_e2e_undo.py",  # 16.1
+    "test_view_starts.py",  # 16.1
+    "test_robust_realistic.py",  # 14.7
+    "test_real_radiographs.py",  # 14.6
+    "test_warm_register.py",  # 14.3
+    "test_own_data_walkthrough.py",  # 11.3
+    "test_e2e_pose.py",  # 10.9
+    "test_batch_faults.py",  # 10.6
+    "test_e2e_keys.py",  # 10.4
+    "test_warm_start.py",  # 9.6
+    "test_correspond.py",  # 9.5
+    "test_few_landmarks.py",  # 9.3
+    "test_api.py",  # 8.6
+    "test_batch_run.py",  # 8.2
+    "test_security.py",  # 7.3
+    "test_e2e_model.py",  # 6.8
+    "test_gp_stage.py",  # 6.6
+    "test_cases_register.py",  # 6.5
+    "test_pose_modes.py",  # 6.3
+    "test_reused_figures.py",  # 6.3
     "test_unknown_realistic.py",  # 5.6
-    "test_outline_fit.py",  # 5.5
-    "test_registration_options.py",  # 5.4
-    "test_multi_start.py",  # 5.4
-    "test_cases_load.py",  # 5.2
-    "test_pipeline.py",  # 4.7
-    "test_robust_weights.py",  # 4.3
-    "test_frames_case.py",  # 4.0
+    "test_figure_drawing.py",  # 4.9
+    "test_outline_fit.py",  # 4.6
+    "test_multi_start.py",  # 4.6
+    "test_robust_weights.py",  # 4.4
+    "test_registration_options.py",  # 4.3
+    "test_frames_case.py",  # 4.2
     "test_template_checks.py",  # 4.0
-    "test_unknown_poses.py",  # 3.8
-    "test_batch_safety.py",  # 3.7
-    "test_pose_modes.py",  # 3.6
-    "test_batch_shards.py",  # 3.6
-    "test_case_report.py",  # 3.5
-    "test_extras.py",  # 3.5
-    "test_traced_past_the_cut.py",  # 3.2
+    "test_pipeline.py",  # 3.9
+    "test_cases_load.py",  # 3.7
+    "test_extras.py",  # 3.6
+    "test_traced_past_the_cut.py",  # 3.4
+    "test_unknown_poses.py",  # 3.3
+    "test_batch_shards.py",  # 3.3
     "test_bones.py",  # 3.1
-    "test_registration_gsft.py",  # 2.8
-    "test_ipm.py",  # 2.6
-    "test_layering.py",  # 2.4
-    "test_annotation_contours.py",  # 2.4
-    "test_pose_aid.py",  # 2.3
-    "test_render3d_probe.py",  # 2.3
-    "test_lazy_imports.py",  # 2.2
-    "test_view_aids.py",  # 2.1
-    "test_register_poses.py",  # 2.1
-    "test_realistic.py",  # 2.0
+    "test_case_report.py",  # 3.1
+    "test_batch_safety.py",  # 3.0
+    "test_annotation_contours.py",  # 2.5
+    "test_ipm.py",  # 2.4
+    "test_registration_gsft.py",  # 2.4
+    "test_lazy_imports.py",  # 2.3
+    "test_view_aids.py",  # 2.3
+    "test_register_poses.py",  # 2.2
+    "test_render3d_probe.py",  # 2.2
+    "test_layering.py",  # 2.1
 )
 
 

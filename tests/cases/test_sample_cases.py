@@ -1,9 +1,13 @@
 """Reproducible case tests: every sample case is registered end to end and compared with its
-``expected.json`` (written by ``python -m biplanar_reg.cases.expect write CASE_DIR``)."""
+``expected.json`` (written by ``python -m biplanar_reg.cases.expect write CASE_DIR``); the
+multi-frame report and the multi-bone case page of those runs in a real browser (Debian's
+chromium): every figure decodes, the links to the bones' own reports resolve, no script
+error."""
 
 from __future__ import annotations
 
 import json
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -16,9 +20,10 @@ from biplanar_reg.cases.expect import (
     check_case,
     compare_expected,
     expected_from_result,
-    run_case,
 )
+from biplanar_reg.cases.run import RunOutcome, run_case_dir
 from biplanar_reg.io import read_mesh
+from biplanar_reg.io.jsonfile import read_json
 from biplanar_reg.simulate import write_synthetic_case
 
 ROOT = Path(__file__).resolve().parents[2] / "sample_cases"
@@ -36,9 +41,31 @@ def test_every_case_has_expectations():
     }
 
 
+#: The cases whose reports are also opened in the browser (below): one run serves both tests.
+SHARED_RUNS = ("wrist_radius_frames", "wrist_radius_ulna")
+
+
+@pytest.fixture(scope="module")
+def registered(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str], RunOutcome]:
+    """``registered(name)``: sample case ``name`` registered with its report into a temporary
+    folder (as :func:`check_case` does), once for this module."""
+    runs: dict[str, RunOutcome] = {}
+
+    def run(name: str) -> RunOutcome:
+        if name not in runs:
+            runs[name] = run_case_dir(ROOT / name, tmp_path_factory.mktemp(name) / "out")
+        return runs[name]
+
+    return run
+
+
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
-def test_sample_case_matches_expected(case):
-    problems, doc, _ = check_case(case)
+def test_sample_case_matches_expected(case, registered):
+    if case.name in SHARED_RUNS:  # check_case's comparison, on the run the page tests open
+        doc = registered(case.name).document
+        problems = compare_expected(read_json(case / EXPECTED_FILE), doc)
+    else:
+        problems, doc, _ = check_case(case)
     assert not problems, f"{case.name} moved beyond tolerance:\n" + "\n".join(problems)
     if case.name == "wrist_radius":
         assert doc["ground_truth"]["up_to_pose"] is True
@@ -69,8 +96,9 @@ def test_a_moved_metric_fails_loudly():
 
 def test_runs_are_deterministic(tmp_path):
     case = write_synthetic_case(tmp_path / "c", 5, image_size=(192, 192), n_modes=3)
-    a, _ = run_case(case)
-    b, _ = run_case(case)
+    # run_case's registration (the report, which reads the result, is not compared)
+    a = run_case_dir(case, tmp_path / "a", report=False).document
+    b = run_case_dir(case, tmp_path / "b", report=False).document
     assert a["metrics"] == b["metrics"]
     assert a["weights"] == b["weights"]
 
@@ -89,3 +117,53 @@ def test_rigid_alignment_recovers_a_pose():
     al2 = align_rigid(verts, faces, target, faces)
     assert al2.init == "principal axes"
     assert np.sqrt(np.mean(np.sum((al2.apply(verts) - moved) ** 2, axis=1))) < 0.2
+
+
+# -- the report pages in a browser -------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[object]:
+    """Debian's chromium under Playwright (skipped without either)."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    from tests.workbench._browser import CHROMIUM, CHROMIUM_ARGS
+
+    if not CHROMIUM.exists():
+        pytest.skip("needs Debian's chromium at /usr/bin/chromium")
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        yield b
+        b.close()
+
+
+def _images(browser, html: Path) -> list[tuple[str, int]]:
+    """(alt or src head, natural width) of every <img> of the page once loaded."""
+    from tests.workbench._browser import VIEWPORT
+
+    page = browser.new_page(viewport=VIEWPORT)
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    page.goto(html.as_uri(), wait_until="load")
+    imgs = page.eval_on_selector_all(
+        "img", "els => els.map(e => [e.alt || e.src.slice(0, 40), e.naturalWidth])"
+    )
+    page.close()
+    assert not errors, errors
+    return [tuple(x) for x in imgs]
+
+
+def test_the_two_bone_page_shows_both_bones_and_links_their_reports(browser, registered):
+    out = registered("wrist_radius_ulna").out_dir
+    imgs = _images(browser, out / "report.html")
+    assert [a for a, _ in imgs] == ["overlay_cam01.png", "overlay_cam02.png"]
+    assert all(w > 100 for _, w in imgs)
+    for bone in ("radius", "ulna"):
+        sub = _images(browser, out / "bones" / bone / "report.html")
+        assert len(sub) >= 4 and all(w > 100 for _, w in sub), (bone, sub)
+
+
+def test_the_multi_frame_report_shows_its_figures(browser, registered):
+    out = registered("wrist_radius_frames").out_dir
+    imgs = _images(browser, out / "report.html")
+    # residuals, pose, uncertainty vs frames, ground truth per frame, overlays of 3 frames
+    assert len(imgs) >= 6 and all(w > 100 for _, w in imgs), imgs

@@ -54,15 +54,15 @@ def _move_landmark(case: Path, view: str, du: float) -> str:
 def test_warm_start_lands_next_to_a_cold_start(wrist, tmp_path):
     case = _copy(wrist, tmp_path)
     _move_landmark(case, "cam01", 3.0)
+    # warm asked for into an empty output folder: nothing to use, so this is the cold start of
+    # the edited input (a run without warm=True is cold too: test_previous_fit_reads_the_result)
+    cold = run_case_dir(case, tmp_path / "cold_out", report=False, warm=True)
+    assert cold.document["restart"]["start"] == "cold"
+    assert cold.document["restart"]["reason"] == NO_PREVIOUS
+    shutil.copytree(case / "out", tmp_path / "warm_out")  # the previous result
     warm = run_case_dir(case, tmp_path / "warm_out", report=False, warm=True)
-    assert warm.document["restart"]["start"] == "cold"  # an empty output folder: nothing to use
-    assert warm.document["restart"]["reason"] == NO_PREVIOUS
-    shutil.copytree(case / "out", tmp_path / "warm_out", dirs_exist_ok=True)  # the previous
-    warm = run_case_dir(case, tmp_path / "warm_out", report=False, warm=True)
-    cold = run_case_dir(case, tmp_path / "cold_out", report=False)
     assert warm.document["restart"]["start"] == "warm", warm.document["restart"]
     assert warm.document["restart"]["reason"] == ""
-    assert cold.document["restart"]["start"] == "cold"
     assert warm.document["restart"]["fingerprint"] == cold.document["restart"]["fingerprint"]
     wm, cm = warm.document["metrics"], cold.document["metrics"]
     # the case's own tolerance for its ground-truth metrics (expected.json: abs 0.05 mm)
@@ -100,6 +100,7 @@ def test_previous_fit_reads_the_result(wrist):
     prev = previous_fit(wrist / "out")
     doc = json.loads((wrist / "out" / "result.json").read_text())
     assert prev is not None
+    assert doc["restart"]["start"] == "cold"  # run_case_dir without warm=True
     assert prev.fingerprint == doc["restart"]["fingerprint"]
     assert np.allclose(prev.rotation, doc["rotation"])
     assert prev.gp_amplitude_mm == pytest.approx(doc["gaussian_process"]["amplitude_mm"])

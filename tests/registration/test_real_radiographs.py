@@ -62,6 +62,14 @@ def scene(model):
     return both, borders, X
 
 
+@pytest.fixture(scope="module")
+def fit_both(model, scene):
+    """``register_views(model, both)``: the fit with both borders traced in each view (default
+    options; the landmarks' stated sigmas are 1 px), asserted on by several tests below."""
+    both, *_ = scene
+    return register_views(model, both)
+
+
 def test_contour_sides_tell_which_side_the_bone_is_on(model, scene):
     both, borders, X = scene
     v = both[0]
@@ -74,9 +82,9 @@ def test_contour_sides_tell_which_side_the_bone_is_on(model, scene):
     np.testing.assert_array_equal(contour_sides(o, reversed_target, 15.0), -sides)
 
 
-def test_one_border_traced_is_flagged_and_does_not_collapse_the_bone(model, scene):
+def test_one_border_traced_is_flagged_and_does_not_collapse_the_bone(model, scene, fit_both):
     both, borders, X = scene
-    full = register_views(model, both)
+    full = fit_both
     assert not any(f.startswith("one-sided outline") for f in full.flags)
     one = [both[0], replace(both[1], contours=both[1].contours[:1])]
     res = register_views(model, one)
@@ -87,11 +95,13 @@ def test_one_border_traced_is_flagged_and_does_not_collapse_the_bone(model, scen
     assert _rms(res.vertices, X) <= 1.25 * _rms(full.vertices, X) + 0.3
 
 
-def test_a_stated_sigma_of_1_or_3_px_gives_the_same_result(model, scene):
+def test_a_stated_sigma_of_1_or_3_px_gives_the_same_result(model, scene, fit_both):
     both, *_ = scene
+    # the scene's landmarks state 1 px: their fit (fit_both) is the 1 px one
+    assert all(np.array_equal(v.landmark_sigma_px, np.full(3, 1.0)) for v in both)
     fits = [
-        register_views(model, [replace(v, landmark_sigma_px=np.full(3, s)) for v in both])
-        for s in (1.0, 3.0)
+        fit_both,
+        register_views(model, [replace(v, landmark_sigma_px=np.full(3, 3.0)) for v in both]),
     ]
     np.testing.assert_allclose(fits[0].vertices, fits[1].vertices, rtol=0, atol=1e-9)
     stated = RegistrationOptions(noise="stated")
@@ -104,9 +114,8 @@ def test_a_stated_sigma_of_1_or_3_px_gives_the_same_result(model, scene):
     assert _rms(old[0].vertices, old[1].vertices) > 1e-3  # the stated sigma decided before
 
 
-def test_the_noise_is_estimated_and_reported(model, scene):
-    both, *_ = scene
-    res = register_views(model, both)
+def test_the_noise_is_estimated_and_reported(fit_both):
+    res = fit_both
     groups = {(g["kind"], g["view"]): g for g in res.noise["groups"]}
     assert set(groups) == {(k, v) for k in ("landmarks", "outline") for v in ("cam1", "cam2")}
     for v in ("cam1", "cam2"):  # 2 px clicks, exact outlines

@@ -1,14 +1,25 @@
 """Case folders for the workbench tests, always copies in ``tmp_path`` (the shipped
-``sample_cases/`` are never written to)."""
+``sample_cases/`` are never written to), and the browser tests' fixtures: the browser, a page,
+and one shared server for the tests that save no edit (``shared_server``)."""
 
 from __future__ import annotations
 
 import json
 import shutil
+import urllib.request
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from _browser import CHROMIUM, CHROMIUM_ARGS, SAMPLE, VIEWPORT, WAIT_MS
+from _browser import (
+    CHROMIUM,
+    CHROMIUM_ARGS,
+    SAMPLE,
+    VIEWPORT,
+    WAIT_MS,
+    contours_only_case,
+    running_workbench,
+)
 
 from biplanar_reg.simulate import write_synthetic_case
 
@@ -65,12 +76,31 @@ def shipped() -> dict:
 
 
 @pytest.fixture
-def case_dir(tmp_path: Path, shipped: dict) -> Path:
+def case_dir(tmp_path: Path) -> Path:
     """A copy of the wrist case (with data/) whose annotations keep the contours only."""
-    case = tmp_path / "wrist"
-    shutil.copytree(SAMPLE, case, ignore=shutil.ignore_patterns("out", ".workbench.lock"))
-    doc = json.loads(json.dumps(shipped))
-    for view in doc["views"].values():
-        view["landmarks"] = {}
-    (case / "annotations.json").write_text(json.dumps(doc, indent=1))
-    return case
+    return contours_only_case(tmp_path / "wrist")
+
+
+@pytest.fixture(scope="session")
+def shared_workbench(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, str]]:
+    """One server (per test process), on a copy of the case as ``case_dir`` makes it, for the
+    browser tests that save no edit: ``(case folder, URL)``. The URL signs each test's browser
+    in with the token (``/?token=``), read from the cookie the printed one-time URL sets."""
+    case = contours_only_case(tmp_path_factory.mktemp("shared") / "wrist")
+    with running_workbench(case) as url:
+        with urllib.request.urlopen(url) as answer:  # the one-time URL: sets the cookie
+            token = answer.headers["Set-Cookie"].split(";", 1)[0].split("=", 1)[1]
+        yield case, f"{url.split('/?', 1)[0]}/?token={token}"
+
+
+@pytest.fixture
+def shared_server(shared_workbench: tuple[Path, str]) -> Iterator[str]:
+    """The URL of the shared server (``biplanar-reg workbench`` on a copy of the case as
+    ``case_dir`` makes it) for a test that saves no edit: the case's files are compared after
+    the test, which must leave them as it found them, so that each test sees the case as on a
+    server of its own."""
+    case, url = shared_workbench
+    before = {p.name: p.read_bytes() for p in case.iterdir() if p.is_file()}
+    yield url
+    after = {p.name: p.read_bytes() for p in case.iterdir() if p.is_file()}
+    assert after == before, "a test on the shared server changed the case's files"

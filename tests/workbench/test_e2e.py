@@ -13,26 +13,20 @@ the screenshots of ``docs/workbench.md`` (1400 x 900) there.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import shutil
-import subprocess
-import sys
-import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
-from _browser import ROOT, needs_chromium, stop_server
+from _browser import needs_chromium, running_workbench
 
 from biplanar_reg.annotation.clean import distance_to_polyline
 
 sync_api = pytest.importorskip("playwright.sync_api")
 
-SERVER_START_S = 60.0
 REGISTER_TIMEOUT_MS = 180_000
 pytestmark = needs_chromium
 
@@ -40,54 +34,11 @@ pytestmark = needs_chromium
 # ---- fixtures ------------------------------------------------------------------------------
 
 
-@contextlib.contextmanager
-def running_workbench(folder: Path, *options: str) -> Iterator[str]:
-    """``biplanar-reg workbench [OPTIONS] FOLDER --no-browser --port 0`` in a subprocess (this
-    checkout's package); yields the printed URL, stops the server on exit."""
-    cmd = [sys.executable, "-m", "biplanar_reg.cli", "workbench", *options, str(folder)]
-    proc = subprocess.Popen(
-        [*cmd, "--no-browser", "--port", "0"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        cwd=ROOT,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},  # this checkout's package
-    )
-    lines: list[str] = []
-    try:
-        url = _read_url(proc, lines)
-        # keep draining the output so that the server never blocks on a full pipe
-        threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True).start()
-        yield url
-    finally:
-        stop_server(proc)
-
-
 @pytest.fixture
 def server(case_dir: Path):
     """``biplanar-reg workbench CASE --no-browser --port 0``; yields the printed URL."""
     with running_workbench(case_dir) as url:
         yield url
-
-
-def _read_url(proc: subprocess.Popen, lines: list[str]) -> str:
-    """The first output line starting with ``http://`` (the contract's printed URL)."""
-    found: list[str] = []
-
-    def reader():
-        for line in proc.stdout:
-            lines.append(line)
-            if line.startswith("http://"):
-                found.append(line.strip())
-                return
-
-    t = threading.Thread(target=reader, daemon=True)
-    t.start()
-    t.join(SERVER_START_S)
-    if not found:
-        proc.kill()
-        raise AssertionError("the workbench printed no URL; output:\n" + "".join(lines))
-    return found[0]
 
 
 # ---- page helpers --------------------------------------------------------------------------
@@ -601,10 +552,10 @@ def _canvas_position(page, view: str, uv) -> dict:
 # ---- no token ------------------------------------------------------------------------------
 
 
-def test_page_without_token_says_403(page, server):
+def test_page_without_token_says_403(page, shared_server):
     """The server refuses the page without its token with a readable message, and a page whose
     API answers 403 (e.g. a stale token) says so instead of going blank."""
-    bare = server.split("?", 1)[0]
+    bare = shared_server.split("?", 1)[0]
     response = page.goto(bare)
     assert response.status == 403
     assert "token" in page.inner_text("body").lower()
@@ -615,7 +566,7 @@ def test_page_without_token_says_403(page, server):
             status=403, content_type="application/json", json={"error": "invalid token"}
         ),
     )
-    page.goto(server)
+    page.goto(shared_server)
     page.wait_for_selector("body[data-ready='error']")
     fatal = page.get_by_test_id("fatal")
     assert fatal.is_visible()

@@ -116,8 +116,8 @@ def test_touching_controls_keeps_the_shortcuts(page, server, case_dir, shipped):
     assert errors == [] and page.errors == []
 
 
-def test_text_fields_keep_the_keys_until_enter_or_esc(page, server, case_dir):  # noqa: F811
-    _open(page, server)
+def test_text_fields_keep_the_keys_until_enter_or_esc(page, shared_server):
+    _open(page, shared_server)
     sigma = page.get_by_test_id("sigma")
     sigma.click()
     sigma.fill("")
@@ -143,9 +143,9 @@ def test_text_fields_keep_the_keys_until_enter_or_esc(page, server, case_dir):  
     assert page.errors == []
 
 
-def test_the_shortcut_list_is_the_handlers_table(page, server, case_dir, tmp_path):  # noqa: F811
+def test_the_shortcut_list_is_the_handlers_table(page, shared_server, tmp_path):
     errors = _console_errors(page)
-    _open(page, server)
+    _open(page, shared_server)
     box = page.get_by_test_id("shortcut-list")
     assert not box.is_visible()
     page.keyboard.press("?")
@@ -177,8 +177,8 @@ def _off_contour(page, view: str, line: np.ndarray, k: int, css_px: float) -> tu
     return _client(page, view, line[k] + n * css_px / _zoom(page, view))
 
 
-def test_contours_are_hit_within_14_screen_px_at_any_zoom(page, server, case_dir):  # noqa: F811
-    _open(page, server)
+def test_contours_are_hit_within_14_screen_px_at_any_zoom(page, shared_server):
+    _open(page, shared_server)
     page.keyboard.press("o")
     contours = page.evaluate("(v) => window.workbench.state.viewAnnotations(v).contours", VIEW)
     line = np.asarray(contours[INDEX]["uv"])

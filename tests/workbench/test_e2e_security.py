@@ -162,6 +162,9 @@ def test_a_stale_edit_is_refused_and_the_contours_reloaded(browser, case_dir):
         assert _contours(case_dir, "cam01") == before[1:]
 
         rows = "() => document.querySelectorAll('#contour-list li.contour').length"
+        # back to tab 1 (brought to the front: a background tab's timers and frames are
+        # throttled, which made each of its edits take seconds)
+        tab1.bring_to_front()
         shown = tab1.evaluate(rows)
         _remove_contour(tab1, "cam01", 0)
         tab1.wait_for_selector("body[data-reloaded='1']")
@@ -247,7 +250,7 @@ Promise.allSettled([
 </script></body></html>"""
 
 
-def test_a_page_on_another_port_changes_nothing(browser, case_dir, tmp_path):
+def test_a_page_on_another_port_changes_nothing(browser, shared_workbench, shared_server, tmp_path):
     """A page served from another port of 127.0.0.1 (here `python -m http.server` in a
     folder) opened in the browser that is signed in to the workbench: its form (a contour as
     text/plain JSON) and its fetches (remove contour 0, start the registration, read the
@@ -255,34 +258,30 @@ def test_a_page_on_another_port_changes_nothing(browser, case_dir, tmp_path):
     import functools
     import http.server
 
+    case_dir, _ = shared_workbench
     before = (case_dir / "annotations.json").read_bytes()
-    with _serve(case_dir, "--no-browser") as url:
-        wb = url.split("/?", 1)[0]
-        (tmp_path / "attack").mkdir()
-        (tmp_path / "attack" / "index.html").write_text(ATTACK_PAGE.replace("WB", wb))
-        handler = functools.partial(
-            http.server.SimpleHTTPRequestHandler, directory=str(tmp_path / "attack")
-        )
-        httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
-        threading.Thread(target=httpd.serve_forever, daemon=True).start()
-        try:
-            context = browser.new_context()
-            page = context.new_page()
-            page.goto(url)  # signed in: the browser holds the workbench's cookie
-            _ready(page)
-            evil = context.new_page()
-            evil.goto(f"http://127.0.0.1:{httpd.server_address[1]}/index.html")
-            # the form navigates the page to the workbench's answer
-            evil.wait_for_url(f"{wb}/api/views/cam01/contours")
-            assert (
-                "403" in evil.content()
-                or "refused" in evil.content()
-                or "token" in (evil.content())
-            )
-            page.evaluate("() => window.workbench.idle()")
-            time.sleep(1.0)  # any registration would have started by now
-            assert (case_dir / "annotations.json").read_bytes() == before
-            assert not (case_dir / "out").exists()
-            context.close()
-        finally:
-            httpd.shutdown()
+    wb = shared_server.split("/?", 1)[0]
+    (tmp_path / "attack").mkdir()
+    (tmp_path / "attack" / "index.html").write_text(ATTACK_PAGE.replace("WB", wb))
+    handler = functools.partial(
+        http.server.SimpleHTTPRequestHandler, directory=str(tmp_path / "attack")
+    )
+    httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=httpd.serve_forever, daemon=True).start()
+    try:
+        context = browser.new_context()
+        page = context.new_page()
+        page.goto(shared_server)  # signed in: the browser holds the workbench's cookie
+        _ready(page)
+        evil = context.new_page()
+        evil.goto(f"http://127.0.0.1:{httpd.server_address[1]}/index.html")
+        # the form navigates the page to the workbench's answer
+        evil.wait_for_url(f"{wb}/api/views/cam01/contours")
+        assert "403" in evil.content() or "refused" in evil.content() or "token" in evil.content()
+        page.evaluate("() => window.workbench.idle()")
+        time.sleep(1.0)  # any registration would have started by now
+        assert (case_dir / "annotations.json").read_bytes() == before
+        assert not (case_dir / "out").exists()
+        context.close()
+    finally:
+        httpd.shutdown()

@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from _browser import needs_chromium
+from _browser import SAMPLE, needs_chromium
 from test_e2e import _client, _open, _settle, server  # noqa: F401 - server is a fixture
 from test_view_aids import _distance
 
@@ -70,7 +70,6 @@ def _shot(page, tmp_path: Path, name: str, clip: dict) -> None:
 
 def shipped_annotations(case_dir: Path) -> dict:
     """The shipped case's views' annotations (the test's copy has no landmarks)."""
-    from _browser import SAMPLE
 
     return json.loads((SAMPLE / "annotations.json").read_text())["views"]
 
@@ -171,12 +170,12 @@ def test_epipolar_curves(page, server, case_dir, tmp_path):  # noqa: F811
     assert page.errors == []
 
 
-def test_window_level(page, server, case_dir, tmp_path):  # noqa: F811
+def test_window_level(page, shared_server, tmp_path):
     """Level/width fields (Enter applies and leaves the field), right-drag, a box's window
     (1st-99th percentile of its pixels), CLAHE tiles, reset; the keyboard stays the page's."""
     requests: list[str] = []
     page.on("request", lambda r: requests.append(r.url))
-    _open(page, server)
+    _open(page, shared_server)
     view = "cam02"
     state = f"() => window.workbench.viewState('{view}').window"
     level, width = (
@@ -214,7 +213,7 @@ def test_window_level(page, server, case_dir, tmp_path):  # noqa: F811
     page.mouse.down()
     page.mouse.move(*_client(page, view, (u1, v1)), steps=6)
     page.mouse.up()
-    raw = load_image(case_dir / "data" / "cam02_frame0099.tif").pixels
+    raw = load_image(SAMPLE / "data" / "cam02_frame0099.tif").pixels  # the served case's
     want = np.percentile(raw[v0 : v1 + 1, u0 : u1 + 1], [1, 99])
     page.wait_for_function(f"([a, b]) => Math.abs(({state})()[0] - a) < 1.01 && "
                            f"Math.abs(({state})()[1] - b) < 1.01", arg=want.tolist())  # fmt: skip
