@@ -26,7 +26,7 @@ from .problem import Problem
 from .quality import disagreeing_landmarks
 from .stages import Recorder, Refined, estimate_noise, refine_once
 
-__all__ = ["checked_stage", "disagreeing", "disagreeing_at", "leave_out"]
+__all__: list[str] = []
 
 
 def disagreeing(problem: Problem, errors_px: np.ndarray, rejected: frozenset[int]) -> list[int]:

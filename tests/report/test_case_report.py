@@ -196,7 +196,9 @@ def test_advice_covers_every_flag_the_registration_raises():
     assert kinds <= set(FLAG_ADVICE), kinds - set(FLAG_ADVICE)
     # and at run time: every flag raised at once, each with its own advice
     problem = SimpleNamespace(
-        options=SimpleNamespace(relaxation_flag_px=0.0, reprojection_flag_px=0.0, noise="stated"),
+        options=SimpleNamespace(
+            relaxation_flag_px=0.0, reprojection_flag_px=0.0, noise="stated", robust_threshold=4.0
+        ),
         landmarks=SimpleNamespace(
             names=[("cam1", "tip"), ("cam2", "head"), ("cam2", "tip")],
             ratios=lambda: np.ones(3),
