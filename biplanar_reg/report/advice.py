@@ -33,7 +33,8 @@ FLAG_ADVICE: dict[str, str] = {
         "each one's position and name in its view, then fix or delete it and register again."
     ),
     "landmark disagrees with the outlines": (
-        "This landmark's error stands far out from the others' (4 of their robust sigmas). "
+        "This landmark's error stands far out from the others' (robust_threshold, 4, of their "
+        "robust sigmas). "
         'With known view poses it was left out of the fit (weight 0; "left out of the fit"), '
         "with estimated view poses it is still in it. Check that the click is on the "
         "landmark's anatomical point in that view and that the name is right (a point hidden "
