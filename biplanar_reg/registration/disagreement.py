@@ -44,10 +44,8 @@ def disagreeing(problem: Problem, errors_px: np.ndarray, rejected: frozenset[int
 def disagreeing_at(problem: Problem, final: Refined) -> list[int]:
     """The landmarks that disagree with the outlines at ``final``'s fit (:func:`disagreeing`;
     its rejected landmarks and those it left out are not counted)."""
-    n = len(problem.landmarks)
-    weights = np.ones(n) if final.weights is None else final.weights
     errors = problem.landmark_px_errors(final.result.vertices)
-    return disagreeing(problem, errors, rejected_landmarks(problem, weights))
+    return disagreeing(problem, errors, rejected_landmarks(problem, final.weights))
 
 
 def leave_out(problem: Problem, final: Refined, out: list[int]) -> Refined:

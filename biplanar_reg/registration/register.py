@@ -448,8 +448,7 @@ def model_weights(
 
 def _rejected(problem: Problem, final: Refined) -> frozenset[int]:
     """The landmarks whose final robust weight is below ``rejection_weight``."""
-    n = len(problem.landmarks)
-    return rejected_landmarks(problem, np.ones(n) if final.weights is None else final.weights)
+    return rejected_landmarks(problem, final.weights)
 
 
 def _register_posed(model, posed, poses, opts, silhouettes, say, start_pose):
@@ -677,12 +676,12 @@ def _weights_by_view(problem: Problem, weights: np.ndarray) -> dict[str, dict[st
     return out
 
 
-def _result(problem: Problem, final, outlines: dict, pose_info: dict, seconds: float):
+def _result(problem: Problem, final: Refined, outlines: dict, pose_info: dict, seconds: float):
     """Assemble the :class:`RegistrationResult` with errors, outlines and flags."""
     views, res = problem.views, final.result
     weights = np.ones(len(problem.landmarks)) if final.weights is None else final.weights
     rejected = rejected_landmarks(problem, weights)
-    left_out = getattr(final, "left_out", frozenset())
+    left_out = final.left_out
     # with estimated view poses the relaxation was solved in other views (the joint
     # refinement moved them since), so the gap would measure that move, not the relaxation
     poses = pose_info.get("mode", "known")

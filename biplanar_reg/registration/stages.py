@@ -766,14 +766,14 @@ def refine_final(problem: Problem, run: BoostRun) -> Refined:
     return Refined(res, outlines, records, iterates, best_index, weights, problem, noise)
 
 
-def estimate_noise(problem: Problem, result: GsftResult, weights, record=None, left_out=()):
+def estimate_noise(
+    problem: Problem, result: GsftResult, weights: np.ndarray | None, record=None, left_out=()
+):
     """Each annotation group's noise from the residuals, iterated with the refinement
-    (:mod:`.noise`): estimate the groups' sigmas and outline correlation lengths at the fit,
-    refine again from the fit with them and reweight the landmarks (those of ``left_out`` stay
-    at 0), until every one changes by less than ``NOISE_TOL`` (at most ``noise_rounds``
-    refinements). Returns the problem with the estimated sigmas, the result, the landmark
-    weights and the last estimate's groups.
-    """
+    (:mod:`.noise`): the groups' sigmas and outline correlation lengths estimated at the fit,
+    refined from it with them and the landmarks reweighted (``left_out`` stay at 0) until
+    each changes by less than ``NOISE_TOL`` (at most ``noise_rounds`` refinements). Returns
+    the problem with the estimated sigmas, the result, the weights and the last groups."""
     opts = problem.options
     groups: list[GroupNoise] = []
     for _ in range(opts.noise_rounds + 1):
