@@ -38,6 +38,8 @@ from typing import Any
 
 import numpy as np
 
+from ._content import ContentCache, content_key
+
 __all__ = ["Cap", "Cuts", "detect_cuts"]
 
 #: A cap's triangles lie within this distance (mm) of its plane (a CT voxel is 0.4-0.6 mm;
@@ -108,9 +110,23 @@ def detect_cuts(vertices: np.ndarray, faces: np.ndarray) -> Cuts:
     -------
     Cuts
         Empty (``found`` False) for a surface without a cut, e.g. a closed bone or a sphere.
+        Shared with every later call on a surface of the same content: its arrays are
+        read-only.
     """
     V = np.asarray(vertices, float)
     F = np.asarray(faces, np.int64).reshape(-1, 3)
+    return _found.get(content_key(V, F), lambda: _detect(V, F))
+
+
+#: The cuts of the last few surfaces, by content: a batch worker registers case after case
+#: with one template, and a case's registration and its region of interest both ask (the
+#: search takes 0.07 s on a 7,322-vertex surface).
+_found: ContentCache[Cuts] = ContentCache()
+
+
+def _detect(V: np.ndarray, F: np.ndarray) -> Cuts:
+    """:func:`detect_cuts` of ``V`` (float) and ``F`` (int64, (T, 3)); its arrays read-only
+    (the result is shared by every later call on the same surface)."""
     geo = _Faces(V, F)
     caps: list[Cap] = []
     taken = np.zeros(len(F), bool)
@@ -124,7 +140,10 @@ def detect_cuts(vertices: np.ndarray, faces: np.ndarray) -> Cuts:
         if cap is not None:
             taken[cap.faces] = True
             caps.append(cap)
-    return Cuts(tuple(caps), _boundary_edges(F))
+    edges = _boundary_edges(F)
+    for a in (edges, *(x for c in caps for x in (c.normal, c.faces))):
+        a.setflags(write=False)
+    return Cuts(tuple(caps), edges)
 
 
 class _Faces:

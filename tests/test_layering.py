@@ -29,6 +29,7 @@ LAYERS: dict[str, int] = {
     "_validate": 0,
     "_threads": 0,
     "_lazy": 0,
+    "_content": 0,
     "_version": 0,
     "errors": 0,
     "io": 0,

@@ -37,7 +37,7 @@ from .truth import BoneTruth, bone_truth
 
 if TYPE_CHECKING:  # the report (matplotlib, VTK) is imported when a case is written
     from ..registration import ViewObservations
-    from ..report.case_report import ReportView
+    from ..report.report_view import ReportView
 
 __all__ = ["report_views", "write_bone", "write_case"]
 
@@ -149,7 +149,7 @@ def report_views(
     pixels; an empty list for a frame not in ``shown``): the registered bone posed in the
     frame, seen by the view in the pose the registration used (``fit.view_poses``: estimated
     for ``poses = "refine"``/``"unknown"``, else the calibration's), with its outline."""
-    from ..report.case_report import ReportView
+    from ..report.report_view import ReportView
 
     out: list[list[ReportView]] = [[] for _ in frames]
     for f in shown:
@@ -188,21 +188,22 @@ def _write_report(
     """``report.html`` and its figures into ``tmp``: the report of one frame, or of the
     frames (the first, middle and last drawn of a long sequence); ``result.report``, its
     warnings and its timing set."""
-    from ..report import case_report  # looked up at call time (tests replace it)
-    from ..report import frames as frames_report
-
     t = time.perf_counter()
-    views = report_views(case, frames, fit, frames_report.frame_overlay_indices(len(frames)))
     faces, sd0 = case.model.faces, fit.vertex_sd[0]
     if fit.layout == FRAMES:
+        from ..report import frames as frames_report
+
+        views = report_views(case, frames, fit, frames_report.frame_overlay_indices(len(frames)))
         result.report = frames_report.write_frames_report(
             tmp, result, views, frame_vertices=fit.frame_vertices, faces=faces, vertex_sd=sd0
         )
-    else:
-        result.report = case_report.write_case_report(
+    else:  # by the child process prepare_report may have started (matplotlib not loaded here)
+        from ..report.prepare import write_prepared_report
+
+        result.report = write_prepared_report(
             tmp,
             result,
-            views[0],
+            report_views(case, frames, fit, [0])[0],
             vertices=fit.frame_vertices[0],
             faces=faces,
             vertex_error=truth.vertex_error,

@@ -1,7 +1,5 @@
 """``python -m biplanar_reg.cli``: the same as the ``biplanar-reg`` console script."""
 
-import sys
+from . import console_main
 
-from . import main
-
-sys.exit(main())
+console_main()

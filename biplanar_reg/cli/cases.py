@@ -22,14 +22,17 @@ def _cmd_register(args: argparse.Namespace) -> int:
 
     default_threads(1)  # before numpy loads: small matrices, extra BLAS threads only spin
     from ..cases.run import run_case_dir
+    from ..report.prepare import report_in_child
 
-    outcome = run_case_dir(
-        args.case_dir,
-        args.out,
-        allow_outside=args.allow_outside,
-        include_phi=args.include_phi,
-        report=not args.no_report,
-    )
+    # one case, then exit: the report's libraries load in a child process meanwhile
+    with report_in_child():
+        outcome = run_case_dir(
+            args.case_dir,
+            args.out,
+            allow_outside=args.allow_outside,
+            include_phi=args.include_phi,
+            report=not args.no_report,
+        )
     result = outcome.result
     no_report = args.no_report or result.report is None
     report = None if no_report else outcome.out_dir / "report.html"

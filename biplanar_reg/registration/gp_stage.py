@@ -39,6 +39,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .._content import ContentCache, content_key
 from ..ssm.gaussian_process import (
     DEFAULT_REL_TOL,
     orthogonal_kernel_modes,
@@ -92,8 +93,21 @@ def kernel_basis(
         return KernelBasis(extra, info.amplitude_mm, info.width_mm, True, info.kernel)
     if kernel == "gaussian-normal" and model.faces is None:
         kernel = "gaussian"  # a point model has no normals
-    modes, _ = orthogonal_kernel_modes(model, kernel, width_mm, 1.0, DEFAULT_REL_TOL)
+    faces = np.zeros((0, 3), int) if model.faces is None else model.faces
+    key = (content_key(model.mean, model.modes, faces), kernel, float(width_mm))
+    modes = _KERNEL_MODES.get(key, lambda: _unit_modes(model, kernel, width_mm))
     return KernelBasis(modes, float(amplitude_mm), float(width_mm), False, kernel)
+
+
+#: Kernel modes by model content, kernel and width: the same for every case of a batch.
+_KERNEL_MODES: ContentCache[np.ndarray] = ContentCache()
+
+
+def _unit_modes(model: ShapeModel, kernel: str, width_mm: float) -> np.ndarray:
+    """The kernel's modes at unit amplitude, orthogonal to the model's (read-only: shared)."""
+    modes, _ = orthogonal_kernel_modes(model, kernel, width_mm, 1.0, DEFAULT_REL_TOL)
+    modes.setflags(write=False)
+    return modes
 
 
 def registration_model(model: ShapeModel) -> ShapeModel:

@@ -14,11 +14,12 @@ from .._lazy import lazy_dir, lazy_getattr
 
 if TYPE_CHECKING:
     from .advice import FLAG_ADVICE, flag_advice
-    from .case_report import ReportView, write_case_report
+    from .case_report import write_case_report
     from .figures import convergence_figure, histogram_figure, overlay_figure
     from .frames import write_frames_report
     from .html import render_template, write_page
     from .render3d import render_error_mesh, render_surface
+    from .report_view import ReportView
     from .residuals import ContourResidual, contour_residuals
     from .shading import shaded_faces
 
@@ -26,7 +27,7 @@ if TYPE_CHECKING:
 _LAZY = {
     "FLAG_ADVICE": ".advice",
     "ContourResidual": ".residuals",
-    "ReportView": ".case_report",
+    "ReportView": ".report_view",
     "contour_residuals": ".residuals",
     "convergence_figure": ".figures",
     "flag_advice": ".advice",

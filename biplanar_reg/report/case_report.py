@@ -24,13 +24,11 @@ import logging
 import os
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from ..annotation import ViewAnnotations
 from ..io.names import file_name_word
 from ..result import CaseResult
 from .advice import flag_advice
@@ -38,12 +36,9 @@ from .figures import convergence_figure, histogram_figure, overlay_figure
 from .gl_probe import start_probe
 from .html import embedded_figures, write_page
 from .render3d import finish_surface, start_surface
+from .report_view import ReportView
 from .residuals import ContourResidual, contour_residuals
 from .shading import painter_faces
-
-if TYPE_CHECKING:
-    from ..calibration import View
-    from ..registration import ViewObservations
 
 __all__ = ["ReportView", "write_case_report"]
 
@@ -115,63 +110,6 @@ def roi_text(roi: dict[str, Any]) -> str:
     area = roi.get("fraction_area")
     share = f", {area:.1%} of the surface" if area is not None else ""
     return f"{roi.get('n_vertices', 0)} vertices{share}: {roi.get('defined_by', '')}"
-
-
-@dataclass(frozen=True, eq=False)
-class ReportView:
-    """What the report draws for one view; every coordinate in the view's pixels ``(u, v)``.
-
-    Attributes
-    ----------
-    name : str
-        The view's name (as in the result document's ``views``).
-    image_size : (W, H) or None
-        Canvas size when there is no radiograph (``None``: fit the drawn data).
-    display : (H, W) float array in [0, 1] or None
-        The radiograph as an annotator sees it (``XrayImage.display``); ``None``: blank canvas.
-    annotations : ViewAnnotations or None
-        The view's annotated contours and landmarks.
-    outlines : sequence of (Q, 2) arrays
-        The registered model's projected outline, pixels.
-    landmarks_px : mapping name -> (2,) array
-        The registered model's landmarks projected into the view, pixels.
-    view : View or None
-        The calibrated view with the pose the registration used (estimated ones for
-        ``poses = "refine"``/``"unknown"``); with the surface's faces, the overlay shows the
-        registered bone shaded. ``None``: no shading.
-    """
-
-    name: str
-    image_size: tuple[int, int] | None = None
-    display: np.ndarray | None = None
-    annotations: ViewAnnotations | None = None
-    outlines: Sequence[np.ndarray] = ()
-    landmarks_px: Mapping[str, np.ndarray] = field(default_factory=dict)
-    view: View | None = None
-
-    @classmethod
-    def from_observations(
-        cls,
-        observations: ViewObservations,
-        vertices: np.ndarray,
-        *,
-        image_size: tuple[int, int] | None = None,
-        display: np.ndarray | None = None,
-        annotations: ViewAnnotations | None = None,
-        outlines: Sequence[np.ndarray] = (),
-        view: View | None = None,
-    ) -> ReportView:
-        """The report view of one registered view: its name from ``observations``, and the
-        registered ``vertices`` (N, 3, world frame, mm) of its landmarks projected by ``view``
-        (default: the observations' view; ``landmarks_px``, pixels), which is kept for the
-        shaded bone; the other fields as given."""
-        o = observations
-        view = o.view if view is None else view
-        landmarks_px = {}
-        if len(o.landmark_ids):
-            uv = view.project(np.asarray(vertices)[o.landmark_ids])
-            landmarks_px = dict(zip(o.landmark_names, uv, strict=True))
-        return cls(o.name, image_size, display, annotations, outlines, landmarks_px, view)
 
 
 def _histogram_figure(

@@ -2,7 +2,7 @@
 
 Drawn from the result (:class:`~biplanar_reg.result.CaseResult` of one bone over several
 frames, ``result.json`` of a multi-frame case) and, per frame, the
-:class:`~.case_report.ReportView` of each view (radiograph, annotations, the registered
+:class:`~.report_view.ReportView` of each view (radiograph, annotations, the registered
 outline and landmarks, pixels). It knows nothing of case folders.
 
 Figures (PNG beside the page, embedded in it as ``data:`` URIs):
@@ -43,10 +43,11 @@ from ..io.names import file_name_word
 from ..io.transforms import ANGLE_SEQUENCE, euler_from_rotation
 from ..result import CaseResult, FrameResult
 from .advice import flag_advice
-from .case_report import ReportView, roi_text
+from .case_report import roi_text
 from .figures import overlay_figure
 from .html import embedded_figures, write_page
 from .plotting import new_figure, save_figure, set_title
+from .report_view import ReportView
 from .shading import shaded_faces
 
 __all__ = ["frame_overlay_indices", "kinematics_components", "write_frames_report"]

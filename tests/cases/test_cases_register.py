@@ -89,12 +89,14 @@ def test_report_is_self_contained_and_links_only_existing_files(registered):
 def test_rerun_replaces_outputs_and_crash_keeps_previous(registered, monkeypatch, capsys):
     case, out, doc = registered
     before = (out / "result.json").read_bytes()
-    from biplanar_reg.report import case_report
+    from biplanar_reg.report import prepare
 
     def crash(*args, **kwargs):
         raise RuntimeError("disk on fire")
 
-    monkeypatch.setattr(case_report, "write_case_report", crash)
+    # the pipeline's call for the report (``register`` has it written by a child process,
+    # which a patch of ``case_report`` would not reach)
+    monkeypatch.setattr(prepare, "write_prepared_report", crash)
     # an unexpected error is one line and exit 1 (the CLI's last-resort handler) ...
     assert main(["register", str(case), "--out", str(out)]) == 1
     assert "internal error: RuntimeError: disk on fire" in capsys.readouterr().err
