@@ -78,39 +78,7 @@ def _load_model(ctx: _Ctx, doc: dict, scale: float) -> tuple[ShapeModel, dict, d
         _check_model_size(ctx, "[model] ssm", path, model.n_vertices, n_faces)
         source: dict[str, Any] = {"ssm": str(path)}
     else:
-        path = ctx.path(table, "template", "[model]")
-        with ctx.reraise("[model] template"):
-            verts, faces = read_mesh(path)
-        if faces is None:
-            raise ctx.error("[model] template", f"{path.name}: a template needs faces (a mesh)")
-        _check_model_size(ctx, "[model] template", path, len(verts), len(faces))
-        _check_template_faces(ctx, path, faces)
-        faces = _template_surface(ctx, path, verts, faces)
-        # imported here: model building (~10 ms to import) is only for the template route
-        from ..ssm import build_ssm, synthesise_population
-        from ..ssm.population import FAMILIES
-
-        settings = dict(MODEL_DEFAULTS, population_families=list(FAMILIES))
-        for key in ("population_size", "population_seed"):
-            settings[key] = ctx.bounded(table, key, "[model]", int, settings[key])
-        for key in ("population_strength", "ssm_variance"):
-            settings[key] = ctx.bounded(table, key, "[model]", float, settings[key])
-        fams = table.get("population_families", settings["population_families"])
-        if not isinstance(fams, list) or not all(isinstance(f, str) for f in fams):
-            raise ctx.error("[model] population_families", f"expected a list of names: {fams!r}")
-        settings["population_families"] = fams
-        try:
-            pop = synthesise_population(
-                verts * scale,
-                settings["population_size"],
-                seed=settings["population_seed"],
-                families=fams,
-                strength=settings["population_strength"],
-            )
-            model = build_ssm(pop.shapes, faces=faces, variance=settings["ssm_variance"])
-        except ValueError as exc:
-            raise ctx.error("[model]", f"building the model from the template: {exc}") from None
-        source = {"template": str(path), **settings}
+        model, source = _template_model(ctx, table, scale)
     # the template route built its population from the already scaled template
     scale_model = scale if has_ssm else 1.0
     if model.faces is None:
@@ -133,6 +101,44 @@ def _load_model(ctx: _Ctx, doc: dict, scale: float) -> tuple[ShapeModel, dict, d
             f"should be {lo:g}-{hi:g} mm: the 'units' setting contradicts the files",
         )
     return model, source, landmarks
+
+
+def _template_model(ctx: _Ctx, table: dict, scale: float) -> tuple[ShapeModel, dict[str, Any]]:
+    """``[model] template``: the model built from a population synthesised from the template
+    (scaled to mm), and the settings used (the ``source`` record)."""
+    path = ctx.path(table, "template", "[model]")
+    with ctx.reraise("[model] template"):
+        verts, faces = read_mesh(path)
+    if faces is None:
+        raise ctx.error("[model] template", f"{path.name}: a template needs faces (a mesh)")
+    _check_model_size(ctx, "[model] template", path, len(verts), len(faces))
+    _check_template_faces(ctx, path, faces)
+    faces = _template_surface(ctx, path, verts, faces)
+    # imported here: model building (~10 ms to import) is only for the template route
+    from ..ssm import build_ssm, synthesise_population
+    from ..ssm.population import FAMILIES
+
+    settings = dict(MODEL_DEFAULTS, population_families=list(FAMILIES))
+    for key in ("population_size", "population_seed"):
+        settings[key] = ctx.bounded(table, key, "[model]", int, settings[key])
+    for key in ("population_strength", "ssm_variance"):
+        settings[key] = ctx.bounded(table, key, "[model]", float, settings[key])
+    fams = table.get("population_families", settings["population_families"])
+    if not isinstance(fams, list) or not all(isinstance(f, str) for f in fams):
+        raise ctx.error("[model] population_families", f"expected a list of names: {fams!r}")
+    settings["population_families"] = fams
+    try:
+        pop = synthesise_population(
+            verts * scale,
+            settings["population_size"],
+            seed=settings["population_seed"],
+            families=fams,
+            strength=settings["population_strength"],
+        )
+        model = build_ssm(pop.shapes, faces=faces, variance=settings["ssm_variance"])
+    except ValueError as exc:
+        raise ctx.error("[model]", f"building the model from the template: {exc}") from None
+    return model, {"template": str(path), **settings}
 
 
 def _check_template_faces(ctx: _Ctx, path: Path, faces: np.ndarray | None) -> None:

@@ -39,7 +39,7 @@ from typing import NoReturn
 
 from ..errors import CommandError, SolverFailure
 
-__all__ = ["console_main", "main"]
+__all__ = ["main"]
 
 #: Modules that contribute sub-commands, in the order they appear in ``--help``.
 COMMAND_MODULES: tuple[str, ...] = (

@@ -558,6 +558,17 @@ def _parallel_views_flags(
     return flags
 
 
+def _posed_frames(frames) -> list[int]:
+    """The frames with enough landmarks for a convex start (at least one, else ValueError)."""
+    posed = [f for f, views in enumerate(frames) if _has_landmarks(views)]
+    if not posed:
+        raise ValueError(
+            f"frames: no frame has {MIN_FRAME_LANDMARKS} landmark observations of 3 distinct "
+            f"model points; at least one of the {len(frames)} frames needs them for the start"
+        )
+    return posed
+
+
 def _register(
     model, frames, names, silhouettes, options, progress, uncertainty
 ) -> FrameRegistrationResult:
@@ -566,12 +577,7 @@ def _register(
     opts = options or RegistrationOptions()
     say = progress or (lambda msg: None)
     names = _check_frames(model, frames, names)
-    posed = [f for f, views in enumerate(frames) if _has_landmarks(views)]
-    if not posed:
-        raise ValueError(
-            f"frames: no frame has {MIN_FRAME_LANDMARKS} landmark observations of 3 distinct "
-            f"model points; at least one of the {len(frames)} frames needs them for the start"
-        )
+    posed = _posed_frames(frames)
     poses, w, rigid = _convex_start(model, frames, posed, names, opts)
     w_start = w.copy()
     say(f"convex start: {len(posed)} of {len(frames)} frames" + (" (rigid mean)" if rigid else ""))

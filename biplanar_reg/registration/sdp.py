@@ -133,18 +133,40 @@ class KnownPoseSDP:
         A_rot, b_rot = rotation_constraints(n)
         self._b_rot = b_rot
         n_rot = A_rot.shape[0]
+        rot_row, rot_col = np.nonzero(A_rot)  # row-major, as a COO of the rows would be
+        rows, cols = self._pattern(n_rot)
+        self._set_order(np.concatenate([rot_row, rows]), np.concatenate([rot_col, cols]))
+        self._static_vals = {
+            "rot": A_rot[rot_row, rot_col],
+            "vd_one": np.ones(3 * K),
+            "vd_t": -np.ones(3 * K),
+            "psd": -np.ones(nt),
+        }
+        self._cones = [
+            clarabel.ZeroConeT(n_rot + 3 * K),
+            clarabel.NonnegativeConeT(7 * K),
+            clarabel.PSDTriangleConeT(n),
+        ]
+        self._n_rot = n_rot
+        diag_k, _ = svec_index(np.arange(n), np.arange(n))
+        self._diag_k = diag_k
+        self._solver: clarabel.DefaultSolver | None = None
+
+    def _pattern(self, row0: int) -> tuple[np.ndarray, np.ndarray]:
+        """Rows and columns of the constraint matrix's entries below the ``row0`` rotation
+        rows, in order: the point definitions, the ``|r| <= e`` rows, the depth rows, the PSD
+        block; sets ``n_con`` and the index arrays :meth:`_values` fills them by."""
+        K, nt = self.n_obs, self.nt
         # --- V definition rows: V_jr - sum_s coef * D_js x_k - t_r = 0 -------------------------
-        kpat, cpat = point_map_pattern(M)  # (3, S)
+        kpat, cpat = point_map_pattern(self.n_modes)  # (3, S)
         S = kpat.shape[1]
         self._kpat, self._cpat = kpat, cpat
         jr = np.arange(3 * K)  # row index j*3 + r within the block
         r_of = jr % 3
-        j_of = jr // 3
-        row0 = n_rot
         vd_rows = np.concatenate([np.repeat(row0 + jr, S), row0 + jr, row0 + jr])
         vd_cols = np.concatenate([kpat[r_of].ravel(), self.o_v + jr, self.o_t + r_of])
         # --- |r| <= e rows -----------------------------------------------------------------------
-        cols, didx, _ = _cross_rows()
+        cols, _, _ = _cross_rows()
         row1 = row0 + 3 * K
         comp = np.arange(3)
         jk = (np.arange(K)[:, None] * 3 + comp[None, :]).ravel()  # (3K,) j*3+k
@@ -165,13 +187,15 @@ class KnownPoseSDP:
         ineq_rows.append(np.repeat(row_d + np.arange(K), 3))
         ineq_cols.append(self.o_v + np.arange(3 * K))
         row2 = row_d + K
-        psd_rows = row2 + np.arange(nt)
-        psd_cols = np.arange(nt)
-        rot_row, rot_col = np.nonzero(A_rot)  # row-major, as a COO of the rows would be
-        all_rows = np.concatenate([rot_row, vd_rows, *ineq_rows, psd_rows])
-        all_cols = np.concatenate([rot_col, vd_cols, *ineq_cols, psd_cols])
         self.n_con = row2 + nt
-        # permutation from our COO order to CSC data order (no duplicates by construction)
+        self._j_of, self._r_of, self._jk, self._k_of, self._j2 = jr // 3, r_of, jk, k_of, j2
+        all_rows = np.concatenate([vd_rows, *ineq_rows, row2 + np.arange(nt)])
+        return all_rows, np.concatenate([vd_cols, *ineq_cols, np.arange(nt)])
+
+    def _set_order(self, all_rows: np.ndarray, all_cols: np.ndarray) -> None:
+        """The constraint matrix's CSC pattern (``_A``) and the permutation from the order of
+        ``all_rows``/``all_cols`` to its data order (``_perm``; no duplicates by
+        construction)."""
         import scipy.sparse as sp  # Clarabel's path only: the IPM's register path goes without
 
         order = sp.csc_matrix(
@@ -183,22 +207,6 @@ class KnownPoseSDP:
             raise AssertionError("duplicate entries in the SDP pattern")
         self._perm = order.data.astype(np.int64) - 1
         self._A = order
-        self._static_vals = {
-            "rot": A_rot[rot_row, rot_col],
-            "vd_one": np.ones(3 * K),
-            "vd_t": -np.ones(3 * K),
-            "psd": -np.ones(nt),
-        }
-        self._j_of, self._r_of, self._jk, self._k_of, self._j2 = j_of, r_of, jk, k_of, j2
-        self._cones = [
-            clarabel.ZeroConeT(n_rot + 3 * K),
-            clarabel.NonnegativeConeT(7 * K),
-            clarabel.PSDTriangleConeT(n),
-        ]
-        self._n_rot = n_rot
-        diag_k, _ = svec_index(np.arange(n), np.arange(n))
-        self._diag_k = diag_k
-        self._solver: clarabel.DefaultSolver | None = None
         self._P = sp.csc_matrix((self.n_var, self.n_var))
 
     # ------------------------------------------------------------------------------------------
@@ -326,13 +334,11 @@ class KnownPoseIPM:
     """
 
     def __init__(self, data: KnownPoseData) -> None:
-        D, n_modes, min_depth, t_cost = data.D, data.n_modes, data.min_depth, data.t_cost
-        origins, directions = data.rays.origins, data.rays.directions
-        obs_weights, eps = data.obs_weights, data.eps
+        D, n_modes = data.D, data.n_modes
         K = self.K = len(D)
         self.n = n = gram_size(n_modes)
-        self.nt = nt = svec_size(n)
-        self.nz = nt + 3
+        self.nt = svec_size(n)
+        self.nz = self.nt + 3
         self.D = D
         self.Dt = np.column_stack([D, np.ones(K)])
         # observation-major copy: the products W_jq Dt_j of kkt_factor with rows of K
@@ -342,6 +348,18 @@ class KnownPoseIPM:
         self._WDt = np.empty((6, self.Dt.shape[1], K))
         self._Hu = np.zeros((self.nz, self.nz))  # the reduced matrix's upper triangle
         self._Hs = np.empty((self.nz, self.nz))  # its scaled form and Cholesky factor
+        self._set_directions(data.rays.directions)
+        lay = _layout(n_modes)
+        self.kpat, self.cpat, self.A_eq, self.b = lay.kpat, lay.cpat, lay.A_eq, lay.b
+        self.A_full = lay.A_full
+        self._lay = lay
+        self.n_lp = 7 * K
+        self.psd_sizes = (n,)
+        self.c, self.h = self._cost_and_bounds(data)
+
+    def _set_directions(self, directions: np.ndarray) -> None:
+        """The ray directions (K, 3) and the index arrays of the cross products ``V x d``."""
+        K = len(directions)
         self.d = directions
         # V x d = V[:, (1, 2, 0)] * d[:, (2, 0, 1)] - V[:, (2, 0, 1)] * d[:, (1, 2, 0)]
         self._d201 = directions[:, [2, 0, 1]].ravel()
@@ -352,22 +370,22 @@ class KnownPoseIPM:
         self._i120 = (rows3 + _P120).ravel()
         self._i201 = (rows3 + _P201).ravel()
         self._dT = np.ascontiguousarray(directions.T)  # contiguous components, for kkt_factor
-        lay = _layout(n_modes)
-        self.kpat, self.cpat, self.A_eq, self.b = lay.kpat, lay.cpat, lay.A_eq, lay.b
-        self.A_full = lay.A_full
-        self._lay = lay
-        self.n_lp = 7 * K
-        self.psd_sizes = (n,)
-        self.c = np.zeros(self.nz + 3 * K)
+
+    def _cost_and_bounds(self, data: KnownPoseData) -> tuple[np.ndarray, np.ndarray]:
+        """The cost ``c`` (the trace weight on the Gram diagonal, the translation's cost, the
+        L1 terms' weights on ``e``) and the right-hand side ``h`` of the cone constraints."""
+        n, nt = self.n, self.nt
+        origins, directions = data.rays.origins, data.rays.directions
+        c = np.zeros(self.nz + 3 * self.K)
         diag_k, _ = svec_index(np.arange(n), np.arange(n))
-        self.c[diag_k] = eps
-        self.c[self.nz :] = np.repeat(obs_weights, 3)
-        if t_cost is not None:
-            self.c[nt : nt + 3] = t_cost
+        c[diag_k] = data.eps
+        c[self.nz :] = np.repeat(data.obs_weights, 3)
+        if data.t_cost is not None:
+            c[nt : nt + 3] = data.t_cost
         cxd = np.cross(origins, directions).ravel()
         # depth rows: (V_j - C_j) . d_j >= min_depth, every point in front of its ray's origin
-        depth0 = np.einsum("ki,ki->k", origins, directions) + min_depth
-        self.h = np.concatenate([cxd, -cxd, -depth0, np.zeros(nt)])
+        depth0 = np.einsum("ki,ki->k", origins, directions) + data.min_depth
+        return c, np.concatenate([cxd, -cxd, -depth0, np.zeros(nt)])
 
     def warm_point(self, gram: np.ndarray, t: np.ndarray, mu: float):
         """An interior primal-dual start near the primal point ``(gram, t)`` (normalised

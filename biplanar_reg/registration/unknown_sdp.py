@@ -96,47 +96,12 @@ def solve_multiview_sdp(
     """
     import scipy.sparse as sp  # here: the modules that import this one run without it
 
-    A_blocks, b_parts, q_parts, cones = [], [], [], []
-    offsets = []
-    sdps = []
-    off = 0
-    for blk in blocks:
-        sdp = KnownPoseSDP(len(blk.data), n_modes)
-        # the known-pose block's own constraint values and objective (its fixed pattern)
-        vals, b = sdp._values(blk.data)
-        A_blocks.append(sp.csc_matrix((vals, sdp._A.indices, sdp._A.indptr), shape=sdp._A.shape))
-        b_parts.append(b)
-        q = sdp._objective(blk.data)
-        q_parts.append(q)
-        cones += list(sdp._cones)
-        offsets.append(off)
-        sdps.append(sdp)
-        off += sdp.n_var
-    n_var = off
+    A, b, q, cones, offsets, sdps = _stacked_views(blocks, n_modes)
+    n_var = A.shape[1]
     nt = sdps[0].nt
-    A = sp.block_diag(A_blocks, format="csc")
-    # shared weights: Delta_x[0, 10+i] - Delta_1[0, 10+i] = 0 (same svec coefficient in both)
-    k_w, _ = svec_index(np.zeros(n_modes, dtype=int), 10 + np.arange(n_modes))
-    rows, cols, data = [], [], []
-    r = 0
-    for x in range(1, len(blocks)):
-        for k in k_w:
-            rows += [r, r]
-            cols += [offsets[x] + int(k), offsets[0] + int(k)]
-            data += [1.0, -1.0]
-            r += 1
-    n_tie = r
-    # centroid depth: -t_x,3 + s = -min_tz, s >= 0
-    for x in range(len(blocks)):
-        rows.append(r)
-        cols.append(offsets[x] + sdps[x].o_t + 2)
-        data.append(-1.0)
-        r += 1
-    extra = sp.csc_matrix((data, (rows, cols)), shape=(r, n_var))
-    b_extra = np.concatenate([np.zeros(n_tie), [-blk.min_tz for blk in blocks]])
+    extra, b_extra, n_tie = _coupling_rows(blocks, sdps, offsets, n_modes, n_var)
     A_all = sp.vstack([A, extra], format="csc")
-    b_all = np.concatenate([*b_parts, b_extra])
-    q = np.concatenate(q_parts)
+    b_all = np.concatenate([b, b_extra])
     if n_tie:
         cones.append(clarabel.ZeroConeT(n_tie))
     cones.append(clarabel.NonnegativeConeT(len(blocks)))
@@ -163,3 +128,54 @@ def solve_multiview_sdp(
         iterations=int(sol.iterations),
         solve_time=elapsed,
     )
+
+
+def _stacked_views(blocks: list[SdpViewBlock], n_modes: int):
+    """Each view's known-pose SDP block side by side: the block-diagonal constraint matrix,
+    its right-hand side, the objective, the cones, each block's first variable and the
+    blocks' :class:`KnownPoseSDP` (for their layout)."""
+    import scipy.sparse as sp
+
+    A_blocks, b_parts, q_parts, cones = [], [], [], []
+    offsets, sdps = [], []
+    off = 0
+    for blk in blocks:
+        sdp = KnownPoseSDP(len(blk.data), n_modes)
+        # the known-pose block's own constraint values and objective (its fixed pattern)
+        vals, b = sdp._values(blk.data)
+        A_blocks.append(sp.csc_matrix((vals, sdp._A.indices, sdp._A.indptr), shape=sdp._A.shape))
+        b_parts.append(b)
+        q_parts.append(sdp._objective(blk.data))
+        cones += list(sdp._cones)
+        offsets.append(off)
+        sdps.append(sdp)
+        off += sdp.n_var
+    A = sp.block_diag(A_blocks, format="csc")
+    return A, np.concatenate(b_parts), np.concatenate(q_parts), cones, offsets, sdps
+
+
+def _coupling_rows(blocks, sdps, offsets, n_modes: int, n_var: int):
+    """The rows that tie the views: every view's shape weights equal the first view's (zero
+    cone, ``n_tie`` rows), and each view's centroid in front of its source (``-t_z + s =
+    -min_tz``, ``s >= 0``). ``(rows (sparse), right-hand side, n_tie)``."""
+    import scipy.sparse as sp
+
+    # shared weights: Delta_x[0, 10+i] - Delta_1[0, 10+i] = 0 (same svec coefficient in both)
+    k_w, _ = svec_index(np.zeros(n_modes, dtype=int), 10 + np.arange(n_modes))
+    rows, cols, data = [], [], []
+    r = 0
+    for x in range(1, len(blocks)):
+        for k in k_w:
+            rows += [r, r]
+            cols += [offsets[x] + int(k), offsets[0] + int(k)]
+            data += [1.0, -1.0]
+            r += 1
+    n_tie = r
+    for x in range(len(blocks)):
+        rows.append(r)
+        cols.append(offsets[x] + sdps[x].o_t + 2)
+        data.append(-1.0)
+        r += 1
+    extra = sp.csc_matrix((data, (rows, cols)), shape=(r, n_var))
+    b_extra = np.concatenate([np.zeros(n_tie), [-blk.min_tz for blk in blocks]])
+    return extra, b_extra, n_tie
