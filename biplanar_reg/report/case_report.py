@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import logging
 import os
-import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -360,7 +359,7 @@ def write_case_report(
     folder: str | os.PathLike,
     doc: CaseResult | Mapping[str, Any],
     views: Sequence[ReportView],
-    *legacy: Any,
+    *,
     vertices: np.ndarray | None = None,
     faces: np.ndarray | None = None,
     vertex_error: np.ndarray | None = None,
@@ -399,14 +398,17 @@ def write_case_report(
         on the page), for ``result.json["report"]``; the caller adds the warnings to
         ``result.json["warnings"]``.
 
-    Notes
-    -----
-    The former call ``write_case_report(folder, case, obs, result, doc, silhouettes,
-    vertex_error)`` (a loaded case, its observations and the registration result) still works
-    and gives the same report; it is deprecated.
+    Raises
+    ------
+    TypeError
+        ``doc`` is neither a CaseResult nor a mapping (the former call with a loaded case,
+        its observations and the registration result is gone since 0.2).
     """
-    if not isinstance(doc, (Mapping, CaseResult)):  # the former signature (case, obs, res, ...)
-        doc, views, vertices, faces, vertex_error = _from_case(doc, views, *legacy)
+    if not isinstance(doc, (Mapping, CaseResult)):
+        raise TypeError(
+            f"write_case_report: doc is a {type(doc).__name__}; pass the result (a CaseResult "
+            "or its result.json content) and ReportView objects"
+        )
     result = doc if isinstance(doc, CaseResult) else CaseResult.from_json(doc)
     folder = Path(folder)
     surface = None
@@ -442,30 +444,3 @@ def write_case_report(
         "renderer": renderer,
         "warnings": report_warnings,
     }
-
-
-def _from_case(case: Any, obs: Any, res: Any, doc: Any, outlines: Any, vertex_error: Any) -> tuple:
-    """The arguments of the former signature, turned into the current ones (by attribute:
-    the report does not import the case package)."""
-    warnings.warn(
-        "write_case_report(folder, case, obs, result, doc, silhouettes, vertex_error) is "
-        "deprecated; pass the result document and ReportView objects",
-        DeprecationWarning,
-        stacklevel=3,
-    )
-    views = []
-    for o in obs:
-        cv = case.view(o.name)
-        display = None if cv.image is None else cv.image.display
-        ann = case.annotations.views.get(o.name)
-        views.append(
-            ReportView.from_observations(
-                o,
-                res.vertices,
-                image_size=cv.image_size,
-                display=display,
-                annotations=ann,
-                outlines=outlines.get(o.name, []),
-            )
-        )
-    return doc, views, res.vertices, case.model.faces, vertex_error

@@ -56,7 +56,6 @@ def overlay_figure(
     annotations: ViewAnnotations | None,
     outlines: Sequence[np.ndarray] | None = None,
     landmarks_px: Mapping[str, np.ndarray],
-    silhouettes: Sequence[np.ndarray] | None = None,
     shaded: tuple[np.ndarray, np.ndarray] | None = None,
     marks: Sequence[tuple[str, np.ndarray]] = (),
 ) -> None:
@@ -77,8 +76,6 @@ def overlay_figure(
         Projected outline of the registered model, pixels (cyan); default none.
     landmarks_px : mapping name -> (2,) array
         Projected registered landmarks (blue x), joined to their annotation by a line.
-    silhouettes : sequence of (Q, 2) arrays, optional
-        The former name of ``outlines`` (still accepted; give one of the two).
     shaded : ((T, 3, 2) array, (T,) array), optional
         The registered bone as projected triangles (pixels) in painter's order and their shade
         in [0, 1] (:func:`shaded_faces`), drawn as a semi-transparent bone-coloured surface
@@ -86,10 +83,6 @@ def overlay_figure(
     marks : sequence of (label, (2,) array)
         Labelled points (magenta rings), e.g. the worst stretch of each contour; default none.
     """
-    if silhouettes is not None:
-        if outlines is not None:
-            raise TypeError("overlay_figure: give outlines or silhouettes (its old name), not both")
-        outlines = silhouettes
     with reused_figure("overlay", _overlay_layout) as (fig, (ax,), _):
         _overlay_on(
             ax,

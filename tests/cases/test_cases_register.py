@@ -132,9 +132,9 @@ def test_json_output_and_escaping(registered, tmp_path, capsys):
     assert doc["metrics"]["contour_errors_source"].startswith("report")
 
 
-def test_report_from_document_and_former_signature_agree(registered, tmp_path):
-    """``write_case_report`` takes the result document and arrays; the former signature (a
-    loaded case, its observations, the result) still works, warns, and writes the same files."""
+def test_report_from_document_and_the_former_call_refused(registered, tmp_path):
+    """``write_case_report`` takes the result document and ReportView objects; the former call
+    (a loaded case, its observations, the result) is a TypeError saying what to pass."""
     from types import SimpleNamespace
 
     from biplanar_reg.cases import load_case, to_view_observations
@@ -146,31 +146,19 @@ def test_report_from_document_and_former_signature_agree(registered, tmp_path):
     case = load_case(case_dir)
     obs = to_view_observations(case)
     V, F = read_mesh(out / "registered.ply")
-    # the former path reads only the registered vertices; the views are posed as calibrated
-    res = SimpleNamespace(vertices=V, view_poses={})
     outlines = {o.name: model_outlines(V, F, o.view) for o in obs}
-    error = np.linspace(0.0, 1.0, len(V))
     fit = SimpleNamespace(frame_vertices=[V], view_poses={}, outlines=[outlines])
     views = report_views(case, [obs], fit, [0])[0]
     assert [v.name for v in views] == ["cam1", "cam2"] and isinstance(views[0], ReportView)
     assert set(views[0].landmarks_px) == set(doc["views"]["cam1"]["landmark_errors_px"])
-    new, old = tmp_path / "new", tmp_path / "old"
-    new.mkdir()
-    old.mkdir()
-    got = write_case_report(new, doc, views, vertices=V, faces=F, vertex_error=error)
-    with pytest.warns(DeprecationWarning, match="deprecated"):
-        got_old = write_case_report(old, case, obs, res, doc, outlines, error)
-    assert got == got_old and got["figures"][0] == "error_3d.png"
-    assert sorted(p.name for p in new.iterdir()) == sorted(p.name for p in old.iterdir())
-    for p in new.iterdir():  # an off-screen GL render need not be bit-identical
-        if p.name not in ("error_3d.png", "report.html"):
-            assert p.read_bytes() == (old / p.name).read_bytes(), p.name
-    # the pages agree but for the embedded error map
-    pages = [
-        re.sub(r"data:image/png;base64,[^\"]+", "", (d / "report.html").read_text())
-        for d in (new, old)
-    ]
-    assert pages[0] == pages[1]
+    error = np.linspace(0.0, 1.0, len(V))
+    got = write_case_report(tmp_path, doc, views, vertices=V, faces=F, vertex_error=error)
+    assert got["figures"][0] == "error_3d.png" and (tmp_path / "report.html").is_file()
+    res = SimpleNamespace(vertices=V, view_poses={})
+    with pytest.raises(TypeError, match="positional"):
+        write_case_report(tmp_path / "old", case, obs, res, doc, outlines, error)
+    with pytest.raises(TypeError, match="doc is a Case; pass the result"):
+        write_case_report(tmp_path / "old", case, obs)
 
 
 def test_result_reports_the_mean_shape_baseline_and_the_model_floor(tmp_path):

@@ -60,13 +60,10 @@ def test_overlay_on_blank_canvas(tmp_path):
     outline = [np.array([[12.0, 11], [41, 13], [69, 31]])]
     overlay_figure(tmp_path / "o.png", "v", outlines=outline, **kw)
     assert (tmp_path / "o.png").stat().st_size > 1000
-    # the former keyword ``silhouettes`` draws the same figure; both at once is an error
-    overlay_figure(tmp_path / "s.png", "v", silhouettes=outline, **kw)
-    assert (tmp_path / "s.png").read_bytes() == (tmp_path / "o.png").read_bytes()
     overlay_figure(tmp_path / "n.png", "v", **kw)
     assert (tmp_path / "n.png").read_bytes() != (tmp_path / "o.png").read_bytes()
-    with pytest.raises(TypeError, match="not both"):
-        overlay_figure(tmp_path / "x.png", "v", outlines=outline, silhouettes=outline, **kw)
+    with pytest.raises(TypeError, match="silhouettes"):  # the 0.1 keyword is gone
+        overlay_figure(tmp_path / "x.png", "v", silhouettes=outline, **kw)
 
 
 def test_summary_template_escapes_and_links_relatively():
