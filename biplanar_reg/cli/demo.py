@@ -19,8 +19,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
     default_threads(1)  # before numpy loads, as for ``register``
     from ..demo import run_demo
+    from ..report.prepare import report_in_child
 
-    outcome = run_demo(args.out, args.case)
+    with report_in_child():  # one case, as ``register``: the report prepared in a child
+        outcome = run_demo(args.out, args.case)
     report = outcome.out_dir / "report.html"
     m = outcome.document["metrics"]  # plain JSON (NaN as null)
     if args.json:
