@@ -147,6 +147,8 @@ def job_doc(case, seed: int, condition: str, mean_fit_mm: float) -> dict:
         "options": CONDITION_OPTIONS.get(condition, {}),
         "floor_mm": case.floor_mm,
         "mean_fit_mm": mean_fit_mm,
+        # the size error of the prior mean alone (what free poses fall back on for the size)
+        "mean_size_pct": _size_pct(_similarity(case.model.mean, case.truth_vertices)[1]),
         "truth": case.truth_vertices.tolist(),
         "true_views": [_view_doc(v) for v in case.true_views],
         "blunder": case.blunder,
@@ -244,6 +246,11 @@ def _similarity(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, float]:
     """
     fit = _pose_type().fit_similarity(src, dst)
     return fit.apply(src), fit.scale
+
+
+def _size_pct(scale: float) -> float:
+    """The size error (%) of a shape whose similarity fit onto the truth has ``scale``."""
+    return abs(1.0 / scale - 1.0) * 100.0
 
 
 def _rms(a: np.ndarray, b: np.ndarray) -> float:
@@ -397,7 +404,7 @@ def summarise(jobs: list[dict], results: list[dict], condition: str) -> dict[str
     ]
     rot = [e for r in ok for e in r["view_rot_err_deg"]]
     sim = [r for r in ok if "similarity_mm" in r]  # records of older runs lack it
-    size = [abs(1.0 / r["scale"] - 1.0) * 100.0 for r in sim]
+    size = [_size_pct(r["scale"]) for r in sim]
     caught = [r["blunder_caught"] for r in ok if r["blunder_caught"] is not None]
     return cell | {
         "world": _med_max(world),
@@ -478,14 +485,18 @@ def case_lines(jobs: list[dict]) -> list[str]:
     for j in jobs:
         seen.setdefault(j["seed"], j)
     out = [
-        "| seed | model floor mm | mean shape, best rigid fit mm | outline traced (cam01, cam02) "
-        "| outline over the ulna (cam01, cam02) | blunder | calibration error |",
-        "|---|---|---|---|---|---|---|",
+        "| seed | model floor mm | mean shape, best rigid fit mm | mean shape size error % "
+        "| outline traced (cam01, cam02) | outline over the ulna (cam01, cam02) | blunder "
+        "| calibration error |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for seed, j in sorted(seen.items()):
         b, (deg, mm) = seed_draws(seed)[0], seed_draws(seed)[1:]
+        size = j.get("mean_size_pct")
         out.append(
             f"| {seed} | {j['floor_mm']:.3f} | {j['mean_fit_mm']:.3f} | "
+            + ("-" if size is None else f"{size:.1f}")
+            + " | "
             + ", ".join(f"{f:.0%}" for f in j["outline_fraction"])
             + " | "
             + ", ".join(f"{f:.0%}" for f in j["overlap"])
@@ -529,6 +540,7 @@ def _command(args: argparse.Namespace) -> str:
 def _case_meta(job: dict) -> dict:
     keep = ("seed", "condition", "floor_mm", "mean_fit_mm", "blunder", "calibration_error")
     return {k: job[k] for k in keep} | {
+        "mean_size_pct": job.get("mean_size_pct"),  # absent from older runs' records
         "overlap": job["overlap"],
         "outline_fraction": job["outline_fraction"],
     }
@@ -641,6 +653,7 @@ def _targets(jobs: list[dict], results: list[dict]) -> list[str]:
             "unknown-3 similarity-aligned RMS / known-3 aligned RMS (size not judged: free "
             "poses leave the scale to the model's prior)",
         ),
+        "* " + _size_verdict(jobs, by, "unknown-3"),
         f"* unknown view rotations flipped (> {FLIP_DEG:.0f} deg): "
         f"{sum(e > FLIP_DEG for e in flips)} of {len(flips)}",
         f"* good landmarks rejected over all clean cases (no blunder, no calibration error): "
@@ -655,6 +668,25 @@ def _targets(jobs: list[dict], results: list[dict]) -> list[str]:
             "blunder-3 RMS / known-3 RMS (what the blunder costs)",
         ),
     ]
+
+
+def _size_verdict(jobs: list[dict], by: dict, cond: str) -> str:
+    """``cond``'s size error against the prior mean's, seed by seed (the target: no worse)."""
+    mean = {j["seed"]: j.get("mean_size_pct") for j in jobs}
+    pairs = [
+        (_size_pct(by[(cond, s)]["scale"]), m)
+        for s, m in sorted(mean.items())
+        if m is not None and "scale" in by.get((cond, s), {})
+    ]
+    if not pairs:
+        return f"{cond} size error against the prior mean's: no results"
+    got, ref = np.array(pairs).T
+    ok = "met" if np.median(got) <= np.median(ref) else "NOT met"
+    return (
+        f"{cond} size error: median {np.median(got):.1f} %, max {got.max():.1f} %; the prior "
+        f"mean's: median {np.median(ref):.1f} %, max {ref.max():.1f} % (target: no worse: {ok}; "
+        f"no worse in {int(np.sum(got <= ref))} of {len(pairs)} seeds)"
+    )
 
 
 def report(record: dict) -> str:
