@@ -86,7 +86,9 @@ def kernel_basis(
     model: ShapeModel, kernel: str, width_mm: float, amplitude_mm: float
 ) -> KernelBasis:
     """The kernel modes of ``model`` (augmented), or of ``kernel`` (one of
-    :data:`biplanar_reg.ssm.gaussian_process.KERNELS`) on its mean shape."""
+    :data:`biplanar_reg.ssm.gaussian_process.KERNELS`) on its mean shape, made orthogonal to
+    the SSM's modes. (The kernel's own modes were measured better on the realistic cases and
+    worse on the real wrist cases with the CT template: docs/registration.md, step 9.)"""
     info = split_modes(model)
     if info is not None:
         extra = model.modes[info.ssm_modes :] / info.amplitude_mm

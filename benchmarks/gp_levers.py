@@ -1,0 +1,235 @@
+"""Levers of the Gaussian-process stage, measured and not kept: what holds it back.
+
+On the ``known-3`` cases of ``benchmarks/realistic.py`` (same scene, seeds and generator), per
+seed, world vertex RMS over the case's model floor:
+
+``pipeline``
+    ``register_views`` with default options (the stage on: the SSM's weights held at their fit,
+    the kernel's modes made orthogonal to the SSM's).
+``own modes``
+    the same with the kernel's own modes (not made orthogonal to the SSM's): this process's
+    stage patched (``gp_stage._unit_modes``).
+``joint``
+    the same with the SSM's weights refined jointly with the kernel's (the stage patched:
+    :func:`joint_stage`).
+``oracle``
+    ``benchmarks/gp_oracle.py``'s oracle on the pipeline's own data (``oracle gp, annotated``:
+    exact correspondences, the annotated positions), the SSM's and the kernel's weights
+    refined together, the prior weight and the amplitude tuned.
+``oracle, SSM held``
+    the same with the SSM's weights held at the pipeline's SSM fit (``gp = "off"``) and the
+    kernel's orthogonal modes, as the stage holds them.
+``oracle, SSM held, own modes``
+    the same with the kernel's own modes.
+
+With ``--real`` it also registers the real wrist cases of ``benchmarks/real_wrist.py``
+(conditions ``outlines`` and the one-sided ones) with the kernel's own modes, to compare with
+``benchmarks/results/real_wrist.json`` (the default stage).
+
+Usage::
+
+    python benchmarks/gp_levers.py [--seeds 8] [--real] [--out benchmarks/results/gp_levers.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+import gp_oracle  # noqa: E402
+from realistic_diagnose import WRIST_DATA, _rms  # noqa: E402
+
+import biplanar_reg.registration.gp_stage as G  # noqa: E402
+import biplanar_reg.registration.register as REG  # noqa: E402
+from biplanar_reg.registration import RegistrationOptions, register_views  # noqa: E402
+from biplanar_reg.ssm import ShapeModel  # noqa: E402
+from biplanar_reg.ssm.gaussian_process import (  # noqa: E402
+    DEFAULT_REL_TOL,
+    augment_model,
+    kernel_modes,
+)
+
+RESULTS = HERE / "results"
+DEFAULT_UNIT_MODES = G._unit_modes
+DEFAULT_STAGE = REG.gp_stage
+
+
+def own_unit_modes(model, kernel: str, width_mm: float) -> np.ndarray:
+    """The kernel's own modes at unit amplitude (not made orthogonal to the model's)."""
+    modes, _ = kernel_modes(model, kernel, width_mm, 1.0, DEFAULT_REL_TOL)
+    modes.setflags(write=False)
+    return modes
+
+
+def joint_stage(problem, final, basis, *, rounds=None, start=None):
+    """:func:`biplanar_reg.registration.gp_stage.gp_stage` with the SSM's weights refined
+    jointly with the kernel's (the same amplitude rule; no warm start)."""
+    opts, base, nb = problem.options, problem.model, problem.model.n_modes
+    a, u = basis.start_amplitude_mm, np.zeros(len(basis.modes))
+    w = final.result.weights
+    records, iterates = list(final.records), list(final.iterates)
+    prob, res, weights, groups = problem, final.result, final.weights, final.noise
+    outcome = G.GpOutcome(False, basis.width_mm, a, len(basis.modes), 0.0, 0, "no rounds")
+    for done in range(1, (opts.gp_rounds if rounds is None else rounds) + 1):
+        prob = replace(prob, model=G._augmented(base, basis, a))
+        res = G.with_pose(res, res.rotation, res.translation, np.concatenate([w, u]), res.vertices)
+        rec = G.Recorder(prob, records, iterates, res.certificate, "gp")
+        res, _ = G.refine_once(prob, res, prob.outlines(res), weights, rec)
+        if opts.noise == "estimated":
+            groups = G.group_noise(prob, res, weights)
+            prob = G.with_noise(prob, groups)
+        unorm2, gamma = G.kernel_evidence_terms(prob, res, weights, nb)
+        a_new = a * float(np.sqrt(unorm2 / gamma)) if gamma > 1e-9 else 0.0
+        outcome = G.GpOutcome(True, basis.width_mm, a, len(basis.modes), gamma, done)
+        if a_new < G.MIN_AMPLITUDE_MM:
+            return problem, final, replace(outcome, used=False, reason="not supported")
+        settled = abs(a_new / a - 1.0) < G.AMPLITUDE_TOL
+        w, u = res.weights[:nb], res.weights[nb:] * (a / a_new)
+        a = a_new
+        if settled:
+            break
+    prob = replace(prob, model=G._augmented(base, basis, outcome.amplitude_mm))
+    refined = G.Refined(
+        res, prob.outlines(res), records, iterates, records[-1].index, weights, prob, groups,
+        final.left_out,
+    )  # fmt: skip
+    return prob, refined, outcome
+
+
+def _variant(own_modes: bool = False, joint: bool = False) -> None:
+    """Patch this process's stage (and empty its cache of kernel modes)."""
+    G._unit_modes = own_unit_modes if own_modes else DEFAULT_UNIT_MODES
+    REG.gp_stage = joint_stage if joint else DEFAULT_STAGE
+    G._KERNEL_MODES.clear()
+
+
+def _oracle(case, model_for) -> float:
+    """The annotated oracle's best world RMS over the floor for ``model_for(amplitude)``."""
+    terms = gp_oracle.annotated_terms(case)
+    fits = [
+        _rms(gp_oracle.oracle_fit(case, model_for(a), p, terms), case.truth_vertices)
+        for a in gp_oracle.AMPLITUDES_MM
+        for p in gp_oracle.PRIOR_WEIGHTS
+    ]
+    return min(fits) / case.floor_mm
+
+
+def row(case) -> dict[str, float]:
+    """Every column of the module docstring for one case."""
+    m, T, fl = case.model, case.truth_vertices, case.floor_mm
+    out = {"floor mm": fl}
+    for name, kw in (
+        ("pipeline", {}),
+        ("own modes", {"own_modes": True}),
+        ("joint", {"joint": True}),
+    ):
+        _variant(**kw)
+        out[name] = _rms(register_views(m, case.views).vertices, T) / fl
+    _variant()
+    w0 = register_views(m, case.views, options=RegistrationOptions(gp="off")).weights
+    held = m.instance(w0[: m.n_modes])
+
+    def held_model(modes: np.ndarray) -> ShapeModel:
+        return ShapeModel(held, modes, faces=m.faces, landmarks=m.landmarks)
+
+    out["oracle"] = _oracle(case, lambda a: augment_model(m, 25.0, a))
+    out["oracle, SSM held"] = _oracle(
+        case, lambda a: held_model(augment_model(m, 25.0, a).modes[m.n_modes :])
+    )
+    out["oracle, SSM held, own modes"] = _oracle(
+        case, lambda a: held_model(kernel_modes(m, "gaussian", 25.0, a, DEFAULT_REL_TOL)[0])
+    )
+    return out
+
+
+def real_cases() -> dict[str, dict]:
+    """The real wrist cases with the kernel's own modes (``outlines`` and one side traced)."""
+    import real_wrist
+
+    _variant(own_modes=True)
+    try:
+        return real_wrist.run_all(None, ["outlines", *real_wrist.SIDES])
+    finally:
+        _variant()
+
+
+def _table(rows: list[dict]) -> list[str]:
+    keys = list(rows[0])
+    lines = ["| seed | " + " | ".join(keys) + " |", "|---" * (len(keys) + 1) + "|"]
+    for s, r in enumerate(rows):
+        cells = [f"{r[k]:.3f}" if k == "floor mm" else f"{r[k]:.2f}" for k in keys]
+        lines.append(f"| {s} | " + " | ".join(cells) + " |")
+    for what, f in (("median", np.median), ("max", np.max)):
+        lines.append(f"| {what} | " + " | ".join(f"{f([r[k] for r in rows]):.2f}" for k in keys))
+        lines[-1] += " |"
+    return lines
+
+
+def _real_lines(real: dict[str, dict]) -> list[str]:
+    before = json.loads((RESULTS / "real_wrist.json").read_text())["results"]
+    lines = [
+        "",
+        "## Real wrist cases, the kernel's own modes",
+        "",
+        "Vertex RMS (mm); `default`: `benchmarks/results/real_wrist.json`.",
+        "",
+        "| case | default | own modes |",
+        "|---|---|---|",
+    ]
+    for key, r in sorted(real.items()):
+        old = before.get(key, {}).get("vertex_rms_mm")
+        new = r.get("vertex_rms_mm")
+        if old is not None and new is not None:
+            lines.append(f"| {key} | {old:.2f} | {new:.2f} |")
+    return lines
+
+
+def main() -> None:
+    from threadpoolctl import threadpool_limits
+
+    from biplanar_reg.simulate.realistic import make_realistic_case, wrist_scene
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=8)
+    ap.add_argument("--real", action="store_true", help="also the real wrist cases (~5 min)")
+    ap.add_argument("--out", type=Path, default=RESULTS / "gp_levers.md")
+    args = ap.parse_args()
+    t0 = time.perf_counter()
+    scene = wrist_scene(str(WRIST_DATA))
+    rows = []
+    with threadpool_limits(1):
+        for seed in range(args.seeds):
+            rows.append(row(make_realistic_case(seed, n_landmarks_per_view=3, scene=scene)))
+            print(seed, {k: round(v, 2) for k, v in rows[-1].items()}, flush=True)
+        real = real_cases() if args.real else None
+    command = "python benchmarks/gp_levers.py" + (
+        f" --seeds {args.seeds}" if args.seeds != 8 else ""
+    )
+    command += " --real" if args.real else ""
+    lines = [
+        "# Levers of the Gaussian-process stage (realistic known-3 cases)",
+        "",
+        f"Command: `{command}`  ",
+        f"Machine: {platform.machine()}, Python {platform.python_version()}, one BLAS thread; "
+        f"{time.perf_counter() - t0:.0f} s. Columns: the docstring of `benchmarks/gp_levers.py`; "
+        "all but `floor mm` are world vertex RMS / floor.",
+        "",
+        *_table(rows),
+        *(_real_lines(real) if real else []),
+        "",
+    ]
+    args.out.write_text("\n".join(lines))
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
