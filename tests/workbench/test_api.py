@@ -451,6 +451,25 @@ def test_registration_job_result_and_events(synthetic):
             assert np.linalg.norm(np.subtract(view["landmarks_px"][lm], clicked.uv)) < 3
     assert result["metrics"] == doc["metrics"] and result["flags"] == doc["flags"]
     assert "rejected" in result
+    # the report follows the result (the output folder replaced again, with it)
+    report = _wait_report(case_dir / "out")
+    assert report["html"] == "report.html" and (case_dir / "out" / "report.html").is_file()
+    assert all(not m.startswith("report not written") for m in _wait_done(client)["messages"])
+
+
+def _wait_report(out: Path, timeout: float = 120.0) -> dict:
+    """``result.json["report"]`` of ``out`` once it is there (the workbench writes the report
+    after the job is done)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:  # the folder is replaced as a whole: a read may fall between the two renames
+            report = json.loads((out / "result.json").read_text()).get("report")
+        except FileNotFoundError:
+            report = None
+        if report is not None:
+            return report
+        time.sleep(0.2)
+    raise AssertionError(f"no report in {out} after {timeout:.0f} s")
 
 
 def test_a_failed_registration_says_why(synthetic):
