@@ -12,6 +12,10 @@ seed, world vertex RMS over the case's model floor:
 ``joint``
     the same with the SSM's weights refined jointly with the kernel's (the stage patched:
     :func:`joint_stage`).
+``joint, centred``
+    the same with the SSM's weights refined jointly, their prior centred at their fit (the
+    model's mean replaced by the SSM fit's shape, the SSM's modes and the kernel's its modes:
+    :func:`centred_stage`).
 ``oracle``
     ``benchmarks/gp_oracle.py``'s oracle on the pipeline's own data (``oracle gp, annotated``:
     exact correspondences, the annotated positions), the SSM's and the kernel's weights
@@ -23,8 +27,8 @@ seed, world vertex RMS over the case's model floor:
     the same with the kernel's own modes.
 
 With ``--real`` it also registers the real wrist cases of ``benchmarks/real_wrist.py``
-(conditions ``outlines`` and the one-sided ones) with the kernel's own modes, to compare with
-``benchmarks/results/real_wrist.json`` (the default stage).
+(conditions ``outlines`` and the one-sided ones) with the kernel's own modes and with
+``joint, centred``, to compare with ``benchmarks/results/real_wrist.json`` (the default stage).
 
 Usage::
 
@@ -105,10 +109,55 @@ def joint_stage(problem, final, basis, *, rounds=None, start=None):
     return prob, refined, outcome
 
 
-def _variant(own_modes: bool = False, joint: bool = False) -> None:
+def centred_stage(problem, final, basis, *, rounds=None, start=None):
+    """:func:`joint_stage` with the SSM's weights' prior centred at their fit: the refinement
+    runs on a model whose mean is the SSM fit's shape and whose modes are the SSM's and the
+    kernel's (weights ``(dw, u)``, unit prior on both); the result is expressed in the
+    augmented model (SSM weights ``w0 + dw``)."""
+    opts, base, nb = problem.options, problem.model, problem.model.n_modes
+    w0, a = final.result.weights, basis.start_amplitude_mm
+    x = np.zeros(nb + len(basis.modes))
+    records, iterates = list(final.records), list(final.iterates)
+    prob, res, weights, groups = problem, final.result, final.weights, final.noise
+    outcome = G.GpOutcome(False, basis.width_mm, a, len(basis.modes), 0.0, 0, "no rounds")
+    shape = base.instance(w0)
+
+    def model_at(amplitude: float) -> ShapeModel:
+        modes = np.concatenate([base.modes, amplitude * basis.modes])
+        return ShapeModel(shape, modes, faces=base.faces, landmarks=base.landmarks)
+
+    for done in range(1, (opts.gp_rounds if rounds is None else rounds) + 1):
+        prob = replace(prob, model=model_at(a))
+        res = G.with_pose(res, res.rotation, res.translation, x, res.vertices)
+        rec = G.Recorder(prob, records, iterates, res.certificate, "gp")
+        res, _ = G.refine_once(prob, res, prob.outlines(res), weights, rec)
+        if opts.noise == "estimated":
+            groups = G.group_noise(prob, res, weights)
+            prob = G.with_noise(prob, groups)
+        unorm2, gamma = G.kernel_evidence_terms(prob, res, weights, nb)
+        a_new = a * float(np.sqrt(unorm2 / gamma)) if gamma > 1e-9 else 0.0
+        outcome = G.GpOutcome(True, basis.width_mm, a, len(basis.modes), gamma, done)
+        if a_new < G.MIN_AMPLITUDE_MM:
+            return problem, final, replace(outcome, used=False, reason="not supported")
+        settled = abs(a_new / a - 1.0) < G.AMPLITUDE_TOL
+        x = np.concatenate([res.weights[:nb], res.weights[nb:] * (a / a_new)])
+        a = a_new
+        if settled:
+            break
+    w = np.concatenate([w0 + res.weights[:nb], res.weights[nb:]])
+    res = G.with_pose(res, res.rotation, res.translation, w, res.vertices)
+    prob = replace(prob, model=G._augmented(base, basis, outcome.amplitude_mm))
+    refined = G.Refined(
+        res, prob.outlines(res), records, iterates, records[-1].index, weights, prob, groups,
+        final.left_out,
+    )  # fmt: skip
+    return prob, refined, outcome
+
+
+def _variant(own_modes: bool = False, joint: bool = False, centred: bool = False) -> None:
     """Patch this process's stage (and empty its cache of kernel modes)."""
     G._unit_modes = own_unit_modes if own_modes else DEFAULT_UNIT_MODES
-    REG.gp_stage = joint_stage if joint else DEFAULT_STAGE
+    REG.gp_stage = centred_stage if centred else joint_stage if joint else DEFAULT_STAGE
     G._KERNEL_MODES.clear()
 
 
@@ -131,6 +180,7 @@ def row(case) -> dict[str, float]:
         ("pipeline", {}),
         ("own modes", {"own_modes": True}),
         ("joint", {"joint": True}),
+        ("joint, centred", {"centred": True}),
     ):
         _variant(**kw)
         out[name] = _rms(register_views(m, case.views).vertices, T) / fl
@@ -151,15 +201,19 @@ def row(case) -> dict[str, float]:
     return out
 
 
-def real_cases() -> dict[str, dict]:
-    """The real wrist cases with the kernel's own modes (``outlines`` and one side traced)."""
+def real_cases() -> dict[str, dict[str, dict]]:
+    """The real wrist cases (``outlines`` and one side traced) per variant: the kernel's own
+    modes, and ``joint, centred``."""
     import real_wrist
 
-    _variant(own_modes=True)
-    try:
-        return real_wrist.run_all(None, ["outlines", *real_wrist.SIDES])
-    finally:
-        _variant()
+    out = {}
+    for name, kw in (("own modes", {"own_modes": True}), ("joint, centred", {"centred": True})):
+        _variant(**kw)
+        try:
+            out[name] = real_wrist.run_all(None, ["outlines", *real_wrist.SIDES])
+        finally:
+            _variant()
+    return out
 
 
 def _table(rows: list[dict]) -> list[str]:
@@ -174,22 +228,31 @@ def _table(rows: list[dict]) -> list[str]:
     return lines
 
 
-def _real_lines(real: dict[str, dict]) -> list[str]:
+def _real_lines(real: dict[str, dict[str, dict]]) -> list[str]:
     before = json.loads((RESULTS / "real_wrist.json").read_text())["results"]
+    names = list(real)
     lines = [
         "",
-        "## Real wrist cases, the kernel's own modes",
+        "## Real wrist cases",
         "",
         "Vertex RMS (mm); `default`: `benchmarks/results/real_wrist.json`.",
         "",
-        "| case | default | own modes |",
-        "|---|---|---|",
+        "| case | default | " + " | ".join(names) + " |",
+        "|---" * (len(names) + 2) + "|",
     ]
-    for key, r in sorted(real.items()):
-        old = before.get(key, {}).get("vertex_rms_mm")
-        new = r.get("vertex_rms_mm")
-        if old is not None and new is not None:
-            lines.append(f"| {key} | {old:.2f} | {new:.2f} |")
+    keys = sorted(real[names[0]])
+    for key in keys:
+        values = [before.get(key, {}).get("vertex_rms_mm")]
+        values += [real[n].get(key, {}).get("vertex_rms_mm") for n in names]
+        if all(v is not None for v in values):
+            lines.append(f"| {key} | " + " | ".join(f"{v:.2f}" for v in values) + " |")
+    for template in ("ct", "deformed"):
+        rows = [k for k in keys if k.endswith(f"/{template}/outlines")]
+        med = [np.median([before[k]["vertex_rms_mm"] for k in rows])]
+        med += [np.median([real[n][k]["vertex_rms_mm"] for k in rows]) for n in names]
+        lines.append(
+            f"| median, {template}, outlines | " + " | ".join(f"{v:.2f}" for v in med) + " |"
+        )
     return lines
 
 
