@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import pickle
 import signal
 import threading
 from dataclasses import dataclass
@@ -30,6 +31,10 @@ from typing import Any
 __all__ = ["delegated_report", "start_report_process", "stop_report_process"]
 
 log = logging.getLogger(__name__)
+
+#: Seconds the parent waits for the child's report (about 1 s on an idle machine) before it
+#: ends the child and writes the report itself: a child that hangs must not hang ``register``.
+REPORT_TIMEOUT_S = 300.0
 
 
 @dataclass
@@ -100,8 +105,11 @@ def delegated_report(
         return None
     try:
         child.conn.send((str(folder), doc, list(views), arrays))
+        if not child.conn.poll(REPORT_TIMEOUT_S):  # a dead child's pipe polls ready (EOF)
+            raise TimeoutError(f"no report after {REPORT_TIMEOUT_S:.0f} s")
         status, value, records = child.conn.recv()
-    except (EOFError, OSError, ValueError, TypeError, AttributeError) as exc:
+    except (EOFError, OSError, ValueError, TypeError, AttributeError, pickle.PicklingError) as exc:
+        child.process.terminate()  # nothing of it to keep: the report is written here
         log.debug("the report process did not write the report (%s): writing it here", exc)
         return None
     finally:

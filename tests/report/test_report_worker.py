@@ -77,6 +77,16 @@ def test_the_report_is_written_here_when_the_child_cannot(inputs, tmp_path):
     assert child.process.exitcode == 0
 
 
+def test_a_child_that_does_not_answer_in_time_is_ended(inputs, tmp_path, monkeypatch):
+    doc, views, arrays = inputs
+    monkeypatch.setattr(worker, "REPORT_TIMEOUT_S", 0.01)  # it needs about a second
+    worker.start_report_process(len(views))
+    child = worker._child
+    assert worker.delegated_report(tmp_path, doc, views, arrays) is None
+    child.process.join(10)
+    assert not child.process.is_alive() and child.process.exitcode != 0
+
+
 def test_report_in_child_starts_a_child_and_ends_an_unused_one():
     prepare.prepare_report(2)  # outside the block: no child
     assert worker._child is None
