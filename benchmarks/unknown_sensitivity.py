@@ -6,8 +6,10 @@ On the ``unknown-3`` cases of ``benchmarks/realistic.py`` (same scene, seeds and
 times more with every landmark click moved by a random 1e-9 px (seeded): a change far below any
 annotation's precision, about the size of floating-point rounding in the solver. Per seed:
 the rigidly aligned and the similarity-aligned vertex RMS (mm) of each registration, their
-spread (max - min) and how many distinct outcomes there were (results more than 0.01 mm apart).
-A registration that did not depend on rounding would give one outcome per seed.
+spread (max - min), how many distinct outcomes there were (results more than 0.01 mm apart),
+and the outline matches of each registration's first outline iteration (right after the
+landmarks-only relaxation: where the runs part). A registration that did not depend on rounding
+would give one outcome per seed.
 
 Usage::
 
@@ -38,9 +40,10 @@ RESULTS = HERE / "results"
 EPS_PX = 1e-9
 
 
-def outcomes(case, repeats: int, seed: int) -> list[tuple[float, float]]:
-    """(aligned RMS, similarity-aligned RMS) mm of the case as made, then ``repeats`` times
-    with its clicks moved by ``EPS_PX`` (random directions, seeded by ``seed``)."""
+def outcomes(case, repeats: int, seed: int) -> list[tuple[float, float, str]]:
+    """(aligned RMS, similarity-aligned RMS mm, first outline iteration's matches) of the case
+    as made, then ``repeats`` times with its clicks moved by ``EPS_PX`` (random directions,
+    seeded by ``seed``)."""
     rng = np.random.default_rng([seed, 7])
     T = case.truth_vertices
     out = []
@@ -50,10 +53,12 @@ def outcomes(case, repeats: int, seed: int) -> list[tuple[float, float]]:
             replace(v, landmark_uv=v.landmark_uv + eps * rng.standard_normal(v.landmark_uv.shape))
             for v in case.views
         ]
-        V = register_views(case.model, views, poses="unknown").vertices
+        said: list[str] = []
+        V = register_views(case.model, views, poses="unknown", progress=said.append).vertices
         aligned = _rms(Pose.fit_rigid(V, T).apply(V), T)
         similar = _rms(Pose.fit_similarity(V, T).apply(V), T)
-        out.append((aligned, similar))
+        first = next((m for m in said if m.startswith("outline iteration 1:")), "")
+        out.append((aligned, similar, first.split(":")[1].split(",")[0].strip() if first else "-"))
     return out
 
 
@@ -86,7 +91,7 @@ def main() -> None:
             case = make_realistic_case(seed, n_landmarks_per_view=3, scene=scene)
             got = outcomes(case, args.repeats, seed)
             rows.append((seed, case.floor_mm, got))
-            print(seed, [(round(a, 3), round(s, 3)) for a, s in got], flush=True)
+            print(seed, [(round(a, 3), round(s, 3), m) for a, s, m in got], flush=True)
     command = "python benchmarks/unknown_sensitivity.py"
     command += f" --seeds {args.seeds}" if args.seeds != 8 else ""
     command += f" --repeats {args.repeats}" if args.repeats != 5 else ""
@@ -99,19 +104,21 @@ def main() -> None:
         "columns: the docstring of `benchmarks/unknown_sensitivity.py`.",
         "",
         "| seed | floor mm | aligned RMS mm, as made | aligned RMS mm, moved 1e-9 px "
-        "| aligned spread mm | distinct outcomes | similarity-aligned RMS mm (min-max) |",
-        "|---|---|---|---|---|---|---|",
+        "| aligned spread mm | distinct outcomes | similarity-aligned RMS mm (min-max) "
+        "| first outline iteration, as made; moved |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for seed, floor, got in rows:
-        aligned = [a for a, _ in got]
-        similar = [s for _, s in got]
+        aligned = [a for a, _, _ in got]
+        similar = [s for _, s, _ in got]
+        first = [m for _, _, m in got]
         lines.append(
             f"| {seed} | {floor:.3f} | {aligned[0]:.3f} | "
             + ", ".join(f"{a:.3f}" for a in aligned[1:])
             + f" | {max(aligned) - min(aligned):.3f} | {distinct(aligned)} | "
-            f"{min(similar):.3f}-{max(similar):.3f} |"
+            f"{min(similar):.3f}-{max(similar):.3f} | {first[0]}; {', '.join(first[1:])} |"
         )
-    unstable = sum(distinct([a for a, _ in got]) > 1 for _, _, got in rows)
+    unstable = sum(distinct([a for a, _, _ in got]) > 1 for _, _, got in rows)
     lines += [
         "",
         f"Seeds with more than one outcome: {unstable} of {len(rows)}.",
