@@ -77,36 +77,13 @@ def own_unit_modes(model, kernel: str, width_mm: float) -> np.ndarray:
 def joint_stage(problem, final, basis, *, rounds=None, start=None):
     """:func:`biplanar_reg.registration.gp_stage.gp_stage` with the SSM's weights refined
     jointly with the kernel's (the same amplitude rule; no warm start)."""
-    opts, base, nb = problem.options, problem.model, problem.model.n_modes
-    a, u = basis.start_amplitude_mm, np.zeros(len(basis.modes))
-    w = final.result.weights
-    records, iterates = list(final.records), list(final.iterates)
-    prob, res, weights, groups = problem, final.result, final.weights, final.noise
-    outcome = G.GpOutcome(False, basis.width_mm, a, len(basis.modes), 0.0, 0, "no rounds")
-    for done in range(1, (opts.gp_rounds if rounds is None else rounds) + 1):
-        prob = replace(prob, model=G._augmented(base, basis, a))
-        res = G.with_pose(res, res.rotation, res.translation, np.concatenate([w, u]), res.vertices)
-        rec = G.Recorder(prob, records, iterates, res.certificate, "gp")
-        res, _ = G.refine_once(prob, res, prob.outlines(res), weights, rec)
-        if opts.noise == "estimated":
-            groups = G.group_noise(prob, res, weights)
-            prob = G.with_noise(prob, groups)
-        unorm2, gamma = G.kernel_evidence_terms(prob, res, weights, nb)
-        a_new = a * float(np.sqrt(unorm2 / gamma)) if gamma > 1e-9 else 0.0
-        outcome = G.GpOutcome(True, basis.width_mm, a, len(basis.modes), gamma, done)
-        if a_new < G.MIN_AMPLITUDE_MM:
-            return problem, final, replace(outcome, used=False, reason="not supported")
-        settled = abs(a_new / a - 1.0) < G.AMPLITUDE_TOL
-        w, u = res.weights[:nb], res.weights[nb:] * (a / a_new)
-        a = a_new
-        if settled:
-            break
-    prob = replace(prob, model=G._augmented(base, basis, outcome.amplitude_mm))
-    refined = G.Refined(
-        res, prob.outlines(res), records, iterates, records[-1].index, weights, prob, groups,
-        final.left_out,
-    )  # fmt: skip
-    return prob, refined, outcome
+    base = problem.model
+
+    def model_at(amplitude: float):
+        return G._augmented(base, basis, amplitude)
+
+    w0 = final.result.weights
+    return _free_ssm_stage(problem, final, basis, rounds, model_at, w0, np.zeros_like(w0))
 
 
 def centred_stage(problem, final, basis, *, rounds=None, start=None):
@@ -114,18 +91,26 @@ def centred_stage(problem, final, basis, *, rounds=None, start=None):
     runs on a model whose mean is the SSM fit's shape and whose modes are the SSM's and the
     kernel's (weights ``(dw, u)``, unit prior on both); the result is expressed in the
     augmented model (SSM weights ``w0 + dw``)."""
-    opts, base, nb = problem.options, problem.model, problem.model.n_modes
-    w0, a = final.result.weights, basis.start_amplitude_mm
-    x = np.zeros(nb + len(basis.modes))
-    records, iterates = list(final.records), list(final.iterates)
-    prob, res, weights, groups = problem, final.result, final.weights, final.noise
-    outcome = G.GpOutcome(False, basis.width_mm, a, len(basis.modes), 0.0, 0, "no rounds")
+    base, w0 = problem.model, final.result.weights
     shape = base.instance(w0)
 
     def model_at(amplitude: float) -> ShapeModel:
         modes = np.concatenate([base.modes, amplitude * basis.modes])
         return ShapeModel(shape, modes, faces=base.faces, landmarks=base.landmarks)
 
+    return _free_ssm_stage(problem, final, basis, rounds, model_at, np.zeros_like(w0), w0)
+
+
+def _free_ssm_stage(problem, final, basis, rounds, model_at, w_start, w_origin):
+    """The stage's rounds (refinement, noise, amplitude) on ``model_at(amplitude)``, whose
+    first weights are the SSM's less ``w_origin`` (starting at ``w_start``), the rest the
+    kernel's; the result in the augmented model (SSM weights ``w_origin`` + the fitted ones)."""
+    opts, base, nb = problem.options, problem.model, problem.model.n_modes
+    a = basis.start_amplitude_mm
+    x = np.concatenate([w_start, np.zeros(len(basis.modes))])
+    records, iterates = list(final.records), list(final.iterates)
+    prob, res, weights, groups = problem, final.result, final.weights, final.noise
+    outcome = G.GpOutcome(False, basis.width_mm, a, len(basis.modes), 0.0, 0, "no rounds")
     for done in range(1, (opts.gp_rounds if rounds is None else rounds) + 1):
         prob = replace(prob, model=model_at(a))
         res = G.with_pose(res, res.rotation, res.translation, x, res.vertices)
@@ -144,7 +129,7 @@ def centred_stage(problem, final, basis, *, rounds=None, start=None):
         a = a_new
         if settled:
             break
-    w = np.concatenate([w0 + res.weights[:nb], res.weights[nb:]])
+    w = np.concatenate([w_origin + res.weights[:nb], res.weights[nb:]])
     res = G.with_pose(res, res.rotation, res.translation, w, res.vertices)
     prob = replace(prob, model=G._augmented(base, basis, outcome.amplitude_mm))
     refined = G.Refined(

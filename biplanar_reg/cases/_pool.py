@@ -102,7 +102,7 @@ def _worker_main(
             msg = None
         if msg is None:
             # the worker exits: its objects are left out of the garbage collector's passes at
-            # interpreter shutdown (about 0.2 CPU s after a case with its report)
+            # interpreter shutdown (measured on `register`: 0.2 s after a case with its report)
             gc.freeze()
             return
         job, args = msg
