@@ -51,7 +51,7 @@ from .problem import Problem, with_pose
 from .rays import RayObservations
 from .rotations import rotation_angle
 from .unknown_poses import UnknownPoseView, relative_view_poses, solve_gsft_unknown_poses
-from .view_starts import hop_joint_fit, joint_fit
+from .view_starts import depth_starts, hop_joint_fit, joint_fit, screened_starts
 
 __all__: list[str] = []
 
@@ -467,7 +467,11 @@ def refine_views_on_outlines(
             max_iter=n_iter, tol=1e-6, max_rejected=JOINT_MAX_REJECTED,
         )  # fmt: skip
     else:
-        best = _best_joint_fit(fit_args, terms, [(*tiled, result.weights), *starts], n_iter)
+        starts = [(*tiled, result.weights), *starts]
+        if not prior:  # unknown: the scene's scale is free (view_starts.py)
+            deep = depth_starts(views, problem.model, starts)
+            starts += screened_starts(fit_args, terms, deep, JOINT_MAX_REJECTED)
+        best = _best_joint_fit(fit_args, terms, starts, n_iter)
     if not prior and best is not None:  # unknown: a hop search around it (view_starts.py)
         best = hop_joint_fit(fit_args, terms, best, n_iter, JOINT_MAX_REJECTED)
     if best is None:  # no plausible correction: keep the registration with the given views

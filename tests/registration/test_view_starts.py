@@ -1,14 +1,24 @@
-"""``poses = "unknown"``: the hop search around the joint fit (``view_starts.py``)."""
+"""``poses = "unknown"``: the hop search around the joint fit and the depth starts
+(``view_starts.py``)."""
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from biplanar_reg.calibration.views import OrthographicView
 from biplanar_reg.registration import register_views
 from biplanar_reg.registration.outline_fit import OutlineFitResult
 from biplanar_reg.registration.rotations import rotation_angle, so3_exp
-from biplanar_reg.registration.view_starts import HOP_AXES, HOP_TURNS_DEG, hop_starts
+from biplanar_reg.registration.view_starts import (
+    DEPTH_FACTORS,
+    HOP_AXES,
+    HOP_TURNS_DEG,
+    depth_starts,
+    hop_starts,
+)
 from biplanar_reg.simulate import boosting_case
 
 
@@ -64,3 +74,28 @@ def test_hop_starts_turn_each_view_about_the_centroid(model):
         turn = cams[x] @ R2[x] @ Rs[x].T @ cams[x].T
         assert turn[axis, axis] == pytest.approx(1.0)
         assert np.trace(turn) == pytest.approx(1.0 + 2.0 * np.cos(np.deg2rad(deg)))
+
+
+def test_depth_starts_move_every_view_but_the_gauge_along_its_source_line(model, views):
+    rng = np.random.default_rng(1)
+    P = len(views)
+    Rs = np.array([so3_exp(0.1 * rng.normal(size=3)) for _ in range(P)])
+    ts = rng.normal(scale=5.0, size=(P, 3))
+    w = rng.normal(size=model.n_modes)
+    starts = depth_starts(views, model, [(Rs, ts, w)])
+    assert len(starts) == (P - 1) * len(DEPTH_FACTORS)
+    c = model.mean.mean(axis=0)
+    for k, (R2, t2, w2) in enumerate(starts):
+        x, f = 1 + k // len(DEPTH_FACTORS), DEPTH_FACTORS[k % len(DEPTH_FACTORS)]
+        np.testing.assert_array_equal(R2, Rs)
+        np.testing.assert_array_equal(w2, np.zeros_like(w))  # the mean shape
+        for y in range(P):
+            if y != x:
+                np.testing.assert_array_equal(t2[y], ts[y])
+        src = views[x].view.centre
+        before, after = Rs[x] @ c + ts[x] - src, R2[x] @ c + t2[x] - src
+        np.testing.assert_allclose(after, f * before, atol=1e-9)  # same ray, f times as far
+    # a view without a source (orthographic) is not moved: depth does not change its image
+    v = views[1].view
+    flat = replace(views[1], view=OrthographicView(R=v.R, t=v.t, K=v.K, image_size=v.image_size))
+    assert depth_starts([views[0], flat], model, [(Rs[:2], ts[:2], w)]) == []
