@@ -408,15 +408,21 @@ def _same_state(a, b) -> bool:
     return all(np.allclose(x, y, rtol=0.0, atol=1e-9) for x, y in zip(a, b, strict=True))
 
 
+def _fittable(problem: Problem, starts: list) -> list:
+    """``starts`` without those behind a source and without repeats (candidates repeat)."""
+    out: list = []
+    for start in starts:
+        if _in_front(problem, start) and not any(_same_state(start, s) for s in out):
+            out.append(start)
+    return out
+
+
 def _best_joint_fit(fit_args, terms: list[OutlineTerm], starts: list, max_iter: int):
-    """The lowest-objective joint fit from ``starts`` that the calibration prior's gate lets
-    through (None when none does)."""
+    """The lowest-objective joint fit from ``starts`` (:func:`_fittable` ones) that the
+    calibration prior's gate lets through (None when none does)."""
     problem, pose_prior = fit_args[0], fit_args[2]
-    best, done = None, []
-    for i, start in enumerate(starts):
-        if not _in_front(problem, start) or any(_same_state(start, s) for s in done):
-            continue  # behind a source, or a start already fitted (candidates repeat)
-        done.append(start)
+    best = None
+    for i, start in enumerate(_fittable(problem, starts)):
         fit = joint_fit(fit_args, terms, start, max_iter, JOINT_MAX_REJECTED)
         problem.say(f"joint view refinement from start {i}: objective {fit.cost_after:.4g}")
         if pose_prior is not None and _implausible(fit, pose_prior):
@@ -467,9 +473,9 @@ def refine_views_on_outlines(
             max_iter=n_iter, tol=1e-6, max_rejected=JOINT_MAX_REJECTED,
         )  # fmt: skip
     else:
-        starts = [(*tiled, result.weights), *starts]
+        starts = _fittable(problem, [(*tiled, result.weights), *starts])
         if not prior:  # unknown: the scene's scale is free (view_starts.py)
-            deep = depth_starts(views, problem.model, starts)
+            deep = _fittable(problem, depth_starts(views, problem.model, starts))
             starts += screened_starts(fit_args, terms, deep, JOINT_MAX_REJECTED)
         best = _best_joint_fit(fit_args, terms, starts, n_iter)
     if not prior and best is not None:  # unknown: a hop search around it (view_starts.py)
