@@ -63,6 +63,7 @@ from .view_poses import (
     PosedViews,
     check_pose_information,
     corrections,
+    enough_landmark_points,
     enough_landmarks,
     estimate_view_poses,
     refine_views_on_outlines,
@@ -222,7 +223,7 @@ def _check_views(
             "start: not used with poses = 'unknown' (the result's world frame is the first "
             "view's camera frame, estimated from the landmarks)"
         )
-    if start is None and poses != "unknown" and not _enough_landmark_points(views):
+    if start is None and poses != "unknown" and not enough_landmark_points(views):
         _check_few_landmarks(views, n_lm, n_out)
     elif start is not None and n_lm < 4 and n_out < 2:
         raise ValueError(
@@ -508,13 +509,6 @@ def _fit(problem: Problem, start_pose: Pose | None) -> Refined:
     return refine_final(problem, run)
 
 
-def _enough_landmark_points(views: list[ViewObservations]) -> bool:
-    """Whether the landmarks can start the registration alone: 4 observations of at least 3
-    distinct model points (else :func:`.pose_search.search_start` finds the start)."""
-    ids = np.concatenate([v.landmark_ids for v in views]) if views else np.zeros(0, int)
-    return len(ids) >= 4 and len(np.unique(ids)) >= 3
-
-
 def triangulated_points(views: list[ViewObservations]) -> int:
     """The number of distinct model points with a landmark in at least 2 views (each such
     point is fixed in 3D by its rays, whatever the model)."""
@@ -527,7 +521,7 @@ def triangulated_points(views: list[ViewObservations]) -> int:
 
 def landmarks_fix_the_pose(views: list[ViewObservations]) -> bool:
     """Whether the landmarks fix the bone's pose in one way: 4 observations of 3 distinct
-    points (:func:`_enough_landmark_points`), and either 2 points seen in 2 views or more than
+    points (:func:`enough_landmark_points`), and either 2 points seen in 2 views or more than
     the minimal 4 observations.
 
     A point seen in one view only is a ray; its depth along it comes from the model's
@@ -544,7 +538,7 @@ def landmarks_fix_the_pose(views: list[ViewObservations]) -> bool:
     with 5 or 6 observations and fewer than 2 points in 2 views, 0-1 of 20 from the
     landmark-only start.
     """
-    if not _enough_landmark_points(views):
+    if not enough_landmark_points(views):
         return False
     n_obs = sum(len(v.landmark_ids) for v in views)
     return triangulated_points(views) >= 2 or n_obs > 4
@@ -555,7 +549,7 @@ def _search_the_start(views: list[ViewObservations], outlines: bool) -> bool:
     start fitted: :mod:`.multi_start`) instead of taken from the landmarks: when the landmarks
     cannot start alone, and when they do not fix the pose in one way
     (:func:`landmarks_fix_the_pose`) and the outlines can search."""
-    if not _enough_landmark_points(views):
+    if not enough_landmark_points(views):
         return True
     if landmarks_fix_the_pose(views):
         return False

@@ -80,6 +80,20 @@ def enough_landmarks(model: ShapeModel, views: list[ViewObservations], n_modes: 
     return n_lm >= (6 * len(views) + n_modes + 1) // 2
 
 
+def landmark_points(views: list[ViewObservations]) -> tuple[int, int]:
+    """The landmark observations over all views and the distinct model points they show."""
+    ids = np.concatenate([v.landmark_ids for v in views]) if views else np.zeros(0, int)
+    return len(ids), len(np.unique(ids))
+
+
+def enough_landmark_points(views: list[ViewObservations]) -> bool:
+    """Whether the landmarks can start the registration alone: 4 observations of at least 3
+    distinct model points (else, with known poses, :func:`.pose_search.search_start` finds the
+    start)."""
+    n, distinct = landmark_points(views)
+    return n >= 4 and distinct >= 3
+
+
 def _per_view(views: list[ViewObservations], values) -> dict[str, float]:
     return {v.name: float(c) for v, c in zip(views, values, strict=True)}
 
@@ -252,6 +266,14 @@ def check_pose_information(
             problem = unknown_pose_problem(v, outlines)
             if problem is not None:
                 raise ValueError(problem)
+        if not enough_landmark_points(views):  # the registration's start (register.py)
+            n, distinct = landmark_points(views)
+            raise ValueError(
+                "poses = 'unknown' starts the registration from the landmarks and needs at "
+                "least 4 landmark observations of 3 different landmarks over all views, got "
+                f"{n} of {distinct}: annotate more landmarks, or use calibrated views "
+                "(poses = 'known')"
+            )
         searched = [v.name for v in views if free_pose_parameters(v) > 0]
         for v in views:
             if searched and not is_central(v):

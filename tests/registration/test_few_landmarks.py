@@ -170,6 +170,19 @@ def test_a_view_without_landmarks_is_refused_in_unknown(small):
         register_views(small, views, poses="unknown")
 
 
+def test_too_few_landmark_observations_are_refused_in_unknown(small):
+    """2 + 1 landmarks: each view's pose can be searched, but the registration starts from the
+    landmarks (4 observations of 3 points); this failed inside the solver with a message
+    naming its argument (``vertex_ids: at least 4 observations ...``)."""
+    views, *_ = _case(small, 2, (2, 1))
+    with pytest.raises(
+        ValueError,
+        match=r"^poses = 'unknown' starts the registration from the landmarks and needs at "
+        r"least 4 landmark observations of 3 different landmarks over all views, got 3 of 3",
+    ):
+        register_views(small, views, poses="unknown")
+
+
 def test_the_outline_search_needs_point_source_views(small):
     views, *_ = _case(small, 0, (3, 2))
     v = views[1].view
