@@ -51,7 +51,13 @@ from .problem import Problem, with_pose
 from .rays import RayObservations
 from .rotations import rotation_angle
 from .unknown_poses import UnknownPoseView, relative_view_poses, solve_gsft_unknown_poses
-from .view_starts import depth_starts, hop_joint_fit, joint_fit, screened_starts
+from .view_starts import (
+    depth_starts,
+    hop_joint_fit,
+    joint_fit,
+    scale_joint_fit,
+    screened_starts,
+)
 
 __all__: list[str] = []
 
@@ -502,6 +508,7 @@ def refine_views_on_outlines(
         best = _best_joint_fit(fit_args, terms, starts, n_iter)
     if not prior and best is not None:  # unknown: a hop search around it (view_starts.py)
         best = hop_joint_fit(fit_args, terms, best, n_iter, JOINT_MAX_REJECTED)
+        best = scale_joint_fit(fit_args, terms, best, n_iter, JOINT_MAX_REJECTED)
     if best is None:  # no plausible correction: keep the registration with the given views
         problem.say("joint view refinement: no correction within the calibration prior")
         return list(views), result, np.nan

@@ -1,5 +1,5 @@
-"""``poses = "unknown"``: the hop search around the joint fit and the depth starts
-(``view_starts.py``)."""
+"""``poses = "unknown"``: the hop search around the joint fit, the depth starts and the size
+search (``view_starts.py``)."""
 
 from __future__ import annotations
 
@@ -16,10 +16,13 @@ from biplanar_reg.registration.view_starts import (
     DEPTH_FACTORS,
     HOP_AXES,
     HOP_TURNS_DEG,
+    SCALES,
     depth_starts,
     hop_starts,
+    scale_starts,
 )
 from biplanar_reg.simulate import boosting_case
+from biplanar_reg.ssm import ShapeModel
 
 
 @pytest.mark.parametrize("seed", [1, 3, 13])
@@ -99,3 +102,47 @@ def test_depth_starts_move_every_view_but_the_gauge_along_its_source_line(model,
     v = views[1].view
     flat = replace(views[1], view=OrthographicView(R=v.R, t=v.t, K=v.K, image_size=v.image_size))
     assert depth_starts([views[0], flat], model, [(Rs[:2], ts[:2], w)]) == []
+
+
+def _fit(model, Rs, ts, w) -> OutlineFitResult:
+    return OutlineFitResult(
+        rotation=Rs[0],
+        translation=ts[0],
+        weights=w,
+        vertices=model.instance(w),
+        cost_before=1.0,
+        cost_after=1.0,
+        iterations=1,
+        converged=True,
+        n_active=0,
+        rotations=Rs,
+        translations=ts,
+    )
+
+
+def test_scale_starts_scale_each_views_scene_about_its_source(model, views):
+    """With a mode that scales the mean about its centroid, every scaled shape is in the
+    model's span: each view then sees its scene scaled about its source, the same image."""
+    c = model.mean.mean(axis=0)
+    grow = (model.mean - c)[None] * 0.1  # +10 % per unit weight
+    scaled = ShapeModel(model.mean, np.concatenate([model.modes, grow]), faces=model.faces)
+    rng = np.random.default_rng(2)
+    P = len(views)
+    Rs = np.array([so3_exp(0.1 * rng.normal(size=3)) for _ in range(P)])
+    ts = rng.normal(scale=5.0, size=(P, 3))
+    w = np.concatenate([0.5 * rng.normal(size=model.n_modes), [0.0]])
+    fit = _fit(scaled, Rs, ts, w)
+    starts = scale_starts(views, scaled, fit)
+    assert len(starts) == len(SCALES)
+    S = scaled.instance(w)
+    for s, (R2, t2, w2) in zip(SCALES, starts, strict=True):
+        np.testing.assert_array_equal(R2, Rs)
+        S2 = scaled.instance(w2)
+        for k, v in enumerate(views):
+            src = v.view.centre
+            before, after = S @ Rs[k].T + ts[k], S2 @ R2[k].T + t2[k]
+            np.testing.assert_allclose(after - src, s * (before - src), atol=1e-6)
+            np.testing.assert_allclose(v.view.project(after), v.view.project(before), atol=1e-6)
+    v = views[1].view
+    flat = replace(views[1], view=OrthographicView(R=v.R, t=v.t, K=v.K, image_size=v.image_size))
+    assert scale_starts([views[0], flat], scaled, _fit(scaled, Rs[:2], ts[:2], w)) == []
