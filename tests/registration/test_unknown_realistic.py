@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from biplanar_reg.pose import Pose
 from biplanar_reg.registration import register_views, view_starts
 from biplanar_reg.registration.options import RegistrationOptions
 from biplanar_reg.registration.rotations import rotation_angle
@@ -24,10 +25,14 @@ WRIST_DATA = Path(__file__).resolve().parents[2] / "sample_cases" / "wrist_radiu
 
 
 @pytest.fixture(scope="module")
-def case():
-    scene = wrist_scene(
+def scene():
+    return wrist_scene(
         str(WRIST_DATA), n_vertices=500, n_population=8, n_train=5, n_modes=4, resolution=20
     )
+
+
+@pytest.fixture(scope="module")
+def case(scene):
     return scene.model, make_realistic_case(6, n_landmarks_per_view=3, scene=scene)
 
 
@@ -57,3 +62,28 @@ def test_three_landmarks_per_view_recover_the_relative_view_rotation(case, monke
     old = register_views(model, c.views, poses="unknown", options=full)
     assert _relative_rotation_error_deg(old, c.true_views) > 15.0
     assert _relative_rotation_error_deg(res, c.true_views) < 8.0
+
+
+def _registered(model, views) -> tuple[object, float]:
+    """The unknown-pose registration and the objective of its views' joint refinement."""
+    said: list[str] = []
+    res = register_views(model, views, poses="unknown", progress=said.append)
+    last = [m for m in said if m.startswith("views refined on the outlines: objective")][-1]
+    return res, float(last.rsplit(" ", 1)[1])
+
+
+def _size_error_pct(V: np.ndarray, truth: np.ndarray) -> float:
+    return abs(1.0 / Pose.fit_similarity(V, truth).scale - 1.0) * 100.0
+
+
+def test_the_size_search_lowers_the_objective_and_moves_the_size(scene, monkeypatch):
+    """Seed 8 of the same scene: the size search (view_starts.scale_joint_fit) ends at a lower
+    objective and a size 5.7 % off the truth, against 10.6 % without it. (Over seeds 0-9 of
+    this small scene it was neutral, docs/registration.md.)"""
+    c = make_realistic_case(8, n_landmarks_per_view=3, scene=scene)
+    res, obj = _registered(scene.model, c.views)
+    monkeypatch.setattr(view_starts, "SCALES", ())
+    old, old_obj = _registered(scene.model, c.views)
+    assert obj < old_obj
+    assert _size_error_pct(res.vertices, c.truth_vertices) < 7.0
+    assert _size_error_pct(old.vertices, c.truth_vertices) > 9.0
