@@ -21,6 +21,8 @@ unknown-5      unknown 5
 refine-3-bone  refine  3     refine-3 with ``pose_prior_at_bone=True`` (the calibration prior
                              on the bone's move: the error model of these cases)
 refine-5-bone  refine  5
+refine-3-exact refine  3     known-3's case (no calibration error) with ``poses="refine"``: what
+                             refining a good calibration costs
 known-3+2      known   3+2   known-3 with the second view's last landmark removed
 unknown-3+2    unknown 3+2   unknown-3 with the second view's last landmark removed (its pose
                              then comes from a search on its outline)
@@ -91,6 +93,7 @@ CONDITIONS: dict[str, tuple[str, int, bool, bool]] = {
     "unknown-5": ("unknown", 5, False, False),
     "refine-3-bone": ("refine", 3, False, True),
     "refine-5-bone": ("refine", 5, False, True),
+    "refine-3-exact": ("refine", 3, False, False),
     "known-3+2": ("known", 3, False, False),
     "unknown-3+2": ("unknown", 3, False, False),
     "known-3+1": ("known", 3, False, False),
@@ -639,6 +642,12 @@ def _targets(jobs: list[dict], results: list[dict]) -> list[str]:
             ratios("refine-3", "world_mm", "known-3"),
             1.25,
             "refine-3 world RMS / known-3 world RMS",
+        ),
+        "* "
+        + verdict(
+            ratios("refine-3", "similarity_mm", "known-3", "aligned_mm"),
+            1.25,
+            "refine-3 similarity-aligned RMS / known-3 aligned RMS (the shape)",
         ),
         "* "
         + verdict(

@@ -17,9 +17,11 @@ eliminated: :func:`correction_information`) is compared with the calibration pri
 :func:`seen_directions`); the joint fit then corrects only the directions along which the
 images' standard deviation is below :data:`SEEN_SD_RATIO` times the prior's
 (:func:`fit_in_subspace`), and the others keep the given calibration (the prior's mean).
-:mod:`.view_poses` uses it with ``pose_prior_at_bone`` only: with the prior on the sources
-(an error model of turns about the source, ``benchmarks/pose_modes.py``) the directions the
-prior leaves loose are large moves of the bone which unbiased outlines do recover.
+:mod:`.view_poses` uses it with ``pose_prior_at_bone``. With the prior on the sources (an
+error model of turns about the source, ``benchmarks/pose_modes.py``) the directions the prior
+leaves loose are large moves of the bone which unbiased outlines do recover, so there the free
+joint fit comes first; when no joint fit is plausible, this fit is the fallback, restricted
+further to the directions the images see to within :data:`SEEN_MAX_SD_MM`.
 
 Coordinates: a view's correction ``C_x = O_x o O_0^-1`` (``O`` the object-to-world pose seen
 through each view's given extrinsics, view 0 the gauge) is a rotation (rad, world frame)
@@ -116,7 +118,7 @@ def seen_directions(
     images' standard deviation is below ``ratio`` times the prior's, and every direction's
     standard deviation ratio (ascending).
     """
-    from scipy.linalg import eigh  # here: only the bone-prior path gets here (~0.27 s import)
+    from scipy.linalg import eigh  # here: only the refine paths get here (~0.27 s import)
 
     lam, V = eigh(info, prior_info)
     order = np.argsort(-lam)
@@ -166,6 +168,42 @@ def fit_in_subspace(fit_args, start, kept: np.ndarray, c: np.ndarray, **kw) -> O
 #: calibration stands (module docstring).
 SEEN_SD_RATIO = 0.5
 
+#: The fallback of ``refine`` with the prior on the sources (:mod:`.view_poses`) also leaves
+#: every direction along which the images' standard deviation exceeds this (mm of the bone's
+#: vertex RMS) at the given calibration. On the realistic cases the directions came out at
+#: 0.04-0.44 mm or at 3.6-36 mm (``benchmarks/refine_bound.py``): the loose ones are where
+#: the outlines' systematic errors, not the calibration's, set the fit.
+SEEN_MAX_SD_MM = 1.0
+
+
+def vertex_metric(vertices: np.ndarray, c: np.ndarray, n_views: int) -> np.ndarray:
+    """``G`` (6 (P - 1) square): ``d^T G d`` is the mean squared move (mm^2) of ``vertices``
+    (N, 3; world, mm) under the corrections ``d`` (coordinates of
+    :func:`correction_information`: per non-gauge view a rotation vector about ``c``, rad, and
+    the move of ``c``, mm), summed over the views. ``c`` is the vertices' centroid, so that
+    turns and moves do not mix."""
+    q = vertices - c
+    turn = np.mean(np.sum(q * q, axis=1)) * np.eye(3) - q.T @ q / len(q)
+    block = np.zeros((6, 6))
+    block[:3, :3], block[3:, 3:] = turn, np.eye(3)
+    return np.kron(np.eye(n_views - 1), block)
+
+
+def below_sd_mm(
+    kept: np.ndarray, info: np.ndarray, metric: np.ndarray, max_sd_mm: float
+) -> np.ndarray:
+    """The directions (columns) in the span of ``kept`` along which the images' standard
+    deviation (``info``: their information) is below ``max_sd_mm`` in the units of
+    ``metric`` (:func:`vertex_metric`: mm of vertex RMS)."""
+    from scipy.linalg import eigh  # here: only the refine paths get here (~0.27 s import)
+
+    if not kept.shape[1]:
+        return kept
+    K = np.linalg.qr(kept)[0]
+    lam, V = eigh(K.T @ info @ K, K.T @ metric @ K)
+    sd = 1.0 / np.sqrt(np.maximum(lam, 1e-300))
+    return K @ V[:, sd < max_sd_mm]
+
 
 def fit_seen_corrections(
     problem: Problem,
@@ -174,15 +212,18 @@ def fit_seen_corrections(
     prior: PosePrior,
     depths: np.ndarray,
     terms: list[OutlineTerm],
+    max_sd_mm: float | None = None,
     **kw,
 ) -> tuple[OutlineFitResult, np.ndarray]:
     """``poses = "refine"``'s joint fit restricted to what the images see (module docstring).
 
     The information at ``start`` (the registration with the given calibrations, one pose per
     view: every correction zero), its split against the calibration prior's
-    (:func:`seen_directions` with :data:`SEEN_SD_RATIO`) and the fit from ``start`` with the
-    corrections restricted to the seen directions (:func:`fit_in_subspace`; ``kw`` its
-    Levenberg-Marquardt settings). ``depths``: the views' depths (mm) of the terms' sigmas.
+    (:func:`seen_directions` with :data:`SEEN_SD_RATIO`; with ``max_sd_mm``, also only where
+    the images' standard deviation is below that many mm of vertex RMS, :func:`below_sd_mm`)
+    and the fit from ``start`` with the corrections restricted to the seen directions
+    (:func:`fit_in_subspace`; ``kw`` its Levenberg-Marquardt settings). ``depths``: the views'
+    depths (mm) of the terms' sigmas.
 
     Returns the fit and every direction's standard deviation ratio (images / prior,
     ascending).
@@ -195,6 +236,10 @@ def fit_seen_corrections(
         model, landmarks, terms, start, c, pixels, depths, opts.prior_weight, problem.topology
     )
     kept, ratio = seen_directions(info, prior_information(start, c, prior), SEEN_SD_RATIO)
+    if max_sd_mm is not None:
+        vertices = model.instance(start[2]) @ start[0][0].T + start[1][0]
+        metric = vertex_metric(vertices, c, len(start[0]))
+        kept = below_sd_mm(kept, info, metric, max_sd_mm)
     problem.say(
         f"calibration correction: image / prior sd per direction {np.round(ratio, 3)}; "
         f"{kept.shape[1]} of {len(ratio)} corrected"

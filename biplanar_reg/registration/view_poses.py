@@ -24,7 +24,9 @@ camera frame. Both run in two steps:
    view's depth along its own axis is hardly seen in its image, so without it the bone's
    position in the world would drift by centimetres. With the prior at the bone
    (``pose_prior_at_bone``) the corrections are fitted only along the directions the images
-   see better than the prior (:mod:`.calibration_subspace`), from the given calibrations.
+   see better than the prior (:mod:`.calibration_subspace`), from the given calibrations;
+   with the prior on the sources that fit, restricted to the directions the images see well,
+   is the fallback when no free joint fit is plausible (:func:`_seen_fallback`).
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ import numpy as np
 
 from ..pose import Pose
 from ..ssm.model import ShapeModel
-from .calibration_subspace import fit_seen_corrections
+from .calibration_subspace import SEEN_MAX_SD_MM, fit_seen_corrections
 from .gsft import GsftResult
 from .observations import ViewObservations
 from .options import RegistrationOptions
@@ -460,6 +462,23 @@ def _best_joint_fit(fit_args, terms: list[OutlineTerm], starts: list, max_iter: 
     return best
 
 
+def _seen_fallback(fit_args, terms: list[OutlineTerm], start, max_iter: int):
+    """``refine`` with the prior on the sources when no joint fit is plausible (each one moved
+    the bone along a direction the images hardly see, after the outlines' systematic errors):
+    the corrections fitted only along the directions the images see well
+    (:func:`.calibration_subspace.fit_seen_corrections` with
+    :data:`.calibration_subspace.SEEN_MAX_SD_MM`), from ``start`` (the registration with the
+    given calibrations). None when that fit is not plausible either: the given calibrations
+    stand."""
+    problem, rejected, pose_prior, depths = fit_args
+    fit, _ = fit_seen_corrections(
+        problem, start, rejected, pose_prior, depths, terms, max_sd_mm=SEEN_MAX_SD_MM,
+        max_iter=max_iter, tol=1e-6, max_rejected=JOINT_MAX_REJECTED,
+    )  # fmt: skip
+    problem.say(f"joint view refinement, seen directions only: objective {fit.cost_after:.4g}")
+    return None if _implausible(fit, pose_prior) else fit
+
+
 def refine_views_on_outlines(
     problem: Problem,
     result: GsftResult,
@@ -506,6 +525,8 @@ def refine_views_on_outlines(
             deep = _fittable(problem, depth_starts(views, problem.model, starts))
             starts += screened_starts(fit_args, terms, deep, JOINT_MAX_REJECTED)
         best = _best_joint_fit(fit_args, terms, starts, n_iter)
+        if pose_prior is not None and best is None:
+            best = _seen_fallback(fit_args, terms, (*tiled, result.weights), n_iter)
     if not prior and best is not None:  # unknown: a hop search around it (view_starts.py)
         best = hop_joint_fit(fit_args, terms, best, n_iter, JOINT_MAX_REJECTED)
         best = scale_joint_fit(fit_args, terms, best, n_iter, JOINT_MAX_REJECTED)

@@ -12,10 +12,12 @@ from scipy.linalg import eigh
 from biplanar_reg.registration import RegistrationOptions, register_views
 from biplanar_reg.registration.calibration_subspace import (
     SEEN_SD_RATIO,
+    below_sd_mm,
     correction_basis,
     correction_information,
     prior_information,
     seen_directions,
+    vertex_metric,
 )
 from biplanar_reg.registration.outline_fit import PosePrior, _retract_poses
 from biplanar_reg.registration.problem import make_problem
@@ -56,6 +58,31 @@ def test_seen_directions_compare_the_images_with_the_prior():
     kept, ratio = seen_directions(info, prior, 0.5)
     assert ratio == pytest.approx([0.1, 0.5, 2.0, 10.0])
     assert kept.shape == (4, 1) and abs(kept[0, 0]) == pytest.approx(1.0)
+
+
+def test_the_vertex_metric_is_the_mean_squared_move_of_the_vertices():
+    rng = np.random.default_rng(3)
+    X = rng.normal(scale=[30.0, 10.0, 5.0], size=(400, 3)) + [100.0, -20.0, 900.0]
+    c = X.mean(axis=0)
+    G = vertex_metric(X, c, 3)  # two non-gauge views: two blocks
+    assert G.shape == (12, 12)
+    for _ in range(3):
+        d = rng.normal(size=12) * np.tile([1e-6] * 3 + [1e-4] * 3, 2)
+        moved = sum(  # each view's correction moves the bone as seen through it
+            np.mean(np.sum(((X - c) @ so3_exp(d[k : k + 3]).T + c + d[k + 3 : k + 6] - X) ** 2, 1))
+            for k in (0, 6)
+        )
+        assert d @ G @ d == pytest.approx(moved, rel=1e-5)
+
+
+def test_directions_over_the_sd_limit_are_left_out():
+    # metric: mm^2 of vertex RMS per unit; the images' information per unit
+    metric = np.diag([100.0, 1.0, 1.0])
+    info = np.diag([1.0, 4.0, 0.01])  # sd in mm: 10, 0.5, 10
+    kept = below_sd_mm(np.eye(3), info, metric, 1.0)
+    assert kept.shape == (3, 1) and abs(kept[1, 0]) == pytest.approx(1.0)
+    assert below_sd_mm(np.eye(3)[:, [0, 2]], info, metric, 1.0).shape == (3, 0)
+    assert below_sd_mm(np.eye(3), info, metric, 20.0).shape == (3, 3)
 
 
 def _unseen_direction(model, views, truth, opts):

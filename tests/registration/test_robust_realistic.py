@@ -14,23 +14,15 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from biplanar_reg.registration import register_views
 from biplanar_reg.registration.blunders import IMAGE_SHARE, landmark_sigmas
 from biplanar_reg.registration.options import RegistrationOptions
 from biplanar_reg.registration.problem import make_problem
-from biplanar_reg.simulate.realistic import make_realistic_case, wrist_scene
+from biplanar_reg.simulate.realistic import make_realistic_case
 from biplanar_reg.ssm.model import ShapeModel
 
 WRIST_DATA = Path(__file__).resolve().parents[2] / "sample_cases" / "wrist_radius" / "data"
-
-
-@pytest.fixture(scope="module")
-def scene():
-    return wrist_scene(
-        str(WRIST_DATA), n_vertices=500, n_population=8, n_train=5, n_modes=4, resolution=20
-    )
 
 
 def _bare(model: ShapeModel) -> ShapeModel:

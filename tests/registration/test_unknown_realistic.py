@@ -9,8 +9,6 @@ shrank the bone by 23 % (aligned vertex RMS 6.5 mm, known poses 0.9 mm).
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -19,16 +17,7 @@ from biplanar_reg.registration import register_views, view_starts
 from biplanar_reg.registration.options import RegistrationOptions
 from biplanar_reg.registration.rotations import rotation_angle
 from biplanar_reg.registration.view_poses import joint_sigma_factor
-from biplanar_reg.simulate.realistic import make_realistic_case, wrist_scene
-
-WRIST_DATA = Path(__file__).resolve().parents[2] / "sample_cases" / "wrist_radius" / "data"
-
-
-@pytest.fixture(scope="module")
-def scene():
-    return wrist_scene(
-        str(WRIST_DATA), n_vertices=500, n_population=8, n_train=5, n_modes=4, resolution=20
-    )
+from biplanar_reg.simulate.realistic import make_realistic_case
 
 
 @pytest.fixture(scope="module")
