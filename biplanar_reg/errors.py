@@ -11,6 +11,8 @@ exception                  base             raised when                         
 ``SolverFailure``          ``RuntimeError`` the conic solver gave no usable answer  1 [1]_
 ``CalibrationFormatError`` ``ValueError``   a calibration file is garbled           2
 ``AnnotationError``        ``ValueError``   an annotation document is invalid       2
+``ObservationError``       ``ValueError``   the annotations hold too little for     2
+                                            the registration asked for
 ``CaseError``              ``ValueError``   a case folder is invalid                2
 ========================== ================ ====================================== =====
 
@@ -37,6 +39,7 @@ __all__ = [
     "CaseError",
     "CaseFailure",
     "CommandError",
+    "ObservationError",
     "SolverFailure",
     "one_line",
 ]
@@ -60,6 +63,12 @@ class CalibrationFormatError(ValueError):
 
 class CaseError(ValueError):
     """A case is invalid; the one-line message names the file and the key."""
+
+
+class ObservationError(ValueError):
+    """The views' landmarks and outlines are too few for the registration asked for (the pose
+    mode, the start); the one-line message says what is needed. The case pipeline names the
+    annotations file with it."""
 
 
 class AnnotationError(ValueError):

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import CaseError, CaseFailure, SolverFailure
+from ..errors import CaseError, CaseFailure, ObservationError, SolverFailure
 from ..io.transforms import rigid_pose
 from ..registration import RegistrationResult, ViewObservations, register_views
 from ..registration.frames import FrameRegistrationResult, register_frames
@@ -145,6 +145,9 @@ def fit_bone(
         raise CaseFailure(f"{case.case_file}: registration failed: {exc}") from None
     except (np.linalg.LinAlgError, FloatingPointError, ArithmeticError) as exc:
         raise CaseFailure(f"{case.case_file}: registration failed (numerical): {exc}") from None
+    except ObservationError as exc:  # what the annotations hold, not how the case registers
+        where = "[[frames]]" if case.frames else _relative(case.annotations_path, case.case_file)
+        raise CaseError(f"{case.case_file}: {where}: {' '.join(str(exc).split())}") from None
     except ValueError as exc:
         raise CaseError(f"{case.case_file}: {key}: {' '.join(str(exc).split())}") from None
     if not np.all(np.isfinite(res.vertices)):
@@ -152,6 +155,14 @@ def fit_bone(
     if warm_from is not None and not res.restart.get("reason") and res.restart["start"] == "cold":
         res = dataclasses.replace(res, restart={**res.restart, "reason": NO_PREVIOUS})
     return res
+
+
+def _relative(path: Path, case_file: Path) -> str:
+    """``path`` relative to the case folder (as the case file names it), else as it is."""
+    try:
+        return Path(path).resolve().relative_to(Path(case_file).resolve().parent).as_posix()
+    except ValueError:
+        return str(path)
 
 
 def _single_fit(case: Case, obs: list[ViewObservations], res: RegistrationResult) -> BoneFit:

@@ -6,7 +6,7 @@ exports the names listed in ``docs/api.md``. The modules hold the stages and bui
 (``stages``, ``problem``, ``refine``, ``sdp``, ``ipm``, ...), documented where the docs name them.
 """
 
-from ..errors import SolverFailure
+from ..errors import ObservationError, SolverFailure
 from .calibration_refine import RefinedPosesResult, refine_view_poses
 from .frames import FrameRegistrationResult, register_frames
 from .gsft import DEFAULT_EPS, GsftResult, solve_gsft
@@ -21,6 +21,7 @@ __all__ = [
     "solve_gsft",
     "GsftResult",
     "SolverFailure",
+    "ObservationError",
     "DEFAULT_EPS",
     "ViewObservations",
     "register_views",

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .._validate import as_array, check_rotation
+from ..errors import ObservationError
 from ..outline import chain_edges
 from ..pose import Pose, nearest_rotation
 from ..ssm.gaussian_process import split_modes
@@ -226,7 +227,7 @@ def _check_views(
     if start is None and poses != "unknown" and not enough_landmark_points(views):
         _check_few_landmarks(views, n_lm, n_out)
     elif start is not None and n_lm < 4 and n_out < 2:
-        raise ValueError(
+        raise ObservationError(
             f"landmarks: with a start pose, outlines in 2 views (or 4 landmark observations) "
             f"are needed, got outlines in {n_out} and {n_lm} landmark observation(s)"
         )
@@ -255,7 +256,7 @@ def _check_few_landmarks(views: list[ViewObservations], n_lm: int, n_out: int) -
     if _outlines_can_start(views, n_lm, n_out):
         return
     points = len({int(i) for v in views for i in v.landmark_ids})
-    raise ValueError(
+    raise ObservationError(
         f"landmarks: {n_lm} landmark observation(s) of {points} model point(s) cannot start "
         "the registration: give 4 observations of 3 different landmarks, or 2 observations "
         f"and outlines in 2 views (got outlines in {n_out}), or a start pose"
@@ -322,6 +323,9 @@ def register_views(
 
     Raises
     ------
+    ObservationError
+        Too few landmarks or outlines for ``poses`` (or ``start``): says what is needed. A
+        ``ValueError``.
     ValueError
         Bad input (names the view or argument).
     SolverFailure

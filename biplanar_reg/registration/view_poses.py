@@ -37,6 +37,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
+from ..errors import ObservationError
 from ..pose import Pose
 from ..ssm.model import ShapeModel
 from .calibration_subspace import SEEN_MAX_SD_MM, fit_seen_corrections
@@ -257,7 +258,8 @@ def check_pose_information(
     model: ShapeModel, views: list[ViewObservations], poses: str, outlines: bool
 ) -> None:
     """Refuse ``"refine"``/``"unknown"`` input that lacks the information the mode needs in
-    total (one-line ``ValueError`` naming the view or the count).
+    total (one-line :class:`~biplanar_reg.errors.ObservationError` naming the view or the
+    count; a ``ValueError`` for views that are not point-source where they must be).
 
     Both estimate ``6 (P - 1)`` view-pose parameters beyond the bone's pose (6) and the
     shape's modes (``M``, held by their prior). Without outlines the landmarks alone must fix
@@ -273,10 +275,10 @@ def check_pose_information(
         for v in views:
             problem = unknown_pose_problem(v, outlines)
             if problem is not None:
-                raise ValueError(problem)
+                raise ObservationError(problem)
         if not enough_landmark_points(views):  # the registration's start (register.py)
             n, distinct = landmark_points(views)
-            raise ValueError(
+            raise ObservationError(
                 "poses = 'unknown' starts the registration from the landmarks and needs at "
                 "least 4 landmark observations of 3 different landmarks over all views, got "
                 f"{n} of {distinct}: annotate more landmarks, or use calibrated views "
@@ -294,7 +296,7 @@ def check_pose_information(
     if not has_outlines and not enough_landmarks(model, views, model.n_modes):
         n_lm = sum(len(v.landmark_ids) for v in views)
         need = (6 * len(views) + model.n_modes + 1) // 2
-        raise ValueError(
+        raise ObservationError(
             f"poses: {poses!r} without outlines estimates {6 * (len(views) - 1)} view-pose "
             f"parameters from the landmarks alone and needs at least {need} landmark "
             f"observations for {len(views)} views and {model.n_modes} modes, got {n_lm}; "
@@ -311,7 +313,8 @@ def estimate_view_poses(
 ) -> PosedViews:
     """Step 1 of the module docstring for ``"refine"`` or ``"unknown"`` (``outlines``: the
     views' outlines are used); input without the information the mode needs in total is
-    refused first (:func:`check_pose_information`, a one-line ``ValueError``)."""
+    refused first (:func:`check_pose_information`, a one-line ``ValueError``: an
+    :class:`~biplanar_reg.errors.ObservationError` for too few landmarks or outlines)."""
     check_pose_information(model, views, poses, outlines)
     if poses == "unknown" and any(free_pose_parameters(v) > 0 for v in views):
         return _searched_view_poses(model, views)
@@ -339,7 +342,7 @@ def _view_candidates(
         return search_view_pose(model, v)
     cands = _single_view_poses(model, rays)
     if not cands:
-        raise ValueError(
+        raise ObservationError(
             f"{v.name}: poses = 'unknown': the landmarks of this view fix no pose of the mean "
             "shape in front of its source (are they on the right model points?)"
         )
@@ -359,7 +362,7 @@ def _searched_view_poses(model: ShapeModel, views: list[ViewObservations]) -> Po
     per_view = [_view_candidates(model, v, u.rays) for v, u in zip(views, rays, strict=True)]
     for v, cands in zip(views, per_view, strict=True):
         if not cands:
-            raise ValueError(
+            raise ObservationError(
                 f"{v.name}: poses = 'unknown': the outline search found no pose of the mean "
                 "shape in front of the source that fits this view (annotate 3 landmarks)"
             )

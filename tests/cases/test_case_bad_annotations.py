@@ -96,3 +96,24 @@ def test_a_landmark_the_model_does_not_have_is_refused(case, tmp_path, capsys):
     assert "case.toml: [annotations] file: annotations.json: views.cam2.landmarks.stylion" in err
     assert "unknown landmark" in err
     assert not out.exists() and not list(tmp_path.glob(".out*"))
+
+
+def test_too_few_landmarks_for_the_pose_mode_name_the_annotations_file(case, tmp_path, capsys):
+    """The annotations hold too little for ``poses = "unknown"`` (2 + 1 landmarks): refused by
+    the registration's check, named by the annotations file rather than ``[registration]``."""
+    toml = case / "case.toml"
+    assert 'poses = "known"' in toml.read_text()
+    toml.write_text(toml.read_text().replace('poses = "known"', 'poses = "unknown"', 1))
+
+    def keep(views):
+        for name, n in (("cam1", 2), ("cam2", 1)):
+            marks = views[name]["landmarks"]
+            views[name]["landmarks"] = dict(list(marks.items())[:n])
+
+    _edit_annotations(case, keep)
+    rc, err, out = _register(case, tmp_path, capsys)
+    assert rc == 2, err
+    assert len(err.splitlines()) == 1, err
+    assert "case.toml: annotations.json: poses = 'unknown' starts the registration" in err
+    assert "got 3 of 2" in err
+    assert not out.exists() and not list(tmp_path.glob(".out*"))
