@@ -26,7 +26,7 @@ camera frame. Both run in two steps:
    (``pose_prior_at_bone``) the corrections are fitted only along the directions the images
    see better than the prior (:mod:`.calibration_subspace`), from the given calibrations;
    with the prior on the sources that fit, restricted to the directions the images see well,
-   is the fallback when no free joint fit is plausible (:func:`_seen_fallback`).
+   and the free fit from it compete with the free fits (:func:`_with_seen_fits`).
 """
 
 from __future__ import annotations
@@ -465,21 +465,29 @@ def _best_joint_fit(fit_args, terms: list[OutlineTerm], starts: list, max_iter: 
     return best
 
 
-def _seen_fallback(fit_args, terms: list[OutlineTerm], start, max_iter: int):
-    """``refine`` with the prior on the sources when no joint fit is plausible (each one moved
-    the bone along a direction the images hardly see, after the outlines' systematic errors):
+def _with_seen_fits(fit_args, terms: list[OutlineTerm], start, max_iter: int, best):
+    """``refine`` with the prior on the sources: ``best`` (the free joint fits' choice, None
+    when none was plausible) against two more fits, the lowest plausible objective kept:
     the corrections fitted only along the directions the images see well
     (:func:`.calibration_subspace.fit_seen_corrections` with
-    :data:`.calibration_subspace.SEEN_MAX_SD_MM`), from ``start`` (the registration with the
-    given calibrations). None when that fit is not plausible either: the given calibrations
-    stand."""
+    :data:`.calibration_subspace.SEEN_MAX_SD_MM`) from ``start`` (the registration with the
+    given calibrations), and the free joint fit from there. Where every free fit from the
+    landmark starts slid along a direction the images hardly see, beyond the gate, the first
+    corrects what the images do see; the second reaches minima those starts miss. None when
+    nothing is plausible: the given calibrations stand."""
     problem, rejected, pose_prior, depths = fit_args
-    fit, _ = fit_seen_corrections(
+    seen, _ = fit_seen_corrections(
         problem, start, rejected, pose_prior, depths, terms, max_sd_mm=SEEN_MAX_SD_MM,
         max_iter=max_iter, tol=1e-6, max_rejected=JOINT_MAX_REJECTED,
     )  # fmt: skip
-    problem.say(f"joint view refinement, seen directions only: objective {fit.cost_after:.4g}")
-    return None if _implausible(fit, pose_prior) else fit
+    state = (seen.rotations, seen.translations, seen.weights)
+    free = joint_fit(fit_args, terms, state, max_iter, JOINT_MAX_REJECTED)
+    problem.say(
+        f"joint view refinement, seen directions only: objective {seen.cost_after:.4g}; "
+        f"then free: {free.cost_after:.4g}"
+    )
+    fits = [f for f in (best, seen, free) if f is not None and not _implausible(f, pose_prior)]
+    return min(fits, key=lambda f: f.cost_after, default=None)
 
 
 def refine_views_on_outlines(
@@ -528,8 +536,8 @@ def refine_views_on_outlines(
             deep = _fittable(problem, depth_starts(views, problem.model, starts))
             starts += screened_starts(fit_args, terms, deep, JOINT_MAX_REJECTED)
         best = _best_joint_fit(fit_args, terms, starts, n_iter)
-        if pose_prior is not None and best is None:
-            best = _seen_fallback(fit_args, terms, (*tiled, result.weights), n_iter)
+        if pose_prior is not None:
+            best = _with_seen_fits(fit_args, terms, (*tiled, result.weights), n_iter, best)
     if not prior and best is not None:  # unknown: a hop search around it (view_starts.py)
         best = hop_joint_fit(fit_args, terms, best, n_iter, JOINT_MAX_REJECTED)
         best = scale_joint_fit(fit_args, terms, best, n_iter, JOINT_MAX_REJECTED)

@@ -3,9 +3,10 @@ case: the small wrist scene of ``tests/registration/conftest.py`` (the truth out
 span, open traced outlines, 1.5 px clicks), the second view's calibration 1.5 deg / 4 mm off
 about the bone.
 
-Every free joint fit of the views there moves the bone along a direction the images hardly
-see, beyond the prior's 3-sigma gate; the fallback (``view_poses._seen_fallback``) corrects
-only the directions the images see well. Without it the given (wrong) calibrations stood.
+Every free joint fit of the views from the landmark starts there moves the bone along a
+direction the images hardly see, beyond the prior's 3-sigma gate; the fit of the directions the
+images see well (``view_poses._with_seen_fits``) corrects the calibration. Without it the given
+(wrong) calibrations stand.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ def _similarity_rms(V: np.ndarray, truth: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((moved - truth) ** 2, axis=1))))
 
 
-def test_the_seen_directions_correct_the_calibration_when_no_free_fit_is_plausible(
+def test_the_seen_directions_correct_the_calibration_where_no_free_fit_is_plausible(
     scene, monkeypatch
 ):
     """Seed 8: shape error 0.70 mm with the fallback against 1.40 mm with the given
@@ -33,7 +34,7 @@ def test_the_seen_directions_correct_the_calibration_when_no_free_fit_is_plausib
     res = register_views(scene.model, c.views, poses="refine", progress=said.append)
     assert any(m.startswith("joint view refinement, seen directions only") for m in said)
     assert res.pose_info["rotation_corrections_deg"]["cam02"] > 0.1  # a correction was made
-    monkeypatch.setattr(view_poses, "_seen_fallback", lambda *args: None)
+    monkeypatch.setattr(view_poses, "_with_seen_fits", lambda *args: args[-1])  # the free fits
     old = register_views(scene.model, c.views, poses="refine")
     assert old.pose_info["rotation_corrections_deg"]["cam02"] == 0.0
     assert _similarity_rms(old.vertices, c.truth_vertices) > 1.2
