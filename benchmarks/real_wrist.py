@@ -14,7 +14,8 @@ that is not the patient). The truth is the CT mesh, up to pose: every error is m
 its rigid alignment onto the result (``[ground_truth] up_to_pose``).
 
 Conditions per case: the annotations as saved (``outlines``); the same registered with the
-shape model's modes only (``ssm``: ``gp = "off"``, no Gaussian-process stage); without outlines
+shape model's modes only (``ssm``: ``gp = "off"``, no Gaussian-process stage); with the view
+poses refined (``refine``: ``poses = "refine"``, the calibrations as given); without outlines
 (``landmarks``: refused when the landmarks alone cannot start, fewer than 3 different ones);
 every click's sigma set to 1 px and to 3 px (``sigma1``, ``sigma3``); and each view with one
 border only (``<view>-side<k>``: the other outline of that view removed); and every border
@@ -47,14 +48,26 @@ import build  # noqa: E402
 from biplanar_reg.cases import run_case_dir  # noqa: E402
 
 SIDES = [f"{v}-side{k}" for v in ("cam01", "cam02") for k in (0, 1)]
-CONDITIONS = ["outlines", "ssm", "landmarks", "sigma1", "sigma3", *SIDES, "past-cut"]
+CONDITIONS = ["outlines", "ssm", "refine", "landmarks", "sigma1", "sigma3", *SIDES, "past-cut"]
 #: ``past-cut``: how far each border is traced on past its proximal end, pixels (the
 #: annotators stopped at or before the CT's cut; the shaft goes on), and not below this row
 #: (the collimator's shadow starts at v = 1700 in cam02)
 PAST_CUT_PX = 90.0
 PAST_CUT_LAST_V = 1680.0
 #: conditions registered with other options (``[registration]`` keys)
-OPTIONS = {"ssm": 'gp = "off"'}
+OPTIONS = {"ssm": 'gp = "off"', "refine": 'poses = "refine"'}
+
+
+def with_option(toml: str, line: str) -> str:
+    """``case.toml``'s text with the ``[registration]`` entry ``line`` (``key = value``):
+    replacing the key's line where the case file has it, else added to the table."""
+    key = line.split("=", 1)[0].strip()
+    lines = toml.splitlines(keepends=True)
+    for i, old in enumerate(lines):
+        if old.split("=", 1)[0].strip() == key and "=" in old:
+            lines[i] = line + "\n"
+            return "".join(lines)
+    return toml.replace("[registration]\n", f"[registration]\n{line}\n")
 
 
 def variant(ann: dict, condition: str) -> dict:
@@ -123,10 +136,7 @@ def run_all(only: list[str] | None, conditions: list[str] = CONDITIONS) -> dict:
                     (folder / "annotations.json").write_text(json.dumps(variant(ann, cond)))
                     if cond in OPTIONS:
                         toml = (folder / "case.toml").read_text()
-                        toml = toml.replace(
-                            "[registration]\n", f"[registration]\n{OPTIONS[cond]}\n"
-                        )
-                        (folder / "case.toml").write_text(toml)
+                        (folder / "case.toml").write_text(with_option(toml, OPTIONS[cond]))
                     key = f"{bone}/{annotator}/{template}/{cond}"
                     results[key] = run_one(folder)
                     shutil.rmtree(folder)

@@ -48,22 +48,48 @@ def test_refine_with_three_landmarks_per_view_and_outlines(model):
     assert refined.pose_info["rotation_corrections_deg"]["cam2"] > 0.5
 
 
-def test_refine_starts_a_free_fit_from_the_seen_directions_fit(model):
-    """Seed 3 of ``benchmarks/pose_modes.py refine``: the free joint fits from the landmark
-    starts end in a local minimum 8.2 mm off (objective 250); the free fit started from the fit
-    of the directions the images see well (``view_poses._with_seen_fits``) ends 0.9 mm off
-    (objective 23)."""
+def _pose_modes_seed_3(model):
+    """Seed 3 of ``benchmarks/pose_modes.py refine``: the views, the second one miscalibrated
+    with the benchmark's draws, and the truth's vertices."""
     views, (*_, X) = boosting_case(model, 3, fraction=0.8, noise_px=0.5)
-    rng = np.random.default_rng(103)  # the benchmark's draws for seed 3
+    rng = np.random.default_rng(103)
     deg, mm = rng.uniform(1, 2), rng.uniform(3, 5)
     axis, direction = rng.normal(size=3), rng.normal(size=3)
     v2 = _miscalibrated(views[1].view, deg, axis, mm, direction)
+    return [views[0], replace(views[1], view=v2)], X
+
+
+def _seen_fits_ran(said: list[str]) -> bool:
+    return any(m.startswith("joint view refinement, seen directions only") for m in said)
+
+
+def test_refine_starts_a_free_fit_from_the_seen_directions_fit(model):
+    """The free joint fits from the landmark starts end in a local minimum 8.2 mm off
+    (objective 250); the free fit started from the fit of the directions the images see well
+    (``view_poses._with_seen_fits``) ends 0.9 mm off (objective 23)."""
+    views, X = _pose_modes_seed_3(model)
     said: list[str] = []
-    refined = register_views(
-        model, [views[0], replace(views[1], view=v2)], poses="refine", progress=said.append
-    )
-    assert any(m.startswith("joint view refinement, seen directions only") for m in said)
+    refined = register_views(model, views, poses="refine", progress=said.append)
+    assert _seen_fits_ran(said)
     assert _rms(refined.vertices, X) < 1.5
+
+
+def test_refine_runs_the_seen_directions_fit_only_with_3_landmarks_per_view(model):
+    """With 2 landmarks in a view the outlines alone set its correction: the seen-directions
+    fits are not run (on the real wrist cases they followed the tracings' errors)."""
+    views, _ = _pose_modes_seed_3(model)
+    v = views[1]
+    two = replace(
+        v,
+        landmark_names=v.landmark_names[:2],
+        landmark_ids=v.landmark_ids[:2],
+        landmark_uv=v.landmark_uv[:2],
+        landmark_sigma_px=v.landmark_sigma_px[:2],
+    )
+    said: list[str] = []
+    register_views(model, [views[0], two], poses="refine", progress=said.append)
+    assert any(m.startswith("joint view refinement from start") for m in said)
+    assert not _seen_fits_ran(said)
 
 
 def test_outline_only_registration_from_a_start_pose(model):
