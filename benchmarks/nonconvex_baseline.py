@@ -1,14 +1,16 @@
 """A plain non-convex baseline (landmark PnP start + ICP-style silhouette fit), beside the pipeline.
 
-    python benchmarks/nonconvex_baseline.py [--seeds 8]
+    python benchmarks/nonconvex_baseline.py [--seeds 8] [--conditions known-3,refine-3,...]
         [--out benchmarks/results/nonconvex_baseline.md] [--no-wrist] [--from-json RUN.json]
 
 The baseline (:func:`fit_baseline`) is the straightforward local fit of an SSM to landmark
 clicks and traced outlines in calibrated views, as in Baka et al. 2011 and Zheng et al. 2009:
 none of the pipeline's registration stages (no convex relaxation, no robust landmark weights,
-no noise estimate). It uses the package's geometry only: the views' projection
-(:mod:`biplanar_reg.calibration`), the model (:class:`biplanar_reg.ssm.ShapeModel`) and the
-mesh outline (:func:`biplanar_reg.outline.mesh_outline`).
+no noise estimate, no pose search). It uses the package's geometry only: the views' projection
+and rays (:mod:`biplanar_reg.calibration`), the model (:class:`biplanar_reg.ssm.ShapeModel`),
+the mesh outline (:func:`biplanar_reg.outline.mesh_outline`) and rigid fits for scoring.
+
+Known view poses (``poses="known"``, one object pose for every view):
 
 1. **Start** (:func:`landmark_starts`): the rigid pose of the mean shape that minimises the
    landmark reprojection error over all views (known view poses), by Levenberg-Marquardt from
@@ -29,25 +31,54 @@ mesh outline (:func:`biplanar_reg.outline.mesh_outline`).
    correspondences settle or the instance moves less than ``tol_mm`` (``max_iterations`` at
    most).
 
+View-pose modes (:class:`PoseModel`: one :class:`CentredPose` per view, the object as that
+view sees it through its extrinsics; view ``x``'s residuals use pose ``x``; pose 0 is the
+gauge and gives the result):
+
+* ``poses="refine"`` (the given extrinsics are off by a small unknown correction): the starts
+  of step 1 with the given extrinsics, every view sharing the start pose, then step 2 over all
+  per-view poses and the weights, with a Gaussian prior residual per view after the first
+  (:class:`PosePrior`, :func:`prior_residuals`: the rotation vector of ``R_x R_0^T`` over
+  ``pose_sigma_deg`` = 2 deg and the move of view ``x``'s given source ``c_x``,
+  ``R_0 R_x^T (c_x - T_x) + T_0 - c_x`` for the object-to-world poses ``X = R S + T``, over
+  ``pose_sigma_mm`` = 5 mm; the definition of the pipeline's
+  ``registration/outline_fit.py::prior_residuals`` with its default sigmas), also in the
+  objective. The result is in the given view 0's world frame.
+* ``poses="unknown"`` (extrinsics not used): every view is put at identity extrinsics (its
+  camera frame is its world) and each view's pose comes from its own landmarks (at least 3,
+  :func:`view_starts`: Levenberg-Marquardt from the 24 axis-aligned rotations, the centroid on
+  the ray through the view's annotation centre at the depth ``focal length x landmark spread
+  (mm) / landmark spread (px)``); the distinct solutions of the views are combined, the
+  combinations ranked by the objective (at most ``max_combinations``; :func:`unknown_starts`),
+  the best ``n_starts`` fitted by step 2 over all per-view poses and the weights (no prior),
+  and the lowest final objective kept. The result is view 0's instance in view 0's camera
+  frame (its size set by the model's prior only); :attr:`BaselineResult.extrinsics` holds the
+  views' estimated poses relative to it.
+
 The benchmark (:func:`main`) runs the baseline and the pipeline
-(:func:`biplanar_reg.registration.register_views`, default options, known poses) on the same
-inputs: the realistic synthetic cases of ``benchmarks/realistic.py`` (conditions known-3,
-known-5, blunder-3, known-3+2; truth in the world frame) and the real wrist cases of
-``benchmarks/real_wrist.py`` as annotated (radius and ulna, annotators a and b, the ``ct`` and
-``deformed`` templates; truth up to pose, so aligned RMS only). It writes a markdown table and
-the raw records (``.json``) beside it.
+(:func:`biplanar_reg.registration.register_views`, the condition's ``poses`` and options) on
+the same inputs: the realistic synthetic cases of ``benchmarks/realistic.py`` (``--conditions``,
+by default known-3, known-5, blunder-3, known-3+2 with known poses, calib-3 (known poses, the
+second view's calibration off), refine-3 (the same views, ``poses="refine"``) and unknown-3;
+truth in the world frame, mapped into the first view's camera frame for unknown poses) and the
+real wrist cases of ``benchmarks/real_wrist.py`` as annotated (radius and ulna, annotators a
+and b, the ``ct`` and ``deformed`` templates; truth up to pose, so aligned RMS only). Scores:
+world RMS (known and refined poses), RMS after the best rigid and the best similarity
+alignment, the views' rotation errors. It writes a markdown table and the raw records
+(``.json``) beside it.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import platform
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -92,6 +123,11 @@ class BaselineOptions:
         Stop when no vertex moves more than this between updates (mm).
     n_starts : int
         Start poses fitted (the best by :func:`objective` after the landmark start).
+    pose_sigma_deg, pose_sigma_mm : float
+        ``refine``: standard deviations of a view's rotation correction (deg) and of the move
+        of its source (mm), the pipeline's defaults (:class:`PosePrior`).
+    max_combinations : int
+        ``unknown``: combinations of the views' landmark poses ranked (:func:`unknown_starts`).
     """
 
     outline_sigma_px: float = 2.0
@@ -103,6 +139,9 @@ class BaselineOptions:
     max_iterations: int = 20
     tol_mm: float = 1e-3
     n_starts: int = 3
+    pose_sigma_deg: float = 2.0
+    pose_sigma_mm: float = 5.0
+    max_combinations: int = 8
 
 
 @dataclass(frozen=True)
@@ -178,9 +217,11 @@ class BaselineResult:
     Attributes
     ----------
     vertices : (N, 3) array
-        Registered instance in the world frame, mm.
+        Registered instance in the world frame (the given view 0's; for ``unknown`` poses
+        view 0's camera frame), mm.
     rotation, translation : (3, 3) array, (3,) array
-        Model-to-world pose: ``vertices = model.instance(weights) @ rotation.T + translation``.
+        Model-to-world pose (the gauge's, view 0's, for per-view poses):
+        ``vertices = model.instance(weights) @ rotation.T + translation``.
     weights : (M,) array
         SSM weights, standard deviations.
     objective : float
@@ -193,6 +234,10 @@ class BaselineResult:
         Distinct landmark starts found (before keeping ``n_starts``).
     start_objectives : list of float
         Final objective of every start fitted.
+    extrinsics : list of ((3, 3) array, (3,) array)
+        Every view's world-to-camera ``(R, t)`` (mm) in the result's frame: the given ones
+        for known poses, the corrected ones for ``refine``, the estimated relative poses for
+        ``unknown`` (view 0's the identity).
     """
 
     vertices: np.ndarray
@@ -204,6 +249,7 @@ class BaselineResult:
     settled: bool
     n_candidates: int
     start_objectives: list[float] = field(default_factory=list)
+    extrinsics: list = field(default_factory=list)
 
 
 # -- inputs ---------------------------------------------------------------------------------------
@@ -315,7 +361,8 @@ def correspondences(
 @dataclass(frozen=True)
 class _Block:
     """Residuals of one view: points ``(1 - s) X_a + s X_b`` against pixels ``uv``, divided by
-    ``sigma``; ``normal`` (K, 2) projects the difference on the outline's normal (None: 2-D)."""
+    ``sigma``; ``normal`` (K, 2) projects the difference on the outline's normal (None: 2-D).
+    The points are posed by the fit's pose number ``pose`` (:meth:`PoseModel.index`)."""
 
     view: View
     a: np.ndarray
@@ -324,9 +371,54 @@ class _Block:
     uv: np.ndarray
     sigma: np.ndarray
     normal: np.ndarray | None = None
+    pose: int = 0
 
 
-def landmark_blocks(obs: Observed) -> list[_Block]:
+@dataclass(frozen=True)
+class PosePrior:
+    """A Gaussian prior on the per-view poses' corrections relative to view 0's (``refine``).
+
+    With ``X = R_x S + T_x`` the object-to-world pose of view ``x`` (the object as seen
+    through view ``x``'s given extrinsics; view 0's is the bone's world pose, the gauge), the
+    residuals of view ``x > 0`` are the rotation vector of ``R_x R_0^T`` (radians) over
+    ``sigma_rad`` and the move ``R_0 R_x^T (c_x - T_x) + T_0 - c_x`` (mm) of its given source
+    position ``c_x`` over ``sigma_mm``: the definition of
+    ``biplanar_reg.registration.outline_fit.prior_residuals`` with gauge 0.
+
+    Attributes
+    ----------
+    centres : (P, 3) array
+        Given source position (camera centre ``-R^T t``) of every view, world, mm.
+    sigma_rad : float
+        Standard deviation of a view's rotation correction, radians.
+    sigma_mm : float
+        Standard deviation of the move of a view's source, mm.
+    """
+
+    centres: np.ndarray
+    sigma_rad: float
+    sigma_mm: float
+
+
+@dataclass(frozen=True)
+class PoseModel:
+    """The object poses of a fit: one shared by all views (known view poses), or one per view
+    (``per_view``; pose ``x`` is the object as view ``x`` sees it, pose 0 the gauge), with an
+    optional :class:`PosePrior` on the per-view corrections."""
+
+    per_view: bool = False
+    prior: PosePrior | None = None
+
+    def index(self, x: int) -> int:
+        """The pose that view ``x`` sees."""
+        return x if self.per_view else 0
+
+
+#: one pose for every view: the known-pose baseline
+KNOWN = PoseModel()
+
+
+def landmark_blocks(obs: Observed, pm: PoseModel = KNOWN) -> list[_Block]:
     """One 2-D residual block per view with landmarks (each over its click sigma)."""
     out = []
     for x, view in enumerate(obs.views):
@@ -334,101 +426,166 @@ def landmark_blocks(obs: Observed) -> list[_Block]:
         if np.any(m):
             ids = obs.lm_ids[m]
             s = np.zeros(len(ids))
-            out.append(_Block(view, ids, ids, s, obs.lm_uv[m], obs.lm_sigma[m]))
+            out.append(_Block(view, ids, ids, s, obs.lm_uv[m], obs.lm_sigma[m], pose=pm.index(x)))
     return out
 
 
 def outline_blocks(
-    corr: Sequence[Correspondences | None], views: Sequence[View], opts: BaselineOptions
+    corr: Sequence[Correspondences | None],
+    views: Sequence[View],
+    opts: BaselineOptions,
+    pm: PoseModel = KNOWN,
 ) -> list[_Block]:
     """One residual block per view from its kept outline correspondences (fixed sigma)."""
     out = []
-    for c, view in zip(corr, views, strict=True):
+    for x, (c, view) in enumerate(zip(corr, views, strict=True)):
         if c is None or not np.any(c.keep):
             continue
         k = c.keep
         normal = c.normal[k] if opts.metric == "normal" else None
         sigma = np.full(int(k.sum()), opts.outline_sigma_px)
-        out.append(_Block(view, c.a[k], c.b[k], c.s[k], c.uv[k], sigma, normal))
+        out.append(_Block(view, c.a[k], c.b[k], c.s[k], c.uv[k], sigma, normal, pm.index(x)))
     return out
+
+
+def object_translation(pose: CentredPose, c: np.ndarray) -> np.ndarray:
+    """``T`` of the object-to-world form ``X = R S + T`` of ``pose`` about ``c`` (mm)."""
+    return c + pose.t - pose.R @ c
+
+
+def prior_residuals(
+    poses: Sequence[CentredPose], c: np.ndarray, prior: PosePrior | None
+) -> np.ndarray:
+    """The residuals of ``prior`` (6 per view after the first; empty without a prior) for the
+    per-view ``poses`` about the mean's centroid ``c`` (world, mm)."""
+    if prior is None or len(poses) < 2:
+        return np.zeros(0)
+    g = poses[0]
+    T0 = object_translation(g, c)
+    out = []
+    for q, cx in zip(poses[1:], prior.centres[1:], strict=True):
+        moved = g.R @ q.R.T @ (cx - object_translation(q, c)) + T0
+        out.append(Rotation.from_matrix(q.R @ g.R.T).as_rotvec() / prior.sigma_rad)
+        out.append((moved - cx) / prior.sigma_mm)
+    return np.concatenate(out)
+
+
+def _updated(p: np.ndarray, poses: Sequence[CentredPose]) -> list[CentredPose]:
+    """``poses`` moved by ``p`` (6 per pose: a rotation vector applied before its ``R``, a
+    translation added to its ``t`` in mm)."""
+    return [
+        CentredPose(
+            Rotation.from_rotvec(p[6 * k : 6 * k + 3]).as_matrix() @ q.R,
+            q.t + p[6 * k + 3 : 6 * k + 6],
+        )
+        for k, q in enumerate(poses)
+    ]
 
 
 def _residuals(
     p: np.ndarray,
     model: ShapeModel,
     blocks: list[_Block],
-    pose: CentredPose,
+    poses: Sequence[CentredPose],
     c: np.ndarray,
     shape: bool,
+    prior: PosePrior | None = None,
 ) -> np.ndarray:
-    """Residual vector at ``p`` = (rotation vector applied before ``pose.R``, translation
-    added to ``pose.t`` (mm), SSM weights (SD) if ``shape``); the weights are their own prior
-    residuals."""
-    R = Rotation.from_rotvec(p[:3]).as_matrix() @ pose.R
-    w = p[6:] if shape else np.zeros(0)
+    """Residual vector at ``p`` = (6 per pose of ``poses``: see :func:`_updated`; then the SSM
+    weights (SD) if ``shape``): the blocks' residuals, the weights as their own prior
+    residuals, then those of ``prior`` (:func:`prior_residuals`)."""
+    cur = _updated(p, poses)
+    w = p[6 * len(poses) :] if shape else np.zeros(0)
     out = []
     for blk in blocks:
         ids = np.concatenate([blk.a, blk.b])
         S = model.mean[ids]
         if len(w):
             S = S + np.tensordot(w, model.modes[:, ids], axes=1)
-        X = posed(S, CentredPose(R, pose.t + p[3:6]), c)
+        X = posed(S, cur[blk.pose], c)
         n = len(blk.a)
         Xq = X[:n] + blk.s[:, None] * (X[n:] - X[:n])
         d = blk.view.project(Xq) - blk.uv
         r = d / blk.sigma[:, None] if blk.normal is None else np.sum(d * blk.normal, 1) / blk.sigma
         out.append(r.ravel())
     out.append(w)
+    out.append(prior_residuals(cur, c, prior))
     return np.concatenate(out)
 
 
 def solve(
     model: ShapeModel,
     blocks: list[_Block],
-    pose: CentredPose,
+    poses: Sequence[CentredPose],
     c: np.ndarray,
     w0: np.ndarray | None,
-) -> tuple[CentredPose, np.ndarray]:
-    """Least squares over the pose update and (unless ``w0`` is None) the SSM weights.
+    prior: PosePrior | None = None,
+) -> tuple[list[CentredPose], np.ndarray]:
+    """Least squares over the poses' updates and (unless ``w0`` is None) the SSM weights.
 
-    Returns the new pose and weights (zeros of length 0 for a pose-only solve).
+    Returns the new poses and weights (zeros of length 0 for a pose-only solve).
     """
     shape = w0 is not None
-    p0 = np.concatenate([np.zeros(6), w0 if shape else []])
+    P = len(poses)
+    p0 = np.concatenate([np.zeros(6 * P), w0 if shape else []])
     n_res = sum(len(b.a) * (1 if b.normal is not None else 2) for b in blocks)
+    n_res += len(prior_residuals(poses, c, prior))
     method = "lm" if n_res + (len(w0) if shape else 0) >= len(p0) else "trf"
     sol = least_squares(
-        _residuals, p0, args=(model, blocks, pose, c, shape), method=method, x_scale="jac"
+        _residuals,
+        p0,
+        args=(model, blocks, poses, c, shape, prior),
+        method=method,
+        x_scale="jac",
     )
-    R = Rotation.from_rotvec(sol.x[:3]).as_matrix() @ pose.R
-    return CentredPose(R, pose.t + sol.x[3:6]), sol.x[6:]
+    return _updated(sol.x, poses), sol.x[6 * P :]
 
 
 # -- objective and start --------------------------------------------------------------------------
+def _view_terms(
+    model: ShapeModel,
+    obs: Observed,
+    x: int,
+    X: np.ndarray,
+    topology: HalfEdges,
+    opts: BaselineOptions,
+) -> list[float]:
+    """View ``x``'s terms of :func:`objective` (landmarks, outline) for the instance ``X``
+    (N, 3), mm, in the frame of the view's extrinsics."""
+    view, out = obs.views[x], []
+    m = obs.lm_view == x
+    if np.any(m):
+        e = (view.project(X[obs.lm_ids[m]]) - obs.lm_uv[m]) / obs.lm_sigma[m, None]
+        out.append(float(np.sum(e**2)))
+    corr = correspondences(X, model.faces, topology, view, obs.outline_uv[x], opts)
+    if corr is not None:
+        d = np.minimum(corr.dist, opts.gate_px)
+        out.append(float(np.sum(d**2)) / opts.outline_sigma_px**2)
+    return out
+
+
 def objective(
     model: ShapeModel,
     obs: Observed,
-    pose: CentredPose,
+    poses: Sequence[CentredPose],
     w: np.ndarray,
     c: np.ndarray,
     topology: HalfEdges,
     opts: BaselineOptions,
+    pm: PoseModel = KNOWN,
 ) -> float:
     """The robust objective that ranks starts and results (dimensionless):
     ``sum ((landmark error) / sigma)^2 + sum min(d, gate_px)^2 / outline_sigma^2 + w.w``
-    with ``d`` the distance (px) of every annotated outline point to the model outline."""
-    X = posed(model.instance(w), pose, c)
+    (+ the squared :func:`prior_residuals` of ``pm``) with ``d`` the distance (px) of every
+    annotated outline point to the model outline; view ``x`` sees pose ``pm.index(x)``."""
+    S = model.instance(w)
+    Xs = [posed(S, q, c) for q in poses]
     total = float(w @ w)
-    for x, view in enumerate(obs.views):
-        m = obs.lm_view == x
-        if np.any(m):
-            e = (view.project(X[obs.lm_ids[m]]) - obs.lm_uv[m]) / obs.lm_sigma[m, None]
-            total += float(np.sum(e**2))
-        corr = correspondences(X, model.faces, topology, view, obs.outline_uv[x], opts)
-        if corr is not None:
-            d = np.minimum(corr.dist, opts.gate_px)
-            total += float(np.sum(d**2)) / opts.outline_sigma_px**2
-    return total
+    for x in range(len(obs.views)):
+        for term in _view_terms(model, obs, x, Xs[pm.index(x)], topology, opts):
+            total += term
+    r = prior_residuals(poses, c, pm.prior)
+    return total + float(r @ r) if len(r) else total
 
 
 def cube_rotations() -> list[np.ndarray]:
@@ -476,25 +633,77 @@ def _distinct(
     return kept
 
 
-def landmark_starts(model: ShapeModel, obs: Observed, c: np.ndarray) -> list[CentredPose]:
-    """Distinct rigid poses of the mean shape minimising the landmark reprojection error, from
-    the 24 axis-aligned rotations at :func:`centre_guess` (cheapest first); without landmarks
-    the 24 rotations themselves."""
-    t0 = centre_guess(obs) - c
-    blocks = landmark_blocks(obs)
+def _pnp(
+    model: ShapeModel, blocks: list[_Block], t0: np.ndarray, c: np.ndarray
+) -> list[CentredPose]:
+    """Distinct rigid poses of the mean shape (about ``c``) minimising the landmark residuals
+    ``blocks`` (one pose), by Levenberg-Marquardt from the 24 axis-aligned rotations at the
+    translation ``t0`` (mm); cheapest first."""
     found = []
     for R in cube_rotations():
-        start = CentredPose(R, t0)
-        if not blocks:
-            found.append((start, 0.0))
-            continue
         try:
-            pose, _ = solve(model, blocks, start, c, None)
-            r = _residuals(np.zeros(6), model, blocks, pose, c, False)
+            (pose,), _ = solve(model, blocks, [CentredPose(R, t0)], c, None)
+            r = _residuals(np.zeros(6), model, blocks, [pose], c, False)
         except ValueError:  # a step took points behind a source: this start is dropped
             continue
         found.append((pose, float(r @ r)))
     return _distinct(found)
+
+
+def landmark_starts(model: ShapeModel, obs: Observed, c: np.ndarray) -> list[CentredPose]:
+    """Distinct rigid poses of the mean shape minimising the landmark reprojection error over
+    all views (one pose), from the 24 axis-aligned rotations at :func:`centre_guess`
+    (cheapest first); without landmarks the 24 rotations themselves."""
+    t0 = centre_guess(obs) - c
+    blocks = landmark_blocks(obs)
+    if not blocks:
+        return _distinct([(CentredPose(R, t0), 0.0) for R in cube_rotations()])
+    return _pnp(model, blocks, t0, c)
+
+
+def _spread(P: np.ndarray) -> float:
+    """RMS distance of the points ``P`` (K, d) from their mean."""
+    return float(np.sqrt(np.mean(np.sum((P - P.mean(axis=0)) ** 2, axis=1))))
+
+
+def view_starts(model: ShapeModel, obs: Observed, c: np.ndarray, x: int) -> list[CentredPose]:
+    """Distinct poses of the mean shape in view ``x``'s frame from that view's landmarks alone
+    (at least 3): :func:`_pnp` with the centroid on the ray through the view's annotation
+    centre at the depth ``(model landmark spread, mm) / (pixel spread x radians per pixel)``
+    (the radians per pixel at the centre, i.e. one over the focal length)."""
+    m = obs.lm_view == x
+    if np.count_nonzero(m) < 3:
+        raise ValueError(f"view {x}: the baseline needs 3 landmarks per view for unknown poses")
+    view, uv, ids = obs.views[x], obs.lm_uv[m], obs.lm_ids[m]
+    centre = (obs.outline_uv[x] if len(obs.outline_uv[x]) else uv).mean(axis=0)
+    o, d = view.rays(np.array([centre, centre + [1.0, 0.0]]))
+    rad_per_px = float(np.linalg.norm(np.cross(d[0], d[1])))
+    if rad_per_px <= 0 or _spread(uv) <= 0:
+        raise ValueError(f"view {x}: no depth from the landmarks (parallel rays or one pixel)")
+    depth = _spread(model.mean[ids]) / (_spread(uv) * rad_per_px)
+    blk = _Block(view, ids, ids, np.zeros(len(ids)), uv, obs.lm_sigma[m])
+    return _pnp(model, [blk], o[0] + depth * d[0] - c, c)
+
+
+def unknown_starts(
+    model: ShapeModel,
+    obs: Observed,
+    c: np.ndarray,
+    topology: HalfEdges,
+    opts: BaselineOptions,
+) -> tuple[list[list[CentredPose]], int]:
+    """Combinations of :func:`view_starts` (one pose per view), cheapest :func:`objective`
+    first (mean shape, no prior: the sum of the views' terms), at most ``max_combinations``;
+    and the number of combinations."""
+    S = model.instance(np.zeros(model.n_modes))
+    scored = []
+    for x in range(len(obs.views)):
+        cands = view_starts(model, obs, c, x)
+        costs = [sum(_view_terms(model, obs, x, posed(S, q, c), topology, opts)) for q in cands]
+        scored.append(list(zip(costs, cands, strict=True)))
+    combos = sorted(itertools.product(*scored), key=lambda cb: sum(cost for cost, _ in cb))
+    kept = [[q for _, q in cb] for cb in combos[: opts.max_combinations]]
+    return kept, len(combos)
 
 
 # -- the fit --------------------------------------------------------------------------------------
@@ -505,46 +714,100 @@ def _signature(corr: Sequence[Correspondences | None]) -> tuple:
     )
 
 
+def _largest_move(a: np.ndarray, b: np.ndarray) -> float:
+    """The largest distance between corresponding points of ``a`` and ``b`` (N, 3), mm."""
+    return float(np.max(np.linalg.norm(a - b, axis=1)))
+
+
 def fit_from(
     model: ShapeModel,
     obs: Observed,
-    start: CentredPose,
+    start: Sequence[CentredPose],
     c: np.ndarray,
     topology: HalfEdges,
     opts: BaselineOptions,
-) -> tuple[CentredPose, np.ndarray, int, bool]:
-    """Alternate correspondences and least squares from ``start`` (module doc, step 2).
+    pm: PoseModel = KNOWN,
+) -> tuple[list[CentredPose], np.ndarray, int, bool]:
+    """Alternate correspondences and least squares from the poses ``start`` (module doc,
+    step 2; view ``x`` sees pose ``pm.index(x)``).
 
-    Returns the pose, the weights (SD), the number of updates and whether they settled.
+    Returns the poses, the weights (SD), the number of updates and whether they settled.
     """
-    pose, w = start, np.zeros(model.n_modes)
-    X = posed(model.mean, pose, c)
+    poses, w = list(start), np.zeros(model.n_modes)
+    Xs = [posed(model.mean, q, c) for q in poses]
     last = None
     for it in range(1, opts.max_iterations + 1):
         corr = [
-            correspondences(X, model.faces, topology, v, obs.outline_uv[x], opts)
+            correspondences(Xs[pm.index(x)], model.faces, topology, v, obs.outline_uv[x], opts)
             for x, v in enumerate(obs.views)
         ]
         sig = _signature(corr)
         if sig == last:
-            return pose, w, it - 1, True
+            return poses, w, it - 1, True
         last = sig
-        blocks = landmark_blocks(obs) + outline_blocks(corr, obs.views, opts)
-        pose, w = solve(model, blocks, pose, c, w)
-        X_new = posed(model.instance(w), pose, c)
-        moved = float(np.max(np.linalg.norm(X_new - X, axis=1)))
-        X = X_new
+        blocks = landmark_blocks(obs, pm) + outline_blocks(corr, obs.views, opts, pm)
+        poses, w = solve(model, blocks, poses, c, w, pm.prior)
+        S = model.instance(w)
+        new = [posed(S, q, c) for q in poses]
+        moved = max(_largest_move(a, b) for a, b in zip(new, Xs, strict=True))
+        Xs = new
         if moved < opts.tol_mm:
-            return pose, w, it, True
-    return pose, w, opts.max_iterations, False
+            return poses, w, it, True
+    return poses, w, opts.max_iterations, False
+
+
+def estimated_extrinsics(
+    views: Sequence[View], poses: Sequence[CentredPose], c: np.ndarray, pm: PoseModel
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Every view's world-to-camera ``(R, t)`` (mm) in the result's frame (the frame of the
+    given view 0's extrinsics): its given extrinsics after the correction ``O_x O_0^-1`` from
+    the gauge's object pose ``O_0`` to the pose ``O_x`` it sees (identity for known poses)."""
+    g = poses[0]
+    T0 = object_translation(g, c)
+    out = []
+    for x, v in enumerate(views):
+        q = poses[pm.index(x)]
+        Rc = q.R @ g.R.T
+        tc = object_translation(q, c) - Rc @ T0
+        out.append((v.R @ Rc, v.R @ tc + v.t))
+    return out
+
+
+def _starts(
+    model: ShapeModel,
+    obs: Observed,
+    c: np.ndarray,
+    topology: HalfEdges,
+    opts: BaselineOptions,
+    poses: str,
+) -> tuple[PoseModel, list[list[CentredPose]], int]:
+    """The pose model of the mode ``poses``, its ranked starts (one pose per pose of the
+    model) and the number of distinct candidates."""
+    if poses == "unknown":
+        combos, n = unknown_starts(model, obs, c, topology, opts)
+        return PoseModel(per_view=True), combos, n
+    zero = np.zeros(model.n_modes)
+    cands = landmark_starts(model, obs, c)
+    ranked = sorted(cands, key=lambda p: objective(model, obs, [p], zero, c, topology, opts))
+    if poses == "known":
+        return KNOWN, [[p] for p in ranked], len(cands)
+    centres = np.array([-v.R.T @ v.t for v in obs.views])
+    prior = PosePrior(centres, float(np.deg2rad(opts.pose_sigma_deg)), opts.pose_sigma_mm)
+    return PoseModel(True, prior), [[p] * len(obs.views) for p in ranked], len(cands)
+
+
+def at_identity(views: Sequence[ViewObservations]) -> list[ViewObservations]:
+    """``views`` with identity extrinsics: each view's world is its camera frame (mm)."""
+    return [replace(o, view=replace(o.view, R=np.eye(3), t=np.zeros(3))) for o in views]
 
 
 def fit_baseline(
     model: ShapeModel,
     views: Sequence[ViewObservations],
     options: BaselineOptions | None = None,
+    poses: str = "known",
 ) -> BaselineResult:
-    """Register ``model`` to landmarks and outlines in calibrated views (known poses).
+    """Register ``model`` to landmarks and outlines in calibrated views.
 
     Parameters
     ----------
@@ -554,43 +817,63 @@ def fit_baseline(
         Calibrated views (world frame, mm) with landmark clicks (model vertex ids, pixels,
         click sigmas in pixels) and traced outlines (pixels).
     options : BaselineOptions, optional
+    poses : {"known", "refine", "unknown"}
+        The views' extrinsics as given (one object pose); as given up to a correction of
+        every view after the first (one object pose per view, a Gaussian prior on the
+        corrections); or not used (each view at identity extrinsics, one free object pose per
+        view, at least 3 landmarks per view). See the module doc.
 
     Returns
     -------
     BaselineResult
-        The instance in the world frame and its model-to-world pose.
+        The instance in the world frame of the given view 0 (``unknown``: view 0's camera
+        frame), its model-to-world pose and the views' estimated extrinsics in that frame.
     """
     opts = options or BaselineOptions()
+    if poses not in ("known", "refine", "unknown"):
+        raise ValueError(f"poses: 'known', 'refine' or 'unknown', got {poses!r}")
     if model.faces is None:
         raise ValueError("the baseline needs a surface model (faces) for the outlines")
-    obs = gather(views, opts.outline_spacing_px)
+    obs = gather(at_identity(views) if poses == "unknown" else views, opts.outline_spacing_px)
     c = model.mean.mean(axis=0)
     topology = half_edges(model.faces, model.n_vertices)
-    zero = np.zeros(model.n_modes)
-    cands = landmark_starts(model, obs, c)
-    ranked = sorted(cands, key=lambda p: objective(model, obs, p, zero, c, topology, opts))
+    pm, starts, n_candidates = _starts(model, obs, c, topology, opts, poses)
     fits = []
-    for start in ranked[: opts.n_starts]:
-        pose, w, its, settled = fit_from(model, obs, start, c, topology, opts)
-        fits.append((objective(model, obs, pose, w, c, topology, opts), pose, w, its, settled))
-    best = min(fits, key=lambda f: f[0])
-    J, pose, w, its, settled = best
+    for start in starts[: opts.n_starts]:
+        try:
+            q, w, its, settled = fit_from(model, obs, start, c, topology, opts, pm)
+        except ValueError:  # a step took the instance behind a source: this start is dropped
+            continue
+        fits.append((objective(model, obs, q, w, c, topology, opts, pm), q, w, its, settled))
+    if not fits:
+        raise ValueError("every start of the baseline failed (instance behind a source)")
+    J, q, w, its, settled = min(fits, key=lambda f: f[0])
+    g = q[0]
     return BaselineResult(
-        vertices=posed(model.instance(w), pose, c),
-        rotation=pose.R,
-        translation=c + pose.t - pose.R @ c,
+        vertices=posed(model.instance(w), g, c),
+        rotation=g.R,
+        translation=object_translation(g, c),
         weights=w,
         objective=J,
         iterations=its,
         settled=settled,
-        n_candidates=len(cands),
+        n_candidates=n_candidates,
         start_objectives=[f[0] for f in fits],
+        extrinsics=estimated_extrinsics(obs.views, q, c, pm),
     )
 
 
 # -- benchmark: cases -----------------------------------------------------------------------------
-#: the realistic conditions run here (all with known view poses)
-REALISTIC_CONDITIONS = ("known-3", "known-5", "blunder-3", "known-3+2")
+#: the realistic conditions run by default: known view poses, then the view-pose modes
+REALISTIC_CONDITIONS = (
+    "known-3",
+    "known-5",
+    "blunder-3",
+    "known-3+2",
+    "calib-3",
+    "refine-3",
+    "unknown-3",
+)
 #: a result is "flipped" when its RMS exceeds FLIP_MM while the other method's is below OK_MM
 FLIP_MM, OK_MM = 5.0, 2.0
 
@@ -600,6 +883,9 @@ class Job:
     """One registration problem of the benchmark (the same for both methods).
 
     ``truth`` is in the world frame when ``world`` is True, else known up to pose (mm).
+    ``poses`` is the view-pose mode of both methods; ``true_extrinsics`` the views' true
+    world-to-camera ``(R, t)`` (synthetic cases; None for the real ones) and ``options``
+    the pipeline's :class:`RegistrationOptions` keywords.
     """
 
     condition: str
@@ -608,6 +894,9 @@ class Job:
     views: list
     truth: np.ndarray
     world: bool
+    poses: str = "known"
+    true_extrinsics: list | None = None
+    options: dict = field(default_factory=dict)
 
 
 def _benchmark_imports() -> None:
@@ -617,7 +906,8 @@ def _benchmark_imports() -> None:
 
 
 def realistic_jobs(seeds: Sequence[int], conditions: Sequence[str]) -> Iterator[Job]:
-    """The cases of ``benchmarks/realistic.py`` (its case generation and landmark removal)."""
+    """The cases of ``benchmarks/realistic.py`` (its case generation, landmark removal,
+    view-pose modes and pipeline options)."""
     _benchmark_imports()
     from benchmarks import realistic as rl
     from biplanar_reg.simulate.realistic import make_realistic_case, wrist_scene
@@ -626,7 +916,7 @@ def realistic_jobs(seeds: Sequence[int], conditions: Sequence[str]) -> Iterator[
     for seed in seeds:
         b_px, deg, mm = rl.seed_draws(seed)
         for cond in conditions:
-            _, n, blunder, calib = rl.CONDITIONS[cond]
+            poses, n, blunder, calib = rl.CONDITIONS[cond]
             case = make_realistic_case(
                 seed,
                 n_landmarks_per_view=n,
@@ -636,7 +926,15 @@ def realistic_jobs(seeds: Sequence[int], conditions: Sequence[str]) -> Iterator[
             )
             case = rl._keep_landmarks(case, rl.KEPT.get(cond))
             yield Job(
-                cond, f"seed {seed}", scene.model, list(case.views), case.truth_vertices, True
+                cond,
+                f"seed {seed}",
+                scene.model,
+                list(case.views),
+                case.truth_vertices,
+                True,
+                poses=poses,
+                true_extrinsics=[(v.R, v.t) for v in case.true_views],
+                options=dict(rl.CONDITION_OPTIONS.get(cond, {})),
             )
 
 
@@ -666,6 +964,10 @@ def _rms(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
 
 
+def _angle_deg(R: np.ndarray) -> float:
+    return float(np.rad2deg(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
+
+
 def _timed(fn: Callable[[], object]) -> tuple[object | None, float, str]:
     """``fn()``, its CPU seconds and "ok" (or the exception's one-line message)."""
     c0 = time.process_time()
@@ -676,30 +978,72 @@ def _timed(fn: Callable[[], object]) -> tuple[object | None, float, str]:
     return out, time.process_time() - c0, status
 
 
-def _scores(vertices: np.ndarray | None, job: Job) -> dict:
+def _truth_in_result(job: Job, extrinsics: list) -> np.ndarray:
+    """The truth (mm) in a result's frame: the world for known and refined poses (the given
+    view 0 is exact in these cases); for ``unknown`` the frame in which view 0 has the
+    estimated extrinsics ``extrinsics[0]`` (as ``benchmarks/realistic.py``'s ``_metrics``)."""
+    if job.poses != "unknown":
+        return job.truth
+    (R0, t0), (Re, te) = job.true_extrinsics[0], extrinsics[0]
+    return (job.truth @ R0.T + t0 - te) @ Re
+
+
+def _rotation_errors(job: Job, extrinsics: list | None) -> list[float] | None:
+    """Every later view's rotation error relative to view 0 (deg), against the truth."""
+    if job.true_extrinsics is None or not extrinsics:
+        return None
+    (Rt0, _), (Re0, _) = job.true_extrinsics[0], extrinsics[0]
+    return [
+        _angle_deg((Re @ Re0.T) @ (Rt @ Rt0.T).T)
+        for (Rt, _), (Re, _) in zip(job.true_extrinsics[1:], extrinsics[1:], strict=True)
+    ]
+
+
+def _scores(vertices: np.ndarray | None, extrinsics: list | None, job: Job) -> dict:
+    """World RMS (known and refined poses of synthetic cases), rigidly and similarity-aligned
+    RMS (mm), the similarity's scale and the views' rotation errors (deg)."""
     if vertices is None:
-        return {"world_mm": None, "aligned_mm": None}
-    aligned = _rms(RigidPose.fit_rigid(vertices, job.truth).apply(vertices), job.truth)
-    return {"world_mm": _rms(vertices, job.truth) if job.world else None, "aligned_mm": aligned}
+        return {"world_mm": None, "aligned_mm": None, "similarity_mm": None}
+    truth = _truth_in_result(job, extrinsics)
+    aligned = _rms(RigidPose.fit_rigid(vertices, truth).apply(vertices), truth)
+    sim = RigidPose.fit_similarity(vertices, truth)
+    world = job.world and job.poses != "unknown"
+    return {
+        "world_mm": _rms(vertices, truth) if world else None,
+        "aligned_mm": aligned,
+        "similarity_mm": _rms(sim.apply(vertices), truth),
+        "scale": float(sim.scale),
+        "view_rot_err_deg": _rotation_errors(job, extrinsics),
+    }
 
 
 def run_job(job: Job) -> dict:
-    """Both methods on one job: RMS (world, aligned), CPU seconds, status."""
+    """Both methods on one job (view-pose mode ``job.poses``): RMS (world, aligned,
+    similarity-aligned), view rotation errors, CPU seconds, status."""
     from biplanar_reg.registration import RegistrationOptions, register_views
 
-    base, base_s, base_status = _timed(lambda: fit_baseline(job.model, job.views))
+    base, base_s, base_status = _timed(lambda: fit_baseline(job.model, job.views, poses=job.poses))
     pipe, pipe_s, pipe_status = _timed(
-        lambda: register_views(job.model, job.views, poses="known", options=RegistrationOptions())
+        lambda: register_views(
+            job.model, job.views, poses=job.poses, options=RegistrationOptions(**job.options)
+        )
     )
-    rec = {"condition": job.condition, "case": job.case}
-    rec["baseline"] = _scores(None if base is None else base.vertices, job) | {
+    rec = {"condition": job.condition, "case": job.case, "poses": job.poses}
+    rec["baseline"] = _scores(
+        None if base is None else base.vertices, None if base is None else base.extrinsics, job
+    ) | {
         "cpu_s": base_s,
         "status": base_status,
         "iterations": None if base is None else base.iterations,
         "settled": None if base is None else base.settled,
         "n_candidates": None if base is None else base.n_candidates,
     }
-    rec["pipeline"] = _scores(None if pipe is None else pipe.vertices, job) | {
+    pipe_ext = (
+        None
+        if pipe is None
+        else [(pipe.view_poses[o.name]["R"], pipe.view_poses[o.name]["t"]) for o in job.views]
+    )
+    rec["pipeline"] = _scores(None if pipe is None else pipe.vertices, pipe_ext, job) | {
         "cpu_s": pipe_s,
         "status": pipe_status,
         "flags": [] if pipe is None else list(pipe.flags),
@@ -708,16 +1052,24 @@ def run_job(job: Job) -> dict:
 
 
 # -- benchmark: report ----------------------------------------------------------------------------
-def _med_max(values: list[float]) -> str:
+def _med_max(values: list[float | None]) -> str:
     v = [x for x in values if x is not None]
     return f"{np.median(v):.2f} / {np.max(v):.2f}" if v else "-"
 
 
-def _flipped(records: list[dict], key: str, bad: str, good: str) -> list[str]:
-    """Cases where method ``bad`` is above FLIP_MM and ``good`` below OK_MM (``key`` RMS)."""
+def flip_key(record: dict) -> str:
+    """The RMS that judges a flip: world, or aligned for the wrist and unknown poses."""
+    if record["condition"].startswith("wrist") or record.get("poses") == "unknown":
+        return "aligned_mm"
+    return "world_mm"
+
+
+def _flipped(records: list[dict], bad: str, good: str) -> list[str]:
+    """Cases where method ``bad`` is above FLIP_MM and ``good`` below OK_MM
+    (:func:`flip_key` RMS)."""
     out = []
     for r in records:
-        b, g = r[bad][key], r[good][key]
+        b, g = r[bad].get(flip_key(r)), r[good].get(flip_key(r))
         if b is not None and g is not None and b > FLIP_MM and g < OK_MM:
             out.append(r["case"])
     return out
@@ -727,20 +1079,23 @@ def _ratio(records: list[dict], key: str) -> str:
     v = [
         r["baseline"][key] / r["pipeline"][key]
         for r in records
-        if r["baseline"][key] is not None and r["pipeline"][key]
+        if r["baseline"].get(key) is not None and r["pipeline"].get(key)
     ]
     return f"{np.median(v):.2f} ({np.min(v):.2f}-{np.max(v):.2f})" if v else "-"
 
 
+#: the RMS columns of the table: key, title
+RMS_KEYS = (("world_mm", "world"), ("aligned_mm", "aligned"), ("similarity_mm", "similarity"))
+
+
 def condition_row(cond: str, records: list[dict]) -> str:
     """One markdown row: the condition's RMS, ratios, flips and CPU seconds."""
-    key = "aligned_mm" if cond.startswith("wrist") else "world_mm"
-    cells = [cond, str(len(records))]
-    for k in ("world_mm", "aligned_mm"):
-        cells += [_med_max([r[m][k] for r in records]) for m in ("baseline", "pipeline")]
-    cells += [_ratio(records, "world_mm"), _ratio(records, "aligned_mm")]
+    cells = [cond, records[0].get("poses", "known"), str(len(records))]
+    for k, _ in RMS_KEYS:
+        cells += [_med_max([r[m].get(k) for r in records]) for m in ("baseline", "pipeline")]
+    cells += [_ratio(records, k) for k, _ in RMS_KEYS]
     for bad, good in (("baseline", "pipeline"), ("pipeline", "baseline")):
-        f = _flipped(records, key, bad, good)
+        f = _flipped(records, bad, good)
         cells.append(f"{len(f)}" + (f" ({', '.join(f)})" if f else ""))
     cells += [
         f"{np.median([r[m]['cpu_s'] for r in records]):.1f}" for m in ("baseline", "pipeline")
@@ -749,9 +1104,11 @@ def condition_row(cond: str, records: list[dict]) -> str:
 
 
 HEADER = (
-    "| condition | n | world RMS baseline (med / max) | world RMS pipeline | aligned RMS baseline "
-    "| aligned RMS pipeline | baseline / pipeline, world (med, range) | baseline / pipeline, "
-    "aligned | baseline flipped | pipeline flipped | CPU s baseline (med) | CPU s pipeline |"
+    "| condition | poses | n | world RMS baseline (med / max) | world RMS pipeline | aligned RMS "
+    "baseline | aligned RMS pipeline | similarity RMS baseline | similarity RMS pipeline "
+    "| baseline / pipeline, world (med, range) | baseline / pipeline, aligned | baseline / "
+    "pipeline, similarity | baseline flipped | pipeline flipped | CPU s baseline (med) "
+    "| CPU s pipeline |"
 )
 
 
@@ -759,13 +1116,19 @@ def _fmt(x: float | None) -> str:
     return "-" if x is None else f"{x:.2f}"
 
 
+def _max_rot(m: dict) -> str:
+    e = m.get("view_rot_err_deg")
+    return "-" if not e else f"{max(e):.1f}"
+
+
 def case_lines(records: list[dict]) -> list[str]:
-    """Per case: both methods' RMS, the baseline's updates and starts, the pipeline's flags."""
+    """Per case: both methods' RMS and view rotation errors, the baseline's updates and
+    starts, the pipeline's flags."""
     out = [
         "| condition | case | world baseline | world pipeline | aligned baseline | aligned "
-        "pipeline | baseline updates (settled) / distinct landmark starts | status "
-        "| pipeline flags |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "pipeline | similarity baseline | similarity pipeline | view rot err deg baseline "
+        "/ pipeline | baseline updates (settled) / distinct starts | status | pipeline flags |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     f = _fmt
     for r in records:
@@ -778,10 +1141,42 @@ def case_lines(records: list[dict]) -> list[str]:
         )
         out.append(
             f"| {r['condition']} | {r['case']} | {f(b['world_mm'])} | {f(p['world_mm'])} | "
-            f"{f(b['aligned_mm'])} | {f(p['aligned_mm'])} | {its} | {st} | "
+            f"{f(b['aligned_mm'])} | {f(p['aligned_mm'])} | {f(b.get('similarity_mm'))} | "
+            f"{f(p.get('similarity_mm'))} | {_max_rot(b)} / {_max_rot(p)} | {its} | {st} | "
             f"{'; '.join(p['flags']) or 'none'} |"
         )
     return out
+
+
+def _method_text(record: dict) -> list[str]:
+    """The report's description of the methods and the columns."""
+    return [
+        "Baseline: `benchmarks/nonconvex_baseline.py` (module doc: landmark PnP start of the "
+        "mean shape from 24 rotations, then trimmed nearest-outline-point correspondences "
+        "alternating with least squares over the pose(s) and SSM weights; known: one pose; "
+        "refine: one pose per view with a Gaussian prior on the corrections; unknown: every "
+        "view at identity extrinsics, one free pose per view started from its own landmarks; "
+        f"options {record['options']}). Pipeline: `register_views(model, views, poses=...)` "
+        "with the condition's mode (column `poses`) and options (`benchmarks/realistic.py`'s "
+        "`CONDITION_OPTIONS`, default otherwise). Both get the same model and observations. "
+        "RMS: vertex RMS to the truth, mm; world: in the calibration frame (the given view "
+        "0's, exact in these cases; synthetic cases with known or refined poses only: the real "
+        "wrist truth is known up to pose, and unknown poses leave the world to the first "
+        "view's camera frame and the scale to the model), aligned: after the best rigid "
+        "alignment (Kabsch, vertex correspondence), similarity: after the best similarity "
+        "(Umeyama); for unknown poses the truth is first mapped into the result's frame "
+        "through view 0's estimated and true extrinsics, as `benchmarks/realistic.py` does. "
+        f"Flipped: RMS > {FLIP_MM:g} mm where the other method has < {OK_MM:g} mm (world RMS; "
+        "aligned for the wrist and unknown poses). View rot err: the largest rotation error "
+        "of a view relative to view 0 (deg). CPU s: process time of one registration.",
+        "",
+        "Sigmas: the baseline divides each landmark residual by the case's stated click sigma "
+        "and each outline residual (distance along the model outline's normal, annotated "
+        "outlines resampled every 4 px) by a fixed 2 px; it has no blunder rejection, no noise "
+        "estimate and no treatment of correlated outline points. The wrist's aligned RMS is "
+        "the best rigid (Kabsch) fit over corresponding vertices, so it is at most the vertex "
+        "RMS of `benchmarks/results/real_wrist.md`, which aligns the surfaces by ICP first.",
+    ]
 
 
 def report(record: dict) -> str:
@@ -796,25 +1191,10 @@ def report(record: dict) -> str:
         f"Machine: {record['machine']}; total {record['total_s']:.0f} s. Package: "
         f"{record['package']}.",
         "",
-        "Baseline: `benchmarks/nonconvex_baseline.py` (module doc: landmark PnP start of the "
-        "mean shape from 24 rotations, then trimmed nearest-outline-point correspondences "
-        f"alternating with least squares over pose and SSM weights; options {record['options']}). "
-        'Pipeline: `register_views(model, views, poses="known")`, default options. Both '
-        "get the same model and observations. RMS: vertex RMS to the truth, mm; world: in the "
-        "calibration frame (synthetic cases only; the real wrist truth is known up to pose), "
-        "aligned: after the best rigid alignment (Kabsch, vertex correspondence). Flipped: "
-        f"RMS > {FLIP_MM:g} mm where the other method has < {OK_MM:g} mm (world RMS; aligned "
-        "for the wrist). CPU s: process time of one registration.",
-        "",
-        "Sigmas: the baseline divides each landmark residual by the case's stated click sigma "
-        "and each outline residual (distance along the model outline's normal, annotated "
-        "outlines resampled every 4 px) by a fixed 2 px; it has no blunder rejection, no noise "
-        "estimate and no treatment of correlated outline points. The wrist's aligned RMS is "
-        "the best rigid (Kabsch) fit over corresponding vertices, so it is at most the vertex "
-        "RMS of `benchmarks/results/real_wrist.md`, which aligns the surfaces by ICP first.",
+        *_method_text(record),
         "",
         HEADER,
-        "|---|---|" + "---|" * 10,
+        "|---|---|---|" + "---|" * 13,
         *rows,
         "",
         "Per case:",
@@ -826,15 +1206,17 @@ def report(record: dict) -> str:
 
 
 # -- command line ---------------------------------------------------------------------------------
-def run_all(seeds: int, wrist: bool = True) -> list[dict]:
-    """Every job (realistic, then the real wrist cases); one record each."""
+def run_all(
+    seeds: int, wrist: bool = True, conditions: Sequence[str] = REALISTIC_CONDITIONS
+) -> list[dict]:
+    """Every job (realistic ``conditions``, then the real wrist cases); one record each."""
     import tempfile
 
     from threadpoolctl import threadpool_limits
 
     records = []
     with threadpool_limits(1), tempfile.TemporaryDirectory() as tmp:
-        jobs = realistic_jobs(range(seeds), REALISTIC_CONDITIONS)
+        jobs = realistic_jobs(range(seeds), conditions)
         if wrist:
             jobs = _chain(jobs, wrist_jobs(Path(tmp)))
         for job in jobs:
@@ -842,9 +1224,10 @@ def run_all(seeds: int, wrist: bool = True) -> list[dict]:
             records.append(rec)
             b, p = rec["baseline"], rec["pipeline"]
             print(
-                f"{job.condition} {job.case}: baseline {b['world_mm']} / {b['aligned_mm']} "
-                f"({b['cpu_s']:.1f} s), pipeline {p['world_mm']} / {p['aligned_mm']} "
-                f"({p['cpu_s']:.1f} s)",
+                f"{job.condition} {job.case}: baseline {_fmt(b['world_mm'])} / "
+                f"{_fmt(b['aligned_mm'])} / {_fmt(b['similarity_mm'])} ({b['cpu_s']:.1f} s, "
+                f"{b['status']}), pipeline {_fmt(p['world_mm'])} / {_fmt(p['aligned_mm'])} / "
+                f"{_fmt(p['similarity_mm'])} ({p['cpu_s']:.1f} s, {p['status']})",
                 flush=True,
             )
     return records
@@ -855,11 +1238,28 @@ def _chain(*its: Iterator[Job]) -> Iterator[Job]:
         yield from it
 
 
+def _conditions(ap: argparse.ArgumentParser, text: str | None) -> list[str]:
+    """The ``--conditions`` list, checked against ``benchmarks/realistic.py``'s."""
+    _benchmark_imports()
+    from benchmarks import realistic as rl
+
+    conditions = text.split(",") if text else list(REALISTIC_CONDITIONS)
+    unknown = sorted(set(conditions) - set(rl.CONDITIONS))
+    if unknown:
+        ap.error(f"--conditions: unknown {unknown} (choose from {list(rl.CONDITIONS)})")
+    return conditions
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     """Run the benchmark and write the markdown table and the JSON record."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=8)
     ap.add_argument("--out", type=Path, default=RESULTS / "nonconvex_baseline.md")
+    ap.add_argument(
+        "--conditions",
+        default=None,
+        help="comma-separated realistic conditions (default: " + ",".join(REALISTIC_CONDITIONS),
+    )
     ap.add_argument("--no-wrist", action="store_true", help="the synthetic cases only")
     ap.add_argument("--from-json", type=Path, help="re-render a saved run")
     args = ap.parse_args(argv)
@@ -868,9 +1268,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     else:
         import biplanar_reg
 
+        conditions = _conditions(ap, args.conditions)
         t0 = time.perf_counter()
-        records = run_all(args.seeds, wrist=not args.no_wrist)
+        records = run_all(args.seeds, wrist=not args.no_wrist, conditions=conditions)
         cmd = f"python benchmarks/nonconvex_baseline.py --seeds {args.seeds}"
+        cmd += f" --conditions {args.conditions}" if args.conditions else ""
         record = {
             "command": cmd + (" --no-wrist" if args.no_wrist else ""),
             "machine": f"{platform.machine()}, {os.cpu_count()} shared cores, Python "
@@ -879,6 +1281,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             "limited to one thread (threadpoolctl)",
             "package": biplanar_reg.__file__,
             "options": str(BaselineOptions()),
+            "conditions": conditions,
             "records": records,
             "total_s": time.perf_counter() - t0,
         }
