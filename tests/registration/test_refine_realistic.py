@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from biplanar_reg.pose import Pose
-from biplanar_reg.registration import register_views, view_poses
+from biplanar_reg.registration import register_views
 from biplanar_reg.simulate.realistic import make_realistic_case
 
 
@@ -24,18 +24,13 @@ def _similarity_rms(V: np.ndarray, truth: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((moved - truth) ** 2, axis=1))))
 
 
-def test_the_seen_directions_correct_the_calibration_where_no_free_fit_is_plausible(
-    scene, monkeypatch
-):
-    """Seed 8: shape error 0.70 mm with the fallback against 1.40 mm with the given
-    calibrations (known poses with the true calibrations: 0.78 mm)."""
+def test_the_seen_directions_correct_the_calibration_where_no_free_fit_is_plausible(scene):
+    """Seed 8: shape error 0.70 mm; without the seen-directions fits (every free fit beyond
+    the gate) the given calibrations stood, the second view uncorrected, at 1.40 mm (known
+    poses with the true calibrations: 0.78 mm)."""
     c = make_realistic_case(8, n_landmarks_per_view=3, calibration_error=(1.5, 4.0), scene=scene)
     said: list[str] = []
     res = register_views(scene.model, c.views, poses="refine", progress=said.append)
     assert any(m.startswith("joint view refinement, seen directions only") for m in said)
     assert res.pose_info["rotation_corrections_deg"]["cam02"] > 0.1  # a correction was made
-    monkeypatch.setattr(view_poses, "_with_seen_fits", lambda *args: args[-1])  # the free fits
-    old = register_views(scene.model, c.views, poses="refine")
-    assert old.pose_info["rotation_corrections_deg"]["cam02"] == 0.0
-    assert _similarity_rms(old.vertices, c.truth_vertices) > 1.2
     assert _similarity_rms(res.vertices, c.truth_vertices) < 0.85
