@@ -336,10 +336,11 @@ def register_views(
         raise ValueError(f"poses: expected 'known', 'refine' or 'unknown', got {poses!r}")
     start_pose = _check_start(start)
     _check_views(model, views, poses, silhouettes, start_pose)
-    if poses != "known" and opts.noise == "estimated":
+    if poses == "unknown" and opts.noise == "estimated":
         # the view poses' joint fit weighs the outlines by fixed factors measured with the
-        # stated noise (joint_outline_sigma_factor, unknown_outline_sigma_factor); estimated
-        # noise there was measured worse (docs/registration.md, "Noise of each group")
+        # stated noise (unknown_outline_sigma_factor); estimated noise there was measured
+        # worse (docs/registration.md, "Noise of each group"). "refine" keeps the estimated
+        # noise for its registrations and states it for the joint fit (_register_posed)
         opts = replace(opts, noise="stated")
     say = progress or (lambda msg: None)
     t0 = time.perf_counter()
@@ -478,8 +479,17 @@ def _register_posed(model, posed, poses, opts, silhouettes, say, start_pose):
         # outlines was measured to make these cases worse (benchmarks/realistic.py unknown-5:
         # aligned vertex RMS 1.2 -> 8.5 mm), so it is kept for what the landmarks cannot fix
         return problem, final
+    joint = problem
+    if poses == "refine" and opts.noise == "estimated":
+        # the joint fit's outline weight (joint_outline_sigma_factor) and its gate were
+        # measured with the stated noise; the registrations before and after it keep the
+        # estimated noise (with the stated noise throughout, real wrist cases collapsed:
+        # benchmarks/real_wrist.py refine, radius / b 15 mm against 1.8 mm)
+        stated = replace(opts, noise="stated")
+        c = final.result.vertices.mean(axis=0)
+        joint = make_problem(model, posed.views, stated, silhouettes, say, c)
     views, res, obj = refine_views_on_outlines(
-        problem, final.result, posed.starts, _rejected(problem, final), prior=poses == "refine"
+        joint, final.result, posed.starts, _rejected(problem, final), prior=poses == "refine"
     )
     say(f"views refined on the outlines: objective {obj:.4g}")
     problem = make_problem(model, views, opts, silhouettes, say, res.vertices.mean(axis=0))

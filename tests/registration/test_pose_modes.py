@@ -64,9 +64,9 @@ def _seen_fits_ran(said: list[str]) -> bool:
 
 
 def test_refine_starts_a_free_fit_from_the_seen_directions_fit(model):
-    """The free joint fits from the landmark starts end in a local minimum 8.2 mm off
-    (objective 250); the free fit started from the fit of the directions the images see well
-    (``view_poses._with_seen_fits``) ends 0.9 mm off (objective 23)."""
+    """The free joint fits from the landmark starts end in a local minimum 8.2 mm off; the
+    free fit started from the fit of the directions the images see well
+    (``view_poses._with_seen_fits``) ends 0.6 mm off."""
     views, X = _pose_modes_seed_3(model)
     said: list[str] = []
     refined = register_views(model, views, poses="refine", progress=said.append)

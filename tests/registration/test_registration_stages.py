@@ -374,8 +374,9 @@ def test_refine_final_takes_back_a_wrongly_rejected_landmark(model, views, clean
 
 
 def _composed(model, views, poses):
-    """``register_views`` spelt out with the stages (the pose modes use the stated noise)."""
-    opts = RegistrationOptions(noise="estimated" if poses == "known" else "stated")
+    """``register_views`` spelt out with the stages (``unknown`` uses the stated noise;
+    ``refine`` states it for the joint fit of the views only)."""
+    opts = RegistrationOptions(noise="stated" if poses == "unknown" else "estimated")
     posed = estimate_view_poses(model, views, poses, opts) if poses != "known" else None
     p = problem_for(model, views if posed is None else posed.views, opts)
     start = robust_start(p, landmark_start(p))
@@ -386,7 +387,11 @@ def _composed(model, views, poses):
     # refine/unknown: the views refined on the outlines, then the final refinement with them
     n = len(p.landmarks)
     rejected = rejected_landmarks(p, np.ones(n) if final.weights is None else final.weights)
-    views, res, _ = refine_views_on_outlines(p, final.result, posed.starts, rejected, True)
+    stated = replace(opts, noise="stated")
+    joint = make_problem(
+        model, posed.views, stated, True, lambda m: None, final.result.vertices.mean(0)
+    )
+    views, res, _ = refine_views_on_outlines(joint, final.result, posed.starts, rejected, True)
     p = make_problem(model, views, opts, True, lambda m: None, res.vertices.mean(axis=0))
     return p, refine_final(p, boost(p, res, final.weights, 0, detect=False))
 
