@@ -17,11 +17,11 @@ eliminated: :func:`correction_information`) is compared with the calibration pri
 :func:`seen_directions`); the joint fit then corrects only the directions along which the
 images' standard deviation is below :data:`SEEN_SD_RATIO` times the prior's
 (:func:`fit_in_subspace`), and the others keep the given calibration (the prior's mean).
-:mod:`.view_poses` uses it with ``pose_prior_at_bone``. With the prior on the sources (an
-error model of turns about the source, ``benchmarks/pose_modes.py``) the directions the prior
-leaves loose are large moves of the bone which unbiased outlines do recover, so there the free
-joint fit comes first; when no joint fit is plausible, this fit is the fallback, restricted
-further to the directions the images see to within :data:`SEEN_MAX_SD_MM`.
+:mod:`.view_poses` uses it alone with ``pose_prior_at_bone``. With the prior on the sources
+(an error model of turns about the source, ``benchmarks/pose_modes.py``) the directions the
+prior leaves loose are large moves of the bone which unbiased outlines do recover, so there
+this fit, restricted further to the directions the images see to within
+:data:`SEEN_MAX_SD_MM`, and a free fit from it compete with the free joint fits.
 
 Coordinates: a view's correction ``C_x = O_x o O_0^-1`` (``O`` the object-to-world pose seen
 through each view's given extrinsics, view 0 the gauge) is a rotation (rad, world frame)
@@ -168,11 +168,11 @@ def fit_in_subspace(fit_args, start, kept: np.ndarray, c: np.ndarray, **kw) -> O
 #: calibration stands (module docstring).
 SEEN_SD_RATIO = 0.5
 
-#: The fallback of ``refine`` with the prior on the sources (:mod:`.view_poses`) also leaves
-#: every direction along which the images' standard deviation exceeds this (mm of the bone's
-#: vertex RMS) at the given calibration. On the realistic cases the directions came out at
-#: 0.04-0.44 mm or at 3.6-36 mm (``benchmarks/refine_bound.py``): the loose ones are where
-#: the outlines' systematic errors, not the calibration's, set the fit.
+#: With the prior on the sources (:mod:`.view_poses`) this fit also leaves every direction
+#: along which the images' standard deviation exceeds this (mm of the bone's vertex RMS) at
+#: the given calibration. On the realistic cases the directions came out at 0.04-0.47 mm or at
+#: 4.0-36 mm (``benchmarks/refine_bound.py``): the loose ones are where the outlines'
+#: systematic errors, not the calibration's, set the fit.
 SEEN_MAX_SD_MM = 1.0
 
 
@@ -229,7 +229,8 @@ def fit_seen_corrections(
     ascending).
     """
     opts, model = problem.options, problem.model
-    c = (model.instance(start[2]) @ start[0][0].T + start[1][0]).mean(axis=0)
+    vertices = model.instance(start[2]) @ start[0][0].T + start[1][0]
+    c = vertices.mean(axis=0)
     pixels = [v.view for v in problem.views]
     landmarks = problem.landmark_rays(rejected)
     info = correction_information(
@@ -237,7 +238,6 @@ def fit_seen_corrections(
     )
     kept, ratio = seen_directions(info, prior_information(start, c, prior), SEEN_SD_RATIO)
     if max_sd_mm is not None:
-        vertices = model.instance(start[2]) @ start[0][0].T + start[1][0]
         metric = vertex_metric(vertices, c, len(start[0]))
         kept = below_sd_mm(kept, info, metric, max_sd_mm)
     problem.say(

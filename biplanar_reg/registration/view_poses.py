@@ -480,7 +480,8 @@ def _with_seen_fits(fit_args, terms: list[OutlineTerm], start, max_iter: int, be
     outlines alone set a view's correction, and on the real wrist cases (1-2 landmarks per
     view, accurate calibrations) these fits followed the tracings' errors (aligned vertex RMS
     0.49 -> 4.8 mm on one case; ``python benchmarks/real_wrist.py --conditions
-    outlines,refine``)."""
+    outlines,refine`` with this condition taken out and the stated noise throughout
+    ``refine``, docs/registration.md)."""
     problem, rejected, pose_prior, depths = fit_args
     seen, _ = fit_seen_corrections(
         problem, start, rejected, pose_prior, depths, terms, max_sd_mm=SEEN_MAX_SD_MM,

@@ -102,3 +102,43 @@ def test_cube_rotations_are_the_24_proper_ones():
     assert len(Rs) == 24
     assert all(np.isclose(np.linalg.det(R), 1.0) for R in Rs)
     assert len({R.round().astype(int).tobytes() for R in Rs}) == 24
+
+
+def _similarity_rms(A: np.ndarray, B: np.ndarray) -> float:
+    from biplanar_reg.pose import Pose
+
+    return _rms(Pose.fit_similarity(A, B).apply(A), B)
+
+
+def test_unknown_poses_recover_the_shape_up_to_scale(scene):
+    """Extrinsics not used: the result is in view 0's camera frame, its size from the prior."""
+    model, views, X, _ = scene
+    res = fit_baseline(model, views, poses="unknown")
+    X0 = views[0].view.to_camera(X)
+    assert _similarity_rms(res.vertices, X0) < 0.1  # mm
+    assert len(res.extrinsics) == 2
+    np.testing.assert_allclose(res.extrinsics[0][0], np.eye(3), atol=1e-12)
+
+
+def test_the_refine_prior_is_the_pipelines(scene):
+    """The baseline's prior residuals equal ``outline_fit.prior_residuals`` on the same poses
+    (object -> world ``X = R S + T``, centred poses about ``c``)."""
+    from benchmarks.nonconvex_baseline import CentredPose, PosePrior, object_translation
+    from benchmarks.nonconvex_baseline import prior_residuals as baseline_residuals
+    from biplanar_reg.registration.outline_fit import PosePrior as PipelinePrior
+    from biplanar_reg.registration.outline_fit import prior_residuals
+
+    model, views, _, _ = scene
+    rng = np.random.default_rng(5)
+    c = model.mean.mean(axis=0)
+    poses = [
+        CentredPose(Rotation.from_rotvec(rng.normal(scale=0.3, size=3)).as_matrix(),
+                    rng.normal(scale=5.0, size=3))
+        for _ in views
+    ]  # fmt: skip
+    centres = np.array([-v.view.R.T @ v.view.t for v in views])
+    ours = baseline_residuals(poses, c, PosePrior(centres, 0.035, 5.0))
+    Rs = np.array([p.R for p in poses])
+    ts = np.array([object_translation(p, c) for p in poses])
+    theirs = prior_residuals(Rs, ts, PipelinePrior(0, centres, 0.035, 5.0))
+    np.testing.assert_allclose(ours, theirs, rtol=1e-9, atol=1e-9)
