@@ -16,6 +16,14 @@ seed, world vertex RMS over the case's model floor:
     the same with the SSM's weights refined jointly, their prior centred at their fit (the
     model's mean replaced by the SSM fit's shape, the SSM's modes and the kernel's its modes:
     :func:`centred_stage`).
+``joint, centred x4``
+    the same with the change of the SSM's weights from their fit held four times as firmly
+    (prior weight 4 on it, 1 on the kernel's weights): between the stage and ``joint,
+    centred``.
+``refit``
+    the package's ``gp_ssm = "refit"`` (no patch): the SSM's weights refined with the
+    kernel's, their prior centred at their fit with its scale chosen from the data like the
+    amplitude.
 ``oracle``
     ``benchmarks/gp_oracle.py``'s oracle on the pipeline's own data (``oracle gp, annotated``:
     exact correspondences, the annotated positions), the SSM's and the kernel's weights
@@ -28,7 +36,8 @@ seed, world vertex RMS over the case's model floor:
 
 With ``--real`` it also registers the real wrist cases of ``benchmarks/real_wrist.py``
 (conditions ``outlines`` and the one-sided ones) with the kernel's own modes and with
-``joint, centred``, to compare with ``benchmarks/results/real_wrist.json`` (the default stage).
+``joint, centred``, ``joint, centred x4`` and ``refit``, to compare with
+``benchmarks/results/real_wrist.json`` (the default stage).
 
 Usage::
 
@@ -86,25 +95,33 @@ def joint_stage(problem, final, basis, *, rounds=None, start=None):
     return _free_ssm_stage(problem, final, basis, rounds, model_at, w0, np.zeros_like(w0))
 
 
-def centred_stage(problem, final, basis, *, rounds=None, start=None):
+def centred_stage(problem, final, basis, *, rounds=None, start=None, firmness=1.0):
     """:func:`joint_stage` with the SSM's weights' prior centred at their fit: the refinement
-    runs on a model whose mean is the SSM fit's shape and whose modes are the SSM's and the
-    kernel's (weights ``(dw, u)``, unit prior on both); the result is expressed in the
-    augmented model (SSM weights ``w0 + dw``)."""
+    runs on a model whose mean is the SSM fit's shape and whose modes are the SSM's divided by
+    ``sqrt(firmness)`` and the kernel's (weights ``(dw', u)``, unit prior on both, so prior
+    weight ``firmness`` on the SSM weights' change ``dw = dw' / sqrt(firmness)``); the result
+    is expressed in the augmented model (SSM weights ``w0 + dw``)."""
     base, w0 = problem.model, final.result.weights
     shape = base.instance(w0)
+    k = 1.0 / np.sqrt(firmness)
 
     def model_at(amplitude: float) -> ShapeModel:
-        modes = np.concatenate([base.modes, amplitude * basis.modes])
+        modes = np.concatenate([k * base.modes, amplitude * basis.modes])
         return ShapeModel(shape, modes, faces=base.faces, landmarks=base.landmarks)
 
-    return _free_ssm_stage(problem, final, basis, rounds, model_at, np.zeros_like(w0), w0)
+    return _free_ssm_stage(problem, final, basis, rounds, model_at, np.zeros_like(w0), w0, k)
 
 
-def _free_ssm_stage(problem, final, basis, rounds, model_at, w_start, w_origin):
+def firm_centred_stage(problem, final, basis, *, rounds=None, start=None):
+    """:func:`centred_stage` with the SSM weights' change held four times as firmly."""
+    return centred_stage(problem, final, basis, rounds=rounds, start=start, firmness=4.0)
+
+
+def _free_ssm_stage(problem, final, basis, rounds, model_at, w_start, w_origin, ssm_scale=1.0):
     """The stage's rounds (refinement, noise, amplitude) on ``model_at(amplitude)``, whose
-    first weights are the SSM's less ``w_origin`` (starting at ``w_start``), the rest the
-    kernel's; the result in the augmented model (SSM weights ``w_origin`` + the fitted ones)."""
+    first weights times ``ssm_scale`` are the SSM's less ``w_origin`` (starting at
+    ``w_start``), the rest the kernel's; the result in the augmented model (SSM weights
+    ``w_origin`` + ``ssm_scale`` times the fitted ones)."""
     opts, base, nb = problem.options, problem.model, problem.model.n_modes
     a = basis.start_amplitude_mm
     x = np.concatenate([w_start, np.zeros(len(basis.modes))])
@@ -129,7 +146,7 @@ def _free_ssm_stage(problem, final, basis, rounds, model_at, w_start, w_origin):
         a = a_new
         if settled:
             break
-    w = np.concatenate([w_origin + res.weights[:nb], res.weights[nb:]])
+    w = np.concatenate([w_origin + ssm_scale * res.weights[:nb], res.weights[nb:]])
     res = G.with_pose(res, res.rotation, res.translation, w, res.vertices)
     prob = replace(prob, model=G._augmented(base, basis, outcome.amplitude_mm))
     refined = G.Refined(
@@ -139,10 +156,25 @@ def _free_ssm_stage(problem, final, basis, rounds, model_at, w_start, w_origin):
     return prob, refined, outcome
 
 
-def _variant(own_modes: bool = False, joint: bool = False, centred: bool = False) -> None:
+def refit_stage(problem, final, basis, *, rounds=None, start=None):
+    """The package's stage with ``gp_ssm = "refit"`` (for the real cases, registered from
+    case files with default options)."""
+    problem = replace(problem, options=replace(problem.options, gp_ssm="refit"))
+    return DEFAULT_STAGE(problem, final, basis, rounds=rounds, start=start)
+
+
+def _variant(
+    own_modes: bool = False,
+    joint: bool = False,
+    centred: bool = False,
+    firm: bool = False,
+    refit: bool = False,
+) -> None:
     """Patch this process's stage (and empty its cache of kernel modes)."""
     G._unit_modes = own_unit_modes if own_modes else DEFAULT_UNIT_MODES
-    REG.gp_stage = centred_stage if centred else joint_stage if joint else DEFAULT_STAGE
+    stage = refit_stage if refit else firm_centred_stage if firm else None
+    stage = stage or (centred_stage if centred else None)
+    REG.gp_stage = stage or (joint_stage if joint else DEFAULT_STAGE)
     G._KERNEL_MODES.clear()
 
 
@@ -166,6 +198,8 @@ def row(case) -> dict[str, float]:
         ("own modes", {"own_modes": True}),
         ("joint", {"joint": True}),
         ("joint, centred", {"centred": True}),
+        ("joint, centred x4", {"firm": True}),
+        ("refit", {"refit": True}),
     ):
         _variant(**kw)
         out[name] = _rms(register_views(m, case.views).vertices, T) / fl
@@ -188,11 +222,17 @@ def row(case) -> dict[str, float]:
 
 def real_cases() -> dict[str, dict[str, dict]]:
     """The real wrist cases (``outlines`` and one side traced) per variant: the kernel's own
-    modes, and ``joint, centred``."""
+    modes, ``joint, centred``, ``joint, centred x4`` and ``refit``."""
     import real_wrist
 
     out = {}
-    for name, kw in (("own modes", {"own_modes": True}), ("joint, centred", {"centred": True})):
+    variants = (
+        ("own modes", {"own_modes": True}),
+        ("joint, centred", {"centred": True}),
+        ("joint, centred x4", {"firm": True}),
+        ("refit", {"refit": True}),
+    )
+    for name, kw in variants:
         _variant(**kw)
         try:
             out[name] = real_wrist.run_all(None, ["outlines", *real_wrist.SIDES])
@@ -238,6 +278,16 @@ def _real_lines(real: dict[str, dict[str, dict]]) -> list[str]:
         lines.append(
             f"| median, {template}, outlines | " + " | ".join(f"{v:.2f}" for v in med) + " |"
         )
+    for template in ("ct", "deformed"):
+        rows = [k for k in keys if f"/{template}/" in k and k in before]
+        b = np.array([before[k]["vertex_rms_mm"] for k in rows])
+        med = [f"{np.median(b):.2f}"]
+        for n in names:
+            r = np.array([real[n][k]["vertex_rms_mm"] for k in rows]) / b
+            m = np.median([real[n][k]["vertex_rms_mm"] for k in rows])
+            med.append(f"{m:.2f} ({int((r > 1.1).sum())} / {int((r < 0.9).sum())})")
+        lines.append(f"| median, {template}, all {len(rows)} (> 10 % worse / better) | ")
+        lines[-1] += " | ".join(med) + " |"
     return lines
 
 
@@ -248,7 +298,7 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=8)
-    ap.add_argument("--real", action="store_true", help="also the real wrist cases (~5 min)")
+    ap.add_argument("--real", action="store_true", help="also the real wrist cases (~30 min)")
     ap.add_argument("--out", type=Path, default=RESULTS / "gp_levers.md")
     args = ap.parse_args()
     t0 = time.perf_counter()

@@ -33,6 +33,10 @@ unknown-2+2    unknown 2+2   unknown-3 with the first view's third landmark and 
 known-3-ssm    known   3     known-3 with ``gp = "off"``: the shape model's modes only, no
                              Gaussian-process stage
 known-5-ssm    known   5     known-5 with ``gp = "off"``
+known-3-refit  known   3     known-3 with ``gp_ssm = "refit"``: the SSM's weights refined
+                             with the kernel's in the Gaussian-process stage
+known-5-refit  known   5     known-5 with ``gp_ssm = "refit"``
+known-3+2-refit known  3+2   known-3+2 with ``gp_ssm = "refit"``
 =============  ======  ====  ===========================================================
 
 The ``+`` conditions are their ``-3`` condition's very case (the same draws) with landmarks
@@ -101,11 +105,15 @@ CONDITIONS: dict[str, tuple[str, int, bool, bool]] = {
     "unknown-2+2": ("unknown", 3, False, False),
     "known-3-ssm": ("known", 3, False, False),
     "known-5-ssm": ("known", 5, False, False),
+    "known-3-refit": ("known", 3, False, False),
+    "known-5-refit": ("known", 5, False, False),
+    "known-3+2-refit": ("known", 3, False, False),
 }
 #: conditions whose views keep only some of their landmarks after the case is made (the
 #: indices kept in the first and the second view)
 KEPT: dict[str, tuple[tuple[int, ...], tuple[int, ...]]] = {
     "known-3+2": ((0, 1, 2), (0, 1)),
+    "known-3+2-refit": ((0, 1, 2), (0, 1)),
     "unknown-3+2": ((0, 1, 2), (0, 1)),
     "known-3+1": ((0, 1, 2), (0,)),
     "unknown-3+1": ((0, 1, 2), (0,)),
@@ -117,6 +125,9 @@ CONDITION_OPTIONS: dict[str, dict] = {
     "refine-5-bone": {"pose_prior_at_bone": True},
     "known-3-ssm": {"gp": "off"},
     "known-5-ssm": {"gp": "off"},
+    "known-3-refit": {"gp_ssm": "refit"},
+    "known-5-refit": {"gp_ssm": "refit"},
+    "known-3+2-refit": {"gp_ssm": "refit"},
 }
 QUICK = ("known-3", "blunder-3", "refine-3", "unknown-3")
 FLIP_DEG = 45.0

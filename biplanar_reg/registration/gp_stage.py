@@ -58,6 +58,9 @@ __all__: list[str] = []
 MIN_AMPLITUDE_MM = 0.05
 #: The amplitude has settled when it changes by less than this (relative).
 AMPLITUDE_TOL = 0.1
+#: ``gp_ssm = "refit"``: the least scale of the SSM weights' change (SSM sds); below it the
+#: change is as good as held, and the scale stays positive for the rescaling of the weights.
+MIN_SSM_SCALE = 1e-3
 
 
 @dataclass(frozen=True)
@@ -127,24 +130,33 @@ def _augmented(base: ShapeModel, basis: KernelBasis, amplitude: float) -> ShapeM
     )
 
 
-def _kernel_model(
-    base: ShapeModel, weights: np.ndarray, basis: KernelBasis, amplitude: float
+def _stage_model(
+    base: ShapeModel,
+    weights: np.ndarray,
+    basis: KernelBasis,
+    amplitude: float,
+    ssm_scale: float | None = None,
 ) -> ShapeModel:
-    """The SSM's fit as the mean, the kernel's modes at ``amplitude`` as the modes: the
-    stage refines the pose and the kernel's weights only (module docstring)."""
+    """The model the stage refines: the SSM's fit as the mean, the kernel's modes at
+    ``amplitude`` as the modes (``gp_ssm = "held"``, ``ssm_scale`` None: the pose and the
+    kernel's weights only), preceded with ``gp_ssm = "refit"`` by the SSM's modes times
+    ``ssm_scale`` (the change of the SSM's weights from their fit, in units of
+    ``ssm_scale``)."""
+    parts = ([] if ssm_scale is None else [ssm_scale * base.modes]) + [amplitude * basis.modes]
     return ShapeModel(
         base.instance(weights),
-        amplitude * basis.modes,
+        np.concatenate(parts),
         faces=base.faces,
         landmarks=base.landmarks,
         truncation_modes=base.truncation_modes,
     )
 
 
-def kernel_evidence_terms(
-    problem: Problem, result, weights: np.ndarray | None, n_base: int
-) -> tuple[float, float]:
-    """``(lambda |u|^2, gamma)`` of the kernel weights at ``result`` (module docstring)."""
+def evidence_terms(
+    problem: Problem, result, weights: np.ndarray | None, blocks: list[slice]
+) -> list[tuple[float, float]]:
+    """``(lambda |x|^2, gamma)`` of each block ``x`` of the shape weights at ``result``
+    (module docstring: ``gamma`` the number of the block's parameters the data determine)."""
     lm, terms = refine_terms(problem, problem.outlines(result), weights)
     state = (result.rotation, result.translation, result.weights)
     lin = linearise_fit(problem.model, state, lm, terms, problem.topology)
@@ -153,10 +165,26 @@ def kernel_evidence_terms(
     H = lin.jacobian.T @ lin.jacobian
     H[6:, 6:] += lam * np.eye(M)
     C = np.linalg.pinv(H)
-    k = slice(6 + n_base, 6 + M)
-    u = result.weights[n_base:]
-    gamma = (M - n_base) - lam * float(np.trace(C[k, k]))
-    return lam * float(u @ u), max(gamma, 0.0)
+    out = []
+    for b in blocks:
+        x = result.weights[b]
+        k = slice(6 + b.start, 6 + b.stop)
+        gamma = len(x) - lam * float(np.trace(C[k, k]))
+        out.append((lam * float(x @ x), max(gamma, 0.0)))
+    return out
+
+
+def kernel_evidence_terms(
+    problem: Problem, result, weights: np.ndarray | None, n_base: int
+) -> tuple[float, float]:
+    """``(lambda |u|^2, gamma)`` of the kernel weights at ``result``: the weights after the
+    first ``n_base`` (:func:`evidence_terms`)."""
+    return evidence_terms(problem, result, weights, [slice(n_base, problem.model.n_modes)])[0]
+
+
+def _fixed_point(scale: float, x2: float, gamma: float) -> float:
+    """MacKay's update of a prior's scale from ``(lambda |x|^2, gamma)`` of its weights."""
+    return scale * float(np.sqrt(x2 / gamma)) if gamma > 1e-9 else 0.0
 
 
 @dataclass(frozen=True)
@@ -171,6 +199,7 @@ class GpOutcome:
     rounds: int
     reason: str = ""
     kernel: str = "gaussian"
+    ssm_scale: float | None = None  # gp_ssm = "refit": the SSM weights' change's prior scale
 
     def as_dict(self) -> dict:
         """Plain numbers for ``result.json`` (``RegistrationResult.gp``)."""
@@ -182,6 +211,7 @@ class GpOutcome:
             "modes": self.modes,
             "effective_modes": self.effective_modes,
             "rounds": self.rounds,
+            **({"ssm_scale": self.ssm_scale} if self.ssm_scale is not None else {}),
             **({"reason": self.reason} if self.reason else {}),
         }
 
@@ -220,7 +250,8 @@ def gp_stage(
     """
     opts = problem.options
     base, w0 = problem.model, final.result.weights
-    a, u = basis.start_amplitude_mm, np.zeros(len(basis.modes))
+    n_k = len(basis.modes)
+    a, u = basis.start_amplitude_mm, np.zeros(n_k)
     records, iterates = list(final.records), list(final.iterates)
     prob, res, weights, groups = problem, final.result, final.weights, final.noise
     if start is not None and np.shape(start) == u.shape and np.all(np.isfinite(start)):
@@ -228,37 +259,46 @@ def gp_stage(
         d = np.tensordot(a * u, basis.modes, axes=1)
         X = (base.instance(w0) + d) @ res.rotation.T + res.translation
         res = with_pose(res, res.rotation, res.translation, w0, X)
-    n_k = len(basis.modes)
-    outcome = GpOutcome(False, basis.width_mm, a, n_k, 0.0, 0, "no rounds", basis.kernel)
+    # gp_ssm = "refit" (not from a previous fit's kernel weights): the SSM weights' change
+    # from their fit comes first, its prior's scale b (SSM sds) chosen like the amplitude
+    b = 1.0 if opts.gp_ssm == "refit" and start is None else None
+    n_b = 0 if b is None else base.n_modes
+    x = np.concatenate([np.zeros(n_b), u])
+    outcome = GpOutcome(False, basis.width_mm, a, n_k, 0.0, 0, "no rounds", basis.kernel, b)
     for done in range(1, (opts.gp_rounds if rounds is None else rounds) + 1):
-        prob = replace(prob, model=_kernel_model(base, w0, basis, a))
-        res = with_pose(res, res.rotation, res.translation, u, res.vertices)
+        prob = replace(prob, model=_stage_model(base, w0, basis, a, b))
+        res = with_pose(res, res.rotation, res.translation, x, res.vertices)
         rec = Recorder(prob, records, iterates, res.certificate, "gp")
         res, _ = refine_once(prob, res, prob.outlines(res), weights, rec)
         if opts.noise == "estimated":
             groups = group_noise(prob, res, weights)
             prob = with_noise(prob, groups)
-        unorm2, gamma = kernel_evidence_terms(prob, res, weights, 0)
-        a_new = a * float(np.sqrt(unorm2 / gamma)) if gamma > 1e-9 else 0.0
+        blocks = [slice(n_b, n_b + n_k)] + ([slice(0, n_b)] if n_b else [])
+        terms = evidence_terms(prob, res, weights, blocks)
+        a_new = _fixed_point(a, *terms[0])
+        b_new = None if b is None else max(_fixed_point(b, *terms[1]), MIN_SSM_SCALE)
         prob.say(
             f"gaussian-process stage: amplitude {a:.3g} -> {a_new:.3g} mm "
-            f"({gamma:.1f} effective kernel modes)"
+            f"({terms[0][1]:.1f} effective kernel modes)"
+            + ("" if b is None else f", SSM change scale {b:.3g} -> {b_new:.3g}")
         )
-        outcome = GpOutcome(
-            True, basis.width_mm, a, len(basis.modes), gamma, done, kernel=basis.kernel
-        )
+        outcome = GpOutcome(True, basis.width_mm, a, n_k, terms[0][1], done, "", basis.kernel, b)
         if a_new < MIN_AMPLITUDE_MM:
             reason = f"not supported by the data: amplitude {a_new:.2g} mm"
             return problem, final, replace(outcome, used=False, reason=reason)
         settled = abs(a_new / a - 1.0) < AMPLITUDE_TOL
-        u = res.weights * (a / a_new)  # the same displacement at the new amplitude
-        a = a_new
+        settled = settled and (b is None or abs(b_new / b - 1.0) < AMPLITUDE_TOL)
+        # the same displacement at the new scales
+        x = res.weights * np.concatenate([np.full(n_b, (b or 1.0) / (b_new or 1.0)),
+                                          np.full(n_k, a / a_new)])  # fmt: skip
+        a, b = a_new, b_new
         if settled:
             break
     # the whole model (the SSM's modes, then the kernel's at the amplitude of the fit) for
     # what follows: the flags, the uncertainty (which includes the kernel's modes)
     prob = replace(prob, model=_augmented(base, basis, outcome.amplitude_mm))
-    w = np.concatenate([w0, res.weights])
+    dw = outcome.ssm_scale * res.weights[:n_b] if n_b else 0.0
+    w = np.concatenate([w0 + dw, res.weights[n_b:]])
     res = with_pose(res, res.rotation, res.translation, w, res.vertices)
     refined = Refined(
         res, prob.outlines(res), records, iterates, records[-1].index, weights, prob, groups,

@@ -229,6 +229,13 @@ class RegistrationOptions:
         The kernel amplitude the data-driven choice starts from (mm) when the model has none.
     gp_rounds : int
         Most refinements of the Gaussian-process stage (1 to 100).
+    gp_ssm : str
+        What the Gaussian-process stage does with the SSM's weights: ``"held"`` (default) keeps
+        them at their fit; ``"refit"`` refines them with the kernel's, under a prior centred
+        at their fit whose scale is chosen from the data like the kernel's amplitude
+        (:mod:`.gp_stage`). Measured better on out-of-span synthetic cases and neutral on real
+        radiographs with a template other than the patient's own bone, worse with the
+        patient's own CT as the template (docs/registration.md).
     """
 
     landmark_weight: float = 0.5
@@ -272,6 +279,7 @@ class RegistrationOptions:
     gp_width_mm: float = 25.0
     gp_amplitude_mm: float = 1.0
     gp_rounds: int = 6
+    gp_ssm: str = "held"
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -283,6 +291,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "noise": ("estimated", "stated"),
     "gp": ("auto", "off"),
     "gp_kernel": ("gaussian", "gaussian-normal"),
+    "gp_ssm": ("held", "refit"),
 }
 
 

@@ -401,7 +401,8 @@ def _gp_stage(model: ShapeModel, opts, previous: PreviousFit | None = None, base
             return problem, final, None
         basis = kernel_basis(model, opts.gp_kernel, opts.gp_width_mm, opts.gp_amplitude_mm)
         rounds, u0 = None, None
-        if previous is not None and (previous.gp_amplitude_mm or 0.0) > 0:
+        warm = previous is not None and (previous.gp_amplitude_mm or 0.0) > 0
+        if warm and opts.gp_ssm == "held":  # (a refit of the SSM's weights starts afresh)
             basis = replace(basis, start_amplitude_mm=float(previous.gp_amplitude_mm))
             rounds, u0 = 1, kernel_start(base, basis, previous)
         return gp_stage(problem, final, basis, rounds=rounds, start=u0)

@@ -69,6 +69,7 @@ BAD = {
     "start_landmark_sigma_px": [0.0, -2.0, math.inf, math.nan],
     "gp": ["on", "", True, 1.0],
     "gp_kernel": ["rbf", "", 2.0],
+    "gp_ssm": ["free", "", 1.0],
     "gp_width_mm": [0.0, -5.0, math.inf, math.nan],
     "gp_amplitude_mm": [0.0, -1.0, math.inf],
     "gp_rounds": [0, 101, 2.5],

@@ -319,7 +319,13 @@ def test_header_says_what_the_gaussian_process_stage_did_and_what_free_poses_obs
     assert set(gp) >= {"used", "kernel", "width_mm", "amplitude_mm", "modes", "effective_modes"}
     html = (out / "report.html").read_text()
     assert "shape beyond the model&#39;s span" in html or "shape beyond the model's span" in html
+    assert "refitted" not in html  # gp_ssm = "held" (the default)
     doc = json.loads((out / "result.json").read_text())
+    doc["gaussian_process"] = {**gp, "used": True, "ssm_scale": 0.25}
+    (tmp_path / "refit").mkdir()
+    write_case_report(tmp_path / "refit", doc, [])
+    html = (tmp_path / "refit" / "report.html").read_text()
+    assert "weights refitted with it (their change" in html and "0.25 sd" in html
     doc["gaussian_process"] = {**gp, "used": False, "reason": "not supported by the data"}
     doc["registration"]["poses"] = "unknown"
     write_case_report(tmp_path, doc, [])
