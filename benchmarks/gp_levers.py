@@ -22,8 +22,10 @@ seed, world vertex RMS over the case's model floor:
     centred``.
 ``refit``
     the package's ``gp_ssm = "refit"`` (no patch): the SSM's weights refined with the
-    kernel's, their prior centred at their fit with its scale chosen from the data like the
-    amplitude.
+    kernel's, their prior centred at their fit, charged for moving the vertices no outline
+    sees, its scale chosen from the data like the amplitude.
+``refit, no charge``
+    the same without the charge for unseen vertices (``gp_stage.UNSEEN_FIRMNESS`` = 0).
 ``oracle``
     ``benchmarks/gp_oracle.py``'s oracle on the pipeline's own data (``oracle gp, annotated``:
     exact correspondences, the annotated positions), the SSM's and the kernel's weights
@@ -36,7 +38,7 @@ seed, world vertex RMS over the case's model floor:
 
 With ``--real`` it also registers the real wrist cases of ``benchmarks/real_wrist.py``
 (conditions ``outlines`` and the one-sided ones) with the kernel's own modes and with
-``joint, centred``, ``joint, centred x4`` and ``refit``, to compare with
+``joint, centred``, ``joint, centred x4``, ``refit`` and ``refit, no charge``, to compare with
 ``benchmarks/results/real_wrist.json`` (the default stage).
 
 Usage::
@@ -74,6 +76,7 @@ from biplanar_reg.ssm.gaussian_process import (  # noqa: E402
 RESULTS = HERE / "results"
 DEFAULT_UNIT_MODES = G._unit_modes
 DEFAULT_STAGE = REG.gp_stage
+DEFAULT_FIRMNESS = G.UNSEEN_FIRMNESS
 
 
 def own_unit_modes(model, kernel: str, width_mm: float) -> np.ndarray:
@@ -169,9 +172,12 @@ def _variant(
     centred: bool = False,
     firm: bool = False,
     refit: bool = False,
+    no_charge: bool = False,
 ) -> None:
     """Patch this process's stage (and empty its cache of kernel modes)."""
     G._unit_modes = own_unit_modes if own_modes else DEFAULT_UNIT_MODES
+    G.UNSEEN_FIRMNESS = 0.0 if no_charge else DEFAULT_FIRMNESS
+    refit = refit or no_charge
     stage = refit_stage if refit else firm_centred_stage if firm else None
     stage = stage or (centred_stage if centred else None)
     REG.gp_stage = stage or (joint_stage if joint else DEFAULT_STAGE)
@@ -200,6 +206,7 @@ def row(case) -> dict[str, float]:
         ("joint, centred", {"centred": True}),
         ("joint, centred x4", {"firm": True}),
         ("refit", {"refit": True}),
+        ("refit, no charge", {"no_charge": True}),
     ):
         _variant(**kw)
         out[name] = _rms(register_views(m, case.views).vertices, T) / fl
@@ -222,7 +229,7 @@ def row(case) -> dict[str, float]:
 
 def real_cases() -> dict[str, dict[str, dict]]:
     """The real wrist cases (``outlines`` and one side traced) per variant: the kernel's own
-    modes, ``joint, centred``, ``joint, centred x4`` and ``refit``."""
+    modes, ``joint, centred``, ``joint, centred x4``, ``refit`` and ``refit, no charge``."""
     import real_wrist
 
     out = {}
@@ -231,6 +238,7 @@ def real_cases() -> dict[str, dict[str, dict]]:
         ("joint, centred", {"centred": True}),
         ("joint, centred x4", {"firm": True}),
         ("refit", {"refit": True}),
+        ("refit, no charge", {"no_charge": True}),
     )
     for name, kw in variants:
         _variant(**kw)

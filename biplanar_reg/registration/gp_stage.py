@@ -19,10 +19,15 @@ amplitude are re-estimated in turn until the amplitude settles (at most ``gp_rou
 refinements). When the data do not support the kernel (``A`` falls below
 :data:`MIN_AMPLITUDE_MM`) the stage returns the SSM's fit unchanged and says so.
 
-The SSM's weights stay those of its fit. Refined jointly with the kernel's, they were measured
-to slide: the kernel took over the fit where the radiographs see the bone, which freed an SSM
-mode to reshape what they do not (the realistic benchmark's seed 10: the far 20 % of the bone
-went from 0.5 to 2.6 mm off while the rest improved). The kernel's own displacement decays
+By default (``gp_ssm = "held"``) the SSM's weights stay those of its fit. Refined jointly
+with the kernel's, they were measured to slide: the kernel took over the fit where the
+radiographs see the bone, which freed an SSM mode to reshape what they do not (the realistic
+benchmark's seed 10: the far 20 % of the bone went from 0.5 to 2.6 mm off while the rest
+improved). ``gp_ssm = "refit"`` refines them all the same, their change ``dw`` from the fit
+under the prior ``lambda dw^T (I + mu U) dw / b^2`` (:func:`change_basis`: centred at the
+fit, and charging the change for moving the vertices no annotated outline sees), with its
+scale ``b`` chosen by the same fixed point as ``A``, each block's ``gamma`` computed alike.
+The kernel's own displacement decays
 within about its width from the annotated outlines and landmarks, so it changes the bone only
 where the images show it. An annotated point is matched across the model's outline
 (:mod:`.outline_fit`), so a kernel could also slide points along it; only the landmarks, which
@@ -61,6 +66,15 @@ AMPLITUDE_TOL = 0.1
 #: ``gp_ssm = "refit"``: the least scale of the SSM weights' change (SSM sds); below it the
 #: change is as good as held, and the scale stays positive for the rescaling of the weights.
 MIN_SSM_SCALE = 1e-3
+#: ``gp_ssm = "refit"``: a vertex is seen when it projects within this many pixels of an
+#: annotated outline point in some view (at the SSM's fit).
+SEEN_PX = 15.0
+#: ``gp_ssm = "refit"``: how much more the prior charges the SSM weights' change for moving the
+#: vertices no outline sees than the SSM's own prior does (:func:`change_basis`). Measured
+#: (``benchmarks/gp_levers.py --real``, columns ``refit`` and ``refit, no charge``): without
+#: it two realistic seeds and four of the 40 real registrations ended more than 10 % worse
+#: than with the weights held; with it one real registration (docs/registration.md).
+UNSEEN_FIRMNESS = 30.0
 
 
 @dataclass(frozen=True)
@@ -136,13 +150,14 @@ def _stage_model(
     basis: KernelBasis,
     amplitude: float,
     ssm_scale: float | None = None,
+    change: np.ndarray | None = None,
 ) -> ShapeModel:
     """The model the stage refines: the SSM's fit as the mean, the kernel's modes at
     ``amplitude`` as the modes (``gp_ssm = "held"``, ``ssm_scale`` None: the pose and the
-    kernel's weights only), preceded with ``gp_ssm = "refit"`` by the SSM's modes times
-    ``ssm_scale`` (the change of the SSM's weights from their fit, in units of
-    ``ssm_scale``)."""
-    parts = ([] if ssm_scale is None else [ssm_scale * base.modes]) + [amplitude * basis.modes]
+    kernel's weights only), preceded with ``gp_ssm = "refit"`` by the change modes ``change``
+    (:func:`change_basis`) times ``ssm_scale``."""
+    parts = [] if ssm_scale is None else [ssm_scale * change]
+    parts.append(amplitude * basis.modes)
     return ShapeModel(
         base.instance(weights),
         np.concatenate(parts),
@@ -150,6 +165,36 @@ def _stage_model(
         landmarks=base.landmarks,
         truncation_modes=base.truncation_modes,
     )
+
+
+def seen_vertices(problem: Problem, vertices: np.ndarray) -> np.ndarray:
+    """(N,) bool: the vertices (world frame, mm) that project within :data:`SEEN_PX` of an
+    annotated outline point in some view."""
+    from scipy.spatial import cKDTree  # only here: a registration leaves scipy unloaded
+
+    seen = np.zeros(len(vertices), bool)
+    for i, target in problem.targets.items():
+        uv = problem.views[i].view.project(vertices)
+        distance, _ = cKDTree(target.points).query(uv)
+        seen |= distance < SEEN_PX
+    return seen
+
+
+def change_basis(model: ShapeModel, seen: np.ndarray) -> np.ndarray:
+    """(M, M) ``S``: with ``gp_ssm = "refit"`` the SSM weights' change is ``dw = S z``, ``z``
+    under the SSM's prior ``N(0, 1 / lambda)``, so that the change's prior is
+    ``lambda dw^T (I + mu U) dw``: ``U`` the mean squared displacement per weight of the
+    vertices not ``seen`` over that of all vertices (trace / M), ``mu`` =
+    :data:`UNSEEN_FIRMNESS`. Why: freed, the SSM's modes otherwise reshape what no
+    radiograph shows to fit what they do (docs/registration.md)."""
+    M = model.n_modes
+    P = model.modes.reshape(M, -1)
+    unseen = model.modes[:, ~seen].reshape(M, -1)
+    if unseen.shape[1] == 0:
+        return np.eye(M)
+    U = (unseen @ unseen.T / np.count_nonzero(~seen)) / (np.trace(P @ P.T) / model.n_vertices / M)
+    values, vectors = np.linalg.eigh(np.eye(M) + UNSEEN_FIRMNESS * U)
+    return vectors @ np.diag(values**-0.5) @ vectors.T
 
 
 def evidence_terms(
@@ -263,10 +308,12 @@ def gp_stage(
     # from their fit comes first, its prior's scale b (SSM sds) chosen like the amplitude
     b = 1.0 if opts.gp_ssm == "refit" and start is None else None
     n_b = 0 if b is None else base.n_modes
+    S = None if b is None else change_basis(base, seen_vertices(problem, res.vertices))
+    change = None if S is None else np.tensordot(S.T, base.modes, axes=1)
     x = np.concatenate([np.zeros(n_b), u])
     outcome = GpOutcome(False, basis.width_mm, a, n_k, 0.0, 0, "no rounds", basis.kernel, b)
     for done in range(1, (opts.gp_rounds if rounds is None else rounds) + 1):
-        prob = replace(prob, model=_stage_model(base, w0, basis, a, b))
+        prob = replace(prob, model=_stage_model(base, w0, basis, a, b, change))
         res = with_pose(res, res.rotation, res.translation, x, res.vertices)
         rec = Recorder(prob, records, iterates, res.certificate, "gp")
         res, _ = refine_once(prob, res, prob.outlines(res), weights, rec)
@@ -297,7 +344,7 @@ def gp_stage(
     # the whole model (the SSM's modes, then the kernel's at the amplitude of the fit) for
     # what follows: the flags, the uncertainty (which includes the kernel's modes)
     prob = replace(prob, model=_augmented(base, basis, outcome.amplitude_mm))
-    dw = outcome.ssm_scale * res.weights[:n_b] if n_b else 0.0
+    dw = outcome.ssm_scale * S @ res.weights[:n_b] if n_b else 0.0
     w = np.concatenate([w0 + dw, res.weights[n_b:]])
     res = with_pose(res, res.rotation, res.translation, w, res.vertices)
     refined = Refined(

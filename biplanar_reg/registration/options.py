@@ -232,10 +232,10 @@ class RegistrationOptions:
     gp_ssm : str
         What the Gaussian-process stage does with the SSM's weights: ``"held"`` (default) keeps
         them at their fit; ``"refit"`` refines them with the kernel's, under a prior centred
-        at their fit whose scale is chosen from the data like the kernel's amplitude
-        (:mod:`.gp_stage`). Measured better on out-of-span synthetic cases and neutral on real
-        radiographs with a template other than the patient's own bone, worse with the
-        patient's own CT as the template (docs/registration.md).
+        at their fit that also charges the change for moving the vertices no outline sees,
+        its scale chosen from the data like the kernel's amplitude (:mod:`.gp_stage`).
+        Measured better on out-of-span synthetic cases and about neutral on the real
+        radiographs (docs/registration.md).
     """
 
     landmark_weight: float = 0.5

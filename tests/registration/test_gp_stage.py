@@ -107,9 +107,9 @@ def test_a_case_with_an_augmented_model_keeps_its_kernel(tmp_path):
 
 def test_refitting_the_ssm_weights_fits_an_out_of_span_case_better(scene):
     """``gp_ssm = "refit"`` on seed 6 of the small realistic scene (traced partial outlines,
-    3 landmarks per view, the truth out of the 4-mode model's span): measured 1.38 -> 0.84 mm
-    vertex RMS against the stage that holds the SSM's weights; the result's weights and
-    displacement still give its vertices."""
+    3 landmarks per view, the truth out of the 4-mode model's span): measured 1.38 -> 1.12 mm
+    vertex RMS against the stage that holds the SSM's weights (seeds 0-9: never worse); the
+    result's weights and displacement still give its vertices."""
     from biplanar_reg.simulate.realistic import make_realistic_case
 
     case = make_realistic_case(6, n_landmarks_per_view=3, scene=scene)
@@ -122,9 +122,30 @@ def test_refitting_the_ssm_weights_fits_an_out_of_span_case_better(scene):
     np.testing.assert_allclose(
         shape @ refit.rotation.T + refit.translation, refit.vertices, atol=1e-9
     )
-    assert _rms(refit.vertices, case.truth_vertices) < 0.75 * _rms(
+    assert _rms(refit.vertices, case.truth_vertices) < 0.9 * _rms(
         held.vertices, case.truth_vertices
     )
+
+
+def test_the_refit_charges_the_change_for_moving_what_no_outline_sees():
+    """``change_basis``: ``dw = S z`` with ``z`` under the SSM's prior makes the change's prior
+    ``dw^T (I + mu A) dw``; a mode that moves only unseen vertices is shrunk, one that moves
+    only seen ones is not, and with every vertex seen nothing changes."""
+    from biplanar_reg.registration.gp_stage import UNSEEN_FIRMNESS, change_basis
+
+    modes = np.zeros((2, 4, 3))
+    modes[0, 0] = [1.0, 0.0, 0.0]  # moves a seen vertex
+    modes[1, 3] = [0.0, 2.0, 0.0]  # moves the unseen one
+    model = ShapeModel(np.zeros((4, 3)), modes)
+    seen = np.array([True, True, True, False])
+    S = change_basis(model, seen)
+    P = modes.reshape(2, -1)
+    A = (modes[:, ~seen].reshape(2, -1) @ modes[:, ~seen].reshape(2, -1).T) / (
+        np.trace(P @ P.T) / 4 / 2
+    )
+    np.testing.assert_allclose(S.T @ (np.eye(2) + UNSEEN_FIRMNESS * A) @ S, np.eye(2), atol=1e-12)
+    assert S[0, 0] == pytest.approx(1.0) and S[1, 1] < 0.2 and abs(S[0, 1]) < 1e-12
+    np.testing.assert_allclose(change_basis(model, np.ones(4, bool)), np.eye(2), atol=1e-12)
 
 
 def test_gp_ssm_takes_held_or_refit():
