@@ -306,7 +306,7 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=8)
-    ap.add_argument("--real", action="store_true", help="also the real wrist cases (~30 min)")
+    ap.add_argument("--real", action="store_true", help="also the real wrist cases (~35 min)")
     ap.add_argument("--out", type=Path, default=RESULTS / "gp_levers.md")
     args = ap.parse_args()
     t0 = time.perf_counter()

@@ -108,8 +108,8 @@ def test_a_case_with_an_augmented_model_keeps_its_kernel(tmp_path):
 def test_refitting_the_ssm_weights_fits_an_out_of_span_case_better(scene):
     """``gp_ssm = "refit"`` on seed 6 of the small realistic scene (traced partial outlines,
     3 landmarks per view, the truth out of the 4-mode model's span): measured 1.38 -> 1.12 mm
-    vertex RMS against the stage that holds the SSM's weights (seeds 0-9: never worse); the
-    result's weights and displacement still give its vertices."""
+    vertex RMS against the stage that holds the SSM's weights; the result's weights and
+    displacement still give its vertices."""
     from biplanar_reg.simulate.realistic import make_realistic_case
 
     case = make_realistic_case(6, n_landmarks_per_view=3, scene=scene)
