@@ -149,14 +149,13 @@ def _stage_model(
     weights: np.ndarray,
     basis: KernelBasis,
     amplitude: float,
-    ssm_scale: float | None = None,
-    change: np.ndarray | None = None,
+    ssm_change: np.ndarray | None = None,
 ) -> ShapeModel:
     """The model the stage refines: the SSM's fit as the mean, the kernel's modes at
-    ``amplitude`` as the modes (``gp_ssm = "held"``, ``ssm_scale`` None: the pose and the
-    kernel's weights only), preceded with ``gp_ssm = "refit"`` by the change modes ``change``
-    (:func:`change_basis`) times ``ssm_scale``."""
-    parts = [] if ssm_scale is None else [ssm_scale * change]
+    ``amplitude`` as the modes (``gp_ssm = "held"``: the pose and the kernel's weights only),
+    preceded with ``gp_ssm = "refit"`` by ``ssm_change``, the modes of the SSM weights' change
+    (:func:`change_basis`, at its scale)."""
+    parts = [] if ssm_change is None else [ssm_change]
     parts.append(amplitude * basis.modes)
     return ShapeModel(
         base.instance(weights),
@@ -313,7 +312,8 @@ def gp_stage(
     x = np.concatenate([np.zeros(n_b), u])
     outcome = GpOutcome(False, basis.width_mm, a, n_k, 0.0, 0, "no rounds", basis.kernel, b)
     for done in range(1, (opts.gp_rounds if rounds is None else rounds) + 1):
-        prob = replace(prob, model=_stage_model(base, w0, basis, a, b, change))
+        ssm_change = None if b is None else b * change
+        prob = replace(prob, model=_stage_model(base, w0, basis, a, ssm_change))
         res = with_pose(res, res.rotation, res.translation, x, res.vertices)
         rec = Recorder(prob, records, iterates, res.certificate, "gp")
         res, _ = refine_once(prob, res, prob.outlines(res), weights, rec)
@@ -335,9 +335,10 @@ def gp_stage(
             return problem, final, replace(outcome, used=False, reason=reason)
         settled = abs(a_new / a - 1.0) < AMPLITUDE_TOL
         settled = settled and (b is None or abs(b_new / b - 1.0) < AMPLITUDE_TOL)
-        # the same displacement at the new scales
-        x = res.weights * np.concatenate([np.full(n_b, (b or 1.0) / (b_new or 1.0)),
-                                          np.full(n_k, a / a_new)])  # fmt: skip
+        x = res.weights.copy()  # the same displacement at the new scales
+        x[n_b:] *= a / a_new
+        if n_b:
+            x[:n_b] *= b / b_new
         a, b = a_new, b_new
         if settled:
             break
