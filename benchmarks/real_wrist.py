@@ -2,6 +2,11 @@
 
     python benchmarks/real_wrist.py [--out benchmarks/results/real_wrist.md] [--only radius_a]
         [--conditions outlines,cam01-side0] [--from-json RUN.json ...]
+        [--option "prior_weight = 4.0" ...] [--against benchmarks/results/real_wrist.json]
+
+``--option``: a registration option (``[registration]`` or ``[registration.expert]`` key)
+set for every case, after the condition's own; ``--against``: a saved run to compare with,
+case by case (a table appended to the output).
 
 The cases (``benchmarks/real_wrist/``; ``build.py`` for the models, ``annotate.py`` and
 ``sessions/`` for the annotations): the distal radius and ulna of one subject in two real
@@ -59,15 +64,22 @@ OPTIONS = {"ssm": 'gp = "off"', "refine": 'poses = "refine"'}
 
 
 def with_option(toml: str, line: str) -> str:
-    """``case.toml``'s text with the ``[registration]`` entry ``line`` (``key = value``):
-    replacing the key's line where the case file has it, else added to the table."""
+    """``case.toml``'s text with the registration option ``line`` (``key = value``):
+    replacing the key's line where the case file has it, else added to its table
+    (``[registration]``, or ``[registration.expert]`` for an expert key)."""
+    from biplanar_reg.cases.registration_table import EXPERT_KEYS
+
     key = line.split("=", 1)[0].strip()
     lines = toml.splitlines(keepends=True)
     for i, old in enumerate(lines):
         if old.split("=", 1)[0].strip() == key and "=" in old:
             lines[i] = line + "\n"
             return "".join(lines)
-    return toml.replace("[registration]\n", f"[registration]\n{line}\n")
+    if key not in EXPERT_KEYS:
+        return toml.replace("[registration]\n", f"[registration]\n{line}\n")
+    if "[registration.expert]\n" in toml:
+        return toml.replace("[registration.expert]\n", f"[registration.expert]\n{line}\n")
+    return toml.replace("[ground_truth]\n", f"[registration.expert]\n{line}\n\n[ground_truth]\n")
 
 
 def variant(ann: dict, condition: str) -> dict:
@@ -121,7 +133,11 @@ def run_one(folder: Path) -> dict:
     return out
 
 
-def run_all(only: list[str] | None, conditions: list[str] = CONDITIONS) -> dict:
+def run_all(
+    only: list[str] | None, conditions: list[str] = CONDITIONS, options: tuple[str, ...] = ()
+) -> dict:
+    """Register every case in ``conditions`` (``only`` those annotation files), each with the
+    condition's option and then every line of ``options`` (``key = value``)."""
     results: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for ann_path in sorted(build.ANNOTATIONS.glob("*.json")):
@@ -134,9 +150,10 @@ def run_all(only: list[str] | None, conditions: list[str] = CONDITIONS) -> dict:
                     folder = Path(tmp) / f"{bone}_{template}_{annotator}_{cond}"
                     build.write_case(folder, bone, template, ann_path)
                     (folder / "annotations.json").write_text(json.dumps(variant(ann, cond)))
-                    if cond in OPTIONS:
-                        toml = (folder / "case.toml").read_text()
-                        (folder / "case.toml").write_text(with_option(toml, OPTIONS[cond]))
+                    toml = (folder / "case.toml").read_text()
+                    for line in ([OPTIONS[cond]] if cond in OPTIONS else []) + list(options):
+                        toml = with_option(toml, line)
+                    (folder / "case.toml").write_text(toml)
                     key = f"{bone}/{annotator}/{template}/{cond}"
                     results[key] = run_one(folder)
                     shutil.rmtree(folder)
@@ -249,6 +266,14 @@ def render(results: dict, command: str, seconds: float) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _refused_or_not_run(results: dict, case: str, value: float | None) -> str:
+    """``value`` of ``case``'s (``bone/annotator``) deformed ``landmarks`` condition, or
+    whether it was refused or not run."""
+    if value is not None:
+        return f"{value:.2f}"
+    return "refused" if f"{case}/deformed/landmarks" in results else "not run"
+
+
 def _v(results, bone, ann, tpl, cond):
     r = results.get(f"{bone}/{ann}/{tpl}/{cond}", {})
     return r.get("vertex_rms_mm")
@@ -308,7 +333,7 @@ def targets(results: dict) -> list[str]:
             ratios.append((f"{b}/{a}", o, lmk))
     out.append("* deformed template, outlines against landmarks only (target: outlines <= "
                "1.10 x landmarks only): " + ", ".join(
-                   f"{k} {o:.2f} vs " + ("refused" if lm is None else f"{lm:.2f}")
+                   f"{k} {o:.2f} vs " + (_refused_or_not_run(results, k, lm))
                    for k, o, lm in ratios))  # fmt: skip
     out += _tracing_lines(results, cases)
     sig = []
@@ -337,6 +362,43 @@ def merged_runs(paths: list[Path]) -> tuple[dict, float]:
     return {k: v for d in docs for k, v in d["results"].items()}, sum(d["seconds"] for d in docs)
 
 
+def against_lines(results: dict, other: dict, path: Path) -> list[str]:
+    """This run against ``other`` (a saved run) on the cases both have: per template and
+    group of conditions, the median aligned vertex RMS and ROI surface RMS of each, the cases
+    more than 10 % worse / better (vertex RMS) and the largest vertex RMS."""
+    keys = sorted(k for k in results if "vertex_rms_mm" in results[k] and
+                  "vertex_rms_mm" in other.get(k, {}))  # fmt: skip
+    groups = {"annotations as saved": lambda c: c == "outlines",
+              "one border in one view": lambda c: "-side" in c,
+              "all of these": lambda c: True}  # fmt: skip
+    lines = [
+        "",
+        f"## Against `{path}`",
+        "",
+        "Aligned vertex RMS and ROI surface RMS (mm), median over the cases both runs have; "
+        "worse / better: cases more than 10 % worse / better in vertex RMS than the other run.",
+        "",
+        "| template | conditions | cases | vertex RMS, other -> this | ROI surface RMS, other "
+        "-> this | worse / better | largest vertex RMS, other -> this |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for tpl in build.TEMPLATES:
+        for name, keep in groups.items():
+            ks = [k for k in keys if k.split("/")[2] == tpl and keep(k.split("/")[3])]
+            if not ks:
+                continue
+            a = np.array([other[k]["vertex_rms_mm"] for k in ks])
+            b = np.array([results[k]["vertex_rms_mm"] for k in ks])
+            ra = np.median([other[k]["roi_surface_rms_mm"] for k in ks])
+            rb = np.median([results[k]["roi_surface_rms_mm"] for k in ks])
+            lines.append(
+                f"| {tpl} | {name} | {len(ks)} | {np.median(a):.2f} -> {np.median(b):.2f} | "
+                f"{ra:.2f} -> {rb:.2f} | {int((b > 1.1 * a).sum())} / "
+                f"{int((b < a / 1.1).sum())} | {a.max():.2f} -> {b.max():.2f} |"
+            )
+    return [*lines, ""]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=HERE / "results" / "real_wrist.md")
@@ -345,10 +407,17 @@ def main() -> None:
                     "outlines,cam01-side0")  # fmt: skip
     ap.add_argument("--from-json", type=Path, action="append",
                     help="render saved results (repeat to merge runs)")  # fmt: skip
+    ap.add_argument("--option", action="append", default=[],
+                    help='a registration option for every case, e.g. "prior_weight = 4.0" '
+                    "(repeatable)")  # fmt: skip
+    ap.add_argument("--against", type=Path,
+                    help="a saved run (.json) to compare with, case by case")  # fmt: skip
     args = ap.parse_args()
     command = "python benchmarks/real_wrist.py" + "".join(
         f" --{k} {v}" for k, v in (("only", args.only), ("conditions", args.conditions)) if v
     )
+    command += "".join(f' --option "{o}"' for o in args.option)
+    command += f" --against {args.against}" if args.against else ""
     t0 = time.perf_counter()
     if args.from_json:
         results, seconds = merged_runs(args.from_json)
@@ -357,12 +426,16 @@ def main() -> None:
         unknown = sorted(set(conditions) - set(CONDITIONS))
         if unknown:
             ap.error(f"--conditions: unknown {', '.join(unknown)} (known: {', '.join(CONDITIONS)})")
-        results = run_all(args.only.split(",") if args.only else None, conditions)
+        only = args.only.split(",") if args.only else None
+        results = run_all(only, conditions, tuple(args.option))
         seconds = time.perf_counter() - t0
         args.out.with_suffix(".json").write_text(
             json.dumps({"results": results, "seconds": seconds}, indent=1)
         )
-    args.out.write_text(render(results, command, seconds))
+    text = render(results, command, seconds)
+    if args.against:
+        text += "\n".join(against_lines(results, merged_runs([args.against])[0], args.against))
+    args.out.write_text(text)
     print(f"wrote {args.out}")
 
 
