@@ -53,6 +53,13 @@ blunder caught, view rotations more than 45 deg from the truth ("flipped", relat
 first view) and the largest view rotation error, refusals (``ValueError`` from
 ``register_views``, e.g. too few landmarks for ``refine``/``unknown``), CPU seconds.
 
+Below it, what the field reports: the point-to-surface distance (mean, RMS, 95th percentile)
+in the region of interest (the surface without the CT crop's cut and a 5 mm band, as
+``result.json``'s ``roi_*`` metrics), in the world frame and after the best rigid and
+similarity alignments, each seed's RMS also over its model floor's measured the same way, and
+the floor's and the mean shape's own (:func:`roi_surface`; measured by this tree from the
+vertices each tree's worker saves, so a base checkout is measured alike).
+
 Each tree runs in its own subprocess (``PYTHONPATH`` = the tree, one BLAS thread) on the same
 cases, generated once by this tree and passed as plain arrays (the model with its truncation
 modes), so a checkout without
@@ -205,6 +212,7 @@ def _keep_landmarks(case, kept: tuple[tuple[int, ...], ...] | None):
 def make_bundle(folder: Path, seeds: list[int], conditions: list[str]) -> int:
     """Write ``model.npz`` and ``jobs.json`` (every seed x condition) into ``folder``; returns
     the number of jobs."""
+    from biplanar_reg.cases import cut_region
     from biplanar_reg.simulate.realistic import make_realistic_case, model_floor, wrist_scene
     from biplanar_reg.ssm import ShapeModel
 
@@ -218,6 +226,8 @@ def make_bundle(folder: Path, seeds: list[int], conditions: list[str]) -> int:
         truncation_modes=m.truncation_modes,
     )
     mean_only = ShapeModel(m.mean, np.zeros((0, m.n_vertices, 3)))
+    roi = cut_region(m.mean, m.faces)
+    np.save(folder / "roi.npy", roi)
     jobs = []
     for seed in seeds:
         b_px, deg, mm = seed_draws(seed)
@@ -232,11 +242,46 @@ def make_bundle(folder: Path, seeds: list[int], conditions: list[str]) -> int:
                 scene=scene,
             )
             case = _keep_landmarks(case, KEPT.get(cond))
-            mean_fit = model_floor(mean_only, case.truth_vertices)[0]
+            mean_fit, mean_shape = model_floor(mean_only, case.truth_vertices)
             jobs.append(job_doc(case, seed, cond, mean_fit))
+            truth = case.truth_vertices
+            jobs[-1]["floor_roi"] = roi_surface(model_floor(m, truth)[1], m.faces, truth, roi)
+            jobs[-1]["mean_roi"] = roi_surface(mean_shape, m.faces, truth, roi)
         print(f"case {seed}: floor {case.floor_mm:.3f} mm ({time.perf_counter() - t0:.1f} s)")
     (folder / "jobs.json").write_text(json.dumps(jobs))
     return len(jobs)
+
+
+def roi_surface(vertices: np.ndarray, faces: np.ndarray, truth: np.ndarray, roi) -> dict:
+    """Point-to-surface distance (mm) between ``vertices`` and ``truth`` (same frame, the
+    model's ``faces``) in the region of interest ``roi`` (a vertex mask: the surface without
+    the CT crop's cut and a 5 mm band, :func:`biplanar_reg.cases.cut_region`, as
+    ``result.json``'s ``roi_*`` metrics): mean, RMS and 95th percentile, symmetric, as
+    :func:`biplanar_reg.cases.metrics.surface_metrics` measures them."""
+    from biplanar_reg.cases.metrics import surface_metrics
+
+    m = surface_metrics(vertices, faces, truth, faces, region=roi)[0]
+    return {k: float(m[f"roi_surface_{k}_mm"]) for k in ("mean", "rms", "p95")}
+
+
+def add_roi_metrics(bundle: Path, run: dict) -> None:
+    """Add ``roi_world``, ``roi_aligned`` and ``roi_similarity`` (:func:`roi_surface` in the
+    world frame, after the best rigid and similarity alignment of the result onto the truth,
+    vertex to vertex, as the vertex RMS is aligned) to every registered result
+    of ``run``, from the vertices its worker saved (measured by this tree, whatever the
+    tree registered)."""
+    z = np.load(bundle / "model.npz")
+    faces, roi = z["faces"], np.load(bundle / "roi.npy")
+    arrays = np.load(Path(run.pop("vertices")))
+    for r in run["results"]:
+        key = f"{r['condition']}/{r['seed']}"
+        if r["status"] != "ok" or f"{key}/result" not in arrays:
+            continue
+        res, truth = arrays[f"{key}/result"], arrays[f"{key}/truth"]
+        aligned = _pose_type().fit_rigid(res, truth).apply(res)
+        r["roi_world"] = roi_surface(res, faces, truth, roi)
+        r["roi_aligned"] = roi_surface(aligned, faces, truth, roi)
+        r["roi_similarity"] = roi_surface(_similarity(res, truth)[0], faces, truth, roi)
 
 
 # -- worker (any tree: only long-standing public API) ---------------------------------------------
@@ -292,6 +337,7 @@ def _metrics(job: dict, res) -> dict:
     rejected = [tuple(r) for r in res.rejected]
     sim, scale = _similarity(res.vertices, truth_res)
     return {
+        "_arrays": (res.vertices, truth_res),  # saved beside the results, not in them
         "world_mm": _rms(res.vertices, truth_res),
         "aligned_mm": _rms(
             _pose_type().fit_rigid(res.vertices, truth_res).apply(res.vertices), truth_res
@@ -355,7 +401,7 @@ def run_worker(bundle: Path, out: Path) -> None:
     except TypeError:  # a checkout from before truncation modes
         model = ShapeModel(z["mean"], z["modes"], faces=z["faces"])
     jobs = json.loads((bundle / "jobs.json").read_text())
-    results = []
+    results, arrays = [], {}
     with threadpool_limits(1):
         for job in jobs:
             views = _observations(job)
@@ -365,6 +411,8 @@ def run_worker(bundle: Path, out: Path) -> None:
                 opts = RegistrationOptions(**job.get("options", {}))
                 res = register_views(model, views, poses=job["poses"], options=opts)
                 doc.update(_metrics(job, res), status="ok")
+                key = f"{job['condition']}/{job['seed']}"
+                arrays[f"{key}/result"], arrays[f"{key}/truth"] = doc.pop("_arrays")
             except ValueError as exc:
                 doc.update(status="refused", message=str(exc).splitlines()[0])
             except Exception as exc:  # noqa: BLE001 - a benchmark records failures, it goes on
@@ -376,7 +424,9 @@ def run_worker(bundle: Path, out: Path) -> None:
                 f"{doc.get('world_mm', float('nan')):.3f} mm, {doc['cpu_s']:.1f} s",
                 flush=True,
             )
-    out.write_text(json.dumps({"package": biplanar_reg.__file__, "results": results}))
+    np.savez(out.with_suffix(".npz"), **arrays)
+    doc = {"package": biplanar_reg.__file__, "results": results}
+    out.write_text(json.dumps(doc | {"vertices": str(out.with_suffix(".npz"))}))
 
 
 def run_tree(tree: Path, bundle: Path, out: Path) -> dict:
@@ -463,6 +513,61 @@ def table(jobs: list[dict], trees: dict[str, list[dict]], conditions: list[str])
             vals = [cell.get(k, cell.get("status", "")) for k, _ in COLUMNS]
             lines.append(f"| {cond} | {label} | " + " | ".join(vals) + " |")
     return lines
+
+
+def _roi_cell(rows: list[dict], key: str | None) -> str:
+    """Median over ``rows`` of their ``key`` (``roi_world``/``roi_aligned``; None: the rows
+    are the ROI dicts themselves) mean / RMS / p95."""
+    got = [r if key is None else r[key] for r in rows if key is None or r.get(key)]
+    if not got:
+        return "-"
+    return " / ".join(f"{np.median([g[k] for g in got]):.3f}" for k in ("mean", "rms", "p95"))
+
+
+def _roi_ratio(rows: list[dict], key: str, floor: dict) -> str:
+    """Median of each row's ``key`` RMS over its seed's model floor's ROI RMS."""
+    got = [
+        r[key]["rms"] / floor[r["seed"]]["rms"] for r in rows if r.get(key) and floor.get(r["seed"])
+    ]
+    return f"{np.median(got):.2f}" if got else "-"
+
+
+def roi_lines(jobs: list[dict], trees: dict[str, dict], conditions: list[str]) -> list[str]:
+    """The point-to-surface section: per condition and tree, and the baselines."""
+    floor = {j["seed"]: j.get("floor_roi") for j in jobs}
+    mean = [j["mean_roi"] for j in jobs if j["condition"] == "known-3" and j.get("mean_roi")]
+    if not any(floor.values()):
+        return []  # a record from before these metrics
+    fl = [f for s, f in floor.items() if f]
+    lines = [
+        "Point-to-surface distance in the region of interest (the surface without the CT "
+        "crop's cut and a 5 mm band, as `result.json`'s `roi_*` metrics; symmetric, mm): per "
+        "condition the median over the seeds of the mean / RMS / 95th percentile, in the world "
+        "frame (not for `unknown`, whose frame is the first camera's and whose size is free) "
+        "and after the best rigid and similarity alignment onto the truth (vertex to vertex, "
+        "as the vertex RMS); `/ floor`: the median of each "
+        "seed's RMS over its model floor's (the model's best fit of the truth, measured the "
+        f"same way). The model floor: {_roi_cell(fl, None)} mm; the mean shape's best rigid "
+        f"fit: {_roi_cell(mean, None)} mm (medians over the seeds).",
+        "",
+        "| condition | tree | world: mean / RMS / p95 | world RMS / floor | aligned: mean / RMS "
+        "/ p95 | aligned RMS / floor | similarity-aligned: mean / RMS / p95 | similarity RMS / "
+        "floor |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for cond in conditions:
+        for label, run in trees.items():
+            rows = [r for r in run["results"] if r["condition"] == cond and r["status"] == "ok"]
+            free = CONDITIONS[cond][0] == "unknown"
+            world = "-" if free else _roi_cell(rows, "roi_world")
+            wratio = "-" if free else _roi_ratio(rows, "roi_world", floor)
+            lines.append(
+                f"| {cond} | {label} | {world} | {wratio} | {_roi_cell(rows, 'roi_aligned')} | "
+                f"{_roi_ratio(rows, 'roi_aligned', floor)} | "
+                f"{_roi_cell(rows, 'roi_similarity')} | "
+                f"{_roi_ratio(rows, 'roi_similarity', floor)} |"
+            )
+    return [*lines, ""]
 
 
 def seed_lines(jobs: list[dict], results: list[dict], conditions: list[str]) -> list[str]:
@@ -554,6 +659,8 @@ def _command(args: argparse.Namespace) -> str:
 def _case_meta(job: dict) -> dict:
     keep = ("seed", "condition", "floor_mm", "mean_fit_mm", "blunder", "calibration_error")
     return {k: job[k] for k in keep} | {
+        "floor_roi": job.get("floor_roi"),  # absent from older runs' records
+        "mean_roi": job.get("mean_roi"),
         "mean_size_pct": job.get("mean_size_pct"),  # absent from older runs' records
         "overlap": job["overlap"],
         "outline_fraction": job["outline_fraction"],
@@ -594,6 +701,7 @@ def run_all(args: argparse.Namespace) -> dict:
         for label, path in trees.items():
             print(f"{label}: {path}")
             runs[label] = run_tree(path, bundle, bundle / f"{label}.json")
+            add_roi_metrics(bundle, runs[label])
     return {
         "command": _command(args),
         "machine": f"{platform.machine()}, {os.cpu_count()} cores shared with other jobs, "
@@ -736,6 +844,7 @@ def report(record: dict) -> str:
         "",
         *table(jobs, runs, conditions),
         "",
+        *roi_lines(jobs, runs, conditions),
         *messages(runs),
         "",
         *targets,
