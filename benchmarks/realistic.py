@@ -570,9 +570,16 @@ def roi_lines(jobs: list[dict], trees: dict[str, dict], conditions: list[str]) -
     return [*lines, ""]
 
 
-def seed_lines(jobs: list[dict], results: list[dict], conditions: list[str]) -> list[str]:
-    """Per seed and condition: world RMS / floor (``R`` refused, ``E`` error)."""
-    floor = {j["seed"]: j["floor_mm"] for j in jobs}
+def seed_lines(
+    jobs: list[dict], results: list[dict], conditions: list[str], key: str = "world_mm"
+) -> list[str]:
+    """Per seed and condition: world RMS / floor (``R`` refused, ``E`` error); with ``key``
+    ``"roi_world"`` the ROI surface RMS over the floor's (``-`` for ``unknown`` and for
+    records without it)."""
+    if key == "roi_world":
+        floor = {j["seed"]: (j.get("floor_roi") or {}).get("rms") for j in jobs}
+    else:
+        floor = {j["seed"]: j["floor_mm"] for j in jobs}
     by = {(r["condition"], r["seed"]): r for r in results}
     out = ["| seed | " + " | ".join(conditions) + " |", "|---|" + "---|" * len(conditions)]
     for seed in sorted(floor):
@@ -583,10 +590,27 @@ def seed_lines(jobs: list[dict], results: list[dict], conditions: list[str]) -> 
                 cells.append("")
             elif r["status"] != "ok":
                 cells.append("R" if r["status"] == "refused" else "E")
+            elif key == "roi_world":
+                got = r.get("roi_world")
+                free = CONDITIONS[c][0] == "unknown"
+                ok = got and floor[seed] and not free
+                cells.append(f"{got['rms'] / floor[seed]:.2f}" if ok else "-")
             else:
                 cells.append(f"{r['world_mm'] / floor[seed]:.2f}")
         out.append(f"| {seed} | " + " | ".join(cells) + " |")
     return out
+
+
+def _roi_seed_lines(jobs: list[dict], results: list[dict], conditions: list[str]) -> list[str]:
+    """The per-seed table of the ROI surface RMS over the floor's, when the record has it."""
+    if not any(j.get("floor_roi") for j in jobs):
+        return []
+    return [
+        "ROI surface RMS (world frame) / the floor's, per seed (`this` tree):",
+        "",
+        *seed_lines(jobs, results, conditions, key="roi_world"),
+        "",
+    ]
 
 
 def messages(runs: dict[str, dict]) -> list[str]:
@@ -852,6 +876,7 @@ def report(record: dict) -> str:
         "",
         *seed_lines(jobs, runs["this"]["results"], conditions),
         "",
+        *_roi_seed_lines(jobs, runs["this"]["results"], conditions),
         "Cases (the same in every condition):",
         "",
         *case_lines(jobs),
