@@ -416,7 +416,7 @@ def main() -> None:
     command = "python benchmarks/real_wrist.py" + "".join(
         f" --{k} {v}" for k, v in (("only", args.only), ("conditions", args.conditions)) if v
     )
-    command += "".join(f' --option "{o}"' for o in args.option)
+    command += "".join(f" --option '{o}'" if '"' in o else f' --option "{o}"' for o in args.option)
     command += f" --against {args.against}" if args.against else ""
     t0 = time.perf_counter()
     if args.from_json:
