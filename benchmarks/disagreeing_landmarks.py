@@ -49,7 +49,7 @@ def _register(scene, case, options: RegistrationOptions, check: bool):
 
 
 def _left_out(res) -> list[str]:
-    return [f.split(": ")[1].split(" by ")[0] for f in res.flags if "(left out of the fit)" in f]
+    return [f.split(": ")[1].split(" by ")[0] for f in res.flags if "(left out of the fit" in f]
 
 
 def run_case(scene, seed: int, n: int, blunder: float, options: RegistrationOptions) -> dict:

@@ -26,6 +26,7 @@ from .blunders import rejected_landmarks, robust_cost
 from .disagreement import checked_stage, disagreeing
 from .gp_stage import GpOutcome, gp_stage, kernel_basis, registration_model
 from .gsft import GsftResult
+from .implausible import refit_without_suspect
 from .multi_start import STARTS, best_of_starts
 from .noise import used_sigma
 from .observations import ViewObservations
@@ -355,6 +356,21 @@ def register_views(
             if not why:
                 return replace(warm, restart={**warm.restart, "fingerprint": fingerprint})
         say(f"cold start: {why}")
+    result = _register_cold(model, views, poses, opts, silhouettes, say, start_pose, t0)
+    if poses == "known" and opts.robust:  # (free views: as for the disagreement check)
+
+        def again(trimmed: list[ViewObservations]) -> RegistrationResult:
+            _check_views(model, trimmed, poses, silhouettes, start_pose)
+            return _register_cold(model, trimmed, poses, opts, silhouettes, say, start_pose, t0)
+
+        result = refit_without_suspect(result, views, again, say)
+    restart = {**result.restart, "fingerprint": fingerprint, "start": "cold", "reason": why}
+    return replace(result, restart=restart)
+
+
+def _register_cold(model, views, poses, opts, silhouettes, say, start_pose, t0: float):
+    """The registration from the landmarks (or ``start_pose``): the view poses (``"refine"``,
+    ``"unknown"``), the stages, the Gaussian-process stage (known poses) and the result."""
     pose_info: dict = {"mode": poses}
     posed = PosedViews(views, pose_info, [])
     if poses != "known":
@@ -368,9 +384,7 @@ def register_views(
         problem, final, outcome = checked_stage(_gp_stage(model, opts), problem, final)
     if poses == "refine":
         pose_info.update(corrections(views, problem.views))
-    result = _finish(model, problem, final, outcome, pose_info, t0)
-    restart = {**result.restart, "fingerprint": fingerprint, "start": "cold", "reason": why}
-    return replace(result, restart=restart)
+    return _finish(model, problem, final, outcome, pose_info, t0)
 
 
 def _register_warm(model, views, opts, silhouettes, say, previous: PreviousFit, t0: float):

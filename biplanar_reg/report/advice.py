@@ -34,9 +34,10 @@ FLAG_ADVICE: dict[str, str] = {
     ),
     "landmark disagrees with the outlines": (
         "This landmark's error stands far out from the others' (robust_threshold, 4, of their "
-        "robust sigmas). "
-        'With known view poses it was left out of the fit (weight 0; "left out of the fit"), '
-        "with estimated view poses it is still in it. Check that the click is on the "
+        "robust sigmas), or, with the shape implausible, the bone registered without it fitted "
+        'the outlines as well and kept a plausible shape ("the shape was implausible with '
+        'it"). With known view poses it was left out of the fit (weight 0; "left out of the '
+        'fit"), with estimated view poses it is still in it. Check that the click is on the '
         "landmark's anatomical point in that view and that the name is right (a point hidden "
         "by another bone is better deleted), then register again."
     ),
