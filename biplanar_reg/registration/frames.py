@@ -47,14 +47,13 @@ from ..ssm.gaussian_process import ssm_part
 from ..ssm.model import ShapeModel
 from .frames_uncertainty import frame_linearisations, frames_vertex_sd, shape_sd
 from .gsft import nearest_point_to_rays
-from .observations import ViewObservations, landmark_rays
+from .observations import ViewObservations, landmark_errors, landmark_rays
 from .options import RegistrationOptions
 from .outline_fit import OutlineTerm, refine_poses_on_outlines
 from .outline_match import mesh_topology, model_outline, outline_distances
 from .problem import Problem, make_problem
 from .quality import NEARLY_PARALLEL_DEG, view_separation
 from .rays import RayObservations
-from .register import landmark_errors
 from .stages import outline_terms
 from .unknown_poses import UnknownPoseView, solve_gsft_unknown_poses
 from .view_poses import JOINT_MAX_REJECTED

@@ -27,7 +27,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .observations import ViewObservations
+from .observations import ViewObservations, landmark_errors
 from .quality import DISAGREE_MIN_PX
 
 __all__: list[str] = []
@@ -131,10 +131,7 @@ def with_left_out(result, views: list[ViewObservations], which: tuple[str, str])
     """``result`` (registered without the landmark ``which``) with that landmark reported as
     left out: its error at this fit, weight 0, rejected, and the flags that say so."""
     view, name = which
-    obs = next(v for v in views if v.name == view)
-    i = list(obs.landmark_names).index(name)
-    uv = obs.view.project(result.vertices[[int(obs.landmark_ids[i])]])[0]
-    px = float(np.linalg.norm(uv - np.asarray(obs.landmark_uv[i], float)))
+    px = landmark_errors(views, result.vertices)[view][name]
     errors = {v: dict(d) for v, d in result.landmark_errors_px.items()}
     weights = {v: dict(d) for v, d in result.landmark_weights.items()}
     errors.setdefault(view, {})[name] = px

@@ -145,3 +145,18 @@ def landmark_rays(
         if np.any(sel):
             scale[sel] = mm_per_pixel(v.view, centre[None, :])[0]
     return RayObservations(ids, org, dirs, sig_px * scale, vi)
+
+
+def landmark_errors(
+    views: list[ViewObservations], vertices: np.ndarray
+) -> dict[str, dict[str, float]]:
+    """Reprojection error (px) of every landmark of every view for registered ``vertices``."""
+    out: dict[str, dict[str, float]] = {}
+    for v in views:
+        if len(v.landmark_ids) == 0:
+            out[v.name] = {}
+            continue
+        uv = v.view.project(vertices[v.landmark_ids])
+        err = np.linalg.norm(uv - v.landmark_uv, axis=1)
+        out[v.name] = {n: float(e) for n, e in zip(v.landmark_names, err, strict=True)}
+    return out

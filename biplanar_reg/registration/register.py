@@ -29,7 +29,7 @@ from .gsft import GsftResult
 from .implausible import refit_without_suspect
 from .multi_start import STARTS, best_of_starts
 from .noise import used_sigma
-from .observations import ViewObservations
+from .observations import ViewObservations, landmark_errors
 from .options import IterationRecord, RegistrationOptions
 from .outline_match import outline_distances
 from .previous import (
@@ -262,21 +262,6 @@ def _check_few_landmarks(views: list[ViewObservations], n_lm: int, n_out: int) -
         "the registration: give 4 observations of 3 different landmarks, or 2 observations "
         f"and outlines in 2 views (got outlines in {n_out}), or a start pose"
     )
-
-
-def landmark_errors(
-    views: list[ViewObservations], vertices: np.ndarray
-) -> dict[str, dict[str, float]]:
-    """Reprojection error (px) of every landmark of every view for registered ``vertices``."""
-    out: dict[str, dict[str, float]] = {}
-    for v in views:
-        if len(v.landmark_ids) == 0:
-            out[v.name] = {}
-            continue
-        uv = v.view.project(vertices[v.landmark_ids])
-        err = np.linalg.norm(uv - v.landmark_uv, axis=1)
-        out[v.name] = {n: float(e) for n, e in zip(v.landmark_names, err, strict=True)}
-    return out
 
 
 def register_views(
